@@ -1,0 +1,422 @@
+"""Scene builder: columns of regular minimal T3 prisms (paper Sec. 3 and 4).
+
+Layout (paper Fig. 2, 1-based labels in the paper, 0-based here):
+level ``l = 0..n_prisms`` holds nodes ``3l, 3l+1, 3l+2`` on a circle of radius ``a`` at
+height ``z = l*h0``; level 0 is clamped, level ``n_prisms`` is the free (impacted) end.
+Prism ``m`` joins level ``m`` (bottom, paper nodes 1-3) to level ``m+1`` (top, nodes 4-6):
+
+* bars ``1-4, 2-5, 3-6``: bottom ``k`` -> top ``k``;
+* cross cables ``1-6, 2-4, 3-5``: bottom ``k`` -> top ``(k+2) % 3`` (right-handed) or
+  ``(k+1) % 3`` (left-handed, the mirror image);
+* base members ``1-2, 2-3, 3-1`` per level, shared by the two prisms that meet there.
+
+A right-handed prism's top base is twisted clockwise (seen from +z, the free end) by the
+twist angle (5*pi/6, the prestressable configuration) with respect to its bottom base;
+nodes are numbered clockwise too, so the labels above match the paper's.
+
+Base rigidity ``beta`` in [0, 1] sets the base members (see :func:`base_member_law`):
+``beta = 0`` flexible bases (FB, tension-only cables as the other cables), ``beta = 1``
+rigid bases (RB, rigid links that also work in tension), and in between elastic members
+that stiffen continuously toward RB.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from .network import Network, NetworkError
+
+PAPER_CABLE_MODULUS = 5.48e6  # N m-2
+PAPER_CABLE_RADIUS = 0.14e-3  # m
+PAPER_RADIUS = 5.0e-3  # m
+PAPER_HEIGHT = 6.2e-3  # m
+PAPER_UNIT_MASS = 0.0249  # kg
+PAPER_N_PRISMS = 50
+MINIMAL_TWIST = 5.0 * np.pi / 6.0  # rad
+
+END_BASE_MASS = ("full", "half")
+IMPACT_ADMISSIBILITY = ("project", "end_twist")
+
+
+@dataclass(frozen=True)
+class ColumnConfig:
+    """The fixed scene: geometry, material, masses, boundary and impact conventions (SI units)."""
+
+    n_prisms: int = PAPER_N_PRISMS
+    """Number of stacked T3 prisms."""
+    handedness: str = "right"
+    """'right', 'left', 'alternating', or one letter R/L per prism (e.g. 'RRL...')."""
+    radius: float = PAPER_RADIUS
+    """Radius a of the circle through each base triangle's vertices [m]."""
+    height: float = PAPER_HEIGHT
+    """Reference prism height h0 [m]."""
+    twist: float = MINIMAL_TWIST
+    """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
+    cable_modulus: float = PAPER_CABLE_MODULUS
+    """Young modulus of the cables E_s [N m-2]."""
+    cable_radius: float = PAPER_CABLE_RADIUS
+    """Cable cross-section radius r_s [m]."""
+    unit_mass: float = PAPER_UNIT_MASS
+    """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
+    end_base_mass: str = "full"
+    """Mass on the free-end base: 'full' (= unit_mass, as every interior base) or 'half'."""
+    bar_mass: float = 0.0
+    """Mass of each bar [kg]; the paper's columns carry their mass on the bases (0)."""
+    impact_admissibility: str = "project"
+    """How the axial impact velocity is made compatible with the rigid bars:
+    'project' - the impulse view: the axial velocity -v0 on the free-end nodes is projected onto
+    the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
+    'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
+    (twisting) velocity that satisfies the bars; no other node moves."""
+
+    def __post_init__(self):
+        _check_positive("n_prisms", self.n_prisms, integer=True)
+        for name in ("radius", "height", "cable_modulus", "cable_radius", "unit_mass"):
+            _check_positive(name, getattr(self, name))
+        if not (np.isfinite(self.bar_mass) and self.bar_mass >= 0):
+            raise NetworkError(f"bar_mass = {self.bar_mass!r} kg must be finite and >= 0")
+        if not (np.pi / 3 < self.twist < np.pi):
+            raise NetworkError(f"twist = {self.twist!r} rad must lie in (pi/3, pi)")
+        if self.end_base_mass not in END_BASE_MASS:
+            raise NetworkError(f"end_base_mass = {self.end_base_mass!r}; choose one of {END_BASE_MASS}")
+        if self.impact_admissibility not in IMPACT_ADMISSIBILITY:
+            raise NetworkError(
+                f"impact_admissibility = {self.impact_admissibility!r}; choose one of {IMPACT_ADMISSIBILITY}"
+            )
+        self.prism_handedness()  # validates
+
+    @property
+    def cable_EA(self) -> float:
+        """E_s * pi * r_s^2 [N]."""
+        return self.cable_modulus * np.pi * self.cable_radius**2
+
+    def prism_handedness(self) -> np.ndarray:
+        """+1 (right) or -1 (left) per prism."""
+        h = self.handedness
+        n = self.n_prisms
+        if h == "right":
+            return np.ones(n, dtype=np.int64)
+        if h == "left":
+            return -np.ones(n, dtype=np.int64)
+        if h == "alternating":
+            return np.where(np.arange(n) % 2 == 0, 1, -1).astype(np.int64)
+        if isinstance(h, str) and len(h) == n and set(h.upper()) <= {"R", "L"}:
+            return np.array([1 if c == "R" else -1 for c in h.upper()], dtype=np.int64)
+        raise NetworkError(
+            f"handedness = {h!r}: use 'right', 'left', 'alternating' or {n} letters R/L"
+        )
+
+
+def _check_positive(name, value, integer=False):
+    ok = np.isfinite(value) and value > 0 and (not integer or float(value).is_integer())
+    if not ok:
+        kind = "a positive integer" if integer else "finite and > 0"
+        raise NetworkError(f"{name} = {value!r} must be {kind}")
+
+
+# ---------------------------------------------------------------------- topology
+@dataclass
+class ColumnTopology:
+    """Node positions and member lists of a column, shared by every column of a batch."""
+
+    config: ColumnConfig
+    positions: np.ndarray
+    """(n_nodes, 3) reference positions [m]."""
+    fixed: np.ndarray
+    """(n_nodes,) clamped nodes: level 0."""
+    level_nodes: np.ndarray
+    """(n_prisms+1, 3) node indices of each base, level 0 clamped."""
+    bars: np.ndarray
+    """(3 n_prisms, 2) the struts, prism by prism."""
+    cross: np.ndarray
+    """(3 n_prisms, 2) cross cables, prism by prism."""
+    base: np.ndarray
+    """(3 (n_prisms+1), 2) base members, level by level."""
+    base_level: np.ndarray
+    """(3 (n_prisms+1),) level of each base member."""
+    unit_bar_force: np.ndarray = field(repr=False)
+    """(3 n_prisms,) self-stress axial force of bars per unit cross-cable tension (negative: compression)."""
+    unit_base_force: np.ndarray = field(repr=False)
+    """(3 (n_prisms+1),) self-stress force of base members per unit cross-cable tension."""
+
+    @property
+    def n_nodes(self) -> int:
+        return self.positions.shape[0]
+
+
+def prism_self_stress(positions: np.ndarray, bars, cross, bottom, top) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Self-stress of one free prism (null vector of its equilibrium matrix), normalised so the
+    cross cables carry unit tension. Returns axial forces (bars, cross, bottom base, top base),
+    positive in tension."""
+    members = np.concatenate([bars, cross, bottom, top])
+    nodes = np.unique(members)
+    index = {int(n): r for r, n in enumerate(nodes)}
+    A = np.zeros((3 * len(nodes), len(members)))
+    for c, (i, j) in enumerate(members):
+        e = positions[j] - positions[i]
+        e = e / np.linalg.norm(e)
+        A[3 * index[int(i)] : 3 * index[int(i)] + 3, c] += e  # tension pulls i toward j
+        A[3 * index[int(j)] : 3 * index[int(j)] + 3, c] -= e
+    _, sv, vt = np.linalg.svd(A)
+    t = vt[-1]
+    if sv[-1] > 1e-9 * sv[0]:
+        raise NetworkError(
+            f"prism is not prestressable: smallest singular value {sv[-1]:.3e} of its equilibrium matrix "
+            f"(twist must be 5*pi/6 for a regular minimal prism)"
+        )
+    t = t / t[3:6].mean()
+    nb = len(bars)
+    return t[:nb], t[nb : 2 * nb], t[2 * nb : 3 * nb], t[3 * nb :]
+
+
+def column_topology(config: ColumnConfig) -> ColumnTopology:
+    n = config.n_prisms
+    hand = config.prism_handedness()
+    a, h0, phi = config.radius, config.height, config.twist
+    # clockwise numbering and clockwise twist for right-handed prisms (seen from +z)
+    angle = np.zeros((n + 1, 3))
+    angle[0] = -2.0 * np.pi * np.arange(3) / 3.0
+    for m in range(n):
+        angle[m + 1] = angle[m] - hand[m] * phi
+    z = np.arange(n + 1)[:, None] * h0 * np.ones((1, 3))
+    pos = np.stack([a * np.cos(angle), a * np.sin(angle), z], axis=-1).reshape(-1, 3)
+    level_nodes = np.arange(3 * (n + 1)).reshape(n + 1, 3)
+
+    bars, cross = [], []
+    for m in range(n):
+        for k in range(3):
+            bars.append((3 * m + k, 3 * (m + 1) + k))
+            kk = (k + 2) % 3 if hand[m] > 0 else (k + 1) % 3
+            cross.append((3 * m + k, 3 * (m + 1) + kk))
+    base, base_level = [], []
+    for lvl in range(n + 1):
+        for k in range(3):
+            base.append((3 * lvl + k, 3 * lvl + (k + 1) % 3))
+            base_level.append(lvl)
+    bars, cross, base = (np.array(x, dtype=np.int64) for x in (bars, cross, base))
+    base_level = np.array(base_level, dtype=np.int64)
+
+    unit_bar = np.zeros(3 * n)
+    unit_base = np.zeros(3 * (n + 1))
+    for m in range(n):
+        sb, sc, sbot, stop = prism_self_stress(
+            pos, bars[3 * m : 3 * m + 3], cross[3 * m : 3 * m + 3], base[3 * m : 3 * m + 3], base[3 * m + 3 : 3 * m + 6]
+        )
+        if np.any(np.abs(sc - 1) > 1e-9):
+            raise NetworkError(f"prism {m}: cross cables do not share one self-stress level: {sc}")
+        unit_bar[3 * m : 3 * m + 3] = sb
+        unit_base[3 * m : 3 * m + 3] += sbot  # superposition: interior bases carry both prisms' share
+        unit_base[3 * m + 3 : 3 * m + 6] += stop
+    if np.any(unit_bar >= 0) or np.any(unit_base <= 0):
+        raise NetworkError("self-stress has compressed cables or stretched bars; check twist/handedness")
+    fixed = np.zeros(3 * (n + 1), dtype=bool)
+    fixed[level_nodes[0]] = True
+    return ColumnTopology(config, pos, fixed, level_nodes, bars, cross, base, base_level, unit_bar, unit_base)
+
+
+# ---------------------------------------------------------------------- per-column laws
+def base_member_law(EA: np.ndarray, base_rigidity: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Axial law of the base members for base rigidity beta in [0, 1].
+
+    Returns (EA_tension, EA_compression, rigid): tension stiffness EA/(1-beta), compression
+    stiffness beta*EA/(1-beta), and a flag for beta == 1 where the member is a rigid link.
+    beta = 0 gives the FB tension-only cable; beta -> 1 tends continuously to the RB link.
+    """
+    beta = np.asarray(base_rigidity, dtype=np.float64)
+    rigid = beta >= 1.0
+    soft = np.where(rigid, 0.0, 1.0 - beta)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ea_t = np.where(rigid, 0.0, EA / np.where(rigid, 1.0, soft))
+    ea_c = np.where(rigid, 0.0, beta * ea_t)
+    return ea_t, ea_c, rigid
+
+
+def check_column_params(prestrain, v0, base_rigidity, cable_EA, unit_mass) -> None:
+    """Raise NetworkError naming the parameter and value for any physically impossible input."""
+    checks = (
+        ("prestrain", prestrain, lambda x: (x >= 0) & (x < 1), "must lie in [0, 1)"),
+        ("v0", v0, lambda x: np.isfinite(x), "must be finite [m s-1]"),
+        ("base_rigidity", base_rigidity, lambda x: (x >= 0) & (x <= 1), "must lie in [0, 1]"),
+        ("cable_EA", cable_EA, lambda x: x > 0, "must be > 0 [N]"),
+        ("unit_mass", unit_mass, lambda x: x > 0, "must be > 0 [kg]"),
+    )
+    for name, val, ok, msg in checks:
+        arr = np.atleast_1d(np.asarray(val, dtype=np.float64))
+        good = np.isfinite(arr) & ok(arr)
+        if not good.all():
+            i = int(np.argmin(good))
+            where = f"[{i}]" if arr.size > 1 else ""
+            raise NetworkError(f"{name}{where} = {arr[i]!r} {msg}")
+
+
+def node_masses(topo: ColumnTopology, unit_mass: float) -> np.ndarray:
+    """Lumped node masses [kg]: each base carries unit_mass (free end: per end_base_mass), over 3 nodes."""
+    n = topo.config.n_prisms
+    base_mass = np.full(n + 1, unit_mass)
+    if topo.config.end_base_mass == "half":
+        base_mass[n] = 0.5 * unit_mass
+        base_mass[0] = 0.5 * unit_mass
+    return np.repeat(base_mass / 3.0, 3)
+
+
+@dataclass
+class ColumnScene:
+    """One column ready to simulate: its network, initial velocity and the builder's report."""
+
+    topology: ColumnTopology
+    network: Network
+    velocity: np.ndarray
+    """(n_nodes, 3) admissible initial velocity [m s-1]."""
+    prestrain: float
+    v0: float
+    base_rigidity: float
+    cross_tension: float
+    """Cross-cable tension EA*p in the reference state [N]."""
+    equilibrium_residual: float
+    """Largest nodal force imbalance at free nodes in the reference state [N] (bars at best-fit forces)."""
+
+    @property
+    def relative_equilibrium_residual(self) -> float:
+        """Residual over the cross-cable tension (0 when unstressed and exactly balanced)."""
+        if self.equilibrium_residual == 0.0:
+            return 0.0
+        return self.equilibrium_residual / max(self.cross_tension, np.finfo(float).tiny)
+
+
+def build_column(
+    config: ColumnConfig | None = None,
+    prestrain: float = 0.0,
+    v0: float = 0.0,
+    base_rigidity: float = 0.0,
+    cable_EA: float | None = None,
+    unit_mass: float | None = None,
+    topology: ColumnTopology | None = None,
+) -> ColumnScene:
+    """Build one column: rest lengths from the self-stress at cross prestrain ``p``, masses,
+    the impact velocity ``v0`` (compressive, along -z at the free end) and the equilibrium check."""
+    config = config or ColumnConfig()
+    topo = topology or column_topology(config)
+    EA = config.cable_EA if cable_EA is None else float(cable_EA)
+    mu = config.unit_mass if unit_mass is None else float(unit_mass)
+    check_column_params(prestrain, v0, base_rigidity, EA, mu)
+
+    X = topo.positions
+    T = EA * prestrain  # cross-cable tension: EA/L*(s-L) = EA*p
+    ea_t, ea_c, rigid = base_member_law(np.array(EA), np.array(base_rigidity))
+    rigid = bool(rigid)
+    ell_cross = np.linalg.norm(X[topo.cross[:, 1]] - X[topo.cross[:, 0]], axis=1)
+    ell_base = np.linalg.norm(X[topo.base[:, 1]] - X[topo.base[:, 0]], axis=1)
+    cables = [topo.cross]
+    EAs = [np.full(len(topo.cross), EA)]
+    EAc = [np.zeros(len(topo.cross))]
+    rest = [ell_cross / (1.0 + prestrain)]
+    names = [f"cross cable {k}" for k in range(len(topo.cross))]
+    bars = [topo.bars]
+    bar_names = [f"bar {k}" for k in range(len(topo.bars))]
+    if rigid:
+        movable = topo.base_level > 0  # links between two clamped nodes carry nothing
+        bars.append(topo.base[movable])
+        bar_names += [f"base link {k} (level {l})" for k, l in enumerate(topo.base_level) if l > 0]
+    else:
+        F = T * topo.unit_base_force
+        cables.append(topo.base)
+        EAs.append(np.full(len(topo.base), float(ea_t)))
+        EAc.append(np.full(len(topo.base), float(ea_c)))
+        rest.append(ell_base / (1.0 + F / float(ea_t)))
+        names += [f"base member {k} (level {l})" for k, l in enumerate(topo.base_level)]
+    bars = np.concatenate(bars)
+    net = Network(
+        positions=X,
+        node_mass=node_masses(topo, mu),
+        fixed=topo.fixed,
+        bars=bars,
+        bar_mass=np.where(np.arange(len(bars)) < len(topo.bars), config.bar_mass, 0.0),
+        cables=np.concatenate(cables),
+        cable_EA=np.concatenate(EAs),
+        cable_rest_length=np.concatenate(rest),
+        cable_EA_compression=np.concatenate(EAc),
+        bar_names=bar_names,
+        cable_names=names,
+    ).validate()
+    residual = equilibrium_residual(net)
+    vel = impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
+    return ColumnScene(topo, net, vel, float(prestrain), float(v0), float(base_rigidity), T, residual)
+
+
+# ---------------------------------------------------------------------- checks and impact
+def constraint_jacobian(net: Network, positions: np.ndarray | None = None) -> np.ndarray:
+    """J (n_bars x 3 n_nodes) of g_k = |b_k|^2 / 2 with fixed nodes' columns dropped to zero."""
+    x = net.positions if positions is None else positions
+    J = np.zeros((net.n_bars, 3 * net.n_nodes))
+    for k, (i, j) in enumerate(net.bars):
+        b = x[j] - x[i]
+        J[k, 3 * j : 3 * j + 3] += b
+        J[k, 3 * i : 3 * i + 3] -= b
+    free = np.repeat(~net.fixed, 3)
+    return J * free[None, :]
+
+
+def equilibrium_residual(net: Network) -> float:
+    """Max nodal force imbalance [N] at free nodes with cables at their tension and bars at the
+    least-squares forces that balance them (the bars can carry any axial force)."""
+    x = net.positions
+    f = np.zeros((net.n_nodes, 3))
+    t = net.cable_tensions()
+    e = x[net.cables[:, 1]] - x[net.cables[:, 0]]
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    np.add.at(f, net.cables[:, 0], t[:, None] * e)
+    np.add.at(f, net.cables[:, 1], -t[:, None] * e)
+    free = np.repeat(~net.fixed, 3)
+    J = constraint_jacobian(net)[:, free]
+    rhs = f.reshape(-1)[free]
+    lam, *_ = np.linalg.lstsq(J.T, rhs, rcond=None)
+    r = rhs - J.T @ lam
+    return float(np.abs(r).max()) if r.size else 0.0
+
+
+def impact_velocity(net: Network, end_nodes: Sequence[int], v0: float, mode: str) -> np.ndarray:
+    """Admissible initial velocity [m s-1] for an axial compressive impact -v0 on ``end_nodes``."""
+    n = net.n_nodes
+    target = np.zeros((n, 3))
+    target[list(end_nodes), 2] = -v0
+    if v0 == 0.0:
+        return target
+    J = constraint_jacobian(net)
+    free = np.repeat(~net.fixed, 3)
+    if mode == "project":
+        M = np.kron(net.mass_matrix(), np.eye(3))[np.ix_(free, free)]
+        Jf = J[:, free]
+        Minv_JT = np.linalg.solve(M, Jf.T)
+        lam = np.linalg.solve(Jf @ Minv_JT, Jf @ target.reshape(-1)[free])
+        v = target.reshape(-1).copy()
+        v[free] -= Minv_JT @ lam
+        return v.reshape(n, 3)
+    if mode == "end_twist":
+        cols = np.array([3 * i + c for i in end_nodes for c in (0, 1)])
+        rows = np.flatnonzero(np.abs(J[:, cols]).sum(axis=1) > 0)
+        rhs = -J[rows] @ target.reshape(-1)
+        u, *_ = np.linalg.lstsq(J[np.ix_(rows, cols)], rhs, rcond=None)
+        v = target.reshape(-1).copy()
+        v[cols] = u
+        viol = np.abs(J @ v).max() / (abs(v0) * np.abs(J).max())
+        if viol > 1e-10:
+            raise NetworkError(
+                f"impact_admissibility='end_twist': no horizontal end velocity satisfies the bars "
+                f"(residual {viol:.2e}); use 'project'"
+            )
+        return v.reshape(n, 3)
+    raise NetworkError(f"impact_admissibility = {mode!r}; choose one of {IMPACT_ADMISSIBILITY}")
+
+
+def prism_heights(topo: ColumnTopology, positions: np.ndarray) -> np.ndarray:
+    """Height of each prism [m]: mean z of its top base minus mean z of its bottom base.
+    ``positions`` has shape (..., n_nodes, 3)."""
+    zl = positions[..., topo.level_nodes, 2].mean(axis=-1)
+    return zl[..., 1:] - zl[..., :-1]
+
+
+def with_config(config: ColumnConfig, **changes) -> ColumnConfig:
+    return replace(config, **changes)
