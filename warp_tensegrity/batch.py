@@ -1,0 +1,271 @@
+"""A batch of networks of one topology, with per-column parameters (host, float64 NumPy).
+
+This is the step between the scene builders and the device model: every per-column array
+has a leading dimension of either B (varies across the batch) or 1 (shared), as MuJoCo Warp's
+batched model fields. :func:`column_batch` builds one for T3 columns without a Python loop
+over columns; :func:`network_batch` wraps arbitrary networks of identical topology.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import columns as col
+from .network import Network, NetworkError
+from .settings import COLUMN_PARAMETERS
+
+
+@dataclass
+class NetworkBatch:
+    """B networks sharing nodes, member lists and reference geometry."""
+
+    positions: np.ndarray
+    """(n_nodes, 3) reference positions shared by the batch [m]."""
+    fixed: np.ndarray
+    """(n_nodes,) clamped nodes."""
+    constraints: np.ndarray
+    """(n_constraints, 2) rigid members (bars, and rigid base links when any column has them)."""
+    cables: np.ndarray
+    """(n_cables, 2) elastic members."""
+    node_mass: np.ndarray
+    """(B or 1, n_nodes) lumped node masses [kg]."""
+    constraint_mass: np.ndarray
+    """(B or 1, n_constraints) bar masses [kg] (consistent thin-rod inertia)."""
+    constraint_active: np.ndarray
+    """(B or 1, n_constraints) 1 where the rigid member exists in that column, else 0."""
+    cable_EA: np.ndarray
+    """(B or 1, n_cables) tension stiffness EA [N]; 0 disables the member."""
+    cable_EA_compression: np.ndarray
+    """(B or 1, n_cables) compression stiffness [N]; 0 for tension-only cables."""
+    cable_rest_length: np.ndarray
+    """(B or 1, n_cables) rest lengths [m]."""
+    velocity: np.ndarray
+    """(B, n_nodes, 3) admissible initial velocities [m s-1]."""
+    n_columns: int
+    params: dict = field(default_factory=dict)
+    """Per-column scene parameters, each (B,), for the record."""
+    level_nodes: np.ndarray | None = None
+    """(n_levels, 3) node indices of each column base (T3 columns), for strain output."""
+    constraint_names: list[str] | None = None
+    cable_names: list[str] | None = None
+    equilibrium_residual: np.ndarray | None = None
+    """(B,) relative equilibrium residual of the reference state (columns)."""
+
+
+def _shrink(a: np.ndarray) -> np.ndarray:
+    """(B, ...) -> (1, ...) when every column holds the same values."""
+    a = np.asarray(a, dtype=np.float64)
+    if a.shape[0] > 1 and np.all(a == a[:1]):
+        return a[:1].copy()
+    return a
+
+
+def network_batch(networks: list[Network], velocities: list[np.ndarray] | None = None) -> NetworkBatch:
+    """Batch arbitrary networks with identical topology and reference positions."""
+    if not networks:
+        raise NetworkError("network_batch: empty list of networks")
+    first = networks[0].validate()
+    for b, net in enumerate(networks[1:], start=1):
+        net.validate()
+        for name in ("bars", "cables", "fixed"):
+            if not np.array_equal(getattr(net, name), getattr(first, name)):
+                raise NetworkError(f"network {b}: {name} differ from network 0; a batch shares one topology")
+        if not np.allclose(net.positions, first.positions, rtol=0, atol=1e-15):
+            raise NetworkError(f"network {b}: reference positions differ from network 0")
+    B = len(networks)
+    vel = np.zeros((B, first.n_nodes, 3)) if velocities is None else np.asarray(velocities, dtype=np.float64)
+    if vel.shape != (B, first.n_nodes, 3):
+        raise NetworkError(f"velocities: shape {vel.shape}, expected {(B, first.n_nodes, 3)}")
+    stack = lambda name: _shrink(np.stack([getattr(n, name) for n in networks]))  # noqa: E731
+    return NetworkBatch(
+        positions=first.positions.copy(),
+        fixed=first.fixed.copy(),
+        constraints=first.bars.copy(),
+        cables=first.cables.copy(),
+        node_mass=stack("node_mass"),
+        constraint_mass=stack("bar_mass"),
+        constraint_active=np.ones((1, first.n_bars)),
+        cable_EA=stack("cable_EA"),
+        cable_EA_compression=stack("cable_EA_compression"),
+        cable_rest_length=stack("cable_rest_length"),
+        velocity=vel,
+        n_columns=B,
+        constraint_names=[first.bar_name(k) for k in range(first.n_bars)],
+        cable_names=[first.cable_name(k) for k in range(first.n_cables)],
+    )
+
+
+def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarray]:
+    """Fill defaults and broadcast the per-column parameters to a common length B; validate."""
+    unknown = sorted(set(params) - set(COLUMN_PARAMETERS))
+    if unknown:
+        raise NetworkError(f"unknown column parameter(s) {unknown}; known: {sorted(COLUMN_PARAMETERS)}")
+    defaults = {
+        "prestrain": 0.0,
+        "v0": 0.0,
+        "base_rigidity": 0.0,
+        "cable_EA": config.cable_EA,
+        "unit_mass": config.unit_mass,
+    }
+    arrays = {k: np.atleast_1d(np.asarray(params.get(k, d), dtype=np.float64)) for k, d in defaults.items()}
+    B = max(a.size for a in arrays.values())
+    for k, a in arrays.items():
+        if a.ndim != 1 or a.size not in (1, B):
+            raise NetworkError(f"parameter {k}: shape {a.shape} does not broadcast to ({B},)")
+        arrays[k] = np.broadcast_to(a, (B,)).copy()
+    col.check_column_params(*(arrays[k] for k in ("prestrain", "v0", "base_rigidity", "cable_EA", "unit_mass")))
+    return arrays
+
+
+def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
+    """Vectorised batch of T3 columns: one topology, per-column prestrain, v0, base rigidity, EA, mass.
+
+    Rigid base links are included as constraints only if some column has base_rigidity == 1
+    (model no more than the scene needs); they are inactive in the other columns, whose base
+    members are elastic instead.
+    """
+    topo = col.column_topology(config)
+    p = column_params(config, params)
+    B = p["prestrain"].size
+    X = topo.positions
+    n_cross, n_base = len(topo.cross), len(topo.base)
+
+    ea_t, ea_c, rigid = col.base_member_law(p["cable_EA"][:, None], p["base_rigidity"][:, None])
+    rigid = rigid[:, 0]
+    any_rigid = bool(rigid.any())
+    movable = topo.base_level > 0
+    links = topo.base[movable]
+
+    # constraints ordered level by level so the Gram matrix is banded: bars of prism m, then links of level m+1
+    cons, names, is_link = [], [], []
+    for m in range(config.n_prisms):
+        for k in range(3):
+            cons.append(topo.bars[3 * m + k])
+            names.append(f"bar {3 * m + k} (prism {m})")
+            is_link.append(False)
+        if any_rigid:
+            for k in range(3):
+                cons.append(topo.base[3 * (m + 1) + k])
+                names.append(f"base link {3 * (m + 1) + k} (level {m + 1})")
+                is_link.append(True)
+    cons = np.array(cons, dtype=np.int64)
+    is_link = np.array(is_link)
+    active = np.ones((B, len(cons)))
+    active[:, is_link] = rigid[:, None].astype(float)
+
+    # cables: cross cables then base members; rest lengths from the self-stress at prestrain p
+    T = p["cable_EA"] * p["prestrain"]  # (B,) cross-cable tension [N]
+    ell_cross = np.linalg.norm(X[topo.cross[:, 1]] - X[topo.cross[:, 0]], axis=1)
+    ell_base = np.linalg.norm(X[topo.base[:, 1]] - X[topo.base[:, 0]], axis=1)
+    F_base = T[:, None] * topo.unit_base_force[None, :]
+    safe_ea = np.where(ea_t > 0, ea_t, 1.0)
+    rest_base = np.where(rigid[:, None], ell_base[None, :], ell_base[None, :] / (1.0 + F_base / safe_ea))
+    rest = np.concatenate([ell_cross[None, :] / (1.0 + p["prestrain"][:, None]), rest_base], axis=1)
+    EA = np.concatenate([np.repeat(p["cable_EA"][:, None], n_cross, 1), np.broadcast_to(ea_t, (B, n_base))], axis=1)
+    EAc = np.concatenate([np.zeros((B, n_cross)), np.broadcast_to(ea_c, (B, n_base))], axis=1)
+    cables = np.concatenate([topo.cross, topo.base])
+    cable_names = [f"cross cable {k}" for k in range(n_cross)] + [
+        f"base member {k} (level {lvl})" for k, lvl in enumerate(topo.base_level)
+    ]
+
+    masses = np.stack([col.node_masses(topo, mu) for mu in np.unique(p["unit_mass"])])
+    mass_index = np.searchsorted(np.unique(p["unit_mass"]), p["unit_mass"])
+    node_mass = masses[mass_index]
+    bar_mass = np.where(is_link, 0.0, config.bar_mass)[None, :]
+
+    # the admissible initial velocity is linear in v0 and invariant to a uniform mass scale:
+    # one exact build per base class (FB-like or RB)
+    velocity = np.zeros((B, topo.n_nodes, 3))
+    for r in (False, True):
+        cols_r = np.flatnonzero(rigid == r)
+        if cols_r.size == 0:
+            continue
+        scene = col.build_column(config, prestrain=0.0, v0=1.0, base_rigidity=1.0 if r else 0.0, topology=topo)
+        velocity[cols_r] = p["v0"][cols_r, None, None] * scene.velocity[None]
+    batch = NetworkBatch(
+        positions=X.copy(),
+        fixed=topo.fixed.copy(),
+        constraints=cons,
+        cables=cables,
+        node_mass=_shrink(node_mass),
+        constraint_mass=_shrink(np.broadcast_to(bar_mass, (1, len(cons)))),
+        constraint_active=_shrink(active),
+        cable_EA=_shrink(EA),
+        cable_EA_compression=_shrink(EAc),
+        cable_rest_length=_shrink(rest),
+        velocity=velocity,
+        n_columns=B,
+        params=p,
+        level_nodes=topo.level_nodes.copy(),
+        constraint_names=names,
+        cable_names=cable_names,
+    )
+    batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(T, np.finfo(float).tiny)
+    return batch
+
+
+def equilibrium_residuals(batch: NetworkBatch) -> np.ndarray:
+    """(B,) largest nodal force imbalance [N] at free nodes of the reference state, with the
+    rigid members at the least-squares forces that balance the cables (vectorised over columns)."""
+    X = batch.positions
+    c = batch.cables
+    B = batch.n_columns
+    e = X[c[:, 1]] - X[c[:, 0]]
+    ell = np.linalg.norm(e, axis=1)
+    e /= ell[:, None]
+    L = batch.cable_rest_length
+    stretch = ell[None, :] - L
+    T = np.where(stretch > 0, batch.cable_EA, batch.cable_EA_compression) / L * stretch  # (Bc, nc)
+    T = np.broadcast_to(T, (B, c.shape[0]))
+    n = X.shape[0]
+    f = np.zeros((B, n, 3))
+    np.add.at(f, (slice(None), c[:, 0]), T[:, :, None] * e[None])
+    np.add.at(f, (slice(None), c[:, 1]), -T[:, :, None] * e[None])
+    free = np.repeat(~batch.fixed, 3)
+    f = f.reshape(B, -1)[:, free]
+    active = np.broadcast_to(batch.constraint_active, (B, batch.constraints.shape[0]))
+    out = np.zeros(B)
+    for pattern in np.unique(active, axis=0):
+        sel = np.all(active == pattern, axis=1)
+        rows = batch.constraints[pattern > 0]
+        J = np.zeros((len(rows), 3 * n))
+        for k, (i, j) in enumerate(rows):
+            b = X[j] - X[i]
+            J[k, 3 * j : 3 * j + 3] += b
+            J[k, 3 * i : 3 * i + 3] -= b
+        Jt = J[:, free].T
+        lam = np.linalg.lstsq(Jt, f[sel].T, rcond=None)[0]
+        out[sel] = np.abs(f[sel].T - Jt @ lam).max(axis=0)
+    return out
+
+
+def omega_max_bound(batch: NetworkBatch) -> np.ndarray:
+    """(B,) upper bound on the highest natural frequency [rad s-1] with all cables taut.
+
+    Gershgorin on the unconstrained tangent stiffness (notes: omega^2 <= max_i 2/m_i sum max(k, T/l));
+    rigid bars only remove degrees of freedom, so the bound holds for the constrained system.
+    The inertia of a node includes a third of each massive bar on it.
+    """
+    X = batch.positions
+    c = batch.cables
+    ell = np.linalg.norm(X[c[:, 1]] - X[c[:, 0]], axis=1)
+    L = batch.cable_rest_length
+    k = np.maximum(batch.cable_EA, batch.cable_EA_compression) / L
+    T = batch.cable_EA / L * np.maximum(ell - L, 0.0)
+    stiff = np.maximum(k, T / ell)  # (Bc, n_cables)
+    n = X.shape[0]
+    Bc = stiff.shape[0]
+    node_k = np.zeros((Bc, n))
+    for end in (0, 1):
+        np.add.at(node_k, (slice(None), c[:, end]), stiff)
+    inertia = np.broadcast_to(batch.node_mass, (max(Bc, batch.node_mass.shape[0]), n)).copy()
+    bm = np.broadcast_to(batch.constraint_mass, (inertia.shape[0], batch.constraints.shape[0]))
+    for end in (0, 1):
+        np.add.at(inertia, (slice(None), batch.constraints[:, end]), bm / 3.0)
+    free = ~batch.fixed
+    with np.errstate(divide="ignore"):
+        ratio = np.where(free[None, :], 2.0 * node_k / np.maximum(inertia, 1e-300), 0.0)
+    w = np.sqrt(ratio.max(axis=1))
+    return np.broadcast_to(w, (batch.n_columns,)).copy()

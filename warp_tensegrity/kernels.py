@@ -1,0 +1,459 @@
+"""Warp kernels of the integrator step, generated once per precision.
+
+Layout (see :mod:`warp_tensegrity.model`): every batched array is ``(n_items, B)`` with the
+column index ``w`` fastest, so per-node/per-member launches ``dim=(n_items, B)`` and
+per-column solver threads (``dim=B``, looping over items) both read coalesced memory.
+Per-column parameters may have a trailing size of 1 (shared) and are read as ``p[k, w % p.shape[1]]``.
+
+State is the displacement ``u = x - X`` from the reference configuration, so fp32 keeps
+bar vectors ``b = d_ref + u_j - u_i`` to ~1e-7 relative even far from the origin.
+
+Kernel arguments are grouped as ``# Model:`` (topology and parameters), ``# Data in:`` and
+``# Data out:``. One thread per node (kick, drift, force gather), per prism (strain), or per
+column (constraint solves: banded Cholesky of the Gram matrix G M^-1 G^T, which handles
+bars sharing nodes and rigid-link loops alike).
+"""
+
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+STATUS_OK = wp.constant(0)
+STATUS_NONFINITE = wp.constant(1)
+STATUS_CONSTRAINT = wp.constant(2)
+
+
+@functools.cache
+def make_kernels(real):
+    """Kernels for scalar type ``real`` (wp.float32 or wp.float64)."""
+    vec = wp.types.vector(3, real)
+    opts = {"enable_backward": False}
+
+    @wp.func
+    def pget(p: wp.array2d(dtype=real), k: int, w: int):
+        return p[k, w % p.shape[1]]
+
+    @wp.func
+    def member_vec(dref: wp.array(dtype=vec), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
+                   u: wp.array2d(dtype=vec), k: int, w: int):
+        return dref[k] + u[nj[k], w] - u[ni[k], w]
+
+    @wp.func
+    def cable_force(b: vec, EA: real, EAc: real, L: real):
+        """Force on the member's first node (toward the second) for the bilinear axial law."""
+        s = wp.length(b)
+        stretch = s - L
+        k = EA
+        if stretch < real(0.0):
+            k = EAc
+        t = k / L * stretch
+        return b * (t / s)
+
+    # ------------------------------------------------------------------ per-node kernels
+    @wp.kernel(enable_backward=False, module="unique")
+    def gather_accel(
+        # Model:
+        cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
+        cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
+        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        status: wp.array(dtype=int),
+        # Data in:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), kick: real,
+        # Data out:
+        a: wp.array2d(dtype=vec), v_out: wp.array2d(dtype=vec),
+    ):
+        """a = M^-1 f(u) (unconstrained); v_out = v + kick * a. Each node sums its own members."""
+        n, w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        f = vec()
+        fp = vec()
+        p = partner[n]
+        for t in range(node_start[n], node_start[n + 1]):
+            c = node_member[t]
+            fc = cable_force(member_vec(cab_dref, cab_i, cab_j, u, c, w), pget(cab_EA, c, w), pget(cab_EAc, c, w), pget(cab_L, c, w))
+            if cab_i[c] == n:
+                f += fc
+            else:
+                f -= fc
+        if p >= 0:
+            for t in range(node_start[p], node_start[p + 1]):
+                c = node_member[t]
+                fc = cable_force(member_vec(cab_dref, cab_i, cab_j, u, c, w), pget(cab_EA, c, w), pget(cab_EAc, c, w), pget(cab_L, c, w))
+                if cab_i[c] == p:
+                    fp += fc
+                else:
+                    fp -= fc
+        acc = f * pget(minv_self, n, w) + fp * pget(minv_cross, n, w)
+        a[n, w] = acc
+        v_out[n, w] = v[n, w] + acc * kick
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kick_drift(
+        # Model:
+        status: wp.array(dtype=int),
+        # Data in:
+        a: wp.array2d(dtype=vec), kick: real, drift: real,
+        # Data out:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), u_prev: wp.array2d(dtype=vec),
+    ):
+        """v += kick * a; u_prev = u; u += drift * v."""
+        n, w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        vn = v[n, w] + a[n, w] * kick
+        v[n, w] = vn
+        un = u[n, w]
+        u_prev[n, w] = un
+        u[n, w] = un + vn * drift
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def rk_stage(
+        # Model:
+        status: wp.array(dtype=int),
+        # Data in:
+        u0: wp.array2d(dtype=vec), v0: wp.array2d(dtype=vec), vs: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
+        c_acc: real, c_next: real, first: int,
+        # Data out:
+        acc_u: wp.array2d(dtype=vec), acc_v: wp.array2d(dtype=vec), u_next: wp.array2d(dtype=vec), v_next: wp.array2d(dtype=vec),
+    ):
+        """One RK4 stage: acc += c_acc * (vs, a); next = y0 + c_next * (vs, a) (or y0 + c_next*acc at the end)."""
+        n, w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        du = vs[n, w]
+        dv = a[n, w]
+        au = du * c_acc
+        av = dv * c_acc
+        if first != 1:  # 1: first stage starts the sum
+            au = au + acc_u[n, w]
+            av = av + acc_v[n, w]
+        acc_u[n, w] = au
+        acc_v[n, w] = av
+        if first == 2:  # final combination
+            u_next[n, w] = u0[n, w] + au * c_next
+            v_next[n, w] = v0[n, w] + av * c_next
+        else:
+            u_next[n, w] = u0[n, w] + du * c_next
+            v_next[n, w] = v0[n, w] + dv * c_next
+
+    # ------------------------------------------------------------------ per-column solver pieces
+    @wp.func
+    def assemble_factor(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), bw: int, w: int,
+    ):
+        """Assemble A = G M^-1 G^T at u into the band and factor it in place (A = L L^T).
+        Returns False if a pivot is not positive (singular constraints)."""
+        nc = con_i.shape[0]
+        ok = bool(True)
+        for k in range(nc):
+            for d in range(bw + 1):
+                band[k, d, w] = real(0.0)
+            act = pget(con_active, k, w)
+            if act > real(0.0):
+                bk = member_vec(con_dref, con_i, con_j, u, k, w)
+                for t in range(cpl_start[k], cpl_start[k + 1]):
+                    l = cpl_l[t]
+                    if pget(con_active, l, w) > real(0.0):
+                        bl = member_vec(con_dref, con_i, con_j, u, l, w)
+                        na = cpl_a[t]
+                        m = pget(minv_self, na, w)
+                        if cpl_cross[t] != 0:
+                            m = pget(minv_cross, na, w)
+                        band[k, k - l, w] = band[k, k - l, w] + cpl_sign[t] * m * wp.dot(bk, bl)
+            else:
+                band[k, 0, w] = real(1.0)
+        # banded Cholesky, row by row
+        for k in range(nc):
+            for dd in range(bw):
+                d = bw - dd  # l = k - d ascending
+                l = k - d
+                if l >= 0:
+                    s = band[k, d, w]
+                    for e in range(d + 1, bw + 1):
+                        if k - e >= 0:
+                            s -= band[k, e, w] * band[l, e - d, w]
+                    band[k, d, w] = s / band[l, 0, w]
+            s = band[k, 0, w]
+            for e in range(1, bw + 1):
+                if k - e >= 0:
+                    s -= band[k, e, w] * band[k, e, w]
+            if s > real(0.0):
+                band[k, 0, w] = wp.sqrt(s)
+            else:
+                band[k, 0, w] = real(1.0)
+                ok = False
+        return ok
+
+    @wp.func
+    def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), bw: int, w: int):
+        """Solve L L^T x = rhs in place (rhs given in x)."""
+        nc = x.shape[0]
+        for k in range(nc):
+            s = x[k, w]
+            for e in range(1, bw + 1):
+                if k - e >= 0:
+                    s -= band[k, e, w] * x[k - e, w]
+            x[k, w] = s / band[k, 0, w]
+        for kk in range(nc):
+            k = nc - 1 - kk
+            s = x[k, w]
+            for e in range(1, bw + 1):
+                if k + e < nc:
+                    s -= band[k + e, e, w] * x[k + e, w]
+            x[k, w] = s / band[k, 0, w]
+
+    @wp.func
+    def apply_impulse(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        ug: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        scale: real, y: wp.array2d(dtype=vec), scale2: real, y2: wp.array2d(dtype=vec), w: int,
+    ):
+        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam."""
+        nn = imp.shape[0]
+        for n in range(nn):
+            imp[n, w] = vec()
+        for k in range(con_i.shape[0]):
+            g = member_vec(con_dref, con_i, con_j, ug, k, w) * lam[k, w]
+            imp[con_j[k], w] = imp[con_j[k], w] + g
+            imp[con_i[k], w] = imp[con_i[k], w] - g
+        for n in range(nn):
+            d = imp[n, w] * pget(minv_self, n, w)
+            p = partner[n]
+            if p >= 0:
+                d = d + imp[p, w] * pget(minv_cross, n, w)
+            y[n, w] = y[n, w] - d * scale
+            if scale2 != real(0.0):
+                y2[n, w] = y2[n, w] - d * scale2
+
+    @wp.func
+    def fail(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), step: wp.array(dtype=int), w: int, code: int):
+        if status[w] == STATUS_OK:
+            status[w] = code
+            fail_step[w] = step[0] + 1
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def project_positions(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_L: wp.array(dtype=real), con_active: wp.array2d(dtype=real),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        bw: int, tol: real, max_iter: int, fail_tol: real, inv_dt: real,
+        # Data in:
+        band: wp.array3d(dtype=real), ug: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Simplified Newton onto |b_k| = L_k along M^-1 G(ug)^T, with the band holding the factor of
+        G(ug) M^-1 G(ug)^T. v -= inv_dt * du (RATTLE's velocity update; 0 for plain projection)."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        nc = con_i.shape[0]
+        err = real(0.0)
+        it = int(0)
+        while True:
+            err = real(0.0)
+            for k in range(nc):
+                b = member_vec(con_dref, con_i, con_j, u, k, w)
+                L = con_L[k]
+                bb = wp.dot(b, b)
+                r = real(0.0)
+                if pget(con_active, k, w) > real(0.0):
+                    r = real(0.5) * (bb - L * L)
+                    e = wp.abs(wp.sqrt(bb) - L) / L
+                    if not (e <= err):  # also catches NaN
+                        err = e
+                lam[k, w] = r
+            if err <= tol or it >= max_iter:
+                break
+            band_solve(band, lam, bw, w)
+            apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, ug, lam, imp,
+                          real(1.0), u, inv_dt, v, w)
+            it += 1
+        iters[w] = wp.max(iters[w], it)
+        if not wp.isfinite(err):
+            fail(status, fail_step, step, w, STATUS_NONFINITE)
+        elif err > fail_tol:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+        if err > bar_err[w]:
+            bar_err[w] = err
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def factor_project_velocities(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        bw: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Factor A(u) (kept for the next position projection) and project v onto G(u) v = 0."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, bw, w)
+        if not ok:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            return
+        for k in range(con_i.shape[0]):
+            r = real(0.0)
+            if pget(con_active, k, w) > real(0.0):
+                b = member_vec(con_dref, con_i, con_j, u, k, w)
+                r = wp.dot(b, v[con_j[k], w] - v[con_i[k], w])
+            lam[k, w] = r
+        band_solve(band, lam, bw, w)
+        apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, u, lam, imp,
+                      real(1.0), v, real(0.0), v, w)
+        for n in range(u.shape[0]):
+            if not (wp.isfinite(v[n, w][0]) and wp.isfinite(v[n, w][1]) and wp.isfinite(v[n, w][2])):
+                fail(status, fail_step, step, w, STATUS_NONFINITE)
+                return
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def factor_only(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real), bw: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, bw, w)
+        if not ok:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def constrained_accel(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        bw: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), a: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Index-1 multipliers: A lam = G a_free + |b'|^2; a -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, bw, w)
+        if not ok:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            return
+        for k in range(con_i.shape[0]):
+            r = real(0.0)
+            if pget(con_active, k, w) > real(0.0):
+                b = member_vec(con_dref, con_i, con_j, u, k, w)
+                bd = v[con_j[k], w] - v[con_i[k], w]
+                r = wp.dot(b, a[con_j[k], w] - a[con_i[k], w]) + wp.dot(bd, bd)
+            lam[k, w] = r
+        band_solve(band, lam, bw, w)
+        apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, u, lam, imp,
+                      real(1.0), a, real(0.0), a, w)
+
+    # ------------------------------------------------------------------ outputs
+    @wp.kernel(enable_backward=False, module="unique")
+    def advance_counter(step: wp.array(dtype=int)):
+        step[0] = step[0] + 1
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def record_strain(
+        # Model:
+        level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=real), every: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        strain: wp.array3d(dtype=real),
+    ):
+        """strain[slot, j, w] = (h - h0)/h of prism j when step % every == 0."""
+        j, w = wp.tid()
+        s = step[0]
+        if s % every != 0:
+            return
+        slot = s / every
+        if slot >= strain.shape[0]:
+            return
+        zb = real(0.0)
+        zt = real(0.0)
+        for c in range(3):
+            zb += u[level_nodes[j, c], w][2]
+            zt += u[level_nodes[j + 1, c], w][2]
+        h = h0[j] + (zt - zb) / real(3.0)
+        strain[slot, j, w] = (h - h0[j]) / h
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def record_energy(
+        # Model:
+        cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
+        cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
+        partner: wp.array(dtype=int), m_self: wp.array2d(dtype=real), m_cross: wp.array2d(dtype=real),
+        every: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real),
+    ):
+        """Kinetic 1/2 v^T M v and elastic sum 1/2 k (s - L)^2 per column when step % every == 0."""
+        w = wp.tid()
+        s = step[0]
+        if s % every != 0:
+            return
+        slot = s / every
+        if slot >= kinetic.shape[0]:
+            return
+        ke = real(0.0)
+        for n in range(u.shape[0]):
+            vn = v[n, w]
+            ke += pget(m_self, n, w) * wp.dot(vn, vn)
+            p = partner[n]
+            if p >= 0:
+                ke += pget(m_cross, n, w) * wp.dot(vn, v[p, w])
+        ee = real(0.0)
+        for c in range(cab_i.shape[0]):
+            b = member_vec(cab_dref, cab_i, cab_j, u, c, w)
+            L = pget(cab_L, c, w)
+            st = wp.length(b) - L
+            k = pget(cab_EA, c, w)
+            if st < real(0.0):
+                k = pget(cab_EAc, c, w)
+            ee += k / L * st * st
+        kinetic[slot, w] = real(0.5) * ke
+        elastic[slot, w] = real(0.5) * ee
+
+    return SimpleNamespace(
+        real=real, vec=vec, gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage,
+        project_positions=project_positions, factor_project_velocities=factor_project_velocities,
+        factor_only=factor_only, constrained_accel=constrained_accel, advance_counter=advance_counter,
+        record_strain=record_strain, record_energy=record_energy,
+    )

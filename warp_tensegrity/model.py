@@ -1,0 +1,241 @@
+"""Device model and data: the arrays the kernels read, with each shape stated once.
+
+``B`` = columns in the batch; ``Bp`` = B or 1 for per-column parameters (1 when shared).
+Batched arrays put the column index last (fastest) - see :mod:`warp_tensegrity.kernels`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .batch import NetworkBatch
+
+REAL = {"fp32": wp.float32, "fp64": wp.float64}
+NP_REAL = {"fp32": np.float32, "fp64": np.float64}
+
+
+def constraint_coupling(batch: NetworkBatch, partner: np.ndarray):
+    """Lower-triangle coupling terms of A = G M^-1 G^T: for row k, the (l <= k, node a of k,
+    cross?, sign) whose M^-1 entry is non-zero. Returns CSR arrays and the bandwidth."""
+    cons = batch.constraints
+    nc = len(cons)
+    touching: dict[int, list[tuple[int, float]]] = {}
+    for k, (i, j) in enumerate(cons):
+        touching.setdefault(int(i), []).append((k, -1.0))
+        touching.setdefault(int(j), []).append((k, 1.0))
+    start, ls, as_, cross, sign = [0], [], [], [], []
+    bw = 0
+    for k, (i, j) in enumerate(cons):
+        terms = []
+        for a, sa in ((int(i), -1.0), (int(j), 1.0)):
+            if batch.fixed[a]:
+                continue
+            for b, is_cross in ((a, 0), (int(partner[a]), 1)):
+                if b < 0:
+                    continue
+                for l, sb in touching.get(b, []):
+                    if l <= k:
+                        terms.append((l, a, is_cross, sa * sb))
+        terms.sort()
+        for l, a, c, s in terms:
+            ls.append(l)
+            as_.append(a)
+            cross.append(c)
+            sign.append(s)
+            bw = max(bw, k - l)
+        start.append(len(ls))
+    return (np.array(start, np.int32), np.array(ls, np.int32), np.array(as_, np.int32),
+            np.array(cross, np.int32), np.array(sign, np.float64), bw)
+
+
+def mass_entries(batch: NetworkBatch):
+    """Per-node M and M^-1 entries (self and partner) for lumped masses plus the paper's
+    consistent bar inertia (each node in at most one massive bar). Shapes (Bp, n_nodes)."""
+    n = batch.positions.shape[0]
+    Bp = max(batch.node_mass.shape[0], batch.constraint_mass.shape[0])
+    m_node = np.broadcast_to(batch.node_mass, (Bp, n)).astype(np.float64)
+    m_bar = np.broadcast_to(batch.constraint_mass, (Bp, len(batch.constraints)))
+    partner = -np.ones(n, dtype=np.int32)
+    m_self = m_node.copy()
+    m_cross = np.zeros((Bp, n))
+    for k, (i, j) in enumerate(batch.constraints):
+        if np.any(m_bar[:, k] > 0):
+            partner[i], partner[j] = j, i
+            m_self[:, i] += m_bar[:, k] / 3.0
+            m_self[:, j] += m_bar[:, k] / 3.0
+            m_cross[:, i] = m_bar[:, k] / 6.0
+            m_cross[:, j] = m_bar[:, k] / 6.0
+    minv_self = np.zeros_like(m_self)
+    minv_cross = np.zeros_like(m_self)
+    free = ~batch.fixed
+    for a in range(n):
+        if not free[a]:
+            continue
+        p = partner[a]
+        if p < 0 or not free[p]:
+            minv_self[:, a] = 1.0 / m_self[:, a]
+        else:
+            det = m_self[:, a] * m_self[:, p] - m_cross[:, a] ** 2
+            minv_self[:, a] = m_self[:, p] / det
+            minv_cross[:, a] = -m_cross[:, a] / det
+    fixed_partner = (partner >= 0) & ~free[np.maximum(partner, 0)]
+    partner_dev = np.where(fixed_partner, -1, partner).astype(np.int32)
+    return partner, partner_dev, m_self, m_cross, minv_self, minv_cross
+
+
+def node_member_csr(n_nodes: int, members: np.ndarray):
+    order = np.argsort(np.concatenate([members[:, 0], members[:, 1]]), kind="stable")
+    mid = np.concatenate([np.arange(len(members)), np.arange(len(members))])[order]
+    counts = np.bincount(members.ravel(), minlength=n_nodes)
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+    return start, mid.astype(np.int32)
+
+
+@dataclass
+class Model:
+    """Topology and per-column parameters on the device. n = nodes, nc = constraints, ne = cables."""
+
+    precision: str
+    device: str
+    n_columns: int
+    n_nodes: int
+    n_constraints: int
+    n_cables: int
+    bandwidth: int
+    """Half-bandwidth of the constraint Gram matrix in the chosen ordering."""
+    con_i: wp.array  # (nc,) int32
+    con_j: wp.array  # (nc,) int32
+    con_dref: wp.array  # (nc,) vec3: reference bar vector X_j - X_i [m]
+    con_L: wp.array  # (nc,) bar length [m]
+    con_active: wp.array  # (nc, Bp) 1 if the rigid member exists in the column
+    cpl_start: wp.array  # (nc+1,) CSR of Gram-matrix coupling terms
+    cpl_l: wp.array
+    cpl_a: wp.array
+    cpl_cross: wp.array
+    cpl_sign: wp.array
+    cab_i: wp.array  # (ne,) int32
+    cab_j: wp.array
+    cab_dref: wp.array  # (ne,) vec3 [m]
+    cab_EA: wp.array  # (ne, Bp) [N]
+    cab_EAc: wp.array  # (ne, Bp) [N]
+    cab_L: wp.array  # (ne, Bp) rest length [m]
+    node_start: wp.array  # (n+1,) CSR node -> cables
+    node_member: wp.array
+    partner: wp.array  # (n,) other end of the node's massive bar, -1 if none
+    m_self: wp.array  # (n, Bp) [kg]
+    m_cross: wp.array  # (n, Bp) [kg]
+    minv_self: wp.array  # (n, Bp) [kg-1], 0 at fixed nodes
+    minv_cross: wp.array  # (n, Bp) [kg-1]
+    level_nodes: wp.array | None  # (n_prisms+1, 3) column bases
+    h0: wp.array | None  # (n_prisms,) reference prism heights [m]
+    n_prisms: int
+
+
+def _dev2(a: np.ndarray, dtype, device) -> wp.array:
+    """(Bp, k) host -> (k, Bp) device (column index fastest)."""
+    return wp.array(np.ascontiguousarray(np.asarray(a).T), dtype=dtype, device=device)
+
+
+def build_model(batch: NetworkBatch, precision: str, device) -> Model:
+    real = REAL[precision]
+    npr = NP_REAL[precision]
+    vec = wp.types.vector(3, real)
+    X = batch.positions
+    cons, cab = batch.constraints, batch.cables
+    partner_full, partner, m_self, m_cross, minv_self, minv_cross = mass_entries(batch)
+    cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign, bw = constraint_coupling(batch, partner_full)
+    dref_c = (X[cons[:, 1]] - X[cons[:, 0]]).astype(npr) if len(cons) else np.zeros((0, 3), npr)
+    # bar lengths consistent with the rounded reference vectors of this precision
+    L_c = np.linalg.norm(dref_c.astype(np.float64), axis=1)
+    dref_e = (X[cab[:, 1]] - X[cab[:, 0]]).astype(npr)
+    node_start, node_member = node_member_csr(X.shape[0], cab)
+    arr = lambda a, dt: wp.array(np.asarray(a), dtype=dt, device=device)  # noqa: E731
+    level_nodes = h0 = None
+    n_prisms = 0
+    if batch.level_nodes is not None:
+        level_nodes = arr(batch.level_nodes.astype(np.int32), wp.int32)
+        zl = X[batch.level_nodes, 2].mean(axis=1)
+        h0 = arr(np.diff(zl), real)
+        n_prisms = len(zl) - 1
+    return Model(
+        precision=precision,
+        device=str(device),
+        n_columns=batch.n_columns,
+        n_nodes=X.shape[0],
+        n_constraints=len(cons),
+        n_cables=len(cab),
+        bandwidth=int(bw),
+        con_i=arr(cons[:, 0].astype(np.int32), wp.int32),
+        con_j=arr(cons[:, 1].astype(np.int32), wp.int32),
+        con_dref=arr(dref_c, vec),
+        con_L=arr(L_c, real),
+        con_active=_dev2(batch.constraint_active, real, device),
+        cpl_start=arr(cpl_start, wp.int32),
+        cpl_l=arr(cpl_l, wp.int32),
+        cpl_a=arr(cpl_a, wp.int32),
+        cpl_cross=arr(cpl_cross, wp.int32),
+        cpl_sign=arr(cpl_sign, real),
+        cab_i=arr(cab[:, 0].astype(np.int32), wp.int32),
+        cab_j=arr(cab[:, 1].astype(np.int32), wp.int32),
+        cab_dref=arr(dref_e, vec),
+        cab_EA=_dev2(batch.cable_EA, real, device),
+        cab_EAc=_dev2(batch.cable_EA_compression, real, device),
+        cab_L=_dev2(batch.cable_rest_length, real, device),
+        node_start=arr(node_start, wp.int32),
+        node_member=arr(node_member, wp.int32),
+        partner=arr(partner, wp.int32),
+        m_self=_dev2(m_self, real, device),
+        m_cross=_dev2(m_cross, real, device),
+        minv_self=_dev2(minv_self, real, device),
+        minv_cross=_dev2(minv_cross, real, device),
+        level_nodes=level_nodes,
+        h0=h0,
+        n_prisms=n_prisms,
+    )
+
+
+@dataclass
+class Data:
+    """Mutable state of a batch on the device; shapes with n nodes, nc constraints, B columns."""
+
+    u: wp.array  # (n, B) vec3 displacement from the reference [m]
+    v: wp.array  # (n, B) vec3 velocity [m s-1]
+    a: wp.array  # (n, B) vec3 acceleration [m s-2]
+    u_prev: wp.array  # (n, B) vec3 displacement at the start of the step [m]
+    imp: wp.array  # (n, B) vec3 scratch: G^T lambda per node
+    band: wp.array  # (nc, bw+1, B) Cholesky factor of G M^-1 G^T
+    lam: wp.array  # (nc, B) multipliers / right-hand sides
+    status: wp.array  # (B,) int32 0 ok, 1 non-finite, 2 constraint failure
+    fail_step: wp.array  # (B,) int32 step of failure, -1 if none
+    iters: wp.array  # (B,) int32 largest projection iteration count seen
+    bar_err: wp.array  # (B,) max relative bar-length error after projection
+    step: wp.array  # (1,) int32 completed steps
+    rk: dict | None  # RK4 scratch: u0, v0, acc_u, acc_v, us, vs, each (n, B) vec3
+
+
+def make_data(model: Model, velocity: np.ndarray, method: str) -> Data:
+    """velocity: (B, n, 3) initial velocity [m s-1]."""
+    real = REAL[model.precision]
+    vec = wp.types.vector(3, real)
+    d = model.device
+    n, B = model.n_nodes, model.n_columns
+    nc = max(model.n_constraints, 1)
+    z = lambda: wp.zeros((n, B), dtype=vec, device=d)  # noqa: E731
+    v = wp.array(np.ascontiguousarray(np.transpose(velocity, (1, 0, 2))).astype(NP_REAL[model.precision]), dtype=vec, device=d)
+    rk = None
+    if method == "rk4":
+        rk = {k: z() for k in ("u0", "v0", "acc_u", "acc_v", "us", "vs")}
+    return Data(
+        u=z(), v=v, a=z(), u_prev=z(), imp=z(),
+        band=wp.zeros((nc, model.bandwidth + 1, B), dtype=real, device=d),
+        lam=wp.zeros((nc, B), dtype=real, device=d),
+        status=wp.zeros(B, dtype=wp.int32, device=d),
+        fail_step=wp.full(B, -1, dtype=wp.int32, device=d),
+        iters=wp.zeros(B, dtype=wp.int32, device=d),
+        bar_err=wp.zeros(B, dtype=real, device=d),
+        step=wp.zeros(1, dtype=wp.int32, device=d),
+        rk=rk,
+    )

@@ -1,0 +1,135 @@
+"""Run settings and the batch result: what goes into a run and what comes out (host side)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+METHODS = ("rattle", "rk4", "yoshida4", "symplectic_euler")
+PRECISIONS = ("fp32", "fp64")
+
+STATUS_OK = 0
+STATUS_NONFINITE = 1
+STATUS_CONSTRAINT = 2
+STATUS_NAMES = {STATUS_OK: "ok", STATUS_NONFINITE: "non-finite state", STATUS_CONSTRAINT: "bar constraint failed"}
+
+# swept per-column parameters and their units
+COLUMN_PARAMETERS = {
+    "prestrain": "1",
+    "v0": "m s-1",
+    "base_rigidity": "1",
+    "cable_EA": "N",
+    "unit_mass": "kg",
+}
+
+
+class SettingsError(ValueError):
+    """Invalid run setting; the message names the field and the value."""
+
+
+@dataclass
+class RunSettings:
+    """How to integrate a batch (SI units)."""
+
+    t_end: float = 1.0
+    """Simulated time [s]."""
+    dt: float | str = "auto"
+    """Time step [s], or 'auto': dt_safety times the method's stability limit from omega_max."""
+    method: str = "rattle"
+    """'rattle' (default: velocity Verlet + position/velocity projection), 'rk4' (the paper's
+    RK4 with projection), 'yoshida4' (RATTLE triple-jump composition), 'symplectic_euler'."""
+    precision: str = "fp64"
+    """'fp32' or 'fp64'."""
+    output_interval: float | None = None
+    """Time between recorded outputs [s]; None: about 200 outputs over t_end."""
+    record_strain: bool = True
+    """Keep the prism strain history (n_out x n_prisms per column)."""
+    device: str | None = None
+    """Warp device ('cpu', 'cuda:0'); None: the GPU if there is one, else the CPU."""
+    dt_safety: float = 0.25
+    """Fraction of the stability limit used when dt = 'auto'."""
+    allow_unstable_dt: bool = False
+    """Accept an explicit dt above the stability limit (for stability studies)."""
+    projection_tol: float | None = None
+    """Relative bar-length tolerance of the projection; None: 1e-13 (fp64) or 2e-7 (fp32)."""
+    max_projection_iters: int = 25
+    """Newton iterations allowed per projection before a column is flagged."""
+    failure_bar_error: float = 1e-3
+    """Relative bar-length error above which a column is frozen and flagged."""
+    steps_per_graph: int = 50
+    """Steps captured in one CUDA graph."""
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise SettingsError(f"method = {self.method!r}; choose one of {METHODS}")
+        if self.precision not in PRECISIONS:
+            raise SettingsError(f"precision = {self.precision!r}; choose one of {PRECISIONS}")
+        if not (np.isfinite(self.t_end) and self.t_end > 0):
+            raise SettingsError(f"t_end = {self.t_end!r} s must be finite and > 0")
+        if isinstance(self.dt, str):
+            if self.dt != "auto":
+                raise SettingsError(f"dt = {self.dt!r}; give seconds or 'auto'")
+        elif not (np.isfinite(self.dt) and 0 < self.dt <= self.t_end):
+            raise SettingsError(f"dt = {self.dt!r} s must be finite, > 0 and <= t_end")
+        if self.output_interval is not None and not (
+            np.isfinite(self.output_interval) and self.output_interval > 0
+        ):
+            raise SettingsError(f"output_interval = {self.output_interval!r} s must be finite and > 0")
+        if not (0 < self.dt_safety <= 1):
+            raise SettingsError(f"dt_safety = {self.dt_safety!r} must lie in (0, 1]")
+        if self.projection_tol is not None and not (0 < self.projection_tol < 1e-2):
+            raise SettingsError(f"projection_tol = {self.projection_tol!r} must lie in (0, 1e-2)")
+        if int(self.max_projection_iters) < 1:
+            raise SettingsError(f"max_projection_iters = {self.max_projection_iters!r} must be >= 1")
+        if int(self.steps_per_graph) < 1:
+            raise SettingsError(f"steps_per_graph = {self.steps_per_graph!r} must be >= 1")
+
+    @property
+    def tolerance(self) -> float:
+        if self.projection_tol is not None:
+            return self.projection_tol
+        return 1e-13 if self.precision == "fp64" else 2e-7
+
+
+@dataclass
+class BatchResult:
+    """What a batch run returns, on the host. B = number of columns."""
+
+    params: dict
+    """Per-column parameters actually used, each shape (B,)."""
+    time: np.ndarray
+    """(n_out,) output times [s]."""
+    strain: np.ndarray | None
+    """(B, n_out, n_prisms) prism axial strain (h - h0)/h [1], negative in compression; None if not kept."""
+    kinetic_energy: np.ndarray
+    """(B, n_out) [J]."""
+    elastic_energy: np.ndarray
+    """(B, n_out) elastic energy of all cables, prestress included [J]."""
+    energy_error: np.ndarray
+    """(B,) max_t |E(t) - E(0)| / KE(0) [1] over the outputs (E = kinetic + elastic)."""
+    bar_length_error: np.ndarray
+    """(B,) max over all steps and bars of |l - L| / L after projection [1]."""
+    status: np.ndarray
+    """(B,) 0 ok, 1 non-finite state, 2 bar constraint failed (see STATUS_NAMES)."""
+    fail_step: np.ndarray
+    """(B,) step at which the column was frozen, -1 if it never failed."""
+    dt: float
+    """Time step used [s]."""
+    n_steps: int
+    method: str
+    precision: str
+    device: str
+    """Warp device alias the batch ran on."""
+    device_name: str
+    """Human-readable device name."""
+    wall_time: float
+    """Seconds spent stepping (excludes build and compile)."""
+    dt_limit: float = float("nan")
+    """Predicted stability limit of the method for the stiffest column [s]."""
+    info: dict = field(default_factory=dict)
+    """Extra facts: projection iterations, compile time, steps per graph, etc."""
+
+    @property
+    def n_columns(self) -> int:
+        return int(self.status.shape[0])

@@ -1,0 +1,365 @@
+"""Integrator orchestration: time step choice, the step as kernel launches, graph capture, outputs.
+
+Methods (one force evaluation = one ``gather_accel`` launch):
+
+* ``rattle`` (default): velocity Verlet with SHAKE position projection and velocity
+  projection every step (Andersen 1983). 2nd order, symplectic; stable for omega*dt < 2.
+* ``rk4``: the paper's scheme, classic RK4 on the index-1 constrained equations, then
+  projection of positions and velocities every step. 4th order; stable for omega*dt < 2*sqrt(2).
+* ``yoshida4``: RATTLE composed by Yoshida's triple jump. 4th order, symmetric; omega*dt < 1.573.
+* ``symplectic_euler``: kick with the full dt, drift, project. 1st order (negative control).
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import time
+
+import numpy as np
+import warp as wp
+
+from .batch import NetworkBatch, column_batch, omega_max_bound
+from .columns import ColumnConfig
+from .kernels import make_kernels
+from .model import REAL, Data, Model, build_model, make_data
+from .settings import BatchResult, RunSettings, SettingsError
+
+# stability limit of omega*dt for each method on an undamped oscillator
+STABILITY = {"rattle": 2.0, "rk4": 2.0 * math.sqrt(2.0), "yoshida4": 1.5734, "symplectic_euler": 2.0}
+FORCE_EVALS = {"rattle": 1, "rk4": 4, "yoshida4": 3, "symplectic_euler": 1}
+_W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
+YOSHIDA = (_W1, 1.0 - 2.0 * _W1, _W1)
+
+
+def default_device() -> str:
+    """The first CUDA device if there is one, else the CPU."""
+    return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
+
+
+def resolve_device(name: str | None) -> wp.context.Device:
+    name = name or default_device()
+    try:
+        return wp.get_device(name)
+    except Exception as exc:  # warp raises RuntimeError/ValueError for unknown aliases
+        raise SettingsError(f"device = {name!r} is not available ({exc}); use 'cpu' or 'cuda:N'") from None
+
+
+def choose_timestep(settings: RunSettings, omega_max: float):
+    """Returns (dt, dt_limit, n_steps, output_every) with dt dividing the output interval."""
+    limit = STABILITY[settings.method] / omega_max if omega_max > 0 else math.inf
+    interval = settings.output_interval or settings.t_end / 200.0
+    if settings.dt == "auto":
+        target = settings.dt_safety * limit
+        every = max(1, math.ceil(interval / target))
+        dt = interval / every
+        dt = min(dt, settings.t_end)
+    else:
+        dt = float(settings.dt)
+        if dt > limit and not settings.allow_unstable_dt:
+            raise SettingsError(
+                f"dt = {dt:.4g} s exceeds the stability limit {limit:.4g} s of method {settings.method!r} "
+                f"(omega_max = {omega_max:.4g} rad/s with all cables taut); use dt <= {limit:.4g}, dt = 'auto', "
+                "or allow_unstable_dt"
+            )
+        every = max(1, round(interval / dt))
+    n_steps = max(1, math.ceil(settings.t_end / dt - 1e-9))
+    return dt, limit, n_steps, every
+
+
+class Integrator:
+    """Holds the model, data and kernels of one batch and advances it on one Warp device."""
+
+    def __init__(self, batch: NetworkBatch, settings: RunSettings, dt: float, output_every: int, n_out: int):
+        self.settings = settings
+        self.device = resolve_device(settings.device)
+        self.dt = dt
+        self.every = output_every
+        self.n_out = n_out
+        t0 = time.perf_counter()
+        with wp.ScopedDevice(self.device):
+            self.model: Model = build_model(batch, settings.precision, self.device)
+            self.data: Data = make_data(self.model, batch.velocity, settings.method)
+            real = REAL[settings.precision]
+            self.real = real
+            self.k = make_kernels(real)
+            m = self.model
+            B = m.n_columns
+            self.strain = None
+            if settings.record_strain and m.n_prisms > 0:
+                self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
+            self.kinetic = wp.zeros((n_out, B), dtype=real)
+            self.elastic = wp.zeros((n_out, B), dtype=real)
+        self.build_time = time.perf_counter() - t0
+        self.graph = None
+        self.graph_steps = 0
+
+    # ------------------------------------------------------------------ launch helpers
+    def _launch(self, kernel, dim, inputs):
+        wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
+
+    def _gather(self, u, v, kick, a, v_out):
+        m, d = self.model, self.data
+        self._launch(self.k.gather_accel, (m.n_nodes, m.n_columns), [
+            m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L, m.node_start, m.node_member,
+            m.partner, m.minv_self, m.minv_cross, d.status, u, v, self.real(kick), a, v_out])
+
+    def _kick_drift(self, kick, drift):
+        m, d = self.model, self.data
+        self._launch(self.k.kick_drift, (m.n_nodes, m.n_columns),
+                     [d.status, d.a, self.real(kick), self.real(drift), d.u, d.v, d.u_prev])
+
+    def _project_positions(self, ug, inv_dt):
+        m, d, s = self.model, self.data, self.settings
+        if m.n_constraints == 0:
+            return
+        self._launch(self.k.project_positions, m.n_columns, [
+            m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.partner, m.minv_self, m.minv_cross,
+            m.bandwidth, self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
+            self.real(inv_dt), d.band, ug, d.step, d.u, d.v, d.lam, d.imp, d.bar_err, d.iters, d.status, d.fail_step])
+
+    def _cpl(self):
+        m = self.model
+        return [m.con_i, m.con_j, m.con_dref, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross, m.cpl_sign]
+
+    def _factor_project_velocities(self, u, v):
+        m, d = self.model, self.data
+        if m.n_constraints == 0:
+            return
+        self._launch(self.k.factor_project_velocities, m.n_columns, self._cpl() + [
+            m.partner, m.minv_self, m.minv_cross, m.bandwidth, u, d.step, d.band, v, d.lam, d.imp,
+            d.status, d.fail_step])
+
+    def _factor(self, u):
+        m, d = self.model, self.data
+        if m.n_constraints == 0:
+            return
+        self._launch(self.k.factor_only, m.n_columns, self._cpl() + [
+            m.minv_self, m.minv_cross, m.bandwidth, u, d.step, d.band, d.status, d.fail_step])
+
+    def _constrained_accel(self, u, v, a):
+        m, d = self.model, self.data
+        if m.n_constraints == 0:
+            return
+        self._launch(self.k.constrained_accel, m.n_columns, self._cpl() + [
+            m.partner, m.minv_self, m.minv_cross, m.bandwidth, u, v, d.step, d.band, a, d.lam, d.imp,
+            d.status, d.fail_step])
+
+    def _record(self):
+        m, d = self.model, self.data
+        if self.strain is not None:
+            self._launch(self.k.record_strain, (m.n_prisms, m.n_columns),
+                         [m.level_nodes, m.h0, self.every, d.u, d.step, self.strain])
+        self._launch(self.k.record_energy, m.n_columns, [
+            m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L, m.partner, m.m_self, m.m_cross,
+            self.every, d.u, d.v, d.step, self.kinetic, self.elastic])
+
+    # ------------------------------------------------------------------ steps
+    def load_kernels(self):
+        """Compile/load every kernel module now, so no load happens while stepping or capturing."""
+        for name, kern in vars(self.k).items():
+            if isinstance(kern, wp.Kernel):
+                kern.module.load(self.device)
+
+    def initialize(self):
+        """Make the initial velocity exactly admissible, factor A(u0), compute a(u0), record step 0."""
+        self.load_kernels()
+        d = self.data
+        self._factor_project_velocities(d.u, d.v)
+        self._gather(d.u, d.v, 0.0, d.a, d.v)
+        self._record()
+
+    def _rattle(self, h):
+        d = self.data
+        self._kick_drift(0.5 * h, h)
+        self._project_positions(d.u_prev, 1.0 / h)
+        self._gather(d.u, d.v, 0.5 * h, d.a, d.v)
+        self._factor_project_velocities(d.u, d.v)
+
+    def _symplectic_euler(self, h):
+        d = self.data
+        self._kick_drift(h, h)
+        self._project_positions(d.u_prev, 1.0 / h)
+        self._factor_project_velocities(d.u, d.v)
+        self._gather(d.u, d.v, 0.0, d.a, d.v)
+
+    def _rk4(self, h):
+        d, r = self.data, self.data.rk
+        wp.copy(r["u0"], d.u)
+        wp.copy(r["v0"], d.v)
+        # stage inputs (us, vs); the first stage reads the current state
+        us, vs = d.u, d.v
+        coefs = ((1.0, 0.5 * h, 1), (2.0, 0.5 * h, 0), (2.0, h, 0), (1.0, h / 6.0, 2))
+        for c_acc, c_next, first in coefs:
+            self._gather(us, vs, 0.0, d.a, d.imp)  # imp: unused velocity output
+            self._constrained_accel(us, vs, d.a)
+            u_next, v_next = (d.u, d.v) if first == 2 else (r["us"], r["vs"])
+            self._launch(self.k.rk_stage, (self.model.n_nodes, self.model.n_columns), [
+                d.status, r["u0"], r["v0"], vs, d.a, self.real(c_acc), self.real(c_next), first,
+                r["acc_u"], r["acc_v"], u_next, v_next])
+            us, vs = r["us"], r["vs"]
+        # project the new state: positions along G(u_new), then velocities
+        wp.copy(d.u_prev, d.u)
+        self._factor(d.u)
+        self._project_positions(d.u_prev, 0.0)
+        self._factor_project_velocities(d.u, d.v)
+
+    def step(self):
+        h = self.dt
+        method = self.settings.method
+        if method == "rattle":
+            self._rattle(h)
+        elif method == "yoshida4":
+            for w in YOSHIDA:
+                self._rattle(w * h)
+        elif method == "rk4":
+            self._rk4(h)
+        elif method == "symplectic_euler":
+            self._symplectic_euler(h)
+        self._launch(self.k.advance_counter, 1, [self.data.step])
+        self._record()
+
+    def advance(self, n: int):
+        """Advance n steps: through a captured CUDA graph of steps_per_graph steps when possible."""
+        spg = int(self.settings.steps_per_graph)
+        if self.device.is_cuda and n >= spg:
+            if self.graph is None:
+                gc.collect()
+                with wp.ScopedCapture(device=self.device) as cap:
+                    for _ in range(spg):
+                        self.step()
+                self.graph = cap.graph
+                self.graph_steps = spg
+            while n >= spg:
+                wp.capture_launch(self.graph)
+                n -= spg
+        for _ in range(n):
+            self.step()
+
+    # ------------------------------------------------------------------ results
+    def n_failed(self) -> int:
+        return int(np.count_nonzero(self.data.status.numpy()))
+
+
+def _to_host(a: wp.array | None):
+    return None if a is None else a.numpy().astype(np.float64)
+
+
+def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> BatchResult:
+    """Integrate a prepared batch; see :func:`simulate_batch` for columns."""
+    omega = float(omega_max_bound(batch).max())
+    dt, limit, n_steps, every = choose_timestep(settings, omega)
+    n_out = n_steps // every + 1
+    integ = Integrator(batch, settings, dt, every, n_out)
+    with wp.ScopedDevice(integ.device):
+        t_compile = time.perf_counter()
+        integ.initialize()
+        wp.synchronize_device(integ.device)
+        t_compile = time.perf_counter() - t_compile
+        t0 = time.perf_counter()
+        done = 0
+        chunk = max(int(settings.steps_per_graph), 1)
+        if progress is not None:
+            # report roughly every 0.5 s of wall time, never more often than every chunk
+            last = 0.0
+        while done < n_steps:
+            n = min(chunk * max(1, (n_steps - done) // (chunk * 20) if integ.device.is_cuda else 1), n_steps - done)
+            integ.advance(n)
+            done += n
+            if progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
+                wp.synchronize_device(integ.device)
+                progress(done, n_steps, integ.n_failed())
+                last = time.perf_counter()
+        wp.synchronize_device(integ.device)
+        wall = time.perf_counter() - t0
+    d = integ.data
+    ke = _to_host(integ.kinetic).T  # (B, n_out)
+    ee = _to_host(integ.elastic).T
+    status = d.status.numpy().astype(np.int32)
+    fail_step = d.fail_step.numpy().astype(np.int64)
+    E = ke + ee
+    # only outputs written before a failure are meaningful
+    valid = np.ones_like(E, dtype=bool)
+    for b in np.flatnonzero(status):
+        last_slot = max(int(fail_step[b]) - 1, 0) // every
+        valid[b, last_slot + 1 :] = False
+        ke[b, last_slot + 1 :] = np.nan
+        ee[b, last_slot + 1 :] = np.nan
+    scale = np.where(ke[:, 0] > 0, ke[:, 0], np.nan)
+    with np.errstate(invalid="ignore"):
+        dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
+        energy_error = dev.max(axis=1) / scale
+    strain = None
+    if integ.strain is not None:
+        strain = _to_host(integ.strain).transpose(2, 0, 1)  # (B, n_out, n_prisms)
+        for b in np.flatnonzero(status):
+            last_slot = max(int(fail_step[b]) - 1, 0) // every
+            strain[b, last_slot + 1 :] = np.nan
+    return BatchResult(
+        params=dict(batch.params),
+        time=np.arange(n_out) * every * dt,
+        strain=strain,
+        kinetic_energy=ke,
+        elastic_energy=ee,
+        energy_error=energy_error,
+        bar_length_error=d.bar_err.numpy().astype(np.float64),
+        status=status,
+        fail_step=fail_step,
+        dt=dt,
+        n_steps=n_steps,
+        method=settings.method,
+        precision=settings.precision,
+        device=str(integ.device),
+        device_name=integ.device.name,
+        wall_time=wall,
+        dt_limit=limit,
+        info={
+            "omega_max_bound": omega,
+            "output_every": every,
+            "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
+            "bandwidth": integ.model.bandwidth,
+            "n_constraints": integ.model.n_constraints,
+            "build_time": integ.build_time,
+            "initialize_time": t_compile,
+            "graph_steps": integ.graph_steps,
+            "force_evaluations_per_step": FORCE_EVALS[settings.method],
+            "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
+        },
+    )
+
+
+def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, progress=None) -> BatchResult:
+    """Simulate B T3 columns of one topology, each with its own parameters.
+
+    ``params`` maps names in :data:`~warp_tensegrity.settings.COLUMN_PARAMETERS` to arrays of
+    shape (B,) (or scalars); missing ones take the config's defaults.
+    ``progress(steps_done, n_steps, n_failed)`` is called about twice a second.
+    """
+    batch = column_batch(config, params)
+    return run_batch(batch, settings, progress)
+
+
+def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
+    """Time step, stability limit, step count and memory of a batch, without launching kernels."""
+    batch = column_batch(config, params)
+    omega = float(omega_max_bound(batch).max())
+    dt, limit, n_steps, every = choose_timestep(settings, omega)
+    n_out = n_steps // every + 1
+    r = 4 if settings.precision == "fp32" else 8
+    n, nc, ne, npr = batch.positions.shape[0], len(batch.constraints), len(batch.cables), config.n_prisms
+    bw = 1 + 11 if (batch.constraint_active.size and len(batch.constraints) > 3 * npr) else 1 + 5
+    state_vecs = 5 + (6 if settings.method == "rk4" else 0)
+    per_col = r * (3 * n * state_vecs + nc * (bw + 1) + 3 * ne + 2 * n_out + (n_out * npr if settings.record_strain else 0))
+    flops = FORCE_EVALS[settings.method] * (ne * 60 + n * 10) + nc * bw * bw * (5 if settings.method == "rk4" else 2)
+    return {
+        "dt": dt,
+        "dt_limit": limit,
+        "n_steps": n_steps,
+        "output_every": every,
+        "n_out": n_out,
+        "bytes_per_column": int(per_col),
+        "flops_per_column_step": int(flops),
+        "omega_max_bound": omega,
+        # rough: 2-core CPU backend ~ 1 ns per flop serial; GPU far faster (see benchmarks/)
+        "seconds_per_column_step_estimate": flops * 1e-9,
+    }
