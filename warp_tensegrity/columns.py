@@ -77,9 +77,9 @@ class ColumnConfig:
         for name in ("radius", "height", "cable_modulus", "cable_radius", "unit_mass"):
             _check_positive(name, getattr(self, name))
         if not (np.isfinite(self.bar_mass) and self.bar_mass >= 0):
-            raise NetworkError(f"bar_mass = {self.bar_mass!r} kg must be finite and >= 0")
+            raise NetworkError(f"bar_mass = {self.bar_mass} kg must be finite and >= 0")
         if not (np.pi / 3 < self.twist < np.pi):
-            raise NetworkError(f"twist = {self.twist!r} rad must lie in (pi/3, pi)")
+            raise NetworkError(f"twist = {self.twist} rad must lie in (pi/3, pi)")
         if self.end_base_mass not in END_BASE_MASS:
             raise NetworkError(f"end_base_mass = {self.end_base_mass!r}; choose one of {END_BASE_MASS}")
         if self.impact_admissibility not in IMPACT_ADMISSIBILITY:
@@ -114,7 +114,7 @@ def _check_positive(name, value, integer=False):
     ok = np.isfinite(value) and value > 0 and (not integer or float(value).is_integer())
     if not ok:
         kind = "a positive integer" if integer else "finite and > 0"
-        raise NetworkError(f"{name} = {value!r} must be {kind}")
+        raise NetworkError(f"{name} = {value} must be {kind}")
 
 
 # ---------------------------------------------------------------------- topology
@@ -249,7 +249,7 @@ def check_column_params(prestrain, v0, base_rigidity, cable_EA, unit_mass) -> No
         if not good.all():
             i = int(np.argmin(good))
             where = f"[{i}]" if arr.size > 1 else ""
-            raise NetworkError(f"{name}{where} = {arr[i]!r} {msg}")
+            raise NetworkError(f"{name}{where} = {arr[i]} {msg}")
 
 
 def node_masses(topo: ColumnTopology, unit_mass: float) -> np.ndarray:

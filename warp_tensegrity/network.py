@@ -140,7 +140,7 @@ class Network:
             bad = ~np.isfinite(arr) | (arr < 0)
             if bad.any():
                 i = int(np.argmax(bad))
-                raise NetworkError(f"node {i}: {name} = {arr[i]!r} kg must be finite and >= 0")
+                raise NetworkError(f"node {i}: {name} = {arr[i]} kg must be finite and >= 0")
         for kind, pairs, namer in (("bar", self.bars, self.bar_name), ("cable", self.cables, self.cable_name)):
             for k, (i, j) in enumerate(pairs):
                 if not (0 <= i < n and 0 <= j < n):
@@ -153,10 +153,10 @@ class Network:
         L = self.bar_lengths()
         for k in range(self.n_bars):
             if not (L[k] > 0):
-                raise NetworkError(f"{self.bar_name(k)}: length {L[k]!r} m must be > 0")
+                raise NetworkError(f"{self.bar_name(k)}: length {L[k]} m must be > 0")
             m = self.bar_mass[k]
             if not np.isfinite(m) or m < 0:
-                raise NetworkError(f"{self.bar_name(k)}: mass {m!r} kg must be finite and >= 0")
+                raise NetworkError(f"{self.bar_name(k)}: mass {m} kg must be finite and >= 0")
             i, j = self.bars[k]
             if self.fixed[i] and self.fixed[j]:
                 raise NetworkError(f"{self.bar_name(k)}: both ends are fixed; remove the bar")
@@ -167,14 +167,14 @@ class Network:
                 ("rest length", self.cable_rest_length[k], "m"),
             ):
                 if not np.isfinite(val) or val <= 0:
-                    raise NetworkError(f"{self.cable_name(k)}: {label} = {val!r} {unit} must be finite and > 0")
+                    raise NetworkError(f"{self.cable_name(k)}: {label} = {val} {unit} must be finite and > 0")
             c = self.cable_EA_compression[k]
             if not np.isfinite(c) or c < 0:
-                raise NetworkError(f"{self.cable_name(k)}: EA_compression = {c!r} N must be finite and >= 0")
+                raise NetworkError(f"{self.cable_name(k)}: EA_compression = {c} N must be finite and >= 0")
         sl = self.cable_lengths()
         for k in range(self.n_cables):
             if not sl[k] > 0:
-                raise NetworkError(f"{self.cable_name(k)}: current length {sl[k]!r} m must be > 0")
+                raise NetworkError(f"{self.cable_name(k)}: current length {sl[k]} m must be > 0")
         # every free node needs inertia
         inertia = self.node_mass.copy()
         np.add.at(inertia, self.bars[:, 0], self.bar_mass)
@@ -183,7 +183,7 @@ class Network:
         if free_no_mass.any():
             i = int(np.argmax(free_no_mass))
             raise NetworkError(
-                f"node {i}: free node has no mass (node mass {self.node_mass[i]!r} kg and no massive bar); "
+                f"node {i}: free node has no mass (node mass {self.node_mass[i]} kg and no massive bar); "
                 "give it mass or fix it"
             )
         # massive bars: the paper's consistent M is used only where massive bars do not share nodes

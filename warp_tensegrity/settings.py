@@ -125,6 +125,10 @@ class BatchResult:
     """Human-readable device name."""
     wall_time: float
     """Seconds spent stepping (excludes build and compile)."""
+    final_displacement: np.ndarray | None = None
+    """(B, n_nodes, 3) displacement from the reference positions at the last step [m]."""
+    final_velocity: np.ndarray | None = None
+    """(B, n_nodes, 3) velocity at the last step [m s-1]."""
     dt_limit: float = float("nan")
     """Predicted stability limit of the method for the stiffest column [s]."""
     info: dict = field(default_factory=dict)

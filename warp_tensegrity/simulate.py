@@ -312,6 +312,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
         device=str(integ.device),
         device_name=integ.device.name,
         wall_time=wall,
+        final_displacement=d.u.numpy().astype(np.float64).transpose(1, 0, 2),
+        final_velocity=d.v.numpy().astype(np.float64).transpose(1, 0, 2),
         dt_limit=limit,
         info={
             "omega_max_bound": omega,

@@ -1,0 +1,23 @@
+"""Shared fixtures: Warp on the CPU device (as in CI), quiet, one kernel cache per run."""
+
+import os
+
+import pytest
+import warp as wp
+
+wp.config.quiet = True
+
+
+def pytest_addoption(parser):
+    parser.addoption("--device", default="cpu", help="Warp device for engine tests (default: cpu)")
+
+
+@pytest.fixture(scope="session")
+def device(request):
+    return request.config.getoption("--device")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _warp_init():
+    wp.init()
+    yield

@@ -1,0 +1,278 @@
+"""Pulse measurement on synthetic strain histories with known answers (warp_tensegrity.measure)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from warp_tensegrity import measure as M
+
+H = 6.2e-3  # prism height [m]
+A = 0.05  # pulse amplitude [-]
+C = 23.7  # pulse speed [m s-1]
+
+
+def travelling(profile, n=50, w=3.0, amp=A, c=C, dt_frac=0.0537, after=5.0, t_end=None):
+    """strain[k, j] = -amp * profile(xi), xi = (x_j - x0 + c t_k) / W, W = w*H: a pulse of width
+    w prisms travelling toward prism 0, entering from beyond the free end. Off-grid on purpose
+    (x0, dt not commensurate with H). Returns strain, time, x0 [m], W [m]."""
+    W = w * H
+    x = np.arange(n) * H
+    x0 = (n - 1) * H + 5.3 * W
+    dt = dt_frac * W / c
+    t = np.arange(0.0, (x0 + after * W) / c if t_end is None else t_end, dt)
+    xi = (x[None, :] - x0 + c * t[:, None]) / W
+    return -amp * profile(xi), t, x0, W
+
+
+def sech2(xi):
+    return 1.0 / np.cosh(xi) ** 2
+
+
+def gauss(xi):
+    return np.exp(-0.5 * xi**2)
+
+
+@pytest.fixture(autouse=True)
+def _no_runtime_warnings():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        yield
+
+
+# ---------------------------------------------------------------------- full measurement
+
+
+@pytest.mark.parametrize("w", [2.5, 3.0, 4.0])
+def test_sech2_pulse(w):
+    s, t, _, _ = travelling(sech2, w=w)
+    r = M.measure_pulse(s, t, H)
+    assert r["amplitude"] == pytest.approx(A, rel=1e-2)
+    assert r["speed"] == pytest.approx(C, rel=5e-3)
+    assert r["speed_snapshot"] == pytest.approx(C, rel=5e-3)
+    assert r["width_fwhm"] == pytest.approx(2 * w * np.arccosh(np.sqrt(2)), rel=3e-2)
+    assert r["width_10"] == pytest.approx(2 * w * np.arccosh(np.sqrt(10)), rel=3e-2)
+    assert r["arrival_time"].shape == (50,)
+    assert np.all(np.isfinite(r["arrival_time"]))
+    assert np.all(np.diff(r["arrival_time"]) < 0)  # reaches high j first
+    assert r["threshold"] == pytest.approx(0.05 * A, rel=1e-2)
+
+
+def test_gaussian_pulse():
+    w = 2.5
+    s, t, _, _ = travelling(gauss, w=w)
+    r = M.measure_pulse(s, t, H)
+    assert r["amplitude"] == pytest.approx(A, rel=1e-2)
+    assert r["speed"] == pytest.approx(C, rel=5e-3)
+    assert r["speed_snapshot"] == pytest.approx(C, rel=5e-3)
+    assert r["width_fwhm"] == pytest.approx(2 * w * np.sqrt(2 * np.log(2)), rel=3e-2)
+    assert r["width_10"] == pytest.approx(2 * w * np.sqrt(2 * np.log(10)), rel=3e-2)
+
+
+def test_leading_peak_not_tail():
+    """An oscillatory tail (compression peaks 0.6 A, then decaying) behind the leading pulse."""
+
+    def pulse_and_tail(xi):
+        u = xi - 3.0  # tail starts 3 W behind the peak (the wave moves toward -xi)
+        tail = np.where(u > 0, 0.6 * np.sin(2 * np.pi * u / 4.0) * np.exp(-u / 12.0), 0.0)
+        return sech2(xi) + tail
+
+    s, t, _, _ = travelling(pulse_and_tail, w=3.0, after=40.0)
+    tr = M.peak_track(s, t)
+    win = slice(5, 45)
+    assert np.allclose(tr.value[win], A, rtol=1e-2, atol=0)
+    # peak times follow the leading peak xi = 0, not a tail crest
+    x0 = (50 - 1) * H + 5.3 * 3.0 * H
+    t_exact = (x0 - np.arange(50) * H) / C
+    assert np.allclose(tr.time[win], t_exact[win], rtol=0, atol=1e-2 * 3.0 * H / C)  # 1 % of the pulse passage time W/c
+    r = M.measure_pulse(s, t, H)
+    assert r["amplitude"] == pytest.approx(A, rel=1e-2)
+    assert r["speed"] == pytest.approx(C, rel=5e-3)
+
+
+def test_rising_front_wiggle_is_skipped():
+    """A local maximum on the rising front (q dips by < 50 %) is not the leading peak."""
+    t = np.arange(0.0, 8.0, 0.01)
+    q = (np.exp(-0.5 * ((t - 3.0) / 0.3) ** 2) + 0.15 * np.exp(-0.5 * ((t - 2.5) / 0.04) ** 2)
+         + 0.6 * np.exp(-0.5 * ((t - 5.0) / 0.3) ** 2))
+    k = np.argmin(np.abs(t - 2.52))
+    assert q[k - 1] < q[k] > q[k + 1]  # the wiggle is a genuine local maximum
+    tr = M.peak_track(-q[:, None], t)
+    assert tr.time[0] == pytest.approx(3.0, abs=1e-3)
+    assert tr.value[0] == pytest.approx(1.0, rel=1e-3)
+
+
+# ---------------------------------------------------------------------- single stages
+
+
+def test_arrival_times_analytic():
+    s, t, x0, W = travelling(sech2, w=3.0)
+    theta = 0.1 * A
+    ta = M.arrival_times(s, t, theta)
+    exact = (x0 - np.arange(50) * H - W * np.arccosh(np.sqrt(A / theta))) / C
+    assert np.allclose(ta, exact, rtol=0, atol=0.05 * (t[1] - t[0]))
+    # default threshold = 5 % of max compression
+    ta5 = M.arrival_times(s, t)
+    exact5 = (x0 - np.arange(50) * H - W * np.arccosh(np.sqrt(1 / 0.05))) / C
+    assert np.allclose(ta5, exact5, rtol=0, atol=0.05 * (t[1] - t[0]))
+
+
+def test_arrival_linear_interpolation_exact():
+    t = np.array([0.0, 1.0, 3.0, 4.0])
+    s = -np.array([0.0, 0.1, 0.5, 0.2])[:, None]
+    assert M.arrival_times(s, t, 0.3)[0] == pytest.approx(2.0)  # halfway in (1, 3)
+    assert np.isnan(M.arrival_times(s, t, 0.6)[0])  # never reached
+    assert np.isnan(M.arrival_times(s - 0.5, t, 0.3)[0])  # already above at t[0]
+
+
+def test_peak_parabolic_in_time_nonuniform():
+    """Exact for a parabolic peak on a non-uniform time grid."""
+    t = np.array([0.0, 0.5, 1.2, 1.9, 2.3, 3.0, 4.0, 5.0, 6.0])
+    q = np.maximum(0.0, 1.0 - (t - 1.7) ** 2)
+    q[t > 2.5] = 0.0
+    tr = M.peak_track(-q[:, None], t, threshold=0.1)
+    assert tr.time[0] == pytest.approx(1.7, abs=1e-12)
+    assert tr.value[0] == pytest.approx(1.0, abs=1e-12)
+    assert tr.sample[0] == 3
+
+
+def test_peak_location_off_grid():
+    j = np.arange(50.0)
+    centres = np.linspace(20.0, 21.0, 23)
+    gs = -np.exp(-0.5 * ((j[None, :] - centres[:, None]) / 3.0) ** 2)  # sigma 3 prisms
+    assert np.abs(M.peak_location(gs) - centres).max() < 1e-2
+    ss = -sech2((j[None, :] - centres[:, None]) / 4.0)
+    assert np.abs(M.peak_location(ss) - centres).max() < 1e-2
+    par = -np.maximum(0.0, 1.0 - ((j[None, :] - centres[:, None]) / 2.0) ** 2)  # exact parabola
+    assert np.allclose(M.peak_location(par), centres, atol=1e-12)
+    # restricted search picks the local peak near `near`
+    two = -(np.exp(-0.5 * ((j - 10.3) / 2.0) ** 2) + 2 * np.exp(-0.5 * ((j - 35.0) / 2.0) ** 2))
+    assert M.peak_location(two, near=10, search=2) == pytest.approx(10.3, abs=2e-2)
+    assert M.peak_location(two) == pytest.approx(35.0, abs=1e-9)
+
+
+def test_pulse_width_triangle_exact():
+    """Linear flanks: the interpolated crossings are exact."""
+    j = np.arange(40.0)
+    q = np.maximum(0.0, 1.0 - np.abs(j - 20.0) / 6.0)  # peak on a sample, half width 6
+    assert M.pulse_width(-q) == pytest.approx(6.0)
+    assert M.pulse_width(-q, level=0.1) == pytest.approx(10.8)
+    assert np.isnan(M.pulse_width(-np.maximum(0.0, 1.0 - np.abs(j - 2.0) / 6.0)))  # cut by the end
+    with pytest.raises(ValueError):
+        M.pulse_width(-q, level=1.5)
+
+
+def test_width_history_vectorised():
+    s, t, _, _ = travelling(sech2, w=3.0)
+    wh = M.pulse_width(s)
+    assert wh.shape == t.shape
+    fw = 2 * 3.0 * np.arccosh(np.sqrt(2))
+    inside = np.isfinite(wh)
+    assert inside.sum() > 100
+    assert np.allclose(wh[inside], fw, rtol=5e-2)
+
+
+def test_amplitude_and_speed_functions_match_measure():
+    s, t, _, _ = travelling(sech2, w=3.0)
+    r = M.measure_pulse(s, t, H)
+    assert M.leading_pulse_amplitude(s, t) == pytest.approx(r["amplitude"])
+    sp = M.pulse_speed(s, t, H)
+    assert sp.time_of_flight == pytest.approx(r["speed"])
+    assert sp.snapshot == pytest.approx(r["speed_snapshot"])
+    assert M.width_at_mid_column(s, t) == pytest.approx(r["width_fwhm"])
+    assert M.width_at_mid_column(s, t, level=0.1) == pytest.approx(r["width_10"])
+
+
+def test_window_defaults():
+    assert M.default_skip(50) == 5
+    assert M.default_skip(20) == 2
+    assert M.default_skip(10) == 1
+    assert M.default_skip(5) == 1
+    assert M.default_skip(4) == 0
+    assert M.measurement_window(50) == (5, 45)
+    assert M.measurement_window(50, skip_impact=8, skip_clamp=2) == (2, 42)
+
+
+def test_short_column():
+    s, t, _, _ = travelling(sech2, n=10, w=1.5)
+    r = M.measure_pulse(s, t, H)
+    assert r["amplitude"] == pytest.approx(A, rel=2e-2)
+    assert r["speed"] == pytest.approx(C, rel=5e-3)
+
+
+# ---------------------------------------------------------------------- batches and bad signals
+
+
+def test_batch_dims():
+    amps = np.array([[0.02, 0.05, 0.08], [0.03, 0.04, 0.06]])
+    speeds = np.array([[20.0, 30.0, 25.0], [22.0, 27.0, 31.0]])
+    t_end = 0.03
+    cases = [[travelling(sech2, amp=a, c=c, t_end=t_end, dt_frac=0.0537 * c / 20) for a, c in zip(ra, rc)]
+             for ra, rc in zip(amps, speeds)]
+    s = np.stack([np.stack([cs[0] for cs in row]) for row in cases])  # (2, 3, T, 50), common dt
+    t = cases[0][0][1]
+    n_t = t.size
+    r = M.measure_pulse(s, t, H, max_chunk_elements=2 * n_t * 50)  # force several chunks
+    assert r["amplitude"].shape == (2, 3)
+    assert r["arrival_time"].shape == (2, 3, 50)
+    assert np.allclose(r["amplitude"], amps, rtol=1e-2)
+    assert np.allclose(r["speed"], speeds, rtol=5e-3)
+    one = M.measure_pulse(s[1, 2], t, H)
+    for k in one:
+        assert np.allclose(r[k][1, 2], one[k], equal_nan=True), k
+    assert np.allclose(M.leading_pulse_amplitude(s, t), r["amplitude"])
+
+
+def test_flat_signal_is_nan():
+    t = np.linspace(0.0, 1e-2, 200)
+    for s in (np.zeros((200, 50)), np.full((200, 50), 0.01)):  # zero; uniform tension
+        r = M.measure_pulse(s, t, H)
+        for k, v in r.items():
+            if k != "threshold":
+                assert np.all(np.isnan(v)), k
+    assert np.all(np.isnan(M.arrival_times(np.zeros((200, 50)), t)))
+    assert np.isnan(M.peak_location(np.zeros(50)))
+    assert np.isnan(M.pulse_width(np.zeros(50)))
+
+
+def test_nan_signal_is_nan():
+    s, t, _, _ = travelling(sech2, w=3.0)
+    bad = s.copy()
+    bad[len(t) // 2, 17] = np.nan
+    r = M.measure_pulse(bad, t, H)
+    for k, v in r.items():
+        if k != "threshold":
+            assert np.all(np.isnan(v)), k
+    bad[:, :] = np.inf
+    r = M.measure_pulse(bad, t, H)
+    assert np.isnan(r["amplitude"]) and np.isnan(r["speed"])
+    # per-prism stages: only the spoilt prism is NaN
+    bad = s.copy()
+    bad[len(t) // 2, 17] = np.nan
+    ta = M.arrival_times(bad, t)
+    assert np.isnan(ta[17]) and np.all(np.isfinite(np.delete(ta, 17)))
+    # in a batch, only the spoilt record is NaN
+    r = M.measure_pulse(np.stack([s, bad]), t, H)
+    assert np.isfinite(r["amplitude"][0]) and np.isnan(r["amplitude"][1])
+
+
+def test_truncated_record():
+    """Peaks not yet over at the record's end are undefined; a window clear of them still works."""
+    s, t, x0, W = travelling(sech2, w=3.0)
+    t_cut = (x0 - 20 * H) / C  # the peak is at prism 20
+    keep = t < t_cut
+    tr = M.peak_track(s[keep], t[keep])
+    assert np.all(np.isnan(tr.time[:21]))
+    assert np.all(np.isfinite(tr.time[25:]))
+    assert np.isnan(M.leading_pulse_amplitude(s[keep], t[keep]))
+    amp = M.leading_pulse_amplitude(s[keep], t[keep], skip_clamp=25)
+    assert amp == pytest.approx(A, rel=1e-2)
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(ValueError):
+        M.measure_pulse(np.zeros((10, 5)), np.arange(9.0), H)
+    with pytest.raises(ValueError):
+        M.arrival_times(np.zeros((3, 5)), np.array([0.0, 2.0, 1.0]), 0.1)
+    with pytest.raises(ValueError):
+        M.peak_track(np.zeros((3, 5)), np.arange(3.0), end_fraction=1.0)

@@ -1,0 +1,492 @@
+"""Pulse measurement: arrival, leading peak, amplitude, speed and width of the impact wave.
+
+Input is the axial strain history of a column of prisms, ``strain[..., k, j]`` at time
+``time[k]`` [s] in prism ``j`` (any leading batch dims). Prism 0 is the clamped end, prism
+``n_prisms - 1`` the impacted free end; the wave runs from high ``j`` toward ``j = 0``.
+Strain is ``eps = (h - h0)/h`` [-], negative in compression. Everything here works on the
+compressive magnitude ``q = -eps`` and reports amplitudes as positive numbers (as the paper,
+Fabbrocino & Carpentieri 2017, does). Exact definitions: ``docs/measurements.md``.
+
+Pure NumPy, float64. Undefined or unmeasurable quantities (no arrival, flat signal,
+non-finite samples, too short a record) come back as NaN; nothing raises on signal values,
+only on malformed inputs (shapes, time axis, out-of-range options).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+DEFAULT_THRESHOLD_FRACTION = 0.05
+"""Default arrival threshold, as a fraction of the largest compression of the record."""
+DEFAULT_END_FRACTION = 0.5
+"""The leading pulse ends where compression falls to this fraction of its running maximum."""
+DEFAULT_SKIP_FRACTION = 0.1
+"""Default fraction of prisms left out of the measurement window at each end."""
+MIN_WINDOW = 3
+"""Smallest window (prisms) the default skips leave."""
+
+__all__ = [
+    "DEFAULT_THRESHOLD_FRACTION",
+    "DEFAULT_END_FRACTION",
+    "DEFAULT_SKIP_FRACTION",
+    "PeakTrack",
+    "PulseSpeed",
+    "default_skip",
+    "measurement_window",
+    "default_threshold",
+    "arrival_times",
+    "peak_track",
+    "leading_pulse_amplitude",
+    "pulse_speed",
+    "peak_location",
+    "pulse_width",
+    "width_at_mid_column",
+    "measure_pulse",
+]
+
+
+class PeakTrack(NamedTuple):
+    """Leading peak at each prism; arrays of shape (..., n_prisms), NaN / -1 where undefined."""
+
+    time: np.ndarray
+    """Time of the leading peak [s] (parabolic over 3 samples)."""
+    value: np.ndarray
+    """Compressive strain magnitude at the leading peak [-] (parabolic over 3 samples)."""
+    sample: np.ndarray
+    """Index of the sample holding the largest value of the leading pulse (-1 if undefined)."""
+
+
+class PulseSpeed(NamedTuple):
+    """Speed of the leading peak toward the clamp [m s-1], shape (...)."""
+
+    time_of_flight: np.ndarray
+    """Primary: least-squares fit of leading-peak time vs prism position over the window."""
+    snapshot: np.ndarray
+    """Check: least-squares fit of the spatial peak location (snapshots) vs time."""
+
+
+# ---------------------------------------------------------------------- input handling
+
+
+def _check_history(s, t):
+    if s.ndim < 2:
+        raise ValueError(f"strain must have shape (..., n_time, n_prisms), got {s.shape}")
+    if s.shape[-2] < 1 or s.shape[-1] < 1:
+        raise ValueError(f"strain needs at least one sample and one prism, got {s.shape}")
+    if t.ndim != 1 or t.shape[0] != s.shape[-2]:
+        raise ValueError(f"time must have shape ({s.shape[-2]},), got {t.shape}")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise ValueError("time must be finite and strictly increasing")
+
+
+def _as_history(strain, time):
+    """Validate; return (q, t, finite): q = -strain with non-finite samples zeroed,
+    finite[..., j] = prism j's whole history is finite."""
+    s = np.asarray(strain, dtype=np.float64)
+    t = np.asarray(time, dtype=np.float64)
+    _check_history(s, t)
+    ok = np.isfinite(s)
+    return np.where(ok, -s, 0.0), t, ok.all(axis=-2)
+
+
+def _as_snapshot(strain_snapshot):
+    """Validate; return (q, finite) for a snapshot (..., n_prisms)."""
+    s = np.asarray(strain_snapshot, dtype=np.float64)
+    if s.ndim < 1 or s.shape[-1] < 1:
+        raise ValueError(f"strain_snapshot must have shape (..., n_prisms), got {s.shape}")
+    ok = np.isfinite(s)
+    return np.where(ok, -s, 0.0), ok.all(axis=-1)
+
+
+def _check_fraction(name, value):
+    if not (np.isfinite(value) and 0.0 < value < 1.0):
+        raise ValueError(f"{name} = {value!r} must lie in (0, 1)")
+
+
+def _take(a, idx, axis):
+    """a[..., idx, ...] with one index per remaining position (idx lacks `axis`)."""
+    return np.take_along_axis(a, np.expand_dims(idx, axis), axis=axis).squeeze(axis)
+
+
+def _threshold(q, threshold):
+    """Threshold broadcast to (..., n_prisms) and the mask where it is usable (finite, > 0)."""
+    if threshold is None:
+        thr = DEFAULT_THRESHOLD_FRACTION * q.max(axis=(-2, -1))[..., None]
+    else:
+        thr = np.asarray(threshold, dtype=np.float64)
+    thr = np.broadcast_to(thr, q.shape[:-2] + q.shape[-1:])
+    with np.errstate(invalid="ignore"):
+        return thr, np.isfinite(thr) & (thr > 0)
+
+
+def default_threshold(strain) -> np.ndarray:
+    """Default arrival threshold, shape (...): ``DEFAULT_THRESHOLD_FRACTION`` (5 %) of the
+    largest compressive strain magnitude of each record (..., n_time, n_prisms) [-];
+    non-finite samples ignored. 0 for a record with no compression (then every result is NaN)."""
+    s = np.asarray(strain, dtype=np.float64)
+    q = np.where(np.isfinite(s), -s, 0.0)
+    return DEFAULT_THRESHOLD_FRACTION * q.max(axis=(-2, -1))
+
+
+def default_skip(n_prisms: int) -> int:
+    """Prisms left out at each end by default: ``round(0.1 * n_prisms)``, at least 1, reduced
+    (down to 0) so that at least ``MIN_WINDOW`` = 3 prisms remain. 50 -> 5, 20 -> 2, 10 -> 1,
+    5 -> 1, 4 -> 0."""
+    n = int(n_prisms)
+    skip = max(1, int(round(DEFAULT_SKIP_FRACTION * n)))
+    return max(0, min(skip, (n - MIN_WINDOW) // 2))
+
+
+def measurement_window(n_prisms: int, skip_impact: int | None = None, skip_clamp: int | None = None) -> tuple[int, int]:
+    """Prism window ``lo <= j < hi`` used for amplitude and speed: ``lo = skip_clamp``,
+    ``hi = n_prisms - skip_impact``; ``None`` -> :func:`default_skip`. May be empty."""
+    d = default_skip(n_prisms)
+    si = d if skip_impact is None else int(skip_impact)
+    sc = d if skip_clamp is None else int(skip_clamp)
+    if si < 0 or sc < 0:
+        raise ValueError(f"skip_impact = {skip_impact!r}, skip_clamp = {skip_clamp!r} must be >= 0")
+    return sc, max(sc, int(n_prisms) - si)
+
+
+# ---------------------------------------------------------------------- small numerics
+
+
+def _parabola_peak(y0, y1, y2, h1, h2):
+    """Vertex of the parabola through (-h1, y0), (0, y1), (h2, y2): (offset, value).
+    Valid for a strict maximum (y0 < y1 >= y2, so curvature < 0); NaN otherwise."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d0 = (y0 - y1) / h1
+        d2 = (y2 - y1) / h2
+        a = (d0 + d2) / (h1 + h2)
+        b = (d2 * h1 - d0 * h2) / (h1 + h2)
+        ok = a < 0
+        a = np.where(ok, a, -1.0)
+        off = np.where(ok, -b / (2.0 * a), np.nan)
+        val = np.where(ok, y1 - b * b / (4.0 * a), np.nan)
+    return off, val
+
+
+def _linfit(x, y, w):
+    """Weighted (0/1) least-squares line y = c0 + c1 x along the last axis: (c1, c0, n)."""
+    w = w.astype(np.float64)
+    n = w.sum(axis=-1)
+    x = np.where(w > 0, x, 0.0)
+    y = np.where(w > 0, y, 0.0)
+    ns = np.where(n > 0, n, 1.0)
+    xm = (w * x).sum(axis=-1) / ns
+    ym = (w * y).sum(axis=-1) / ns
+    dx = x - xm[..., None]
+    sxx = (w * dx * dx).sum(axis=-1)
+    sxy = (w * dx * (y - ym[..., None])).sum(axis=-1)
+    ok = (n >= 2) & (sxx > 0)
+    c1 = np.where(ok, sxy / np.where(ok, sxx, 1.0), np.nan)
+    c0 = np.where(ok, ym - c1 * xm, np.nan)
+    return c1, c0, n
+
+
+def _spatial_peak(q, near=None, search=1):
+    """Largest compression of snapshots q (..., P) - over all prisms, or over the prisms within
+    ``search`` of ``round(near)`` - refined by a parabola over 3 prisms.
+    Returns (fractional index, value, sample index i); NaN unless the chosen prism is a strict interior local
+    maximum (q[i-1] < q[i] >= q[i+1], q[i] > 0)."""
+    P = q.shape[-1]
+    j = np.arange(P)
+    if near is None:
+        qm, has = q, np.ones(q.shape[:-1], dtype=bool)
+    else:
+        near = np.asarray(near, dtype=np.float64)
+        c = np.round(np.where(np.isfinite(near), near, -10.0 * (P + search + 1)))
+        mask = np.abs(j - c[..., None]) <= search
+        qm, has = np.where(mask, q, -np.inf), mask.any(axis=-1)
+    i = qm.argmax(axis=-1)
+    i0, i2 = np.clip(i - 1, 0, P - 1), np.clip(i + 1, 0, P - 1)
+    y0, y1, y2 = _take(q, i0, -1), _take(q, i, -1), _take(q, i2, -1)
+    ok = has & (i >= 1) & (i <= P - 2) & (y0 < y1) & (y2 <= y1) & (y1 > 0)
+    off, val = _parabola_peak(y0, y1, y2, 1.0, 1.0)
+    return np.where(ok, i + off, np.nan), np.where(ok, val, np.nan), i
+
+
+# ---------------------------------------------------------------------- core stages
+
+
+def _arrival(q, t, finite, thr, thr_ok):
+    above = q >= thr[..., None, :]
+    hit = above.any(axis=-2)
+    k = above.argmax(axis=-2)
+    ok = finite & thr_ok & hit & (k >= 1)  # k = 0: already above at the first sample
+    km = np.maximum(k - 1, 0)
+    q0, q1 = _take(q, km, -2), _take(q, k, -2)
+    frac = (thr - q0) / np.where(ok, q1 - q0, 1.0)  # q0 < thr <= q1
+    return np.where(ok, t[km] + frac * (t[k] - t[km]), np.nan)
+
+
+def _track(q, t, finite, thr, thr_ok, end_fraction):
+    T = q.shape[-2]
+    tk = np.arange(T)[:, None]
+    above = q >= thr[..., None, :]
+    hit = above.any(axis=-2)
+    ka = above.argmax(axis=-2)  # first sample at or above threshold
+    runmax = np.maximum.accumulate(q, axis=-2)
+    ended = (tk > ka[..., None, :]) & (q <= end_fraction * runmax)
+    has_end = ended.any(axis=-2)
+    ke = ended.argmax(axis=-2)  # first sample after which the leading pulse is over
+    kp = np.where(tk < ke[..., None, :], q, -np.inf).argmax(axis=-2)  # its largest sample
+    ok = finite & thr_ok & hit & has_end & (kp >= 1)
+    km, kq = np.clip(kp - 1, 0, T - 1), np.clip(kp + 1, 0, T - 1)
+    t0, t1, t2 = t[km], t[kp], t[kq]
+    off, val = _parabola_peak(_take(q, km, -2), _take(q, kp, -2), _take(q, kq, -2),
+                              np.where(ok, t1 - t0, 1.0), np.where(ok, t2 - t1, 1.0))
+    ok &= np.isfinite(val)
+    return PeakTrack(np.where(ok, t1 + off, np.nan), np.where(ok, val, np.nan), np.where(ok, kp, -1))
+
+
+def _amplitude(track, lo, hi):
+    v = track.value[..., lo:hi]
+    if hi - lo < 1:
+        return np.full(v.shape[:-1], np.nan)
+    ok = np.isfinite(v).all(axis=-1)
+    return np.where(ok, np.median(np.where(np.isfinite(v), v, 0.0), axis=-1), np.nan)
+
+
+def _tof_fit(track, lo, hi):
+    """t_peak = c0 + c1 * j over the window; (c1 [s per prism], c0 [s]), NaN unless all defined."""
+    tp = track.time[..., lo:hi]
+    j = np.arange(lo, hi, dtype=np.float64)
+    ok = np.isfinite(tp).all(axis=-1) & (hi - lo >= 2)
+    c1, c0, _ = _linfit(np.broadcast_to(j, tp.shape), tp, np.broadcast_to(ok[..., None], tp.shape))
+    ok &= np.isfinite(c1) & (c1 < 0)  # the wave runs toward j = 0: t_peak decreases with j
+    return np.where(ok, c1, np.nan), np.where(ok, c0, np.nan)
+
+
+def _speeds(q, t, finite, track, lo, hi, h):
+    c1, c0 = _tof_fit(track, lo, hi)
+    h = np.asarray(h, dtype=np.float64)
+    v_tof = -h / c1
+    # snapshots: leading peak predicted by the fit at round(jf) in [lo+1, hi-2], searched +-1
+    jf = (t - c0[..., None]) / c1[..., None]  # (..., T) [prisms]
+    sel = np.isfinite(jf) & (jf >= lo + 1) & (jf <= hi - 2)
+    loc, _, _ = _spatial_peak(q, near=np.where(sel, jf, np.nan), search=1)
+    w = sel & np.isfinite(loc) & finite.all(axis=-1)[..., None]
+    w &= w.sum(axis=-1, keepdims=True) >= 3
+    slope, _, _ = _linfit(np.broadcast_to(t, loc.shape), loc, w)  # [prisms s-1]
+    return v_tof, -h * slope
+
+
+def _width(q, finite, level, near=None, search=1):
+    P = q.shape[-1]
+    j = np.arange(P)
+    loc, val, i = _spatial_peak(q, near, search)
+    ok = finite & np.isfinite(loc)
+    L = level * np.where(ok, val, 0.0)
+    ok &= _take(q, i, -1) >= L
+    below = q < L[..., None]
+    left = below & (j < i[..., None])
+    right = below & (j > i[..., None])
+    il = np.clip(np.where(left, j, -1).max(axis=-1), 0, P - 2)  # last sample below, left
+    ir = np.clip(np.where(right, j, P).min(axis=-1), 1, P - 1)  # first sample below, right
+    ok &= left.any(axis=-1) & right.any(axis=-1)
+    a0, a1 = _take(q, il, -1), _take(q, il + 1, -1)
+    b0, b1 = _take(q, ir - 1, -1), _take(q, ir, -1)
+    xl = il + (L - a0) / np.where(ok, a1 - a0, 1.0)
+    xr = ir - 1 + (b0 - L) / np.where(ok, b0 - b1, 1.0)
+    return np.where(ok, xr - xl, np.nan)
+
+
+def _mid_width(q, t, finite, track, level):
+    """Width at the sample nearest to the leading peak's time at the column middle."""
+    P = q.shape[-1]
+    if P % 2:
+        t_mid = track.time[..., (P - 1) // 2]
+    else:
+        t_mid = 0.5 * (track.time[..., P // 2 - 1] + track.time[..., P // 2])
+    ok = np.isfinite(t_mid) & finite.all(axis=-1)
+    k = np.abs(t - np.where(ok, t_mid, t[0])[..., None]).argmin(axis=-1)  # nearest sample
+    snap = np.take_along_axis(q, k[..., None, None], axis=-2)[..., 0, :]  # (..., P)
+    w = _width(snap, ok, level, near=np.full(snap.shape[:-1], 0.5 * (P - 1)), search=2)
+    return np.where(ok, w, np.nan)
+
+
+# ---------------------------------------------------------------------- public API
+
+
+def arrival_times(strain, time, threshold=None) -> np.ndarray:
+    """Arrival time [s] of the wave at each prism, shape (..., n_prisms).
+
+    The first time the compressive magnitude ``-strain`` reaches ``threshold`` [-], linearly
+    interpolated between the last sample below and the first sample at or above it.
+    ``threshold``: float or array broadcastable to (..., n_prisms); ``None`` ->
+    :func:`default_threshold` (5 % of the record's largest compression).
+    NaN where the threshold is never reached, is reached at the first sample already, the
+    prism's history has a non-finite sample, or the threshold is not finite and > 0.
+    """
+    q, t, finite = _as_history(strain, time)
+    thr, thr_ok = _threshold(q, threshold)
+    return _arrival(q, t, finite, thr, thr_ok)
+
+
+def peak_track(strain, time, threshold=None, end_fraction: float = DEFAULT_END_FRACTION) -> PeakTrack:
+    """Leading compression peak at each prism: time [s], value [-], sample index.
+
+    At prism j, with q = -strain and running maximum M(k) = max(q[0..k]):
+    ``ka`` is the first sample with q >= threshold (arrival), ``ke`` the first sample after
+    ``ka`` with q <= end_fraction * M (the leading pulse is over), and the leading peak is the
+    largest q in samples [0, ke) (first one on ties), refined by the parabola through it and
+    its two time neighbours (non-uniform time steps allowed). Equivalently: the first local
+    maximum above threshold after which q falls to ``end_fraction`` of it before exceeding it,
+    so rising-front wiggles and the oscillatory tail are both skipped.
+    NaN (sample -1) where there is no arrival, the pulse is not over before the record ends,
+    the peak is at the first sample, the history has a non-finite sample, or the threshold
+    is unusable. ``threshold`` as in :func:`arrival_times`; ``end_fraction`` in (0, 1).
+    """
+    _check_fraction("end_fraction", end_fraction)
+    q, t, finite = _as_history(strain, time)
+    thr, thr_ok = _threshold(q, threshold)
+    return _track(q, t, finite, thr, thr_ok, end_fraction)
+
+
+def leading_pulse_amplitude(strain, time, skip_impact: int | None = None, skip_clamp: int | None = None,
+                            threshold=None, end_fraction: float = DEFAULT_END_FRACTION) -> np.ndarray:
+    """Amplitude of the leading compression pulse [-] (positive), shape (...).
+
+    Median over the window prisms ``skip_clamp <= j < n_prisms - skip_impact`` (see
+    :func:`measurement_window`; default skip :func:`default_skip`, 5 per end for 50 prisms)
+    of the leading-peak values of :func:`peak_track`. The median ignores a stray prism
+    (discreteness, a misread peak) while equalling the mean for a steady pulse.
+    NaN if the window is empty or any window prism has no leading peak.
+    """
+    _check_fraction("end_fraction", end_fraction)
+    q, t, finite = _as_history(strain, time)
+    thr, thr_ok = _threshold(q, threshold)
+    lo, hi = measurement_window(q.shape[-1], skip_impact, skip_clamp)
+    return _amplitude(_track(q, t, finite, thr, thr_ok, end_fraction), lo, hi)
+
+
+def pulse_speed(strain, time, prism_height, skip_impact: int | None = None, skip_clamp: int | None = None,
+                threshold=None, end_fraction: float = DEFAULT_END_FRACTION) -> PulseSpeed:
+    """Speed [m s-1] (positive, toward the clamp) of the leading peak, shape (...).
+
+    ``time_of_flight`` (primary): least-squares line ``t_peak(j) = c0 + c1 j`` over the window
+    prisms (:func:`peak_track`, :func:`measurement_window`); speed ``= -prism_height / c1``,
+    prism position ``x_j = j * prism_height`` [m]. NaN unless every window prism has a peak,
+    the window holds >= 2 prisms and c1 < 0.
+    ``snapshot`` (check): at every time sample where the fitted track puts the leading peak at
+    fractional index ``jf`` in [lo + 1, hi - 2], its location from :func:`peak_location`
+    (searched within 1 prism of round(jf)); speed ``= -prism_height *`` slope of the
+    least-squares line location vs time (>= 3 snapshots, else NaN).
+    ``prism_height`` [m]: float or array broadcastable to (...).
+    """
+    _check_fraction("end_fraction", end_fraction)
+    q, t, finite = _as_history(strain, time)
+    thr, thr_ok = _threshold(q, threshold)
+    lo, hi = measurement_window(q.shape[-1], skip_impact, skip_clamp)
+    track = _track(q, t, finite, thr, thr_ok, end_fraction)
+    return PulseSpeed(*_speeds(q, t, finite, track, lo, hi, prism_height))
+
+
+def peak_location(strain_snapshot, near=None, search: int = 1) -> np.ndarray:
+    """Fractional prism index of the compression peak of a snapshot (..., n_prisms).
+
+    The prism with the largest ``-strain`` (over all prisms, or within ``search`` prisms of
+    ``round(near)`` if ``near`` is given, broadcastable to (...)), plus the vertex offset of the
+    parabola through it and its two neighbours, ``(q[i-1] - q[i+1]) / (2 (q[i-1] - 2 q[i] + q[i+1]))``.
+    NaN unless that prism is a strict interior local maximum of positive compression, or if the
+    snapshot has a non-finite value.
+    """
+    q, finite = _as_snapshot(strain_snapshot)
+    loc, _, _ = _spatial_peak(q, near, search)
+    return np.where(finite, loc, np.nan)
+
+
+def pulse_width(strain_snapshot, level: float = 0.5, near=None, search: int = 1) -> np.ndarray:
+    """Width [prisms] of the compression pulse of a snapshot (..., n_prisms) at ``level`` of its
+    peak (0.5: FWHM; 0.1: width at 10 %). Multiply by the prism height for metres.
+
+    Peak as in :func:`peak_location` (value from the same parabola, ``Q``); from the peak prism
+    go left and right to the first prism with ``-strain < level * Q``; each crossing is
+    linearly interpolated between that prism and its neighbour toward the peak; width = right
+    crossing - left crossing. NaN if a side has no crossing inside the column, no valid peak,
+    or a non-finite value. Leading dims are vectorised, so a history (..., n_time, n_prisms)
+    gives the width history (..., n_time) of the largest pulse.
+    """
+    _check_fraction("level", level)
+    q, finite = _as_snapshot(strain_snapshot)
+    return _width(q, finite, level, near, search)
+
+
+def width_at_mid_column(strain, time, level: float = 0.5, threshold=None,
+                        end_fraction: float = DEFAULT_END_FRACTION) -> np.ndarray:
+    """Width [prisms] of the leading pulse when its peak is at the middle of the column, shape (...).
+
+    ``t_mid`` = leading-peak time (:func:`peak_track`) at prism ``(n-1)/2`` (n odd) or the mean
+    of prisms ``n/2 - 1`` and ``n/2`` (n even); the snapshot is the time sample nearest to
+    ``t_mid``; width by :func:`pulse_width` with the peak searched within 2 prisms of the middle.
+    NaN where ``t_mid`` is undefined.
+    """
+    _check_fraction("level", level)
+    _check_fraction("end_fraction", end_fraction)
+    q, t, finite = _as_history(strain, time)
+    thr, thr_ok = _threshold(q, threshold)
+    return _mid_width(q, t, finite, _track(q, t, finite, thr, thr_ok, end_fraction), level)
+
+
+def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int | None = None,
+                  skip_clamp: int | None = None, end_fraction: float = DEFAULT_END_FRACTION,
+                  max_chunk_elements: int = 1 << 23) -> dict[str, np.ndarray]:
+    """All pulse measurements of strain histories (..., n_time, n_prisms) in one call.
+
+    Returns a dict of float64 arrays (leading shape ``...``):
+
+    * ``amplitude`` (...) [-]: :func:`leading_pulse_amplitude`;
+    * ``speed`` (...) [m s-1]: time-of-flight speed, :func:`pulse_speed`;
+    * ``speed_snapshot`` (...) [m s-1]: snapshot speed, :func:`pulse_speed`;
+    * ``width_fwhm``, ``width_10`` (...) [prisms]: :func:`width_at_mid_column` at 0.5, 0.1;
+    * ``arrival_time`` (..., n_prisms) [s]: :func:`arrival_times`;
+    * ``peak_time``, ``peak_value`` (..., n_prisms) [s], [-]: :func:`peak_track`;
+    * ``threshold`` (...) [-]: the arrival threshold used.
+
+    ``threshold`` None -> 5 % of each record's largest compression; else a float or an array
+    broadcastable to (...). A record with any non-finite sample gets NaN everywhere; so does a
+    flat one. Nothing raises on signal values. Leading dims are processed in chunks of about
+    ``max_chunk_elements`` samples to bound memory.
+    """
+    _check_fraction("end_fraction", end_fraction)
+    s = np.asarray(strain, dtype=np.float64)
+    t = np.asarray(time, dtype=np.float64)
+    _check_history(s, t)
+    lead, (T, P) = s.shape[:-2], s.shape[-2:]
+    B = int(np.prod(lead, dtype=np.int64))
+    s = s.reshape(B, T, P)
+    h = np.broadcast_to(np.asarray(prism_height, dtype=np.float64), lead).reshape(B)
+    if threshold is None:
+        thr_all = default_threshold(s)
+    else:
+        thr_all = np.broadcast_to(np.asarray(threshold, dtype=np.float64), lead).reshape(B)
+    lo, hi = measurement_window(P, skip_impact, skip_clamp)
+    keys_b = ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "threshold")
+    keys_p = ("arrival_time", "peak_time", "peak_value")
+    out = {k: np.full(B, np.nan) for k in keys_b} | {k: np.full((B, P), np.nan) for k in keys_p}
+    out["threshold"] = thr_all.copy()
+    step = max(1, int(max_chunk_elements) // max(1, T * P))
+    for b0 in range(0, B, step):
+        sl = slice(b0, min(B, b0 + step))
+        q, _, finite = _as_history(s[sl], t)
+        whole = finite.all(axis=-1)  # strict: any non-finite sample spoils the record
+        finite = finite & whole[:, None]
+        thr, thr_ok = _threshold(q, thr_all[sl, None])
+        track = _track(q, t, finite, thr, thr_ok, end_fraction)
+        v_tof, v_snap = _speeds(q, t, finite, track, lo, hi, h[sl])
+        res = {
+            "amplitude": _amplitude(track, lo, hi),
+            "speed": v_tof,
+            "speed_snapshot": v_snap,
+            "width_fwhm": _mid_width(q, t, finite, track, 0.5),
+            "width_10": _mid_width(q, t, finite, track, 0.1),
+            "arrival_time": _arrival(q, t, finite, thr, thr_ok),
+            "peak_time": track.time,
+            "peak_value": track.value,
+        }
+        for k, v in res.items():
+            out[k][sl] = np.where(whole[:, None] if v.ndim == 2 else whole, v, np.nan)
+    return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
