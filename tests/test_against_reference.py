@@ -97,10 +97,11 @@ def test_small_amplitude_wave_matches_linearised_theory(beta, device):
     v0 = 1e-6  # strain ~1e-5 << prestrain 2e-3: linear regime
     scene = build_column(cfg, prestrain=0.002, v0=v0, base_rigidity=beta)
     r = simulate_batch(cfg, {"prestrain": [0.002], "v0": [v0], "base_rigidity": [beta]},
-                       RunSettings(t_end=2.0, dt=1e-3, output_interval=0.01, device=device))
+                       RunSettings(t_end=2.0, dt=1e-3, method="rk4", output_interval=0.01, device=device))
     eps_lin = modal_strain(scene, r.time)
     scale = np.abs(eps_lin).max()
-    assert np.abs(r.strain[0] - eps_lin).max() < 0.03 * scale
+    # RK4's phase error is ~(w dt)^4/120: what remains is the O(strain/p) nonlinearity
+    assert np.abs(r.strain[0] - eps_lin).max() < 0.01 * scale
     # the strain front travels at the eigen-analysis long-wave speed or below it
     c0 = linear.long_wave_speed(scene).c0
     assert 0.02 < c0 < 0.03

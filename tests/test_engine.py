@@ -8,6 +8,9 @@ from warp_tensegrity.settings import RunSettings, SettingsError
 from warp_tensegrity.simulate import simulate_batch
 
 SMALL = ColumnConfig(n_prisms=6)
+# integrator-property tests use the impulse-projected impact: a gentler start that keeps the
+# dynamics in the regime each property is stated for (the default end_twist impact is 50x stronger)
+GENTLE = ColumnConfig(n_prisms=6, impact_admissibility="project", end_base_mass="full")
 PAPER_CASES = {  # FB and RB, prestressed, strong impact: cables slacken and re-tighten
     "prestrain": [0.002, 0.002, 0.0, 0.0],
     "v0": [0.1, 0.1, 0.005, 0.005],
@@ -33,7 +36,7 @@ def _final_strain(method, dt, params, t_end=0.2, precision="fp64", device="cpu",
     return r
 
 
-SMOOTH = {"prestrain": [0.01], "v0": [0.005], "base_rigidity": [0.0]}  # cables stay taut: smooth dynamics
+SMOOTH = {"prestrain": [0.01], "v0": [0.002], "base_rigidity": [0.0]}  # cables stay taut: smooth dynamics
 
 
 def test_smooth_case_keeps_cables_taut(device):
@@ -58,7 +61,7 @@ def test_rattle_energy_error_scales_as_dt_squared(device):
     e = []
     for dt in (2e-3, 1e-3):
         s = RunSettings(t_end=1.0, dt=dt, method="rattle", output_interval=0.01, device=device)
-        e.append(simulate_batch(SMALL, params, s).energy_error)
+        e.append(simulate_batch(GENTLE, params, s).energy_error)
     ratio = e[0] / e[1]
     assert np.all((ratio > 3.3) & (ratio < 4.8)), (e, ratio)
 
@@ -67,13 +70,14 @@ def test_rattle_energy_has_no_secular_drift(device):
     """Bounded oscillating error: the worst deviation late in a long run is no larger than early on."""
     params = {"prestrain": [0.002], "v0": [0.1], "base_rigidity": [0.0]}
     s = RunSettings(t_end=40.0, dt=2e-3, output_interval=0.02, device=device)
-    r = simulate_batch(ColumnConfig(n_prisms=4), params, s)
+    cfg = ColumnConfig(n_prisms=4, impact_admissibility="project", end_base_mass="full")
+    r = simulate_batch(cfg, params, s)
     E = r.kinetic_energy[0] + r.elastic_energy[0]
     dev = np.abs(E - E[0]) / r.kinetic_energy[0, 0]
     half = len(dev) // 2
     assert dev[half:].max() < 1.5 * dev[:half].max()
     # RK4 by contrast dissipates: its energy decays monotonically at coarse dt
-    r4 = simulate_batch(ColumnConfig(n_prisms=4), params, RunSettings(t_end=40.0, dt=8e-3, method="rk4", output_interval=0.02, device=device))
+    r4 = simulate_batch(cfg, params, RunSettings(t_end=40.0, dt=8e-3, method="rk4", output_interval=0.02, device=device))
     E4 = r4.kinetic_energy[0] + r4.elastic_energy[0]
     assert E4[-1] < E4[0]
 

@@ -61,12 +61,14 @@ class ColumnConfig:
     """Cable cross-section radius r_s [m]."""
     unit_mass: float = PAPER_UNIT_MASS
     """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
-    end_base_mass: str = "full"
-    """Mass on the free-end base: 'full' (= unit_mass, as every interior base) or 'half'."""
+    end_base_mass: str = "half"
+    """Mass on the end bases: 'half' (default: each unit's mass split between its two bases, so the
+    end bases carry half a unit) or 'full' (every base carries a whole unit)."""
     bar_mass: float = 0.0
     """Mass of each bar [kg]; the paper's columns carry their mass on the bases (0)."""
-    impact_admissibility: str = "project"
-    """How the axial impact velocity is made compatible with the rigid bars:
+    impact_admissibility: str = "end_twist"
+    """How the axial impact velocity is made compatible with the rigid bars (default 'end_twist',
+    the best fit to the paper's Section 4, see analysis/paper_2017.md):
     'project' - the impulse view: the axial velocity -v0 on the free-end nodes is projected onto
     the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
     'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
