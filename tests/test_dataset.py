@@ -1,0 +1,185 @@
+"""Sweep datasets: CF attributes, provenance, the CF encoding of explicit case lists, netCDF
+round trips and atomic writes."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+
+from warp_tensegrity import dataset as D
+from warp_tensegrity import sweep
+from warp_tensegrity.settings import BatchResult, STATUS_NAMES
+from warp_tensegrity.spec import parse_spec
+
+CASES = """
+title = "dataset test"
+[scene]
+n_prisms = 5
+
+[sweep]
+cases = [
+  { label = "FB soft", prestrain = 0.0,   v0 = 0.004, base_rigidity = 0.0 },
+  { label = "RB",      prestrain = 0.002, v0 = 0.008, base_rigidity = 1.0 },
+  { label = "mid",     prestrain = 0.001, v0 = 0.006, base_rigidity = 0.5 },
+]
+fixed = { cable_EA = 0.3 }
+
+[run]
+t_end = 0.1
+output_interval = 0.01
+device = "cpu"
+shard_size = 2
+record_strain = true
+"""
+
+GRID = """
+[scene]
+n_prisms = 5
+[sweep]
+grid = { v0 = [0.004, 0.008], base_rigidity = [0.0, 0.5, 1.0] }
+[run]
+t_end = 0.1
+output_interval = 0.01
+device = "cpu"
+shard_size = 4
+"""
+
+
+@pytest.fixture(scope="module")
+def case_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cases")
+    (d / "cases.toml").write_text(CASES)
+    out = sweep.run_sweep(d / "cases.toml", d / "cases.nc", progress=False)
+    return d, out
+
+
+@pytest.fixture(scope="module")
+def grid_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("grid")
+    (d / "grid.toml").write_text(GRID)
+    return sweep.run_sweep(d / "grid.toml", d / "grid.nc", progress=False)
+
+
+def test_every_variable_has_cf_attributes(case_run):
+    _, out = case_run
+    ds = D.open_sweep(out)
+    for name, v in ds.variables.items():
+        assert "long_name" in v.attrs, name
+        if v.dtype.kind in "fiu" and name != "status":
+            assert "units" in v.attrs, name
+    assert ds["v0"].attrs["units"] == "m s-1" and ds["time"].attrs["units"] == "s"
+    assert ds["speed"].attrs["units"] == "m s-1" and ds["arrival_time"].attrs["units"] == "s"
+    st = ds["status"]
+    assert list(st.attrs["flag_values"]) == sorted(STATUS_NAMES)
+    assert len(st.attrs["flag_meanings"].split()) == len(STATUS_NAMES)
+    assert st.attrs["flag_meanings"].split()[0] == "ok"
+
+
+def test_global_provenance(case_run):
+    d, out = case_run
+    a = D.open_sweep(out).attrs
+    text = (d / "cases.toml").read_text()
+    assert a["Conventions"] == "CF-1.10"
+    assert a["spec"] == text and a["spec_sha256"] == hashlib.sha256(text.encode()).hexdigest()
+    import warp
+
+    assert a["warp_version"] == warp.config.version
+    assert a["package_version"] and a["code_version"].startswith(a["package_version"] + "+src.")
+    assert a["git_commit"] == D.git_commit()
+    assert a["device"] == "cpu" and a["device_name"]
+    assert a["precision"] == "fp64" and a["method"] == "rattle"
+    assert 0 < a["dt"] <= a["dt_limit"] and a["n_steps"] >= 1
+    assert a["scene_n_prisms"] == 5 and a["swept_parameters"] == "prestrain v0 base_rigidity"
+    assert a["title"] == "dataset test" and a["wall_time"] > 0
+
+
+def test_case_list_is_cf_encoded_not_multiindex(case_run):
+    _, out = case_run
+    with netCDF4.Dataset(out) as nc:
+        assert nc.variables["v0"].dimensions == ("case",)
+        assert nc.variables["cable_EA"].dimensions == ()  # fixed: scalar coordinate
+        coords = nc.variables["amplitude"].coordinates.split()
+        assert {"prestrain", "v0", "base_rigidity", "case_label", "cable_EA", "unit_mass"} <= set(coords)
+        assert list(nc.variables["case_label"][:]) == ["FB soft", "RB", "mid"]
+        assert "_FillValue" not in nc.variables["v0"].ncattrs()
+    ds = D.open_sweep(out)
+    assert not any(isinstance(ix, __import__("pandas").MultiIndex) for ix in ds.indexes.values())
+    assert ds["v0"].dims == ("case",) and list(ds["v0"].values) == [0.004, 0.008, 0.006]
+    assert float(ds["cable_EA"]) == 0.3
+    # per-case selection by the auxiliary coordinates works
+    rb = ds.where(ds.base_rigidity == 1.0, drop=True)
+    assert rb.sizes["case"] == 1 and rb.prestrain.values.tolist() == [0.002]
+
+
+def test_grid_layout_and_selection(grid_run):
+    ds = D.open_sweep(grid_run)
+    assert ds["amplitude"].dims == ("v0", "base_rigidity")
+    assert "strain" not in ds  # record_strain defaults to false
+    assert ds["kinetic_energy"].dims == ("v0", "base_rigidity", "time")
+    assert float(ds["prestrain"]) == 0.0 and ds["prestrain"].dims == ()
+    assert ds.sel(v0=0.008, base_rigidity=0.5)["status"] == 0
+    assert ds.attrs["sweep_kind"] == "grid"
+
+
+def test_netcdf_round_trip_identical(case_run, tmp_path):
+    _, out = case_run
+    ds = D.open_sweep(out)
+    again = D.write_netcdf(ds, tmp_path / "again.nc")
+    back = D.open_sweep(again)
+    xr.testing.assert_identical(back, ds)
+    assert back.attrs == ds.attrs
+    for k in ds.variables:
+        assert back[k].attrs.keys() == ds[k].attrs.keys(), k
+    assert back["time"].dtype == np.float64  # seconds stay floats (no timedelta decoding)
+
+
+def test_shards_combine_to_the_sweep(case_run):
+    d, out = case_run
+    shards = sorted((d / "cases.nc.shards").glob("shard-*.nc"))
+    assert [p.name for p in shards] == ["shard-00000.nc", "shard-00001.nc"]
+    parts = [D.open_sweep(p) for p in shards]
+    assert [p.attrs["case_start"] for p in parts] == [0, 2]
+    whole = D.open_sweep(out)
+    cat = xr.concat([p.drop_attrs() for p in parts], dim="case", data_vars="minimal", coords="minimal")
+    xr.testing.assert_identical(cat, whole.drop_attrs())
+
+
+def _fake_result(B, T=11, P=5, dt=0.01) -> BatchResult:
+    rng = np.random.default_rng(0)
+    return BatchResult(
+        params={}, time=np.arange(T) * dt, strain=-rng.random((B, T, P)) * 1e-3,
+        kinetic_energy=rng.random((B, T)), elastic_energy=rng.random((B, T)),
+        energy_error=rng.random(B), bar_length_error=rng.random(B) * 1e-14,
+        status=np.zeros(B, dtype=np.int32), fail_step=-np.ones(B, dtype=np.int64),
+        dt=dt, n_steps=T - 1, method="rattle", precision="fp64", device="cpu", device_name="CPU", wall_time=0.1,
+    )
+
+
+def test_write_is_atomic(tmp_path, monkeypatch):
+    spec = parse_spec(CASES)
+    res = _fake_result(2)
+    meas = {k: np.ones(2) for k in ("amplitude", "speed", "width", "width_10")} | {"arrival_time": np.ones((2, 5))}
+    ds = D.shard_dataset(spec, spec.column_params(), 0, 2, res, meas, {"case_start": 0, "case_stop": 2})
+    path = tmp_path / "s.nc"
+    D.write_netcdf(ds, path)
+    before = path.read_bytes()
+
+    def boom(self, *a, **k):
+        Path(a[0]).write_bytes(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", boom)
+    with pytest.raises(OSError, match="disk full"):
+        D.write_netcdf(ds, path)
+    assert path.read_bytes() == before  # the old file is untouched
+    assert [p.name for p in tmp_path.iterdir()] == ["s.nc"]  # no temporary left behind
+
+
+def test_drop_run_dependent():
+    ds = xr.Dataset(attrs={"wall_time": 1.0, "history": "x", "dt": 0.1})
+    assert D.drop_run_dependent(ds).attrs == {"dt": 0.1}

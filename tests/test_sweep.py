@@ -1,0 +1,239 @@
+"""Sweeps end to end on the CPU with tiny columns: shards, resume after SIGKILL, shard-size
+invariance, a diverging column among normal ones, status/combine/dry-run."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from warp_tensegrity import cli, sweep
+from warp_tensegrity.dataset import drop_run_dependent, open_sweep
+from warp_tensegrity.spec import SpecError, parse_spec
+
+REPO = Path(__file__).resolve().parents[1]
+
+GRID_SPEC = """
+title = "test grid"
+[scene]
+n_prisms = 6
+
+[sweep]
+grid = { prestrain = [0.0, 0.002], v0 = [0.003, 0.006], base_rigidity = [0.0, 1.0] }
+
+[run]
+t_end = 0.2
+output_interval = 0.005
+device = "cpu"
+shard_size = 3
+record_strain = true
+"""
+
+
+def write(tmp_path, text, name="spec.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def run_cli(*args) -> int:
+    extra = ["--no-progress"] if args[0] in ("run", "resume") else []
+    return cli.main([*map(str, args), *extra])
+
+
+def comparable(ds: xr.Dataset) -> xr.Dataset:
+    return drop_run_dependent(ds)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """One uninterrupted run of GRID_SPEC (in-process)."""
+    d = tmp_path_factory.mktemp("reference")
+    spec = write(d, GRID_SPEC)
+    out = d / "ref.nc"
+    assert run_cli("run", spec, "-o", out) == 0
+    return open_sweep(out)
+
+
+def test_grid_dataset_layout(reference):
+    ds = reference
+    assert dict(ds.sizes) == {"prestrain": 2, "v0": 2, "base_rigidity": 2, "prism": 6, "time": 41}
+    assert ds["amplitude"].dims == ("prestrain", "v0", "base_rigidity")
+    assert ds["arrival_time"].dims == ("prestrain", "v0", "base_rigidity", "prism")
+    assert ds["strain"].dims == ("prestrain", "v0", "base_rigidity", "time", "prism")
+    assert (ds["status"] == 0).all()
+    assert float(ds["bar_length_error"].max()) < 1e-8
+    # the stronger impact gives the larger pulse (FB, zero prestrain)
+    amp = ds["amplitude"].sel(prestrain=0.0, base_rigidity=0.0)
+    assert np.isfinite(amp).all() and amp.sel(v0=0.006) > amp.sel(v0=0.003)
+    assert ds.attrs["sweep_kind"] == "grid" and ds.attrs["device"] == "cpu"
+
+
+def test_shard_size_invariance(tmp_path, reference):
+    spec = write(tmp_path, GRID_SPEC)
+    out = tmp_path / "one_shard.nc"
+    assert run_cli("run", spec, "-o", out, "--shard-size", 8) == 0
+    assert len(list((tmp_path / "one_shard.nc.shards").glob("shard-*.nc"))) == 1
+    xr.testing.assert_identical(comparable(open_sweep(out)), comparable(reference))
+
+
+def test_kill_midway_then_resume_is_identical(tmp_path, reference):
+    spec = write(tmp_path, GRID_SPEC)
+    out = tmp_path / "killed.nc"
+    shard_dir = tmp_path / "killed.nc.shards"
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "warp_tensegrity", "run", str(spec), "-o", str(out), "--shard-size", "1",
+         "--no-progress"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not (shard_dir / "shard-00000.nc").exists():
+            if proc.poll() is not None:
+                pytest.fail(f"run exited early (rc {proc.returncode}): {proc.stderr.read().decode()[-2000:]}")
+            if time.monotonic() > deadline:
+                pytest.fail("no shard file after 120 s")
+            time.sleep(0.002)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
+    assert proc.returncode == -signal.SIGKILL
+    assert not out.exists()
+    done_before = sorted(p.name for p in shard_dir.glob("shard-*.nc"))
+    assert 1 <= len(done_before) < 8, done_before
+    mtime0 = (shard_dir / "shard-00000.nc").stat().st_mtime_ns
+
+    st = sweep.sweep_status(out)
+    assert st["cases_done"] == len(done_before) and st["cases_remaining"] == 8 - len(done_before)
+    assert st["cases_diverged"] == 0 and not st["combined"]
+    assert run_cli("status", out) == cli.EXIT_INCOMPLETE
+    with pytest.raises(sweep.SweepError, match="not done"):
+        sweep.combine(out)
+
+    assert run_cli("resume", out) == 0
+    assert (shard_dir / "shard-00000.nc").stat().st_mtime_ns == mtime0  # reused, not recomputed
+    assert not list(shard_dir.glob(".*.tmp"))
+    xr.testing.assert_identical(comparable(open_sweep(out)), comparable(reference))
+    assert run_cli("status", out) == 0
+
+
+def test_resume_recomputes_corrupt_and_stale_shards(tmp_path, reference):
+    spec = write(tmp_path, GRID_SPEC)
+    out = tmp_path / "r.nc"
+    assert run_cli("run", spec, "-o", out) == 0
+    d = tmp_path / "r.nc.shards"
+    (d / "shard-00001.nc").write_bytes(b"CDF\x01 truncated")  # does not open
+    ds = open_sweep(d / "shard-00002.nc")
+    ds.attrs["fingerprint"] = "0" * 64  # made by another spec/code
+    ds.to_netcdf(d / "shard-00002.nc", engine="netcdf4")
+    mtime0 = (d / "shard-00000.nc").stat().st_mtime_ns
+    st = sweep.sweep_status(out)
+    assert [i for i, _ in st["shards_corrupt"]] == [1] and [i for i, _ in st["shards_stale"]] == [2]
+    assert st["cases_remaining"] == 5
+    assert run_cli("resume", spec, "-o", out) == 0
+    assert (d / "shard-00000.nc").stat().st_mtime_ns == mtime0
+    xr.testing.assert_identical(comparable(open_sweep(out)), comparable(reference))
+    assert run_cli("combine", out) == 0
+    xr.testing.assert_identical(comparable(open_sweep(out)), comparable(reference))
+
+
+def test_run_refuses_to_clobber_then_overwrites(tmp_path, capsys):
+    spec = write(tmp_path, GRID_SPEC.replace("v0 = [0.003, 0.006]", "v0 = [0.003]"))
+    out = tmp_path / "o.nc"
+    assert run_cli("run", spec, "-o", out) == 0
+    assert run_cli("run", spec, "-o", out) == 1
+    assert "resume" in capsys.readouterr().err
+    assert run_cli("run", spec, "-o", out, "--overwrite") == 0
+
+
+CASES_SPEC = """
+[scene]
+n_prisms = 6
+
+[sweep]
+cases = [
+  { prestrain = 0.0,   v0 = 0.003, base_rigidity = 0.0 },
+  { prestrain = 0.002, v0 = 0.006, base_rigidity = 1.0 },
+{ABSURD}
+  { prestrain = 0.0,   v0 = 0.006, base_rigidity = 0.0 },
+]
+
+[run]
+t_end = 0.2
+dt = 0.012                 # above the stability limit (~0.0096 s) but stable for the normal columns
+allow_unstable_dt = true
+output_interval = 0.024
+device = "cpu"
+shard_size = 2
+record_strain = true
+"""
+
+
+def test_diverging_column_is_recorded_and_others_unaffected(tmp_path):
+    absurd = "  { prestrain = 0.0, v0 = 1000.0, base_rigidity = 0.0 },   # absurd: 1 km/s impact"
+    with_bad = write(tmp_path, CASES_SPEC.replace("{ABSURD}", absurd), "with.toml")
+    without = write(tmp_path, CASES_SPEC.replace("{ABSURD}", ""), "without.toml")
+    assert run_cli("run", with_bad, "-o", tmp_path / "with.nc") == 0
+    assert run_cli("run", without, "-o", tmp_path / "without.nc") == 0
+    a = open_sweep(tmp_path / "with.nc")
+    b = open_sweep(tmp_path / "without.nc")
+    assert a.sizes["case"] == 4 and b.sizes["case"] == 3
+    assert a["v0"].dims == ("case",)  # CF auxiliary coordinate along case
+    bad = a.isel(case=2)
+    assert int(bad["status"]) != 0 and int(bad["fail_step"]) >= 0
+    assert np.isnan(float(bad["amplitude"])) and np.isnan(float(bad["speed"]))
+    assert sweep.sweep_status(tmp_path / "with.nc")["cases_diverged"] == 1
+    normal = a.isel(case=[0, 1, 3])
+    assert (normal["status"] == 0).all() and (normal["fail_step"] == -1).all()
+    keep = [v for v in a.data_vars]
+    for k in keep:
+        np.testing.assert_array_equal(normal[k].values, b[k].values, err_msg=k)
+    for k in ("prestrain", "v0", "base_rigidity"):
+        np.testing.assert_array_equal(normal[k].values, b[k].values)
+
+
+def test_dt_refused_without_allow_unstable(tmp_path, capsys):
+    text = CASES_SPEC.replace("{ABSURD}", "").replace("allow_unstable_dt = true", "")
+    spec = write(tmp_path, text)
+    assert run_cli("run", spec, "-o", tmp_path / "x.nc") == 1
+    err = capsys.readouterr().err
+    assert "run.dt = 0.012" in err and "stability limit" in err
+    assert not (tmp_path / "x.nc.shards").exists()
+
+
+def test_dry_run_prints_plan_and_runs_nothing(tmp_path, capsys):
+    spec = write(tmp_path, GRID_SPEC)
+    out = tmp_path / "d.nc"
+    assert run_cli("run", spec, "-o", out, "--dry-run") == 0
+    text = capsys.readouterr().out
+    assert "8 columns" in text and "3 of up to 3 columns" in text
+    assert "memory" in text and "time" in text and "dt =" in text
+    assert not out.exists() and not (tmp_path / "d.nc.shards").exists()
+
+
+def test_progress_bar(tmp_path):
+    import io
+
+    spec = parse_spec(GRID_SPEC.replace("v0 = [0.003, 0.006]", "v0 = [0.003]"))
+    buf = io.StringIO()
+    sweep.run_sweep(spec, tmp_path / "p.nc", progress=True, stream=buf)
+    text = buf.getvalue()
+    assert "4/4 columns" in text and "0 diverged" in text and "ETA" in text
+
+
+def test_python_api_matches_spec_error_paths(tmp_path):
+    spec = parse_spec(GRID_SPEC.replace("t_end = 0.2", "t_end = 0.2\ndt = 0.1"))
+    with pytest.raises(SpecError, match="run.dt"):
+        sweep.run_sweep(spec, tmp_path / "z.nc", progress=False)

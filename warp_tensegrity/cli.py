@@ -1,0 +1,193 @@
+"""``warp-tensegrity`` (also ``python -m warp_tensegrity``): run sweep specs.
+
+    warp-tensegrity run SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--dask N | --scheduler ADDR]
+    warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc)
+    warp-tensegrity status OUT.nc
+    warp-tensegrity combine OUT.nc
+
+Warp is imported only when a command needs the engine, so ``--help`` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE = 0, 1, 3
+
+
+def _device(value: str) -> str:
+    import re
+
+    if not re.match(r"^(cpu|cuda|cuda:\d+|auto)$", value):
+        raise argparse.ArgumentTypeError(f"--device {value!r}: give cpu, cuda, cuda:N or auto")
+    return value
+
+
+def _positive_int(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{value!r} is not a positive integer")
+    return n
+
+
+def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
+    p.add_argument("--device", type=_device, default=None,
+                   help="Warp device: cpu, cuda:N or auto (default: the spec's run.device, else the GPU if there is one, else the CPU)")
+    p.add_argument("--shard-size", type=_positive_int, default=None, metavar="N",
+                   help="columns per shard (default: the spec's run.shard_size)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--dask", type=_positive_int, default=None, metavar="N",
+                   help="run shards on a local Dask cluster of N worker processes (one per GPU, or N CPU workers)")
+    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run shards on an existing Dask cluster (e.g. tcp://host:8786)")
+    if dry_run:
+        p.add_argument("--dry-run", action="store_true",
+                       help="print the number of columns and shards and the estimated memory and time; run nothing")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--verbose", action="store_true", help="let Warp print its start-up and module-load messages")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="warp-tensegrity",
+        description="GPU batched parameter sweeps of impact waves in tensegrity columns (NVIDIA Warp).",
+        epilog="Spec reference and dataset layout: docs/sweeps.md",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("run", help="run a sweep spec into a netCDF file",
+                       description="Run SPEC: shards go to OUT.shards/, then combine into OUT.")
+    p.add_argument("spec", metavar="SPEC", help="sweep spec (TOML)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="combined netCDF output")
+    p.add_argument("--overwrite", action="store_true", help="discard an earlier run's shards and output")
+    _add_exec_options(p)
+
+    p = sub.add_parser("resume", help="finish an interrupted run",
+                       description="Reuse the shards that check out (same spec, code and columns), "
+                                   "recompute the others, combine. Give OUT.nc, or SPEC -o OUT.nc.")
+    p.add_argument("target", metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
+    p.add_argument("-o", "--output", default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
+    _add_exec_options(p)
+
+    p = sub.add_parser("status", help="cases done, diverged and remaining")
+    p.add_argument("output", metavar="OUT.nc")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = sub.add_parser("combine", help="combine the shards of a run into OUT.nc")
+    p.add_argument("output", metavar="OUT.nc")
+    return parser
+
+
+def _report_status(st: dict, as_json: bool) -> str:
+    if as_json:
+        return json.dumps(st, indent=2)
+    lines = [
+        f"output:     {st['output']}{' (combined, up to date)' if st['combined'] else ''}",
+        f"spec:       {st['spec']}",
+        f"columns:    {st['columns']} in {st['shards']} shards of {st['shard_size']}",
+        f"done:       {st['cases_done']} cases ({st['shards_done']} shards)",
+        f"diverged:   {st['cases_diverged']} cases",
+        f"remaining:  {st['cases_remaining']} cases",
+    ]
+    if st["shards_stale"]:
+        lines.append("stale:      " + "; ".join(f"shard {i}: {r}" for i, r in st["shards_stale"][:5]))
+    if st["shards_corrupt"]:
+        lines.append("corrupt:    " + "; ".join(f"shard {i}: {r}" for i, r in st["shards_corrupt"][:5]))
+    return "\n".join(lines)
+
+
+def _quiet_warp(verbose: bool) -> None:
+    if verbose:
+        return
+    try:
+        import warp
+
+        if hasattr(warp.config, "log_level") and hasattr(warp, "LOG_WARNING"):
+            warp.config.log_level = warp.LOG_WARNING  # Warp >= 1.19
+        else:  # pragma: no cover - older Warp
+            warp.config.quiet = True
+    except ImportError:  # pragma: no cover - warp is a dependency
+        pass
+
+
+def _looks_like_spec(path: str) -> bool:
+    return path.endswith(".toml")
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from .network import NetworkError
+    from .settings import SettingsError
+    from .spec import SpecError
+    from .sweep import SweepError
+
+    try:
+        return _dispatch(args)
+    except (SpecError, SweepError, SettingsError, NetworkError) as e:
+        print(f"warp-tensegrity: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("\nwarp-tensegrity: interrupted; finished shards are kept: `warp-tensegrity resume` continues",
+              file=sys.stderr)
+        return 130
+
+
+def _dispatch(args) -> int:
+    from . import sweep
+    from .spec import load_spec
+
+    if args.command in ("run", "resume"):
+        _quiet_warp(args.verbose)
+        device = None if args.device == "auto" else args.device
+        if args.command == "run":
+            spec = load_spec(Path(args.spec))
+            out = Path(args.output)
+            plan = sweep.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
+        else:
+            if _looks_like_spec(args.target):
+                if not args.output:
+                    raise sweep.SweepError("resume SPEC needs -o OUT.nc")
+                out = Path(args.output)
+                plan = sweep.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
+            else:
+                out = Path(args.target)
+                if args.output and Path(args.output) != out:
+                    raise sweep.SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
+                plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
+        if args.dry_run:
+            print(sweep.dry_run(plan))
+            if args.command == "resume" and plan.shard_dir.exists():
+                st = sweep.sweep_status(out, plan.spec)
+                print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")
+            return 0
+        path = sweep.execute(
+            plan,
+            resume=args.command == "resume",
+            overwrite=getattr(args, "overwrite", False),
+            progress=not args.no_progress,
+            dask_workers=args.dask,
+            scheduler=args.scheduler,
+        )
+        print(f"wrote {path}")
+        return 0
+    if args.command == "status":
+        st = sweep.sweep_status(args.output)
+        print(_report_status(st, args.json))
+        return 0 if st["cases_remaining"] == 0 else EXIT_INCOMPLETE
+    if args.command == "combine":
+        path = sweep.combine(args.output)
+        print(f"wrote {path}")
+        return 0
+    raise AssertionError(args.command)  # pragma: no cover
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,745 @@
+"""Sweep specs: a TOML file that names the fixed scene, the swept per-column parameters and the
+run settings, validated with errors that name the key path and the bad value.
+
+A spec has three parts (see ``docs/sweeps.md`` for every key)::
+
+    [scene]                 # ColumnConfig fields (+ non-swept per-column scalars)
+    n_prisms = 50
+    [sweep]
+    grid = {prestrain = [0.0, 0.002], v0 = {start = 1e-3, stop = 0.2, num = 16, spacing = "log"}}
+    # or: cases = [{prestrain = 0.0, v0 = 0.001, base_rigidity = 0.0}, ...]
+    fixed = {base_rigidity = 1.0}
+    [run]
+    t_end = 1.0
+    dt = "auto"
+
+Nothing here imports Warp: loading and validating a spec is instant. The dt stability check
+needs the engine's estimate (:func:`warp_tensegrity.sweep.plan_sweep` calls
+:meth:`SweepSpec.check_dt`).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import difflib
+import hashlib
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
+from .network import NetworkError
+from .settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+
+TOP_KEYS = ("title", "description", "scene", "sweep", "run")
+SWEEP_KEYS = ("grid", "cases", "fixed")
+RANGE_KEYS = ("start", "stop", "num", "spacing")
+SPACINGS = ("linear", "log")
+CASE_EXTRA_KEYS = ("label",)
+
+SCENE_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
+# per-column parameters that are not ColumnConfig fields and may be given as scene scalars
+SCENE_PARAMS = tuple(p for p in COLUMN_PARAMETERS if p not in SCENE_FIELDS)
+
+_RUN_DEFAULTS = {f.name: f.default for f in dataclasses.fields(RunSettings)}
+RUN_DEFAULTS = {
+    "method": _RUN_DEFAULTS["method"],
+    "dt": _RUN_DEFAULTS["dt"],
+    "t_end": _RUN_DEFAULTS["t_end"],
+    "output_interval": _RUN_DEFAULTS["output_interval"],
+    "precision": _RUN_DEFAULTS["precision"],
+    "device": _RUN_DEFAULTS["device"],
+    "shard_size": 256,
+    "record_strain": False,
+    "record_energy": True,
+    "dt_safety": _RUN_DEFAULTS["dt_safety"],
+    "allow_unstable_dt": _RUN_DEFAULTS["allow_unstable_dt"],
+    "projection_tol": _RUN_DEFAULTS["projection_tol"],
+    "max_projection_iters": _RUN_DEFAULTS["max_projection_iters"],
+    "failure_bar_error": _RUN_DEFAULTS["failure_bar_error"],
+    "steps_per_graph": _RUN_DEFAULTS["steps_per_graph"],
+}
+"""Every [run] key and its default (None: engine's choice)."""
+
+EXECUTION_KEYS = ("device", "shard_size")
+"""[run] keys that say where/how a sweep runs, not what it computes: left out of the fingerprint."""
+
+PARAM_DEFAULTS = {"prestrain": 0.0, "v0": 0.0, "base_rigidity": 0.0}
+"""Defaults of the per-column parameters that are not scene-derived (cable_EA and unit_mass
+default to the scene's values)."""
+
+_DEVICE_RE = re.compile(r"^(cpu|cuda|cuda:\d+)$")
+
+
+class SpecError(ValueError):
+    """Invalid sweep spec. ``errors`` lists one message per problem, each naming the key path."""
+
+    def __init__(self, errors, source: str | None = None):
+        if isinstance(errors, str):
+            errors = [errors]
+        self.errors = list(errors)
+        self.source = source
+        head = f"invalid sweep spec{f' {source}' if source else ''}"
+        if len(self.errors) == 1:
+            msg = f"{head}: {self.errors[0]}"
+        else:
+            msg = f"{head} ({len(self.errors)} problems):\n" + "\n".join(f"  - {e}" for e in self.errors)
+        super().__init__(msg)
+
+
+# ---------------------------------------------------------------------- helpers
+def _fmt(value) -> str:
+    if isinstance(value, str):
+        return repr(value)
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (dict, list)):
+        s = json.dumps(value, default=str)
+        return s if len(s) < 80 else s[:77] + "..."
+    return repr(value)
+
+
+def suggest(key: str, allowed) -> str:
+    """' (did you mean 'x'?)' for the closest allowed key, or ''."""
+    names = [str(a) for a in allowed]
+    match = difflib.get_close_matches(str(key), names, n=1, cutoff=0.6)
+    if not match and len(str(key)) <= 4:  # short keys: one wrong character is half the key
+        match = difflib.get_close_matches(str(key), [n for n in names if len(n) <= 4], n=1, cutoff=0.5)
+    if not match and isinstance(key, str):
+        low = {str(a).lower(): str(a) for a in allowed}
+        match = difflib.get_close_matches(key.lower(), list(low), n=1, cutoff=0.6)
+        match = [low[m] for m in match]
+    return f"; did you mean {match[0]!r}?" if match else ""
+
+
+class _Checker:
+    """Collects errors; every message starts with the key path."""
+
+    def __init__(self):
+        self.errors: list[str] = []
+
+    def error(self, path: str, msg: str):
+        self.errors.append(f"{path}: {msg}")
+
+    def bad(self, path: str, value, msg: str):
+        self.errors.append(f"{path} = {_fmt(value)}: {msg}")
+
+    def keys(self, table: dict, path: str, allowed, what="key", hint: str = ""):
+        ok = True
+        for k in table:
+            if k not in allowed:
+                full = f"{path}.{k}" if path else str(k)
+                extra = hint(k) if callable(hint) else hint
+                self.error(
+                    full,
+                    f"unknown {what}{suggest(k, allowed)}{extra} (allowed: {', '.join(map(str, allowed))})",
+                )
+                ok = False
+        return ok
+
+    def number(self, path, value, *, integer=False) -> float | int | None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.bad(path, value, f"must be {'an integer' if integer else 'a number'}")
+            return None
+        if integer:
+            if isinstance(value, float) and not value.is_integer():
+                self.bad(path, value, "must be an integer")
+                return None
+            return int(value)
+        value = float(value)
+        if not math.isfinite(value):
+            self.bad(path, value, "must be finite")
+            return None
+        return value
+
+    def boolean(self, path, value) -> bool | None:
+        if not isinstance(value, bool):
+            self.bad(path, value, "must be true or false")
+            return None
+        return value
+
+    def choice(self, path, value, choices) -> str | None:
+        if not isinstance(value, str) or value not in choices:
+            hint = suggest(value, choices) if isinstance(value, str) else ""
+            self.bad(path, value, f"choose one of {', '.join(map(repr, choices))}{hint}")
+            return None
+        return value
+
+
+# per-column parameter physics: (predicate, message)
+_PARAM_RULES = {
+    "prestrain": (lambda x: 0.0 <= x < 1.0, "prestrain (cross-cable prestrain p) must lie in [0, 1)"),
+    "v0": (lambda x: x >= 0.0, "v0 is the compressive impact speed [m s-1] and must be >= 0"),
+    "base_rigidity": (lambda x: 0.0 <= x <= 1.0, "base_rigidity must lie in [0, 1] (0 flexible FB, 1 rigid RB)"),
+    "cable_EA": (lambda x: x > 0.0, "cable_EA [N] must be > 0"),
+    "unit_mass": (lambda x: x > 0.0, "unit_mass [kg] must be > 0"),
+}
+
+
+def _check_param(ck: _Checker, name: str, path: str, value) -> float | None:
+    v = ck.number(path, value)
+    if v is None:
+        return None
+    ok, msg = _PARAM_RULES[name]
+    if not ok(v):
+        ck.bad(path, value, msg)
+        return None
+    return v
+
+
+def _param_hint(key) -> str:
+    if key in SCENE_FIELDS:
+        return f" ({key!r} is a scene setting, the same for every column: set it in [scene])"
+    return ""
+
+
+# ---------------------------------------------------------------------- the spec
+@dataclass
+class SweepSpec:
+    """A validated sweep spec. Columns are numbered in C order over the grid (first grid key
+    slowest), or in list order for explicit cases."""
+
+    text: str
+    """The spec file's full text."""
+    source: str | None
+    """Where it was read from (for messages)."""
+    title: str | None
+    description: str | None
+    scene: ColumnConfig
+    scene_keys: dict
+    """The [scene] ColumnConfig keys as written (validated)."""
+    fixed: dict
+    """Non-swept per-column parameters given as scalars ([scene] or [sweep.fixed])."""
+    kind: str
+    """'grid' or 'cases'."""
+    grid: dict = field(default_factory=dict)
+    """Grid axes in spec order: name -> 1-D float64 array."""
+    cases: list = field(default_factory=list)
+    """Explicit cases: one dict of swept values per case."""
+    labels: list | None = None
+    """Optional case labels (explicit cases only)."""
+    run: dict = field(default_factory=dict)
+    """Every [run] key, defaults filled in."""
+    data: dict = field(default_factory=dict, repr=False)
+    """The parsed TOML (after overrides)."""
+
+    # ------------------------------------------------------------------ shape
+    @property
+    def swept(self) -> tuple[str, ...]:
+        """Swept parameters: grid axes in spec order, or (cases) in COLUMN_PARAMETERS order."""
+        if self.kind == "grid":
+            return tuple(self.grid)
+        present = {k for c in self.cases for k in c}
+        return tuple(p for p in COLUMN_PARAMETERS if p in present)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        if self.kind == "grid":
+            return tuple(len(v) for v in self.grid.values())
+        return (len(self.cases),)
+
+    @property
+    def n_columns(self) -> int:
+        return int(np.prod(self.shape))
+
+    def default_param(self, name: str) -> float:
+        """Value of a per-column parameter that is neither swept nor fixed."""
+        if name in self.fixed:
+            return float(self.fixed[name])
+        if name == "cable_EA":
+            return float(self.scene.cable_EA)
+        if name == "unit_mass":
+            return float(self.scene.unit_mass)
+        return float(PARAM_DEFAULTS[name])
+
+    def column_params(self) -> dict[str, np.ndarray]:
+        """Every per-column parameter (all of COLUMN_PARAMETERS) for every column, shape (N,)."""
+        n = self.n_columns
+        out = {p: np.full(n, self.default_param(p), dtype=np.float64) for p in COLUMN_PARAMETERS}
+        if self.kind == "grid":
+            mesh = np.meshgrid(*self.grid.values(), indexing="ij")
+            for name, m in zip(self.grid, mesh):
+                out[name] = np.ascontiguousarray(m.reshape(-1), dtype=np.float64)
+        else:
+            for i, case in enumerate(self.cases):
+                for name, v in case.items():
+                    out[name][i] = v
+        return out
+
+    def shards(self, shard_size: int | None = None) -> list[tuple[int, int]]:
+        """Contiguous blocks of columns: [(start, stop), ...]."""
+        size = int(shard_size or self.run["shard_size"])
+        n = self.n_columns
+        return [(s, min(s + size, n)) for s in range(0, n, size)]
+
+    # ------------------------------------------------------------------ settings
+    def run_settings(self, device: str | None = None, dt: float | str | None = None) -> RunSettings:
+        """RunSettings for the engine. The engine always records strain (the measurements need
+        it); record_strain only decides whether it is stored."""
+        r = self.run
+        dev = device if device is not None else r["device"]
+        if dev in ("auto", None):
+            dev = None
+        return RunSettings(
+            t_end=r["t_end"],
+            dt=r["dt"] if dt is None else dt,
+            method=r["method"],
+            precision=r["precision"],
+            output_interval=r["output_interval"],
+            record_strain=True,
+            device=dev,
+            dt_safety=r["dt_safety"],
+            allow_unstable_dt=r["allow_unstable_dt"],
+            projection_tol=r["projection_tol"],
+            max_projection_iters=r["max_projection_iters"],
+            failure_bar_error=r["failure_bar_error"],
+            steps_per_graph=r["steps_per_graph"],
+        )
+
+    def check_dt(self, dt_limit: float) -> None:
+        """Refuse an explicit dt above the stability limit unless run.allow_unstable_dt."""
+        dt = self.run["dt"]
+        if isinstance(dt, str) or self.run["allow_unstable_dt"]:
+            return
+        if math.isfinite(dt_limit) and dt > dt_limit:
+            raise SpecError(
+                f"run.dt = {dt!r} s is above the stability limit dt_limit = {dt_limit:.6g} s of method "
+                f"{self.run['method']!r} ({self.run['precision']}) for the stiffest column of the sweep; "
+                f"use run.dt <= {dt_limit:.6g}, run.dt = \"auto\" "
+                f"({self.run['dt_safety']} x the limit), or set run.allow_unstable_dt = true",
+                self.source,
+            )
+
+    # ------------------------------------------------------------------ identity
+    def canonical(self, include_execution: bool = False) -> str:
+        """Canonical JSON of everything that decides the results (sorted keys, exact floats).
+        Execution choices (device, shard_size) are left out unless asked for."""
+        run = {k: v for k, v in self.run.items() if include_execution or k not in EXECUTION_KEYS}
+        doc = {
+            "title": self.title,
+            "description": self.description,
+            "scene": {f: getattr(self.scene, f) for f in SCENE_FIELDS},
+            "fixed": {k: float(v) for k, v in sorted(self.fixed.items())},
+            "sweep": (
+                {"grid": [[k, [float(x) for x in v]] for k, v in self.grid.items()]}
+                if self.kind == "grid"
+                else {"cases": [{k: float(v) for k, v in sorted(c.items())} for c in self.cases], "labels": self.labels}
+            ),
+            "run": run,
+        }
+        return json.dumps(_plain(doc), sort_keys=True, separators=(",", ":"))
+
+    @property
+    def text_sha256(self) -> str:
+        return hashlib.sha256(self.text.encode()).hexdigest()
+
+    def fingerprint(self, code: str | None = None) -> str:
+        """sha256 of the canonical spec and the code version string."""
+        code = code_version() if code is None else code
+        return hashlib.sha256((self.canonical() + "\n" + code).encode()).hexdigest()
+
+    def describe(self) -> str:
+        if self.kind == "grid":
+            axes = " x ".join(f"{k} {len(v)}" for k, v in self.grid.items())
+            return f"{self.n_columns} columns (grid {axes})"
+        return f"{self.n_columns} columns (explicit cases over {', '.join(self.swept) or 'nothing'})"
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+# ---------------------------------------------------------------------- code version
+def package_version() -> str:
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            return version("warp_tensegrity")
+        except PackageNotFoundError:
+            pass
+    except ImportError:  # pragma: no cover
+        pass
+    pyproject = PACKAGE_DIR.parent / "pyproject.toml"
+    try:
+        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
+    except Exception:
+        return "unknown"
+
+
+def source_hash() -> str:
+    """sha256 over the package's .py sources (relative path and content, sorted by path)."""
+    h = hashlib.sha256()
+    for p in sorted(PACKAGE_DIR.rglob("*.py")):
+        if "__pycache__" in p.parts:
+            continue
+        h.update(p.relative_to(PACKAGE_DIR).as_posix().encode() + b"\0")
+        h.update(p.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def code_version() -> str:
+    """Package version + hash of the package's .py sources, e.g. '0.1.0+src.1a2b3c4d5e6f7a8b'."""
+    return f"{package_version()}+src.{source_hash()[:16]}"
+
+
+# ---------------------------------------------------------------------- loading
+def load_spec(source, overrides: dict | None = None) -> SweepSpec:
+    """Read and validate a spec from a path (str/Path to an existing file) or TOML text.
+
+    ``overrides`` is a nested dict merged over the parsed TOML before validation
+    (e.g. ``{"run": {"t_end": 0.1}}``). Raises SpecError listing every problem found.
+    """
+    path = None
+    is_path = isinstance(source, Path) or (
+        isinstance(source, str) and "\n" not in source and (source.endswith(".toml") or Path(source).is_file())
+    )
+    if is_path:
+        path = Path(source)
+        try:
+            text = path.read_text()
+        except OSError as e:
+            raise SpecError(f"cannot read spec: {e}", str(path)) from None
+    else:
+        text = str(source)
+    return parse_spec(text, source=str(path) if path else None, overrides=overrides)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def parse_spec(text: str, source: str | None = None, overrides: dict | None = None) -> SweepSpec:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"not valid TOML: {e}", source) from None
+    if overrides:
+        data = _merge(data, overrides)
+    ck = _Checker()
+    ck.keys(data, "", TOP_KEYS, what="top-level table")
+    title = data.get("title")
+    description = data.get("description")
+    for k, v in (("title", title), ("description", description)):
+        if v is not None and not isinstance(v, str):
+            ck.bad(k, v, "must be a string")
+
+    for k in ("scene", "sweep", "run"):
+        if k in data and not isinstance(data[k], dict):
+            ck.bad(k, data[k], f"must be a table ([{k}])")
+    scene_t = data.get("scene", {}) if isinstance(data.get("scene", {}), dict) else {}
+    sweep_t = data.get("sweep") if isinstance(data.get("sweep"), dict) else None
+    run_t = data.get("run", {}) if isinstance(data.get("run", {}), dict) else {}
+
+    scene, scene_keys, scene_params = _parse_scene(ck, scene_t)
+    fixed = dict(scene_params)
+    kind, grid, cases, labels = "cases", {}, [], None
+    if sweep_t is None:
+        if "sweep" not in data:
+            ck.error("sweep", "missing: give [sweep] with grid = {...} or cases = [...]")
+    else:
+        kind, grid, cases, labels, sweep_fixed = _parse_sweep(ck, sweep_t)
+        for k, v in sweep_fixed.items():
+            if k in fixed:
+                ck.error(f"sweep.fixed.{k}", f"also set as scene.{k}; give it once")
+            fixed[k] = v
+        swept = set(grid) | {k for c in cases for k in c}
+        for k in sorted(swept):
+            where = f"sweep.grid.{k}" if kind == "grid" else f"sweep.cases[*].{k}"
+            if k in scene_params:
+                ck.error(f"scene.{k}", f"conflicts with {where}: a parameter is either swept or fixed")
+            elif k in sweep_fixed:
+                ck.error(f"sweep.fixed.{k}", f"conflicts with {where}: a parameter is either swept or fixed")
+            elif k in scene_keys:  # unit_mass: a scene field and a per-column parameter
+                ck.error(f"scene.{k}", f"conflicts with {where}: a parameter is either swept or fixed")
+        for k in fixed:
+            if k in scene_keys:
+                ck.error(f"sweep.fixed.{k}", f"also set as scene.{k}; give it once")
+
+    run = _parse_run(ck, run_t)
+    if ck.errors:
+        raise SpecError(ck.errors, source)
+    try:  # last line of defence: the engine's own checks
+        scene_obj = ColumnConfig(**scene_keys) if scene is None else scene
+    except (NetworkError, TypeError) as e:
+        raise SpecError(f"scene.{e}", source) from None
+    spec = SweepSpec(
+        text=text,
+        source=source,
+        title=title,
+        description=description,
+        scene=scene_obj,
+        scene_keys=scene_keys,
+        fixed=fixed,
+        kind=kind,
+        grid=grid,
+        cases=cases,
+        labels=labels,
+        run=run,
+        data=data,
+    )
+    try:
+        spec.run_settings()
+    except SettingsError as e:
+        raise SpecError(f"run.{e}", source) from None
+    return spec
+
+
+def _parse_scene(ck: _Checker, t: dict):
+    keys: dict = {}
+    params: dict = {}
+    allowed = SCENE_FIELDS + SCENE_PARAMS
+    ck.keys(t, "scene", allowed)
+    for k, v in t.items():
+        path = f"scene.{k}"
+        if k in SCENE_PARAMS:
+            val = _check_param(ck, k, path, v)
+            if val is not None:
+                params[k] = val
+        elif k == "n_prisms":
+            n = ck.number(path, v, integer=True)
+            if n is not None and n < 1:
+                ck.bad(path, v, "must be a positive integer")
+            elif n is not None:
+                keys[k] = n
+        elif k in ("radius", "height", "cable_modulus", "cable_radius", "unit_mass"):
+            x = ck.number(path, v)
+            if x is not None and not x > 0:
+                units = {"radius": "m", "height": "m", "cable_modulus": "N m-2", "cable_radius": "m", "unit_mass": "kg"}
+                ck.bad(path, v, f"must be > 0 [{units[k]}]")
+            elif x is not None:
+                keys[k] = x
+        elif k == "bar_mass":
+            x = ck.number(path, v)
+            if x is not None and x < 0:
+                ck.bad(path, v, "must be >= 0 [kg]")
+            elif x is not None:
+                keys[k] = x
+        elif k == "twist":
+            x = ck.number(path, v)
+            if x is not None and not (math.pi / 3 < x < math.pi):
+                ck.bad(path, v, "must lie in (pi/3, pi) [rad]; 5*pi/6 is the prestressable twist")
+            elif x is not None:
+                keys[k] = x
+        elif k == "handedness":
+            if not isinstance(v, str):
+                ck.bad(path, v, "must be 'right', 'left', 'alternating' or one letter R/L per prism")
+            else:
+                keys[k] = v
+        elif k == "end_base_mass":
+            if ck.choice(path, v, END_BASE_MASS) is not None:
+                keys[k] = v
+        elif k == "impact_admissibility":
+            if ck.choice(path, v, IMPACT_ADMISSIBILITY) is not None:
+                keys[k] = v
+    scene = None
+    if not ck.errors:
+        try:
+            scene = ColumnConfig(**keys)
+        except NetworkError as e:  # e.g. handedness string of the wrong length
+            ck.errors.append(f"scene.{e}")
+    return scene, keys, params
+
+
+def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None:
+    if isinstance(spec, dict):
+        ck.keys(spec, path, RANGE_KEYS)
+        missing = [k for k in ("start", "stop", "num") if k not in spec]
+        if missing:
+            ck.error(path, f"range table needs start, stop and num (missing: {', '.join(missing)})")
+            return None
+        start = _check_param(ck, name, f"{path}.start", spec["start"])
+        stop = _check_param(ck, name, f"{path}.stop", spec["stop"])
+        num = ck.number(f"{path}.num", spec["num"], integer=True)
+        if num is not None and num < 1:
+            ck.bad(f"{path}.num", spec["num"], "must be >= 1")
+            num = None
+        spacing = spec.get("spacing", "linear")
+        spacing = ck.choice(f"{path}.spacing", spacing, SPACINGS)
+        if None in (start, stop, num, spacing):
+            return None
+        if spacing == "log":
+            for kk, x in (("start", start), ("stop", stop)):
+                if not x > 0:
+                    ck.bad(f"{path}.{kk}", x, "must be > 0 for spacing = \"log\"")
+                    return None
+            vals = np.geomspace(start, stop, num)
+            vals[0], vals[-1] = start, stop
+        else:
+            vals = np.linspace(start, stop, num)
+        return vals.astype(np.float64)
+    if isinstance(spec, list):
+        if not spec:
+            ck.bad(path, spec, "needs at least one value")
+            return None
+        vals = [_check_param(ck, name, f"{path}[{i}]", v) for i, v in enumerate(spec)]
+        if any(v is None for v in vals):
+            return None
+        arr = np.array(vals, dtype=np.float64)
+        uniq, counts = np.unique(arr, return_counts=True)
+        if (counts > 1).any():
+            ck.bad(path, spec, f"repeats the value {uniq[counts > 1][0]!r}; grid values must be distinct")
+            return None
+        return arr
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        ck.bad(path, spec, "give a list of values or a {start, stop, num} table (a single value belongs in [sweep.fixed])")
+        return None
+    ck.bad(path, spec, "give a list of values or a {start, stop, num[, spacing]} table")
+    return None
+
+
+def _parse_sweep(ck: _Checker, t: dict):
+    ck.keys(t, "sweep", SWEEP_KEYS)
+    fixed: dict = {}
+    if "fixed" in t:
+        ft = t["fixed"]
+        if not isinstance(ft, dict):
+            ck.bad("sweep.fixed", ft, "must be a table of per-column parameters")
+        else:
+            ck.keys(ft, "sweep.fixed", tuple(COLUMN_PARAMETERS), what="per-column parameter", hint=_param_hint)
+            for k, v in ft.items():
+                if k in COLUMN_PARAMETERS:
+                    x = _check_param(ck, k, f"sweep.fixed.{k}", v)
+                    if x is not None:
+                        fixed[k] = x
+    has_grid, has_cases = "grid" in t, "cases" in t
+    if has_grid and has_cases:
+        ck.error("sweep", "give either grid or cases, not both")
+        return "grid", {}, [], None, fixed
+    if not (has_grid or has_cases):
+        ck.error("sweep", "give grid = {param = [values], ...} or cases = [{param = value, ...}, ...]")
+        return "grid", {}, [], None, fixed
+    if has_grid:
+        g = t["grid"]
+        grid: dict = {}
+        if not isinstance(g, dict) or not g:
+            ck.bad("sweep.grid", g, "must be a non-empty table of swept parameters")
+            return "grid", {}, [], None, fixed
+        ck.keys(g, "sweep.grid", tuple(COLUMN_PARAMETERS), what="per-column parameter", hint=_param_hint)
+        for k, v in g.items():
+            if k in COLUMN_PARAMETERS:
+                vals = _parse_values(ck, k, f"sweep.grid.{k}", v)
+                if vals is not None:
+                    grid[k] = vals
+        return "grid", grid, [], None, fixed
+    cs = t["cases"]
+    if not isinstance(cs, list) or not cs:
+        ck.bad("sweep.cases", cs, "must be a non-empty list of tables, e.g. [{v0 = 0.001}, ...]")
+        return "cases", {}, [], None, fixed
+    cases, labels = [], []
+    for i, c in enumerate(cs):
+        path = f"sweep.cases[{i}]"
+        if not isinstance(c, dict):
+            ck.bad(path, c, "must be a table of per-column parameters")
+            continue
+        ck.keys(c, path, tuple(COLUMN_PARAMETERS) + CASE_EXTRA_KEYS, what="per-column parameter", hint=_param_hint)
+        case = {}
+        for k, v in c.items():
+            if k in COLUMN_PARAMETERS:
+                x = _check_param(ck, k, f"{path}.{k}", v)
+                if x is not None:
+                    case[k] = x
+        lab = c.get("label")
+        if lab is not None and not isinstance(lab, str):
+            ck.bad(f"{path}.label", lab, "must be a string")
+            lab = None
+        labels.append(lab)
+        cases.append(case)
+    if all(lab is None for lab in labels):
+        labels = None
+    else:
+        labels = [lab or "" for lab in labels]
+    return "cases", {}, cases, labels, fixed
+
+
+def _parse_run(ck: _Checker, t: dict) -> dict:
+    run = dict(RUN_DEFAULTS)
+    ck.keys(t, "run", tuple(RUN_DEFAULTS))
+    for k, v in t.items():
+        path = f"run.{k}"
+        if k == "method":
+            if ck.choice(path, v, METHODS) is not None:
+                run[k] = v
+        elif k == "precision":
+            if ck.choice(path, v, PRECISIONS) is not None:
+                run[k] = v
+        elif k == "dt":
+            if isinstance(v, str):
+                if v != "auto":
+                    ck.bad(path, v, 'give the time step in seconds or "auto"')
+                else:
+                    run[k] = "auto"
+            else:
+                x = ck.number(path, v)
+                if x is not None and not x > 0:
+                    ck.bad(path, v, 'must be > 0 [s] (or "auto")')
+                elif x is not None:
+                    run[k] = x
+        elif k in ("t_end", "failure_bar_error"):
+            x = ck.number(path, v)
+            if x is not None and not x > 0:
+                ck.bad(path, v, "must be > 0" + (" [s]" if k == "t_end" else ""))
+            elif x is not None:
+                run[k] = x
+        elif k == "output_interval":
+            if v == "auto":
+                run[k] = None
+            else:
+                x = ck.number(path, v)
+                if x is not None and not x > 0:
+                    ck.bad(path, v, 'must be > 0 [s] (or "auto": about 200 outputs)')
+                elif x is not None:
+                    run[k] = x
+        elif k == "device":
+            if not isinstance(v, str) or not _DEVICE_RE.match(v) and v != "auto":
+                ck.bad(path, v, 'give "cpu", "cuda", "cuda:N" or "auto" (the GPU if there is one)')
+            else:
+                run[k] = None if v == "auto" else v
+        elif k in ("shard_size", "max_projection_iters", "steps_per_graph"):
+            n = ck.number(path, v, integer=True)
+            if n is not None and n < 1:
+                ck.bad(path, v, "must be a positive integer")
+            elif n is not None:
+                run[k] = n
+        elif k in ("record_strain", "record_energy", "allow_unstable_dt"):
+            b = ck.boolean(path, v)
+            if b is not None:
+                run[k] = b
+        elif k == "dt_safety":
+            x = ck.number(path, v)
+            if x is not None and not (0 < x <= 1):
+                ck.bad(path, v, "must lie in (0, 1]")
+            elif x is not None:
+                run[k] = x
+        elif k == "projection_tol":
+            x = ck.number(path, v)
+            if x is not None and not (0 < x < 1e-2):
+                ck.bad(path, v, "must lie in (0, 1e-2)")
+            elif x is not None:
+                run[k] = x
+    if not isinstance(run["dt"], str) and run["dt"] > run["t_end"]:
+        ck.bad("run.dt", run["dt"], f"must be <= run.t_end = {run['t_end']!r} s")
+    oi = run["output_interval"]
+    if oi is not None and oi > run["t_end"]:
+        ck.bad("run.output_interval", oi, f"must be <= run.t_end = {run['t_end']!r} s")
+    return run
