@@ -163,7 +163,7 @@ def _fake_result(B, T=11, P=5, dt=0.01) -> BatchResult:
 def test_write_is_atomic(tmp_path, monkeypatch):
     spec = parse_spec(CASES)
     res = _fake_result(2)
-    meas = {k: np.ones(2) for k in ("amplitude", "speed", "width", "width_10")} | {"arrival_time": np.ones((2, 5))}
+    meas = {k: np.ones(2) for k in ("amplitude", "speed", "width", "width_10", "prisms_measured")} | {"arrival_time": np.ones((2, 5))}
     ds = D.shard_dataset(spec, spec.column_params(), 0, 2, res, meas, {"case_start": 0, "case_stop": 2})
     path = tmp_path / "s.nc"
     D.write_netcdf(ds, path)

@@ -276,3 +276,32 @@ def test_bad_inputs_raise():
         M.arrival_times(np.zeros((3, 5)), np.array([0.0, 2.0, 1.0]), 0.1)
     with pytest.raises(ValueError):
         M.peak_track(np.zeros((3, 5)), np.arange(3.0), end_fraction=1.0)
+
+
+def _sech2_history(n=50, c=40.0, A=1e-3, w=2.0, t_end=1.0, nt=2001):
+    """Compression pulse entering at the free end (prism n-1) and running toward prism 0 at c prisms/s."""
+    t = np.linspace(0.0, t_end, nt)
+    j = np.arange(n)
+    x0 = (n - 1) + 3 * w - c * t[:, None]
+    return t, -A / np.cosh((j[None, :] - x0) / w) ** 2
+
+
+def test_late_large_motion_does_not_hide_a_weak_leading_pulse():
+    t, s = _sech2_history(t_end=1.5)
+    late = t > 1.3
+    s[late, :10] -= 20e-3 * np.sin(40 * t[late, None])  # e.g. a reflection far stronger than the pulse
+    m = M.measure_pulse(s, t, 6.2e-3)
+    assert m["amplitude"] == pytest.approx(1e-3, rel=0.01)
+    assert m["speed"] == pytest.approx(40 * 6.2e-3, rel=0.005)
+    assert m["threshold"] < 0.3e-3
+
+
+def test_pulse_that_reaches_part_of_the_column_is_measured_over_the_prisms_reached():
+    t, s = _sech2_history(t_end=0.6)  # reaches ~prism 25 by t_end
+    m = M.measure_pulse(s, t, 6.2e-3)
+    lo, hi = M.measurement_window(50)
+    assert 10 <= m["prisms_measured"] < hi - lo
+    assert m["amplitude"] == pytest.approx(1e-3, rel=0.01)
+    assert m["speed"] == pytest.approx(40 * 6.2e-3, rel=0.005)
+    t2, s2 = _sech2_history(t_end=0.1)  # hardly entered: too few prisms, NaN
+    assert np.isnan(M.measure_pulse(s2, t2, 6.2e-3)["amplitude"])

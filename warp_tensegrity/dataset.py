@@ -39,7 +39,7 @@ RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created")
 
 SHARD_ATTRS = ("shard_index", "n_shards", "case_start", "case_stop")
 
-MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "arrival_time")
+MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time")
 
 STATUS_MEANINGS = " ".join(STATUS_NAMES[k].replace(" ", "_").replace("-", "_") for k in sorted(STATUS_NAMES))
 
@@ -67,6 +67,10 @@ VAR_ATTRS = {
     "speed": {"units": "m s-1", "long_name": "propagation speed of the leading compression pulse"},
     "width": {"units": "1", "long_name": "full width at half maximum of the leading pulse, in prisms"},
     "width_10": {"units": "1", "long_name": "full width at 10% of maximum of the leading pulse, in prisms"},
+    "prisms_measured": {
+        "units": "1",
+        "long_name": "prisms of the measurement window the leading pulse reached within t_end",
+    },
     "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism"},
     "status": {
         "long_name": "column status at the end of the run",
@@ -198,6 +202,7 @@ def shard_dataset(
         "speed": (C, measurements["speed"]),
         "width": (C, measurements["width"]),
         "width_10": (C, measurements["width_10"]),
+        "prisms_measured": (C, measurements["prisms_measured"]),
         "arrival_time": (("case", "prism"), measurements["arrival_time"]),
         "status": (C, np.asarray(result.status, dtype=np.int8)),
         "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),

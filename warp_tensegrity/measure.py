@@ -16,10 +16,14 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import warnings
+
 import numpy as np
 
 DEFAULT_THRESHOLD_FRACTION = 0.05
 """Default arrival threshold, as a fraction of the largest compression of the record."""
+REFINED_THRESHOLD_FRACTION = 0.25
+"""measure_pulse's second pass: threshold as a fraction of the first pass's leading amplitude."""
 DEFAULT_END_FRACTION = 0.5
 """The leading pulse ends where compression falls to this fraction of its running maximum."""
 DEFAULT_SKIP_FRACTION = 0.1
@@ -242,6 +246,12 @@ def _track(q, t, finite, thr, thr_ok, end_fraction):
     return PeakTrack(np.where(ok, t1 + off, np.nan), np.where(ok, val, np.nan), np.where(ok, kp, -1))
 
 
+def _reached(track, lo, hi):
+    """Number of window prisms, contiguous from the impact side (hi - 1 downward), with a leading peak."""
+    defined = np.isfinite(track.time[..., lo:hi])[..., ::-1]
+    return np.where(defined.all(axis=-1), hi - lo, np.argmin(defined, axis=-1))
+
+
 def _amplitude(track, lo, hi):
     v = track.value[..., lo:hi]
     if hi - lo < 1:
@@ -294,17 +304,17 @@ def _width(q, finite, level, near=None, search=1):
     return np.where(ok, xr - xl, np.nan)
 
 
-def _mid_width(q, t, finite, track, level):
-    """Width at the sample nearest to the leading peak's time at the column middle."""
+def _mid_width(q, t, finite, track, level, j_mid=None):
+    """Width at the sample nearest to the leading peak's time at prism ``j_mid`` (default: the
+    column middle; a half-integer averages the two neighbours)."""
     P = q.shape[-1]
-    if P % 2:
-        t_mid = track.time[..., (P - 1) // 2]
-    else:
-        t_mid = 0.5 * (track.time[..., P // 2 - 1] + track.time[..., P // 2])
+    j_mid = 0.5 * (P - 1) if j_mid is None else j_mid
+    j0, j1 = int(np.floor(j_mid)), int(np.ceil(j_mid))
+    t_mid = 0.5 * (track.time[..., j0] + track.time[..., j1])
     ok = np.isfinite(t_mid) & finite.all(axis=-1)
     k = np.abs(t - np.where(ok, t_mid, t[0])[..., None]).argmin(axis=-1)  # nearest sample
     snap = np.take_along_axis(q, k[..., None, None], axis=-2)[..., 0, :]  # (..., P)
-    w = _width(snap, ok, level, near=np.full(snap.shape[:-1], 0.5 * (P - 1)), search=2)
+    w = _width(snap, ok, level, near=np.full(snap.shape[:-1], float(j_mid)), search=2)
     return np.where(ok, w, np.nan)
 
 
@@ -444,9 +454,13 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     * ``width_fwhm``, ``width_10`` (...) [prisms]: :func:`width_at_mid_column` at 0.5, 0.1;
     * ``arrival_time`` (..., n_prisms) [s]: :func:`arrival_times`;
     * ``peak_time``, ``peak_value`` (..., n_prisms) [s], [-]: :func:`peak_track`;
-    * ``threshold`` (...) [-]: the arrival threshold used.
+    * ``threshold`` (...) [-]: the arrival threshold used;
+    * ``prisms_measured`` (...): prisms of the window the leading pulse reached within the record
+      (contiguous from the impact side; at least a quarter of the window, else NaN everywhere).
 
-    ``threshold`` None -> 5 % of each record's largest compression; else a float or an array
+    ``threshold`` None -> 5 % of each record's largest compression (lowered by decades, down to
+    0.05 %, until leading peaks are found), then 25 % of the leading amplitude so found where this
+    is smaller; else a float or an array
     broadcastable to (...). A record with any non-finite sample gets NaN everywhere; so does a
     flat one. Nothing raises on signal values. Leading dims are processed in chunks of about
     ``max_chunk_elements`` samples to bound memory.
@@ -464,29 +478,63 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     else:
         thr_all = np.broadcast_to(np.asarray(threshold, dtype=np.float64), lead).reshape(B)
     lo, hi = measurement_window(P, skip_impact, skip_clamp)
-    keys_b = ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "threshold")
+    min_reached = max(min(5, hi - lo), (hi - lo) // 4)
+    keys_b = ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "threshold", "prisms_measured")
     keys_p = ("arrival_time", "peak_time", "peak_value")
     out = {k: np.full(B, np.nan) for k in keys_b} | {k: np.full((B, P), np.nan) for k in keys_p}
-    out["threshold"] = thr_all.copy()
     step = max(1, int(max_chunk_elements) // max(1, T * P))
     for b0 in range(0, B, step):
         sl = slice(b0, min(B, b0 + step))
         q, _, finite = _as_history(s[sl], t)
         whole = finite.all(axis=-1)  # strict: any non-finite sample spoils the record
         finite = finite & whole[:, None]
-        thr, thr_ok = _threshold(q, thr_all[sl, None])
+        thr_b = thr_all[sl].copy()
+        thr, thr_ok = _threshold(q, thr_b[:, None])
         track = _track(q, t, finite, thr, thr_ok, end_fraction)
-        v_tof, v_snap = _speeds(q, t, finite, track, lo, hi, h[sl])
+        if threshold is None:
+            # late large motion (reflections, chaotic tails) can set the 5 % default above a weak leading
+            # pulse: lower it by decades until leading peaks appear in the window, then settle at 25 % of
+            # the leading amplitude so found
+            a0 = np.full(thr_b.shape, np.nan)
+            for scale in (1.0, 0.1, 0.01):
+                trial = np.where(np.isfinite(a0), np.nan, thr_b * scale)
+                thr, thr_ok = _threshold(q, trial[:, None])
+                tr = _track(q, t, finite, thr, thr_ok, end_fraction)
+                n_in = _reached(tr, lo, hi)
+                ok = n_in >= min_reached
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: flat or diverged records
+                    a_new = np.nanmedian(tr.value[:, hi - min_reached : hi], axis=-1)
+                a0 = np.where(np.isfinite(a0), a0, np.where(ok & (a_new > 0), a_new, np.nan))
+            thr_b = np.where(np.isfinite(a0), np.minimum(thr_b, REFINED_THRESHOLD_FRACTION * a0), thr_b)
+            thr, thr_ok = _threshold(q, thr_b[:, None])
+            track = _track(q, t, finite, thr, thr_ok, end_fraction)
+        out["threshold"][sl] = thr_b
+        # the prisms reached: contiguous finite leading peaks from the impact side of the window
+        reached = _reached(track, lo, hi)
+        lo_eff = np.where(reached >= min_reached, hi - reached, hi)
         res = {
-            "amplitude": _amplitude(track, lo, hi),
-            "speed": v_tof,
-            "speed_snapshot": v_snap,
-            "width_fwhm": _mid_width(q, t, finite, track, 0.5),
-            "width_10": _mid_width(q, t, finite, track, 0.1),
             "arrival_time": _arrival(q, t, finite, thr, thr_ok),
             "peak_time": track.time,
             "peak_value": track.value,
         }
         for k, v in res.items():
-            out[k][sl] = np.where(whole[:, None] if v.ndim == 2 else whole, v, np.nan)
+            out[k][sl] = np.where(whole[:, None], v, np.nan)
+        idx = np.arange(sl.start, sl.stop)
+        for lo_b in np.unique(lo_eff):
+            m = lo_eff == lo_b
+            if lo_b >= hi:
+                continue  # too few prisms reached: NaN
+            sub = PeakTrack(track.time[m], track.value[m], track.sample[m])
+            v_tof, v_snap = _speeds(q[m], t, finite[m], sub, int(lo_b), hi, h[sl][m])
+            part = {
+                "amplitude": _amplitude(sub, int(lo_b), hi),
+                "speed": v_tof,
+                "speed_snapshot": v_snap,
+                "width_fwhm": _mid_width(q[m], t, finite[m], sub, 0.5, 0.5 * (lo_b + hi - 1)),
+                "width_10": _mid_width(q[m], t, finite[m], sub, 0.1, 0.5 * (lo_b + hi - 1)),
+                "prisms_measured": np.full(m.sum(), float(hi - lo_b)),
+            }
+            for k, v in part.items():
+                out[k][idx[m]] = np.where(whole[m], v, np.nan)
     return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}

@@ -167,6 +167,7 @@ def measure_columns(result, prism_height: float) -> dict:
         "speed": m["speed"],
         "width": m["width_fwhm"],
         "width_10": m["width_10"],
+        "prisms_measured": m["prisms_measured"],
         "arrival_time": m["arrival_time"],
     }
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
