@@ -22,7 +22,7 @@ import warp as wp
 from .batch import NetworkBatch, column_batch, omega_max_bound
 from .columns import ColumnConfig
 from .kernels import make_kernels
-from .model import REAL, Data, Model, build_model, make_data
+from .model import REAL, Data, Model, build_model, constraint_coupling, make_data, mass_entries
 from .settings import BatchResult, RunSettings, SettingsError
 
 # stability limit of omega*dt for each method on an undamped oscillator
@@ -349,10 +349,19 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     n_out = n_steps // every + 1
     r = 4 if settings.precision == "fp32" else 8
     n, nc, ne, npr = batch.positions.shape[0], len(batch.constraints), len(batch.cables), config.n_prisms
-    bw = 1 + 11 if (batch.constraint_active.size and len(batch.constraints) > 3 * npr) else 1 + 5
+    partner, *_ = mass_entries(batch)
+    bw = constraint_coupling(batch, partner)[-1]
     state_vecs = 5 + (6 if settings.method == "rk4" else 0)
-    per_col = r * (3 * n * state_vecs + nc * (bw + 1) + 3 * ne + 2 * n_out + (n_out * npr if settings.record_strain else 0))
-    flops = FORCE_EVALS[settings.method] * (ne * 60 + n * 10) + nc * bw * bw * (5 if settings.method == "rk4" else 2)
+    per_col = r * (3 * n * state_vecs + nc * (bw + 2) + 3 * ne + 2 * n_out + (n_out * npr if settings.record_strain else 0))
+    flops = FORCE_EVALS[settings.method] * (ne * 60 + n * 10) + nc * (bw + 1) ** 2 * (5 if settings.method == "rk4" else 2)
+    # measured (benchmarks/results): the 2-core CPU backend runs ~1 ns per flop serially; on an H200 a
+    # step is bounded below by the per-column solve's latency (~8 ms for 50 prisms), not by the batch size
+    device = resolve_device(settings.device)
+    if device.is_cuda:
+        step_latency = 8e-3 * nc / 300.0
+        seconds = n_steps * max(step_latency, flops * batch.n_columns / 2e12)
+    else:
+        seconds = n_steps * batch.n_columns * flops * 1e-9
     return {
         "dt": dt,
         "dt_limit": limit,
@@ -362,6 +371,7 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "bytes_per_column": int(per_col),
         "flops_per_column_step": int(flops),
         "omega_max_bound": omega,
-        # rough: 2-core CPU backend ~ 1 ns per flop serial; GPU far faster (see benchmarks/)
-        "seconds_per_column_step_estimate": flops * 1e-9,
+        "bandwidth": int(bw),
+        "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
+        "seconds_estimate": seconds,
     }
