@@ -263,8 +263,10 @@ def make_kernels(real):
             return
         nc = con_i.shape[0]
         err = real(0.0)
+        prev = real(0.0)
         it = int(0)
         while True:
+            prev = err
             err = real(0.0)
             for k in range(nc):
                 b = member_vec(con_dref, con_i, con_j, u, k, w)
@@ -279,6 +281,8 @@ def make_kernels(real):
                 lam[k, w] = r
             if err <= tol or it >= max_iter:
                 break
+            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
+                break  # stalled at round-off just above tol: more iterations cannot help
             band_solve(band, lam, bw, w)
             apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, ug, lam, imp,
                           real(1.0), u, inv_dt, v, w)

@@ -30,6 +30,7 @@ STABILITY = {"rattle": 2.0, "rk4": 2.0 * math.sqrt(2.0), "yoshida4": 1.5734, "sy
 FORCE_EVALS = {"rattle": 1, "rk4": 4, "yoshida4": 3, "symplectic_euler": 1}
 _W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 YOSHIDA = (_W1, 1.0 - 2.0 * _W1, _W1)
+COLUMN_BLOCK_DIM = 64  # CUDA threads per block for the one-thread-per-column kernels
 
 
 def default_device() -> str:
@@ -90,13 +91,24 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
+        self.column_kernels = {
+            kern.key for kern in (self.k.project_positions, self.k.factor_project_velocities, self.k.factor_only,
+                                  self.k.constrained_accel, self.k.record_energy)
+        }
         self.build_time = time.perf_counter() - t0
         self.graph = None
         self.graph_steps = 0
 
     # ------------------------------------------------------------------ launch helpers
+    def _block_dim(self, kernel) -> int:
+        """1 on the CPU; on CUDA small blocks for the per-column solver kernels (one thread per
+        column), so a few thousand columns still spread over every SM."""
+        if not self.device.is_cuda:
+            return 1
+        return COLUMN_BLOCK_DIM if kernel.key in self.column_kernels else 256
+
     def _launch(self, kernel, dim, inputs):
-        wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
+        wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, block_dim=self._block_dim(kernel))
 
     def _gather(self, u, v, kick, a, v_out):
         m, d = self.model, self.data
@@ -156,10 +168,12 @@ class Integrator:
 
     # ------------------------------------------------------------------ steps
     def load_kernels(self):
-        """Compile/load every kernel module now, so no load happens while stepping or capturing."""
+        """Compile/load the kernels this method uses now, with the block size they launch with,
+        so no load happens while stepping or capturing."""
+        rk_only = {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in vars(self.k).items():
-            if isinstance(kern, wp.Kernel):
-                kern.module.load(self.device)
+            if isinstance(kern, wp.Kernel) and (self.settings.method == "rk4" or name not in rk_only):
+                kern.module.load(self.device, self._block_dim(kern))
 
     def initialize(self):
         """Make the initial velocity exactly admissible, factor A(u0), compute a(u0), record step 0."""
