@@ -181,7 +181,7 @@ def test_scene_field_cannot_be_swept():
         (spec_text(run="t_end = 0.1\nshard_size = 0"), ["run.shard_size", "0", "positive integer"]),
         (spec_text(run="t_end = 0.1\nrecord_strain = 1"), ["run.record_strain", "true or false"]),
         (spec_text(run='t_end = 0.1\ndevice = "gpu"'), ["run.device", "'gpu'", "cuda:N"]),
-        (spec_text(run="t_end = 0.1\ndt_safety = 2.0"), ["run.dt_safety", "2.0", "(0, 1]"]),
+        (spec_text(run="t_end = 0.1\ndt_safety = 2.0"), ["run.dt_safety", "2.0", "(0, 0.5]"]),
     ],
 )
 def test_bad_value_names_key_path_and_value(text, fragments):

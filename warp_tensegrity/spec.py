@@ -727,8 +727,8 @@ def _parse_run(ck: _Checker, t: dict) -> dict:
                 run[k] = b
         elif k == "dt_safety":
             x = ck.number(path, v)
-            if x is not None and not (0 < x <= 1):
-                ck.bad(path, v, "must lie in (0, 1]")
+            if x is not None and not (0 < x <= 0.5):
+                ck.bad(path, v, "must lie in (0, 0.5]: strong impacts lower the stability limit to ~0.45 of the prediction")
             elif x is not None:
                 run[k] = x
         elif k == "projection_tol":
