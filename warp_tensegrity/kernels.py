@@ -237,6 +237,30 @@ def make_kernels(real):
                 y2[n, w] = y2[n, w] - d * scale2
 
     @wp.func
+    def project_rates(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real),
+        minv_cross: wp.array2d(dtype=real), bw: int, u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec),
+        with_bdot: int, band: wp.array3d(dtype=real), y: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real),
+        imp: wp.array2d(dtype=vec), w: int,
+    ):
+        """With the band holding the factor of A(u): solve A lam = G(u) y (+ |b'|^2 if with_bdot, the
+        index-1 acceleration term) and set y -= M^-1 G(u)^T lam. y = v: velocity projection; y = a:
+        constrained acceleration."""
+        for k in range(con_i.shape[0]):
+            r = real(0.0)
+            if pget(con_active, k, w) > real(0.0):
+                b = member_vec(con_dref, con_i, con_j, u, k, w)
+                r = wp.dot(b, y[con_j[k], w] - y[con_i[k], w])
+                if with_bdot != 0:
+                    bd = v[con_j[k], w] - v[con_i[k], w]
+                    r += wp.dot(bd, bd)
+            lam[k, w] = r
+        band_solve(band, lam, bw, w)
+        apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, u, lam, imp,
+                      real(1.0), y, real(0.0), y, w)
+
+    @wp.func
     def fail(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), step: wp.array(dtype=int), w: int, code: int):
         if status[w] == STATUS_OK:
             status[w] = code
@@ -318,15 +342,8 @@ def make_kernels(real):
         if not ok:
             fail(status, fail_step, step, w, STATUS_CONSTRAINT)
             return
-        for k in range(con_i.shape[0]):
-            r = real(0.0)
-            if pget(con_active, k, w) > real(0.0):
-                b = member_vec(con_dref, con_i, con_j, u, k, w)
-                r = wp.dot(b, v[con_j[k], w] - v[con_i[k], w])
-            lam[k, w] = r
-        band_solve(band, lam, bw, w)
-        apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, u, lam, imp,
-                      real(1.0), v, real(0.0), v, w)
+        project_rates(con_i, con_j, con_dref, con_active, partner, minv_self, minv_cross, bw, u, v, 0,
+                      band, v, lam, imp, w)
         for n in range(u.shape[0]):
             if not (wp.isfinite(v[n, w][0]) and wp.isfinite(v[n, w][1]) and wp.isfinite(v[n, w][2])):
                 fail(status, fail_step, step, w, STATUS_NONFINITE)
@@ -375,16 +392,8 @@ def make_kernels(real):
         if not ok:
             fail(status, fail_step, step, w, STATUS_CONSTRAINT)
             return
-        for k in range(con_i.shape[0]):
-            r = real(0.0)
-            if pget(con_active, k, w) > real(0.0):
-                b = member_vec(con_dref, con_i, con_j, u, k, w)
-                bd = v[con_j[k], w] - v[con_i[k], w]
-                r = wp.dot(b, a[con_j[k], w] - a[con_i[k], w]) + wp.dot(bd, bd)
-            lam[k, w] = r
-        band_solve(band, lam, bw, w)
-        apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, u, lam, imp,
-                      real(1.0), a, real(0.0), a, w)
+        project_rates(con_i, con_j, con_dref, con_active, partner, minv_self, minv_cross, bw, u, v, 1,
+                      band, a, lam, imp, w)
 
     # ------------------------------------------------------------------ outputs
     @wp.kernel(enable_backward=False, module="unique")
