@@ -248,7 +248,7 @@ def mjwarp_main(a, cfg, topo, doc):
         p, v0, t_end = CASES[base]
         beta = 0.0 if base == "FB" else 1.0
         scene = build_column(cfg, prestrain=p, v0=v0, base_rigidity=beta, topology=topo)
-        s = RunSettings(t_end=t_end, output_interval=a.output_interval, precision="fp64", device="cpu")
+        s = RunSettings(t_end=t_end, output_interval=a.output_interval, precision="fp64", device=a.mjwarp_device)  # the reference pulse from our engine, on the same device
         r = simulate_batch(cfg, {"prestrain": [p], "v0": [v0], "base_rigidity": [beta]}, s)
         me = measure_pulse(r.strain[0], r.time, cfg.height)
         for hs in a.timesteps:
