@@ -68,7 +68,7 @@ def test_phase_large_spec():
     spec = load_spec(SWEEPS / "phase_large.toml")
     assert spec.kind == "grid"
     assert 1500 <= spec.n_columns <= 3000
-    assert spec.run["record_strain"] is True
+    assert spec.run["record_strain"] is False and spec.run["output_interval"] == 0.002  # resolves the fastest pulses
     v0 = spec.grid["v0"]
     assert v0[0] == 1e-3 and v0[-1] == 0.2
     np.testing.assert_allclose(np.diff(np.log(v0)), np.log(200) / (len(v0) - 1))

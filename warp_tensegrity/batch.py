@@ -248,6 +248,18 @@ def equilibrium_residuals(batch: NetworkBatch) -> np.ndarray:
     return out
 
 
+def reference_elastic_energy(batch: NetworkBatch) -> np.ndarray:
+    """(B,) elastic energy of the reference (prestressed) state [J]."""
+    X = batch.positions
+    c = batch.cables
+    ell = np.linalg.norm(X[c[:, 1]] - X[c[:, 0]], axis=1)
+    L = batch.cable_rest_length
+    st = ell[None, :] - L
+    k = np.where(st > 0, batch.cable_EA, batch.cable_EA_compression) / L
+    e = 0.5 * (k * st**2).sum(axis=1)
+    return np.broadcast_to(e, (batch.n_columns,)).copy()
+
+
 def omega_max_bound(batch: NetworkBatch) -> np.ndarray:
     """(B,) upper bound on the highest natural frequency [rad s-1] with all cables taut.
 

@@ -151,6 +151,8 @@ def spec_attrs(spec: SweepSpec) -> dict:
         "precision": r["precision"],
         "dt_mode": "auto" if isinstance(r["dt"], str) else "explicit",
         "dt_safety": r["dt_safety"],
+        "accuracy": "none" if r.get("accuracy") is None else r["accuracy"],
+        "truncate": int(bool(r.get("truncate", True))),
         "allow_unstable_dt": r["allow_unstable_dt"],
         "t_end": r["t_end"],
         "record_strain": r["record_strain"],

@@ -59,6 +59,13 @@ class RunSettings:
     """Relative bar-length error above which a column is frozen and flagged."""
     steps_per_graph: int = 50
     """Steps captured in one CUDA graph."""
+    accuracy: float | None = None
+    """Target relative error of the pulse measures (speed, amplitude). When given, the engine
+    chooses method, precision and dt from the measured work-precision curves
+    (:mod:`warp_tensegrity.choose`) and says what it chose in ``BatchResult.info['choices']``."""
+    truncate: bool = True
+    """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
+    column there; results are padded back to the full column (the far prisms stay at rest)."""
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -87,6 +94,8 @@ class RunSettings:
             raise SettingsError(f"projection_tol = {self.projection_tol!r} must lie in (0, 1e-2)")
         if int(self.max_projection_iters) < 1:
             raise SettingsError(f"max_projection_iters = {self.max_projection_iters!r} must be >= 1")
+        if self.accuracy is not None and not (np.isfinite(self.accuracy) and 0 < self.accuracy < 1):
+            raise SettingsError(f"accuracy = {self.accuracy!r} must lie in (0, 1) (relative error of the pulse measures)")
         if int(self.steps_per_graph) < 1:
             raise SettingsError(f"steps_per_graph = {self.steps_per_graph!r} must be >= 1")
 

@@ -15,11 +15,13 @@ from __future__ import annotations
 import gc
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 import warp as wp
 
-from .batch import NetworkBatch, column_batch, omega_max_bound
+from .batch import NetworkBatch, column_batch, omega_max_bound, reference_elastic_energy
+from .choose import apply_accuracy, reachable_prisms
 from .columns import ColumnConfig
 from .kernels import make_kernels
 from .model import REAL, Data, Model, build_model, constraint_coupling, make_data, mass_entries
@@ -350,13 +352,78 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     ``params`` maps names in :data:`~warp_tensegrity.settings.COLUMN_PARAMETERS` to arrays of
     shape (B,) (or scalars); missing ones take the config's defaults.
     ``progress(steps_done, n_steps, n_failed)`` is called about twice a second.
+    With ``settings.accuracy`` the method, precision and dt are chosen from it; with
+    ``settings.truncate`` only the prisms a wave can reach within t_end are simulated. Both are
+    reported in ``result.info['choices']``.
     """
-    batch = column_batch(config, params)
-    return run_batch(batch, settings, progress)
+    settings, choices = apply_accuracy(settings)
+    n = config.n_prisms
+    n_sim = n
+    if settings.truncate and n > 4:
+        probe = column_batch(replace(config, n_prisms=4), params)  # omega bound is a local property
+        n_sim = reachable_prisms(float(omega_max_bound(probe).max()), settings.t_end, n)
+    sim_config = _far_end(config, n_sim) if n_sim < n else config
+    batch = column_batch(sim_config, params)
+    result = run_batch(batch, settings, progress)
+    if n_sim < n:
+        _pad_to_full_column(result, config, sim_config, params, n, n_sim)
+    choices.update({"prisms_simulated": n_sim, "prisms": n, "method": settings.method,
+                    "precision": settings.precision, "dt": result.dt,
+                    "record_strain": settings.record_strain})
+    result.info["choices"] = choices
+    return result
+
+
+def _far_end(config: ColumnConfig, n_sim: int) -> ColumnConfig:
+    """The last n_sim prisms of the column (the impacted end), as a column of their own."""
+    hand = config.prism_handedness()[-n_sim:]
+    return replace(config, n_prisms=n_sim, handedness="".join("R" if h > 0 else "L" for h in hand))
+
+
+def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int, n_sim: int):
+    """Give a truncated run the shapes and constants of the full column: the far prisms at rest."""
+    cut = n - n_sim  # prisms (and levels) removed at the clamped end
+    if result.strain is not None:
+        B, T, _ = result.strain.shape
+        result.strain = np.concatenate([np.zeros((B, T, cut)), result.strain], axis=2)
+    # the short column starts untwisted: rotate its vectors into the full column's frame
+    theta = -config.twist * float(config.prism_handedness()[:cut].sum())
+    c, sn = np.cos(theta), np.sin(theta)
+    rot = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+    for name in ("final_displacement", "final_velocity"):
+        a = getattr(result, name)
+        if a is not None:
+            setattr(result, name, np.concatenate([np.zeros((a.shape[0], 3 * cut, 3)), a @ rot.T], axis=1))
+    # the removed prisms keep their prestress energy: add it so energies mean the whole column
+    full_ref = reference_elastic_energy(column_batch(config, _unique_reference_params(params)))
+    sim_ref = reference_elastic_energy(column_batch(sim_config, _unique_reference_params(params)))
+    offset = (full_ref - sim_ref)[_reference_index(params, result.n_columns)]
+    result.elastic_energy = result.elastic_energy + offset[:, None]
+
+
+def _reference_key(params: dict, B: int) -> np.ndarray:
+    get = lambda k, d: np.broadcast_to(np.asarray(params.get(k, d), dtype=float), (B,))  # noqa: E731
+    return np.stack([get("prestrain", 0.0), get("base_rigidity", 0.0), get("cable_EA", np.nan)], axis=1)
+
+
+def _unique_reference_params(params: dict) -> dict:
+    B = max(np.size(v) for v in params.values()) if params else 1
+    u = np.unique(_reference_key(params, B), axis=0)
+    out = {"prestrain": u[:, 0], "base_rigidity": u[:, 1]}
+    if "cable_EA" in params:
+        out["cable_EA"] = u[:, 2]
+    return out
+
+
+def _reference_index(params: dict, B: int) -> np.ndarray:
+    key = _reference_key(params, B)
+    u, inv = np.unique(key, axis=0, return_inverse=True)
+    return inv.reshape(-1)
 
 
 def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
     """Time step, stability limit, step count and memory of a batch, without launching kernels."""
+    settings, _ = apply_accuracy(settings)
     batch = column_batch(config, params)
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)

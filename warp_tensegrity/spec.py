@@ -35,6 +35,7 @@ import numpy as np
 
 from .columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
 from .network import NetworkError
+from .choose import for_accuracy
 from .settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -66,6 +67,8 @@ RUN_DEFAULTS = {
     "max_projection_iters": _RUN_DEFAULTS["max_projection_iters"],
     "failure_bar_error": _RUN_DEFAULTS["failure_bar_error"],
     "steps_per_graph": _RUN_DEFAULTS["steps_per_graph"],
+    "accuracy": None,
+    "truncate": _RUN_DEFAULTS["truncate"],
 }
 """Every [run] key and its default (None: engine's choice)."""
 
@@ -302,6 +305,7 @@ class SweepSpec:
             max_projection_iters=r["max_projection_iters"],
             failure_bar_error=r["failure_bar_error"],
             steps_per_graph=r["steps_per_graph"],
+            truncate=r["truncate"],
         )
 
     def check_dt(self, dt_limit: float) -> None:
@@ -721,7 +725,13 @@ def _parse_run(ck: _Checker, t: dict) -> dict:
                 ck.bad(path, v, "must be a positive integer")
             elif n is not None:
                 run[k] = n
-        elif k in ("record_strain", "record_energy", "allow_unstable_dt"):
+        elif k == "accuracy":
+            x = ck.number(path, v)
+            if x is not None and not (0 < x < 1):
+                ck.bad(path, v, "must lie in (0, 1): the relative error wanted on pulse speed and amplitude")
+            elif x is not None:
+                run[k] = x
+        elif k in ("record_strain", "record_energy", "allow_unstable_dt", "truncate"):
             b = ck.boolean(path, v)
             if b is not None:
                 run[k] = b
@@ -737,6 +747,12 @@ def _parse_run(ck: _Checker, t: dict) -> dict:
                 ck.bad(path, v, "must lie in (0, 1e-2)")
             elif x is not None:
                 run[k] = x
+    if run["accuracy"] is not None:
+        # the accuracy chooses method, precision and dt: they may not be given beside it
+        for key in ("method", "precision", "dt", "dt_safety"):
+            if key in t:
+                ck.bad(f"run.{key}", t[key], "conflicts with run.accuracy, which chooses it; give one of them")
+        run.update(for_accuracy(run["accuracy"]))
     if not isinstance(run["dt"], str) and run["dt"] > run["t_end"]:
         ck.bad("run.dt", run["dt"], f"must be <= run.t_end = {run['t_end']!r} s")
     oi = run["output_interval"]
