@@ -272,14 +272,14 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
         integ.initialize()
         wp.synchronize_device(integ.device)
         t_compile = time.perf_counter() - t_compile
-        t0 = time.perf_counter()
+        t0 = last = time.perf_counter()
         done = 0
-        chunk = max(int(settings.steps_per_graph), 1)
-        if progress is not None:
-            # report roughly every 0.5 s of wall time, never more often than every chunk
-            last = 0.0
+        # advance in chunks (on CUDA ~20 per run, whole graphs each); report at most twice a second
+        chunk = int(settings.steps_per_graph)
+        if integ.device.is_cuda:
+            chunk *= max(1, n_steps // (chunk * 20))
         while done < n_steps:
-            n = min(chunk * max(1, (n_steps - done) // (chunk * 20) if integ.device.is_cuda else 1), n_steps - done)
+            n = min(chunk, n_steps - done)
             integ.advance(n)
             done += n
             if progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
