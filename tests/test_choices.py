@@ -36,10 +36,11 @@ def test_tighter_accuracy_never_costs_less():
 
 
 def test_engine_reports_what_it_chose(device):
-    r = simulate_batch(ColumnConfig(n_prisms=4), CASES, RunSettings(t_end=0.05, accuracy=3e-4, device=device))
+    r = simulate_batch(ColumnConfig(n_prisms=4), CASES, RunSettings(t_end=0.05, accuracy=3e-5, device=device))
     ch = r.info["choices"]
-    assert (ch["accuracy"], ch["method"], ch["precision"]) == (3e-4, "rk4", "fp32")
-    assert r.method == "rk4" and r.precision == "fp32"
+    want = for_accuracy(3e-5, n_prisms=4)
+    assert (ch["accuracy"], ch["method"], ch["precision"]) == (3e-5, want["method"], want["precision"])
+    assert (r.method, r.precision) == (want["method"], want["precision"]) == ("rk4", "fp64")
     with pytest.raises(SettingsError, match="give one of them"):
         simulate_batch(ColumnConfig(n_prisms=4), CASES, RunSettings(t_end=0.05, dt=1e-3, accuracy=1e-3, device=device))
 

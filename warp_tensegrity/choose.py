@@ -1,20 +1,19 @@
 """Model no more than a scene needs: choices taken from the requested accuracy and the scene.
 
 * :func:`for_accuracy` maps a target relative error of the pulse measures (speed, amplitude) to
-  method, precision and the fraction of the stability limit used as dt. The table is the measured
-  work-precision verdict (``analysis/work_precision.md``, H100, the paper's four cases):
+  method, precision and the fraction of the stability limit used as dt. Errors accumulate as
+  the pulse travels, so the rule depends on the prisms it crosses. Measured on the paper's
+  50-prism column (``analysis/work_precision.md``, "Model no more than a scene needs"), the
+  worse of speed and amplitude error is bounded by
 
-  ======================  =========  =========  ==============================
-  accuracy wanted         method     precision  dt (fraction of the limit)
-  ======================  =========  =========  ==============================
-  >= 1e-2                 rattle     fp32       0.5
-  [1e-3, 1e-2)            rattle     fp32       0.25 (the default)
-  [1e-4, 1e-3)            rk4        fp32       0.22 (eps/1e-4)^(1/4)
-  < 1e-4                  rk4        fp64       0.073 (eps/1e-5)^(1/4), at most 0.22
-  ======================  =========  =========  ==============================
+      RATTLE:  0.59 (dt / dt_limit)^2 (n / 50)        RK4:  8 (dt / dt_limit)^4 (n / 50)
 
-  fp32 pulse errors equal fp64's down to ~1e-5 (RK4: 1e-6); the final state of flexible-base
-  columns after reflections is another matter (fp64 only; see the verdict).
+  with dt_limit = 2/omega_max (RATTLE) or 2*sqrt(2)/omega_max (RK4). The engine takes the
+  cheaper method (force evaluations per simulated second) that meets the target, with dt at most
+  half the limit, and fp32 unless the target is below 1e-4 (fp32 pulse errors equal fp64's
+  down to ~1e-5). The final state of flexible-base columns after reflections is another matter:
+  fp64 only (see the verdict). Flexible-base amplitudes below ~1e-4 are not promised: slack/taut
+  cable switches cut RK4 to about second order there.
 
 * :func:`reachable_prisms`: prisms a disturbance can reach within ``t_end``. A chain whose
   levels couple only to their neighbours has group velocities at most ``h0 * omega_max / 2``;
@@ -32,28 +31,40 @@ from .settings import RunSettings, SettingsError
 REACH_MARGIN_PRISMS = 8
 
 
-def for_accuracy(accuracy: float) -> dict:
-    """Method, precision and dt_safety for a target relative error of the pulse measures."""
+ERROR_MODEL = {"rattle": (0.59, 2), "rk4": (8.0, 4)}
+"""Measured error constant C and order p: error <= C (dt/dt_limit)^p (n_prisms/50)."""
+REFERENCE_PRISMS = 50
+MAX_FRACTION = 0.5
+
+
+def for_accuracy(accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> dict:
+    """Method, precision and dt_safety for a target relative error of the pulse measures over a
+    pulse that crosses ``n_prisms`` prisms."""
+    from .simulate import FORCE_EVALS, STABILITY
+
     if not (math.isfinite(accuracy) and 0 < accuracy < 1):
         raise SettingsError(f"accuracy = {accuracy!r} must lie in (0, 1) (relative error of pulse speed/amplitude)")
-    if accuracy >= 1e-2:
-        return {"method": "rattle", "precision": "fp32", "dt_safety": 0.5}
-    if accuracy >= 1e-3:
-        return {"method": "rattle", "precision": "fp32", "dt_safety": 0.25}
-    if accuracy >= 1e-4:
-        return {"method": "rk4", "precision": "fp32", "dt_safety": 0.22 * (accuracy / 1e-4) ** 0.25}
-    return {"method": "rk4", "precision": "fp64", "dt_safety": min(0.22, 0.073 * (accuracy / 1e-5) ** 0.25)}
+    travel = max(int(n_prisms), 1) / REFERENCE_PRISMS
+    best = None
+    for method, (C, p) in ERROR_MODEL.items():
+        frac = min(MAX_FRACTION, (accuracy / (C * travel)) ** (1.0 / p))
+        cost = FORCE_EVALS[method] / (frac * STABILITY[method])  # evaluations per unit of omega_max * t
+        if best is None or cost < best[0]:
+            best = (cost, method, frac)
+    _, method, frac = best
+    return {"method": method, "precision": "fp32" if accuracy >= 1e-4 else "fp64", "dt_safety": frac}
 
 
-def apply_accuracy(settings: RunSettings) -> tuple[RunSettings, dict]:
-    """Settings with method/precision/dt_safety chosen from ``settings.accuracy`` (if given)."""
+def apply_accuracy(settings: RunSettings, n_prisms: int = REFERENCE_PRISMS) -> tuple[RunSettings, dict]:
+    """Settings with method/precision/dt_safety chosen from ``settings.accuracy`` (if given) for a
+    pulse crossing ``n_prisms`` prisms."""
     if settings.accuracy is None:
         return settings, {}
     if settings.dt != "auto":
         raise SettingsError(
             f"accuracy = {settings.accuracy!r} and dt = {settings.dt!r}: give one of them; accuracy chooses dt"
         )
-    choice = for_accuracy(settings.accuracy)
+    choice = for_accuracy(settings.accuracy, n_prisms)
     fields = {k: v for k, v in vars(settings).items()}
     fields.update(choice)
     return RunSettings(**fields), {"accuracy": settings.accuracy, **choice}

@@ -195,6 +195,7 @@ class Network:
                 raise NetworkError(
                     f"node {i}: {int(counts[i])} massive bars meet here; the consistent bar inertia "
                     "is supported where each node carries at most one massive bar (class-1 in massive "
-                    "bars). Lump the bar mass onto the nodes (bar_mass=0) for class-k networks."
+                    "bars). For class-k networks put the mass on the nodes (bar_mass=0); note that lumping "
+                    "m/2 on each end triples the bar's rotary inertia."
                 )
         return self

@@ -356,12 +356,12 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     ``settings.truncate`` only the prisms a wave can reach within t_end are simulated. Both are
     reported in ``result.info['choices']``.
     """
-    settings, choices = apply_accuracy(settings)
     n = config.n_prisms
     n_sim = n
     if settings.truncate and n > 4:
         probe = column_batch(replace(config, n_prisms=4), params)  # omega bound is a local property
         n_sim = reachable_prisms(float(omega_max_bound(probe).max()), settings.t_end, n)
+    settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
     sim_config = _far_end(config, n_sim) if n_sim < n else config
     batch = column_batch(sim_config, params)
     result = run_batch(batch, settings, progress)
@@ -423,7 +423,7 @@ def _reference_index(params: dict, B: int) -> np.ndarray:
 
 def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
     """Time step, stability limit, step count and memory of a batch, without launching kernels."""
-    settings, _ = apply_accuracy(settings)
+    settings, _ = apply_accuracy(settings, config.n_prisms)
     batch = column_batch(config, params)
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)

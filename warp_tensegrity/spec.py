@@ -487,6 +487,9 @@ def parse_spec(text: str, source: str | None = None, overrides: dict | None = No
         scene_obj = ColumnConfig(**scene_keys) if scene is None else scene
     except (NetworkError, TypeError) as e:
         raise SpecError(f"scene.{e}", source) from None
+    if run.pop("accuracy_resolved", False):
+        # conservative: the pulse may cross the whole column
+        run.update(for_accuracy(run["accuracy"], scene_obj.n_prisms))
     spec = SweepSpec(
         text=text,
         source=source,
@@ -752,7 +755,7 @@ def _parse_run(ck: _Checker, t: dict) -> dict:
         for key in ("method", "precision", "dt", "dt_safety"):
             if key in t:
                 ck.bad(f"run.{key}", t[key], "conflicts with run.accuracy, which chooses it; give one of them")
-        run.update(for_accuracy(run["accuracy"]))
+        run["accuracy_resolved"] = True  # method, precision, dt_safety set once the scene is known
     if not isinstance(run["dt"], str) and run["dt"] > run["t_end"]:
         ck.bad("run.dt", run["dt"], f"must be <= run.t_end = {run['t_end']!r} s")
     oi = run["output_interval"]
