@@ -18,8 +18,9 @@
 #
 # Input: a grid sweep over (prestrain, v0, base_rigidity), e.g. `sweeps/phase_large.toml` (1536
 # columns, GPU). Output: maps of the leading pulse's width, amplitude and speed, and the places where
-# the response changes character (linear / stiffening / softening; compact pulse / dispersive tail).
-# The reading of each figure is in `analysis/phase_diagrams.md`. Measures: `docs/measurements.md`.
+# the response changes character (linear / stiffening / softening; whether the leading pulse carries
+# the impact or only part of it). The reading of each figure is in `analysis/phase_diagrams.md`.
+# Measures: `docs/measurements.md`.
 #
 # | variable | default | meaning |
 # |---|---|---|
@@ -27,12 +28,14 @@
 # | `WT_PHASE_FALLBACK_SPEC` | `sweeps/ci_small.toml` | run (CPU, seconds) when `WT_PHASE_NC` does not exist |
 # | `WT_PHASE_FALLBACK_NC` | `<tmp>/warp_tensegrity/phase_fallback.nc` | where that fallback run goes |
 # | `WT_FIG_DIR` | `analysis/figures` (fallback data: `<tmp>/warp_tensegrity/figures`) | where the PNGs go |
-# | `WT_DEVICE` | `cpu` | Warp device of the fallback run |
+# | `WT_DEVICE` | `cpu` | Warp device of the fallback run and of the strain cross-check |
+# | `WT_PHASE_RERUN` | `1` | `0` skips the strain cross-check (a few cells run again with the strain recorded; ~25 s on 2 CPU cores for phase_large) |
 
 # %%
 import os
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 _here = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
@@ -40,6 +43,7 @@ sys.path.insert(0, str(_here if (_here / "plotting.py").exists() else _here / "a
 
 import matplotlib.pyplot as plt
 import numpy as np
+import pandas as pd
 import xarray as xr
 from matplotlib import colors
 from matplotlib.patches import Patch
@@ -62,6 +66,13 @@ print({d: ds.sizes[d] for d in P.GRID_DIMS}, "| status != 0:", int((ds.status !=
 P_, V_, B_ = (ds[d].values for d in P.GRID_DIMS)
 H = float(ds.attrs["scene_height"])
 N_PRISMS = int(ds.attrs["scene_n_prisms"])
+
+
+def pct(da, q):
+    """Percentiles of the finite values of ``da`` (NaN if none), rounded for printing."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN panels (e.g. RB in the short fallback sweep)
+        return np.round(np.nanpercentile(np.asarray(da, dtype=float), q), 2).tolist()
 
 
 def panel_grid(n, width=3.6, height=2.9):
@@ -114,9 +125,16 @@ width10 = P.grid_variable(ds, "width_10")
 
 SAMPLES = P.samples_per_passage(ds)
 MIN_SAMPLES = 0.8
+FLAGGED = SAMPLES < MIN_SAMPLES
 print(f"output interval {ds.attrs.get('output_interval')} s; cells with < {MIN_SAMPLES} output samples per pulse "
-      f"passage (time of flight unreliable): {int((SAMPLES < MIN_SAMPLES).sum())} of {SAMPLES.size}; < 1 sample "
-      f"(amplitude biased low): {int((SAMPLES < 1).sum())}")
+      f"passage (time of flight unreliable, cross-hatched): {int(FLAGGED.sum())} of {SAMPLES.size}; < 1 sample "
+      f"(amplitude biased low): {int((SAMPLES < 1).sum())}; unknown (width or speed NaN, not masked): "
+      f"{int(SAMPLES.isnull().sum())}")
+print("samples per passage, min / 1st percentile / median by base rigidity:",
+      {float(b): pct(SAMPLES.sel(base_rigidity=b), [0, 1, 50]) for b in B_})
+if FLAGGED.any():  # which cells, and why: a fast pulse, or a width that cannot be a pulse's
+    print(xr.Dataset({"samples": SAMPLES, "speed": speed, "width": width, "width_10": width10, "amplitude": amp})
+          .where(FLAGGED).reset_coords(drop=True).to_dataframe().dropna(subset=["samples"]).round(4).to_string())
 
 
 def unresolved(ax, b):
@@ -195,7 +213,8 @@ plt.show()
 # ## Speed against impact speed, with the linearised branch speeds
 #
 # Lines: our speeds, one per prestrain. Horizontal marks (same colour): the linearised long-wave
-# speeds of that prestrain (`plotting.branch_speeds`, a 10-prism column of the same scene): soft
+# speeds of that prestrain (`plotting.branch_speeds`, a 10-prism column of the same scene, which
+# reads the stiff branches 2-4 % above the 50-prism column's; the soft branch is the same): soft
 # branch c0 (dotted), stiff branch with all cables taut (dashed) and with the cross cables slack
 # (dash-dot). Linear response: speed flat at a branch speed. Stiffening: speed grows with v0.
 # Softening: speed falls with v0.
@@ -246,12 +265,18 @@ branches.to_dataframe().round(4)
 # * Cells where the leading pulse passes a prism in fewer than 0.8 output samples
 #   (`plotting.samples_per_passage`) are cross-hatched and left out of alpha: their time of flight is
 #   not reliable.
-# * **Compact pulse vs dispersive tail**: share of the leading pulse in sum(strain^2) behind the front
-#   when the pulse is at mid-column (`plotting.lead_fraction`); < 0.35: the tail (or slower waves)
-#   holds most of it.
+# * **Does the leading pulse carry the impact?** (`plotting.momentum_share`, no strain record needed)
+#   the axial momentum of the measured pulse, level mass x speed x 1.135 x amplitude x FWHM, over the
+#   impact's. Around 1 or more: one pulse carries the impact; < 0.5: most of it travels in other waves
+#   (a precursor ahead, or slower waves and a tail behind).
+# * **Pulse shape**: width_10 / FWHM at mid-column (sech^2: 2.06, Gaussian: 1.82; larger when the 10 %
+#   level runs into a plateau or a tail).
+# * With the strain stored (the fallback sweep; the cross-check below), also the **lead share**: the
+#   pulse's share of sum(strain^2) behind the front (`plotting.lead_fraction`).
 
 # %%
-reg = P.regimes(ds, linear_tol=0.15, min_samples=MIN_SAMPLES)
+IMPACT = P.impact_momentum(ds)  # axial momentum of the impact per unit v0, level masses
+reg = P.regimes(ds, linear_tol=0.15, min_samples=MIN_SAMPLES, impact=IMPACT)
 alpha_meshes = maps(reg.alpha, r"$\alpha = d\,\log c / d\,\log v_0$ [-]", colors.TwoSlopeNorm(0.0, -1.0, 1.0),
                     cmap="RdBu_r", name="phase_nonlinearity",
                     overlay=lambda ax, b: (P.safe_contour(ax, P_, V_, reg.alpha.sel(base_rigidity=b).transpose("v0", "prestrain").values,
@@ -259,19 +284,28 @@ alpha_meshes = maps(reg.alpha, r"$\alpha = d\,\log c / d\,\log v_0$ [-]", colors
                     suptitle=r"Nonlinearity: $\alpha$ = d log speed / d log $v_0$ (black: $\alpha$ = $\pm$0.15; dashed: amplitude = p)")
 
 # %%
+CARRY = 0.5  # momentum share below which the measured pulse carries less than half of the impact
+mu = reg.momentum_share
+print("momentum share by base rigidity (min / median / max):",
+      {float(b): pct(mu.sel(base_rigidity=b), [0, 50, 100]) for b in B_})
+share_meshes = maps(mu, "leading-pulse momentum / impact momentum [-]", colors.LogNorm(0.1, 3.0), cmap="PuOr",
+                    name="phase_compactness",
+                    overlay=lambda ax, b: (P.safe_contour(ax, P_, V_, mu.sel(base_rigidity=b).transpose("v0", "prestrain").values,
+                                                          [CARRY], colors="k", linewidths=0.8), slack_line(ax, b)),
+                    suptitle=f"Share of the impact's axial momentum in the leading pulse (estimate; black: {CARRY}; "
+                             "dashed: amplitude = p)")
+shape_meshes = maps(reg.tail_ratio, "10 % width / FWHM at mid-column [-]", colors.Normalize(1.0, 4.0),
+                    cmap="YlGnBu_r", name="phase_shape", overlay=slack_line,
+                    suptitle="Pulse shape: 10 % width / FWHM (sech$^2$: 2.06, Gaussian: 1.82; dashed: amplitude = p)")
 COMPACT = 0.35
-if "lead_share" not in reg:
-    print("no strain record in this dataset: the lead share (compact vs dispersive) needs it; showing "
-          "width_10 / FWHM instead, a weaker proxy (about 2 for a bell-shaped pulse)")
-    share_meshes = maps(reg.tail_ratio, "10 % width / FWHM at mid-column [-]", colors.Normalize(1.0, 4.0),
-                        cmap="YlGnBu_r", name="phase_compactness",
-                        suptitle="Pulse shape: 10 % width / FWHM (no strain record: lead share unavailable)")
+if "lead_share" in reg:
+    lead_meshes = maps(reg.lead_share, "leading pulse share of sum(strain$^2$) behind the front [-]",
+                       colors.Normalize(0, 1), cmap="YlGnBu", name="phase_lead_share",
+                       overlay=lambda ax, b: P.safe_contour(ax, P_, V_, reg.lead_share.sel(base_rigidity=b).transpose("v0", "prestrain").values,
+                                                            [COMPACT], colors="k", linewidths=0.8),
+                       suptitle=f"Lead share of the strain field (black: share = {COMPACT})")
 else:
-    share_meshes = maps(reg.lead_share, "leading pulse share of sum(strain$^2$) behind the front [-]",
-                        colors.Normalize(0, 1), cmap="YlGnBu", name="phase_compactness",
-                        overlay=lambda ax, b: P.safe_contour(ax, P_, V_, reg.lead_share.sel(base_rigidity=b).transpose("v0", "prestrain").values,
-                                                             [COMPACT], colors="k", linewidths=0.8),
-                        suptitle=f"Compact pulse vs dispersive tail (black: share = {COMPACT})")
+    print("no strain record in this dataset: no lead-share map (the cross-check below reruns a few cells with it)")
 
 # %%
 # regime summary: colour = softening / linear-like / stiffening / jump, hatching = dispersive (share < COMPACT)
@@ -285,8 +319,7 @@ for i, (ax, b) in enumerate(zip(axes, B_)):
     mesh, _ = P.phase_map(ax, cat.sel(base_rigidity=b), cmap=cmap4, norm=colors.BoundaryNorm([-0.5, 0.5, 1.5, 2.5, 3.5], 4),
                           colorbar=False)
     regime_meshes[float(b)] = mesh
-    if "lead_share" in reg:
-        P.hatch_cells(ax, reg.lead_share.sel(base_rigidity=b) < COMPACT, edgecolor="0.15")
+    P.hatch_cells(ax, reg.momentum_share.sel(base_rigidity=b) < CARRY, edgecolor="0.15")
     unresolved(ax, b)
     slack_line(ax, b)
     ax.set_title(beta_title(b))
@@ -295,16 +328,105 @@ handles = [Patch(facecolor="#d73027", label=r"stiffening ($\alpha$ > 0.15)"),
            Patch(facecolor="#d9d9d9", label=r"linear-like (|$\alpha$| < 0.15)"),
            Patch(facecolor="#4575b4", label=r"softening ($\alpha$ < -0.15)"),
            Patch(facecolor="#222222", label=f"leading wave changes (|$\\alpha$| > {JUMP})"),
-           *([Patch(facecolor="white", edgecolor="k", hatch="////", label=f"dispersive (share < {COMPACT})")]
-             if "lead_share" in reg else []),
+           Patch(facecolor="white", edgecolor="k", hatch="////", label=f"pulse carries < {CARRY} of the impact momentum"),
            Patch(facecolor="white", edgecolor="0.5", hatch="xxx", label=f"not resolved (< {MIN_SAMPLES} samples per passage)")]
 fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=7, frameon=False)
 fig.suptitle("Regimes of the leading pulse (dashed white: amplitude = prestrain)")
 P.save_figure(fig, "phase_regimes")
 plt.show()
 
+# %% [markdown]
+# ## Cross-check with the strain: a few cells run again
+#
+# The sweep keeps no strain. A dozen cells, one per regime of the reading, are run again (CPU by
+# default) with the sweep's scene, time step and output interval and the strain recorded. The table
+# gives the largest relative difference of their measures from the sweep's (the GPU run), the
+# momentum share estimated from the measures against the one summed from the strain snapshot
+# (`plotting.lead_pulse_snapshot`), the lead share, and the largest compression anywhere in the record
+# over the leading pulse's amplitude (large: much bigger waves follow the leading pulse).
+
 # %%
-# numbers quoted in analysis/phase_diagrams.md
+RERUN_POINTS = [dict(base_rigidity=b, prestrain=p, v0=v) for b, p, v in [
+    (0.0, 0.0, 0.0083), (0.0, 0.002, 0.0041), (0.0, 0.002, 0.0169), (0.0, 0.002, 0.0487), (0.0, 0.00067, 0.002),
+    (0.5, 0.0053, 0.0169), (0.95, 0.002, 0.002), (0.95, 0.0, 0.0041),
+    (1.0, 0.0, 0.0041), (1.0, 0.01, 0.001), (1.0, 0.002, 0.0693), (1.0, 0.002, 0.2)]]
+if os.environ.get("WT_PHASE_RERUN", "1") != "0":
+    rr = P.rerun_cells(ds, RERUN_POINTS, device=os.environ.get("WT_DEVICE", "cpu"))
+    snap = P.lead_pulse_snapshot(rr.strain, H)
+    level_mass, p0 = (IMPACT[k].sel(prestrain=xr.DataArray(rr.prestrain.values, dims="cell"),
+                                 base_rigidity=xr.DataArray(rr.base_rigidity.values, dims="cell")).values
+                      for k in ("level_mass", "p0"))
+    per_v0 = rr.speed.values / (p0 * rr.v0.values)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        check = pd.DataFrame({
+            "base_rigidity": rr.base_rigidity.values, "prestrain": rr.prestrain.values, "v0": rr.v0.values,
+            "max_rel_diff": np.max([np.abs(rr[k].values / rr[f"sweep_{k}"].values - 1) for k in ("amplitude", "speed", "width")], axis=0),
+            **{k: rr[k].values for k in ("amplitude", "speed", "width", "width_10")},
+            "momentum_est": level_mass * per_v0 * P.SECH2_AREA * rr.amplitude.values * rr.width.values,
+            "momentum_strain": level_mass * per_v0 * snap.sum_q.values,
+            "lead_share": (snap.sum_q2 / snap.sum_q2_behind).values,
+            "qmax_over_amp": (snap.q_max / rr.amplitude).values,
+        }).set_index(["base_rigidity", "prestrain", "v0"])
+    print(f"rerun on {rr.attrs['device']}, dt = {rr.attrs['dt']} s")
+    print(check.to_string(float_format=lambda x: f"{x:.3g}"))
+
+# %% [markdown]
+# ## Numbers quoted in `analysis/phase_diagrams.md`
+
+# %%
+# weakest impact: measured speed against the linearised branch speeds (10-prism column)
+weak = xr.Dataset({"speed": speed.isel(v0=0), "width": width.isel(v0=0), **{k: branches[k] for k in branches}})
+print(f"v0 = {V_[0]:g} m/s")
+print(weak.isel(prestrain=slice(None, None, step)).reset_coords(drop=True).to_dataframe()
+      .unstack("base_rigidity").round(4).to_string())
+
+# %%
+# the precursor's amplitude cap and where the measured wave changes: for each (beta, p > 0), the first
+# v0 at which the speed drops below 0.75 x its weakest-impact value, and the largest amplitude / p before it
+rows = []
+for b in B_:
+    for p in P_[P_ > 0]:
+        s_ = speed.sel(base_rigidity=b, prestrain=p).values
+        a_ = (amp.sel(base_rigidity=b, prestrain=p) / p).values
+        drop = np.flatnonzero(s_ < 0.75 * s_[0])
+        j = drop[0] if drop.size else len(V_)
+        if 0 < j < len(V_):
+            rows.append({"base_rigidity": float(b), "prestrain": float(p), "v0_drop": V_[j],
+                         "max_amp_over_p_before": np.nanmax(a_[:j]),
+                         "max_width_before": np.nanmax(width.sel(base_rigidity=b, prestrain=p).values[:j])})
+switch = pd.DataFrame(rows, columns=["base_rigidity", "prestrain", "v0_drop", "max_amp_over_p_before", "max_width_before"])
+print(switch.groupby("base_rigidity").agg(cells_with_drop=("v0_drop", "count"),
+                                          amp_over_p_min=("max_amp_over_p_before", "min"),
+                                          amp_over_p_median=("max_amp_over_p_before", "median"),
+                                          amp_over_p_max=("max_amp_over_p_before", "max"),
+                                          v0_drop_min=("v0_drop", "min"), v0_drop_max=("v0_drop", "max"),
+                                          width_before_max=("max_width_before", "max")).round(3).to_string())
+
+# %%
+# per base rigidity: the counts of each regime, and the weak-impact corner (v0 <= 4.2 mm/s, p >= 0.0026)
+corner = (ds.v0 <= 0.0042) & (ds.prestrain >= 0.0026)
+slow = (speed < 0.1 * speed.max("v0")) & (ds.base_rigidity < 1)  # the slow (soft-branch) wave read instead of the fast one
+table = {}
+for b in B_:
+    a = reg.alpha.sel(base_rigidity=b)
+    c = corner.broadcast_like(a)
+    table[float(b)] = {
+        "linear": int((np.abs(a) < 0.15).sum()), "stiffening": int(((a >= 0.15) & (a <= JUMP)).sum()),
+        "softening": int(((a <= -0.15) & (a >= -JUMP)).sum()), "jump": int((np.abs(a) > JUMP).sum()),
+        "slow_wave_cells": int(slow.sel(base_rigidity=b).sum()),
+        "carries_impact": int((mu.sel(base_rigidity=b) >= CARRY).sum()),
+        "corner_speed": float(speed.sel(base_rigidity=b).where(c).median()),
+        "corner_width": float(width.sel(base_rigidity=b).where(c).median()),
+        "corner_w10_over_w": float(reg.tail_ratio.sel(base_rigidity=b).where(c).median()),
+        "corner_momentum": float(mu.sel(base_rigidity=b).where(c).median()),
+        "max_amplitude": float(amp.sel(base_rigidity=b).max()),
+        "energy_error_max": float(ds.energy_error.sel(base_rigidity=b).max()),
+    }
+pd.DataFrame(table).round(4)
+
+# %%
+# everything per cell
 summary = xr.Dataset({"amplitude": amp, "speed": speed, "width": width, "width_10": width10,
-                      "alpha": reg.alpha, **({"lead_share": reg.lead_share} if "lead_share" in reg else {})})
-summary.to_dataframe().round(4)
+                      "alpha": reg.alpha, "momentum_share": mu, "samples": SAMPLES,
+                      **({"lead_share": reg.lead_share} if "lead_share" in reg else {})})
+summary.reset_coords(drop=True).to_dataframe().round(4)

@@ -60,7 +60,12 @@ __all__ = [
     "scene_config",
     "branch_speeds",
     "lead_fraction",
+    "lead_pulse_snapshot",
+    "SECH2_AREA",
+    "impact_momentum",
+    "momentum_share",
     "simulate_cases",
+    "rerun_cells",
 ]
 
 H0 = 6.2e-3
@@ -567,15 +572,21 @@ def branch_speeds(ds: xr.Dataset, n_prisms: int = 10) -> xr.Dataset:
     return res
 
 
-def lead_fraction(strain: xr.DataArray, h: float = H0) -> xr.DataArray:
-    """Share of the leading pulse in the strain field behind the wave front, at mid-column [-].
+def lead_pulse_snapshot(strain: xr.DataArray, h: float = H0) -> xr.Dataset:
+    """The leading pulse in the strain snapshot taken as it passes mid-column, one record at a time.
 
     At the output time nearest to the leading peak's passage at the middle of the measurement window
     (``measure_pulse``'s ``peak_time``), with the peak at prism ``p`` (largest compression within 2
-    prisms of the middle) and half-width ``w = max(1, width_10 / 2)``:
-    ``sum_{|j - p| <= w} eps_j^2 / sum_{j >= p - w} eps_j^2`` (strain squared as a proxy for the
-    elastic energy). Near 1: a compact pulse carries the motion; small: a dispersive tail or slower
-    waves behind it hold most of it. ``strain``: dims (..., time, prism); returns dims (...)."""
+    prisms of the middle) and half-width ``w = max(1, width_10 / 2)``, in compression ``q = -strain``:
+
+    * ``sum_q`` = sum_{|j - p| <= w} q_j [-]: the pulse's strain integral, in prisms (its axial
+      momentum is ``level mass x speed x sum_q`` for a steady travelling wave);
+    * ``sum_q2`` = sum_{|j - p| <= w} q_j^2 and ``sum_q2_behind`` = sum_{j >= p - w} q_j^2 [-];
+    * ``q_max``: the largest compression anywhere in the column at any time [-];
+    * ``amplitude``: the measured leading-pulse amplitude (``measure_pulse``) [-].
+
+    NaN where the leading peak does not reach mid-window. ``strain``: dims (..., time, prism);
+    every variable has dims (...)."""
     from warp_tensegrity.measure import measure_pulse, measurement_window
 
     s = strain.transpose(..., "time", "prism")
@@ -586,7 +597,8 @@ def lead_fraction(strain: xr.DataArray, h: float = H0) -> xr.DataArray:
     m = measure_pulse(flat, t, h)
     lo, hi = measurement_window(P)
     jm = (lo + hi - 1) // 2
-    out = np.full(flat.shape[0], np.nan)
+    keys = ("sum_q", "sum_q2", "sum_q2_behind")
+    out = {k: np.full(flat.shape[0], np.nan) for k in keys}
     jj = np.arange(P)
     for b in range(flat.shape[0]):
         tp = m["peak_time"][b, jm]
@@ -596,13 +608,113 @@ def lead_fraction(strain: xr.DataArray, h: float = H0) -> xr.DataArray:
         win = np.abs(jj - jm) <= 2
         p = int(np.argmax(np.where(win, snap, -np.inf)))
         w = max(1.0, 0.5 * m["width_10"][b]) if np.isfinite(m["width_10"][b]) else 1.0
-        e2 = snap**2
-        behind = e2[jj >= p - w].sum()
-        out[b] = e2[np.abs(jj - p) <= w].sum() / behind if behind > 0 else np.nan
-    da = xr.DataArray(out.reshape(vals.shape[:-2]), dims=lead_dims,
-                      coords={d: s[d] for d in lead_dims if d in s.coords})
+        pulse = np.abs(jj - p) <= w
+        out["sum_q"][b] = snap[pulse].sum()
+        out["sum_q2"][b] = (snap[pulse] ** 2).sum()
+        out["sum_q2_behind"][b] = (snap[jj >= p - w] ** 2).sum()
+    out["q_max"] = np.where(np.isfinite(flat).all(axis=(1, 2)), -flat.min(axis=(1, 2)), np.nan)
+    out["amplitude"] = m["amplitude"]
+    shape = vals.shape[:-2]
+    coords = {d: s[d] for d in lead_dims if d in s.coords}
+    return xr.Dataset({k: xr.DataArray(v.reshape(shape), dims=lead_dims, coords=coords) for k, v in out.items()})
+
+
+def lead_fraction(strain: xr.DataArray, h: float = H0) -> xr.DataArray:
+    """Share of the leading pulse in the strain field behind the wave front, at mid-column [-].
+
+    ``sum_q2 / sum_q2_behind`` of :func:`lead_pulse_snapshot`: at the output time nearest to the
+    leading peak's passage at the middle of the measurement window, with the peak at prism ``p`` and
+    half-width ``w = max(1, width_10 / 2)``, ``sum_{|j - p| <= w} eps_j^2 / sum_{j >= p - w} eps_j^2``
+    (strain squared as a proxy for the elastic energy). Near 1: a compact pulse carries the motion;
+    small: a dispersive tail or slower waves behind it hold most of the strain. Strain squared weighs
+    soft waves (large strain, little force) as much as stiff ones, so a small share can also mean
+    slow soft-branch waves behind a pulse that carries the whole impact (``analysis/phase_diagrams.md``).
+    ``strain``: dims (..., time, prism); returns dims (...)."""
+    snap = lead_pulse_snapshot(strain, h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        da = (snap["sum_q2"] / snap["sum_q2_behind"]).where(snap["sum_q2_behind"] > 0)
     da.attrs.update(long_name="share of the leading pulse in sum(strain^2) behind the front", units="1")
     return da
+
+
+SECH2_AREA = 1.0 / np.arccosh(np.sqrt(2.0))
+"""Integral of a sech^2 pulse over its amplitude x FWHM: 2 w / (2 w arcosh(sqrt 2)) = 1.1346."""
+
+
+def impact_momentum(ds: xr.Dataset) -> xr.Dataset:
+    """Per unit impact speed, on the (prestrain, base_rigidity) grid of a sweep, from its scene
+    (``scene_*`` attributes; :func:`scene_config`):
+
+    * ``p0``: the axial momentum of the admissible impact, -sum_i m_i v_z,i at v0 = 1 m/s [kg];
+      ``end_twist`` keeps v_z = -v0 on the end nodes, so this is the end base's mass;
+    * ``level_mass``: the mass of one interior level (a prism's share of the column) [kg].
+
+    Neither depends on the prestrain (masses, reference geometry and bar constraints do not), so one
+    column per base rigidity is built and the values are repeated along ``prestrain``."""
+    from warp_tensegrity import build_column
+
+    cfg = scene_config(ds)
+    ps, bs = ds["prestrain"].values, ds["base_rigidity"].values
+    p0 = np.full(len(bs), np.nan)
+    m_level = np.full(len(bs), np.nan)
+    for j, b in enumerate(bs):
+        scene = build_column(cfg, prestrain=float(ps[0]), v0=1.0, base_rigidity=float(b))
+        m = scene.network.node_mass
+        p0[j] = -float(np.sum(m * scene.velocity[:, 2]))
+        m_level[j] = float(m[scene.topology.level_nodes[1]].sum())
+    dims = ("prestrain", "base_rigidity")
+    coords = {"prestrain": ps, "base_rigidity": bs}
+    rep = lambda v: np.broadcast_to(v, (len(ps), len(bs))).copy()  # noqa: E731
+    return xr.Dataset({"p0": (dims, rep(p0), {"units": "kg"}), "level_mass": (dims, rep(m_level), {"units": "kg"})},
+                      coords=coords)
+
+
+def momentum_share(ds: xr.Dataset, shape_factor: float = SECH2_AREA, impact: xr.Dataset | None = None) -> xr.DataArray:
+    """Axial momentum carried by the leading pulse over the impact's, estimated from the per-column
+    measures alone (no strain record needed), on the grid [-]:
+
+        level_mass x speed x (shape_factor x amplitude x width) / (p0 x v0)
+
+    A steady wave moving at c toward the clamp gives each level the velocity c x strain, so its
+    momentum is level_mass x c x sum_j q_j; the sum is taken as ``shape_factor`` x amplitude x FWHM
+    (sech^2: 1.135; Gaussian: 1.064; a pulse more compact than sech^2 less). ``impact``:
+    :func:`impact_momentum` (computed if None). Around 1 or more: the leading pulse carries the impact
+    (more than 1 when the light end base rebounds); well below 1: most of the impact's momentum
+    travels elsewhere, in waves ahead of the measured pulse or behind it. An estimate: the shape of
+    the pulse sets it to about +-25 % (see :func:`lead_pulse_snapshot` for the strain-based value)."""
+    impact = impact_momentum(ds) if impact is None else impact
+    c, a, w = (grid_variable(ds, k) for k in ("speed", "amplitude", "width"))
+    mu = impact["level_mass"] * c * shape_factor * a * w / (impact["p0"] * ds["v0"])
+    mu = mu.transpose(*GRID_DIMS, ...)
+    mu.attrs.update(long_name="leading-pulse momentum over impact momentum (estimate)", units="1")
+    return mu
+
+
+def rerun_cells(ds: xr.Dataset, points, device: str | None = None) -> xr.Dataset:
+    """Run again, with the strain recorded, the grid cells of a sweep nearest to ``points`` (a list
+    of {"base_rigidity": b, "prestrain": p, "v0": v} targets; duplicates dropped), with the sweep's
+    scene, time step, duration and output interval (its attributes), on ``device`` (``$WT_DEVICE``,
+    default cpu). Returns a dataset along ``cell``: ``strain`` (cell, time, prism), the rerun's
+    measures, the sweep's as ``sweep_<name>``, and the cell's coordinates."""
+    cells = []
+    for pt in points:
+        sel = {d: float(ds[d].values[np.abs(ds[d].values - pt[d]).argmin()]) for d in GRID_DIMS}
+        if sel not in cells:
+            cells.append(sel)
+    params = {d: np.array([c[d] for c in cells]) for d in GRID_DIMS}
+    dt = ds.attrs.get("dt", "auto")
+    df, r = simulate_cases(params, scene_config(ds), t_end=float(ds.attrs["t_end"]),
+                           output_interval=float(ds.attrs["output_interval"]),
+                           dt=float(dt) if not isinstance(dt, str) else dt, device=device, keep_strain=True)
+    out = xr.Dataset({"strain": (("cell", "time", "prism"), np.asarray(r.strain))},
+                     coords={"cell": np.arange(len(cells)), "time": r.time, "prism": np.arange(r.strain.shape[-1]),
+                             **{d: ("cell", params[d]) for d in GRID_DIMS}})
+    for k in ("amplitude", "speed", "width", "width_10", "energy_error", "status"):
+        out[k] = ("cell", df[k].to_numpy())
+        if k in ds:
+            out[f"sweep_{k}"] = ("cell", np.array([float(ds[k].sel(c)) for c in cells]))
+    out.attrs.update(device=r.device, dt=float(r.dt))
+    return out
 
 
 def safe_contour(ax, x, y, z, levels, filled: bool = False, **kw):
@@ -623,9 +735,11 @@ def safe_contour(ax, x, y, z, levels, filled: bool = False, **kw):
 
 def samples_per_passage(ds: xr.Dataset) -> xr.DataArray:
     """Output samples per passage of the leading pulse at a prism [-]: width (FWHM, prisms) x h0 /
-    (speed x output interval), on the grid. Below ~1 the time sampling cannot resolve the pulse: its
-    amplitude reads low, and below ~0.5 even its time of flight becomes unreliable (on
-    phase_large.toml's 0.05 s outputs, speeds of 1-300 m/s appear there)."""
+    (speed x output interval), on the grid; NaN where the width or speed is undefined. Below ~1 the
+    time sampling cannot resolve the pulse: its amplitude reads low, and below ~0.5 even its time of
+    flight becomes unreliable (phase_large.toml with 0.05 s outputs read speeds of 1-300 m/s there).
+    With phase_large's 2 ms outputs every cell has >= 4.7 samples but one, whose FWHM is misread
+    (0.03 prism): the criterion then flags a width that cannot be a pulse's."""
     dt_out = float(ds.attrs.get("output_interval", np.nan))
     if not np.isfinite(dt_out) and "time" in ds.coords and ds.sizes["time"] > 1:
         dt_out = float(np.median(np.diff(ds["time"].values)))  # NaN if the interval is unknown
@@ -637,7 +751,7 @@ def samples_per_passage(ds: xr.Dataset) -> xr.DataArray:
 
 
 def regimes(ds: xr.Dataset, linear_tol: float = 0.15, compact_share: float = 0.5,
-            min_samples: float = 0.5) -> xr.Dataset:
+            min_samples: float = 0.5, carry_share: float = 0.5, impact: xr.Dataset | None = None) -> xr.Dataset:
     """Where the leading pulse changes character, on the grid (prestrain, v0, base_rigidity):
 
     * ``alpha`` = d log speed / d log v0 (:func:`log_slope`): ~0 for a linear(-like) response whose
@@ -648,6 +762,10 @@ def regimes(ds: xr.Dataset, linear_tol: float = 0.15, compact_share: float = 0.5
       ``softening`` = alpha <= -linear_tol (1.0/0.0, NaN where alpha is undefined);
     * ``tail_ratio`` = width_10 / width at mid-column: ~2 for a compact bell-shaped pulse (sech^2:
       2.06, Gaussian: 1.82), larger when the 10 % level runs into a tail;
+    * ``momentum_share`` (only if the dataset has its ``scene_*`` attributes): :func:`momentum_share`
+      (``impact``: :func:`impact_momentum`, computed if None);
+      ``carries_impact`` = momentum_share >= carry_share (else most of the impact's momentum travels
+      in other waves, ahead of the measured pulse or behind it);
     * ``lead_share`` (only if the sweep stored its strain): :func:`lead_fraction`;
       ``compact`` = lead_share >= compact_share (else the tail or slower waves dominate);
     * ``samples`` = :func:`samples_per_passage`; ``resolved`` = samples >= min_samples (or unknown).
@@ -670,6 +788,10 @@ def regimes(ds: xr.Dataset, linear_tol: float = 0.15, compact_share: float = 0.5
         "samples": samples,
         "resolved": resolved.where(np.isfinite(samples)),
     })
+    if "scene_n_prisms" in ds.attrs:
+        mu = momentum_share(ds, impact=impact)
+        out["momentum_share"] = mu
+        out["carries_impact"] = (mu >= carry_share).where(np.isfinite(mu))
     if "strain" in ds:
         share = lead_fraction(ds["strain"], float(ds.attrs.get("scene_height", H0)))
         share = share.transpose(*GRID_DIMS).where(ds["status"] == 0)

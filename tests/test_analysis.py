@@ -269,6 +269,52 @@ def test_lead_fraction_compact_and_tail():
     assert share.values[1] < 0.35
 
 
+def test_lead_pulse_snapshot_sums_the_pulse():
+    t = np.arange(0, 3.0001, 0.01)
+    amp, width = 0.01, 1.5
+    da = xr.DataArray(travelling_pulse(amp, 0.1, t, n=30, width=width)[None], dims=("v0", "time", "prism"),
+                      coords={"v0": [1.0], "time": t, "prism": np.arange(30)})
+    snap = P.lead_pulse_snapshot(da)
+    assert snap.sum_q.dims == ("v0",)
+    # integral of a sech^2 pulse: 2 w amp = SECH2_AREA x amplitude x FWHM (the 10 % window holds 95 % of it)
+    fwhm = 2 * width * np.arccosh(np.sqrt(2))
+    assert 2 * width * amp == pytest.approx(P.SECH2_AREA * amp * fwhm)
+    assert float(snap.sum_q[0]) == pytest.approx(2 * width * amp, rel=0.08)
+    assert float(snap.q_max[0]) == pytest.approx(amp, rel=1e-6)
+    np.testing.assert_allclose(P.lead_fraction(da), snap.sum_q2 / snap.sum_q2_behind)
+
+
+def scene_grid_dataset(n_prisms=4):
+    """grid_dataset with the scene attributes a sweep writes (a short paper column)."""
+    ds = grid_dataset((0.0, 0.5))
+    ds.attrs.update(scene_n_prisms=n_prisms, scene_height=H, scene_unit_mass=0.0249, output_interval=0.002)
+    return ds
+
+
+def test_impact_momentum_is_the_end_base_mass():
+    ds = scene_grid_dataset()
+    imp = P.impact_momentum(ds)
+    assert imp.p0.dims == ("prestrain", "base_rigidity")
+    # end_twist keeps v_z = -v0 on the end nodes; "half" puts half a unit's mass on the end base
+    np.testing.assert_allclose(imp.p0, 0.0249 / 2, rtol=1e-12)
+    np.testing.assert_allclose(imp.level_mass, 0.0249, rtol=1e-12)
+
+
+def test_momentum_share_from_the_measures():
+    ds = scene_grid_dataset()
+    mu = P.momentum_share(ds)
+    assert mu.dims == P.GRID_DIMS
+    g = {k: P.grid_variable(ds, k) for k in ("speed", "amplitude", "width")}
+    want = 2 * P.SECH2_AREA * g["speed"] * g["amplitude"] * g["width"] / ds.v0
+    np.testing.assert_allclose(mu.values, want.transpose(*P.GRID_DIMS).values, rtol=1e-12)
+    assert np.isnan(mu.values[0, 0, 0])  # the failed column
+    reg = P.regimes(ds, carry_share=0.5)
+    np.testing.assert_array_equal(reg.momentum_share.values, mu.values)
+    ok = np.isfinite(mu.values)
+    np.testing.assert_array_equal(reg.carries_impact.values[ok], (mu.values[ok] >= 0.5).astype(float))
+    assert "momentum_share" not in P.regimes(grid_dataset())  # no scene attributes: not computed
+
+
 def test_input_path_and_existing_sweep(tmp_path, monkeypatch):
     monkeypatch.setenv("WT_TEST_X", "analysis/data/some.nc")
     assert P.input_path("WT_TEST_X", "x") == ROOT / "analysis" / "data" / "some.nc"
@@ -311,6 +357,18 @@ def test_phase_grids_match_the_dataset(ci_small):
     mesh, _ = P.phase_map(ax, da)
     np.testing.assert_array_equal(np.ma.asarray(mesh.get_array()).reshape(2, 2).filled(np.nan),
                                   da.transpose("v0", "prestrain").values)
+
+
+def test_rerun_cells_reproduces_the_sweep(ci_small):
+    pts = [dict(base_rigidity=0.0, prestrain=0.0021, v0=0.0049), dict(base_rigidity=0.0, prestrain=0.002, v0=0.005),
+           dict(base_rigidity=1.0, prestrain=0.0, v0=0.002)]
+    rr = P.rerun_cells(ci_small, pts, device="cpu")
+    assert rr.sizes["cell"] == 2  # the first two snap to the same grid cell
+    assert rr.strain.dims == ("cell", "time", "prism")
+    np.testing.assert_allclose(rr.time, ci_small.time)
+    assert list(rr.prestrain.values) == [0.002, 0.0] and list(rr.base_rigidity.values) == [0.0, 1.0]
+    for k in ("amplitude", "speed", "width"):
+        np.testing.assert_array_equal(rr[k].values, rr[f"sweep_{k}"].values)  # same CPU, same settings
 
 
 def test_branch_speeds_on_the_grid(ci_small):
