@@ -203,14 +203,31 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
         cable_names=cable_names,
     )
     # the reference state depends on (prestrain, base rigidity, EA) only: check each distinct one once
-    key = np.stack([p["prestrain"], p["base_rigidity"], p["cable_EA"]], axis=1)
-    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
-    if len(uniq) < B:
-        sub = column_batch(config, {"prestrain": uniq[:, 0], "base_rigidity": uniq[:, 1], "cable_EA": uniq[:, 2]})
-        batch.equilibrium_residual = sub.equilibrium_residual[inverse.reshape(-1)]
+    states, inverse = reference_states(p)
+    if len(inverse) > len(states["prestrain"]):
+        batch.equilibrium_residual = column_batch(config, states).equilibrium_residual[inverse]
     else:
         batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(T, np.finfo(float).tiny)
     return batch
+
+
+def reference_states(p: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The distinct reference states among filled per-column parameters (see :func:`column_params`):
+    (prestrain, base_rigidity, cable_EA) of each, and the index of each column's state."""
+    key = np.stack([p["prestrain"], p["base_rigidity"], p["cable_EA"]], axis=1)
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+    return {"prestrain": uniq[:, 0], "base_rigidity": uniq[:, 1], "cable_EA": uniq[:, 2]}, inverse.reshape(-1)
+
+
+def _reference_tensions(batch: NetworkBatch):
+    """Unit vectors e (n_cables, 3), stretch s - L and tension (Bc, n_cables) of the reference state."""
+    X = batch.positions
+    c = batch.cables
+    e = X[c[:, 1]] - X[c[:, 0]]
+    ell = np.linalg.norm(e, axis=1)
+    stretch = ell[None, :] - batch.cable_rest_length
+    k = np.where(stretch > 0, batch.cable_EA, batch.cable_EA_compression) / batch.cable_rest_length
+    return e / ell[:, None], stretch, k * stretch
 
 
 def equilibrium_residuals(batch: NetworkBatch) -> np.ndarray:
@@ -219,12 +236,7 @@ def equilibrium_residuals(batch: NetworkBatch) -> np.ndarray:
     X = batch.positions
     c = batch.cables
     B = batch.n_columns
-    e = X[c[:, 1]] - X[c[:, 0]]
-    ell = np.linalg.norm(e, axis=1)
-    e /= ell[:, None]
-    L = batch.cable_rest_length
-    stretch = ell[None, :] - L
-    T = np.where(stretch > 0, batch.cable_EA, batch.cable_EA_compression) / L * stretch  # (Bc, nc)
+    e, _, T = _reference_tensions(batch)
     T = np.broadcast_to(T, (B, c.shape[0]))
     n = X.shape[0]
     f = np.zeros((B, n, 3))
@@ -250,14 +262,8 @@ def equilibrium_residuals(batch: NetworkBatch) -> np.ndarray:
 
 def reference_elastic_energy(batch: NetworkBatch) -> np.ndarray:
     """(B,) elastic energy of the reference (prestressed) state [J]."""
-    X = batch.positions
-    c = batch.cables
-    ell = np.linalg.norm(X[c[:, 1]] - X[c[:, 0]], axis=1)
-    L = batch.cable_rest_length
-    st = ell[None, :] - L
-    k = np.where(st > 0, batch.cable_EA, batch.cable_EA_compression) / L
-    e = 0.5 * (k * st**2).sum(axis=1)
-    return np.broadcast_to(e, (batch.n_columns,)).copy()
+    _, stretch, T = _reference_tensions(batch)
+    return np.broadcast_to(0.5 * (T * stretch).sum(axis=1), (batch.n_columns,)).copy()
 
 
 def omega_max_bound(batch: NetworkBatch) -> np.ndarray:

@@ -65,7 +65,8 @@ class RunSettings:
     (:mod:`warp_tensegrity.choose`) and says what it chose in ``BatchResult.info['choices']``."""
     truncate: bool = True
     """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
-    column there; results are padded back to the full column (the far prisms stay at rest)."""
+    column there; results are padded back to the full column (the far prisms stay at rest).
+    Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.choose`)."""
 
     def __post_init__(self):
         if self.method not in METHODS:

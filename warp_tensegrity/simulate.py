@@ -20,7 +20,14 @@ from dataclasses import replace
 import numpy as np
 import warp as wp
 
-from .batch import NetworkBatch, column_batch, omega_max_bound, reference_elastic_energy
+from .batch import (
+    NetworkBatch,
+    column_batch,
+    column_params,
+    omega_max_bound,
+    reference_elastic_energy,
+    reference_states,
+)
 from .choose import apply_accuracy, reachable_prisms
 from .columns import ColumnConfig
 from .kernels import make_kernels
@@ -357,10 +364,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     reported in ``result.info['choices']``.
     """
     n = config.n_prisms
-    n_sim = n
-    if settings.truncate and n > 4:
-        probe = column_batch(replace(config, n_prisms=4), params)  # omega bound is a local property
-        n_sim = reachable_prisms(float(omega_max_bound(probe).max()), settings.t_end, n)
+    n_sim = prisms_to_simulate(config, params, settings)
     settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
     sim_config = _far_end(config, n_sim) if n_sim < n else config
     batch = column_batch(sim_config, params)
@@ -372,6 +376,20 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
                     "record_strain": settings.record_strain})
     result.info["choices"] = choices
     return result
+
+
+def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings) -> int:
+    """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end."""
+    n = config.n_prisms
+    if not settings.truncate or n <= 4:
+        return n
+    hand = config.prism_handedness()
+    if np.any(hand != hand[0]) and np.any(column_params(config, params)["base_rigidity"] >= 1.0):
+        # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
+        # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
+        return n
+    probe = column_batch(_far_end(config, 4), params)  # the omega bound is a local property
+    return reachable_prisms(float(omega_max_bound(probe).max()), settings.t_end, n)
 
 
 def _far_end(config: ColumnConfig, n_sim: int) -> ColumnConfig:
@@ -395,35 +413,15 @@ def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int,
         if a is not None:
             setattr(result, name, np.concatenate([np.zeros((a.shape[0], 3 * cut, 3)), a @ rot.T], axis=1))
     # the removed prisms keep their prestress energy: add it so energies mean the whole column
-    full_ref = reference_elastic_energy(column_batch(config, _unique_reference_params(params)))
-    sim_ref = reference_elastic_energy(column_batch(sim_config, _unique_reference_params(params)))
-    offset = (full_ref - sim_ref)[_reference_index(params, result.n_columns)]
-    result.elastic_energy = result.elastic_energy + offset[:, None]
-
-
-def _reference_key(params: dict, B: int) -> np.ndarray:
-    get = lambda k, d: np.broadcast_to(np.asarray(params.get(k, d), dtype=float), (B,))  # noqa: E731
-    return np.stack([get("prestrain", 0.0), get("base_rigidity", 0.0), get("cable_EA", np.nan)], axis=1)
-
-
-def _unique_reference_params(params: dict) -> dict:
-    B = max(np.size(v) for v in params.values()) if params else 1
-    u = np.unique(_reference_key(params, B), axis=0)
-    out = {"prestrain": u[:, 0], "base_rigidity": u[:, 1]}
-    if "cable_EA" in params:
-        out["cable_EA"] = u[:, 2]
-    return out
-
-
-def _reference_index(params: dict, B: int) -> np.ndarray:
-    key = _reference_key(params, B)
-    u, inv = np.unique(key, axis=0, return_inverse=True)
-    return inv.reshape(-1)
+    states, index = reference_states(column_params(config, params))
+    offset = reference_elastic_energy(column_batch(config, states)) - reference_elastic_energy(
+        column_batch(sim_config, states))
+    result.elastic_energy = result.elastic_energy + offset[index][:, None]
 
 
 def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
     """Time step, stability limit, step count and memory of a batch, without launching kernels."""
-    settings, _ = apply_accuracy(settings, config.n_prisms)
+    settings, _ = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
     batch = column_batch(config, params)
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)
