@@ -272,6 +272,8 @@ def integrator_bytes(integ) -> dict:
         v = getattr(integ.data, f.name)
         if isinstance(v, dict):
             out["data"] += sum(_array_bytes(x) for x in v.values())
+        elif dataclasses.is_dataclass(v):  # FusedScratch
+            out["data"] += sum(_array_bytes(getattr(v, g.name)) for g in dataclasses.fields(v))
         else:
             out["data"] += _array_bytes(v)
     for name in ("strain", "kinetic", "elastic"):
@@ -312,6 +314,7 @@ def iteration_diagnostics(integ, steps: int) -> dict:
 class TimedPoint:
     B: int
     n_prisms: int
+    path: str
     base: str
     precision: str
     n_nodes: int
@@ -346,9 +349,12 @@ class TimedPoint:
 
 def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, target_s: float,
                reps: int = 3, max_steps: int = 1_000_000, steps_per_graph: int = 50, output_every: int = 100,
-               dt: float | None = None, diag_steps: int = 10) -> TimedPoint:
+               dt: float | None = None, diag_steps: int = 10, path: str = "fused") -> TimedPoint:
     """Build an Integrator for ``batch``, warm it up (kernels, graph capture), then time
     ``reps`` segments of n steps each (n chosen so that all segments take about target_s).
+
+    ``path``: 'fused' (one block per column, :mod:`warp_tensegrity.fused`) or 'staged' (one
+    kernel per stage, the columns' solves one thread each).
 
     Per-step rate = total steps / total wall; rep_seconds_per_step gives each segment's rate.
     Then (untimed) ``diag_steps`` eager steps read the Newton iteration count of every column
@@ -369,12 +375,14 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     # outputs every `output_every` steps; the record kernels launch every step and return early
     # otherwise. n_out covers at most 64 records (later records are skipped by the kernel's bound).
     settings = RunSettings(t_end=dt * output_every * 64, dt=dt, method="rattle", precision=precision,
-                           device=str(device), record_strain=False, steps_per_graph=steps_per_graph)
+                           device=str(device), record_strain=False, steps_per_graph=steps_per_graph,
+                           fused=path == "fused")
     integ = Integrator(batch, settings, dt, output_every, 64)
-    # the needed kernels were force-loaded with the launch block size; Integrator.load_kernels
-    # would also compile the RK4-only kernels (and, on the CPU, a second block-size variant)
-    mods = rattle_modules(precision)
-    integ.load_kernels = lambda: wp.force_load(device=device, modules=mods, max_workers=0)  # cheap when loaded
+    if path != "fused":
+        # the needed kernels were force-loaded with the launch block size; Integrator.load_kernels
+        # would also compile the RK4-only kernels (and, on the CPU, a second block-size variant)
+        mods = rattle_modules(precision)
+        integ.load_kernels = lambda: wp.force_load(device=device, modules=mods, max_workers=0)  # cheap when loaded
     wp.synchronize_device(device)
     pool1 = mempool_used(device)
     build_s = time.perf_counter() - t_build
@@ -432,7 +440,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     m = integ.model
     mem_pool = None if (pool0 is None or pool1 is None) else pool1 - pool0
     point = TimedPoint(
-        B=B, n_prisms=n_prisms, base=base_label, precision=precision, n_nodes=m.n_nodes, n_cables=m.n_cables,
+        B=B, n_prisms=n_prisms, path=path, base=base_label, precision=precision, n_nodes=m.n_nodes, n_cables=m.n_cables,
         n_constraints=m.n_constraints, bandwidth=m.bandwidth, dt=dt, steps=steps, wall_s=wall,
         column_steps_per_s=B * steps / wall, node_steps_per_s=B * m.n_nodes * steps / wall,
         seconds_per_step=wall / steps, rep_seconds_per_step=[t / per_rep for t in rep_times],

@@ -147,7 +147,7 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
 
 def bound(n_prisms: int = 50, base="FB", precision: str = "fp64", device_kind: str = "h100",
           it: float | None = None, output_every: int = 100, per_column_params: str = "rest_length",
-          B: int | None = None) -> dict:
+          B: int | None = None, path: str = "staged") -> dict:
     """Bytes, flops and the roofline bound (column-steps/s) of one RATTLE column-step."""
     lab = base_label(base)
     if precision not in ("fp32", "fp64"):

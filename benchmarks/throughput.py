@@ -80,7 +80,7 @@ def run(args) -> dict:
     _log(f"[throughput] compiled/loaded RATTLE kernels for {args.precisions} in {compile_s:.1f} s")
     doc = {
         "kind": "throughput", "method": "rattle", "meta": meta, "plan": plan, "quick": bool(args.quick),
-        "precisions": args.precisions, "bases": args.bases,
+        "precisions": args.precisions, "bases": args.bases, "paths": args.paths,
         "harness": {
             "base_columns": common.BASE_COLUMNS, "prestrain_range": common.PRESTRAIN_RANGE,
             "v0_range": common.V0_RANGE, "dt": "0.25 * 2 / omega_max_bound (RATTLE dt='auto' before rounding)",
@@ -97,7 +97,13 @@ def run(args) -> dict:
         return time.perf_counter() - sweep_t0 > plan["budget_s"]
 
     def measure(batch_small, n_prisms, base, prec, B, sweep):
-        key = (n_prisms, base, prec, B)
+        for path in args.paths:
+            if sweep == "prisms" and path not in args.prism_paths:
+                continue
+            measure_path(batch_small, n_prisms, base, prec, B, sweep, path)
+
+    def measure_path(batch_small, n_prisms, base, prec, B, sweep, path):
+        key = (n_prisms, base, prec, B, path)
         if key in done:
             p = dict(done[key])
             p["sweep"] = sweep
@@ -106,7 +112,7 @@ def run(args) -> dict:
             return
         if over_budget():
             doc["skipped"].append({"n_prisms": n_prisms, "base": base, "precision": prec, "B": B, "sweep": sweep,
-                                   "reason": "time budget"})
+                                   "path": path, "reason": "time budget"})
             _log(f"  skip {sweep} B={B} prisms={n_prisms} {base} {prec} (budget)")
             return
         try:
@@ -117,7 +123,7 @@ def run(args) -> dict:
             tile_s = time.perf_counter() - tb
             pt = common.time_batch(batch, base, n_prisms, prec, device, target_s=plan["target_s"], reps=args.reps,
                                    max_steps=args.max_steps, diag_steps=DIAG_STEPS if args.diagnostics else 0,
-                                   dt=dts[(n_prisms, base)])
+                                   dt=dts[(n_prisms, base)], path=path)
             p = pt.as_dict()
             p["tile_s"] = tile_s
             p["sweep"] = sweep
@@ -127,7 +133,7 @@ def run(args) -> dict:
                 dk = common.device_kind(device.name)
                 if dk in roofline.DEVICES:
                     it = p.get("mean_iters")
-                    rb = roofline.bound(n_prisms, base, prec, dk, it=it, B=B)
+                    rb = roofline.bound(n_prisms, base, prec, dk, it=it, B=B, path=path)
                     p["roofline_bound_column_steps_per_s"] = rb["bound_column_steps_per_s"]
                     p["roofline_bytes_per_column_step"] = rb["bytes_per_column_step"]
                     p["roofline_fraction"] = p["column_steps_per_s"] / rb["bound_column_steps_per_s"]
@@ -141,13 +147,13 @@ def run(args) -> dict:
                 extra = f" iters {p['mean_iters']:.2f} (warp max {p['warp32_max_iters_mean']:.2f})"
             if "roofline_fraction" in p:
                 extra += f" {100 * p['roofline_fraction']:.1f}% of roofline"
-            _log(f"  {sweep:7s} B={B:6d} prisms={n_prisms:4d} {base} {prec}: {p['column_steps_per_s']:.4g} col-steps/s "
+            _log(f"  {sweep:7s} {path:6s} B={B:6d} prisms={n_prisms:4d} {base} {prec}: {p['column_steps_per_s']:.4g} col-steps/s "
                  f"{p['node_steps_per_s']:.4g} node-steps/s ({p['steps']} steps, {p['wall_s']:.3f} s, "
                  f"graph {p['steps_per_graph']}) {p['bytes_per_column'] / 1e3:.1f} KB/col, build {p['build_s']:.2f} s,"
                  f" failed {p['n_failed']}{extra}")
         except Exception as exc:  # noqa: BLE001
             doc["points"].append({"n_prisms": n_prisms, "base": base, "precision": prec, "B": B, "sweep": sweep,
-                                  "error": repr(exc), "traceback": traceback.format_exc()})
+                                  "path": path, "error": repr(exc), "traceback": traceback.format_exc()})
             _log(f"  ERROR {sweep} B={B} prisms={n_prisms} {base} {prec}: {exc!r}")
         doc["elapsed_s"] = time.perf_counter() - t_start
         common.write_json(out, doc)
@@ -164,7 +170,7 @@ def run(args) -> dict:
     Bp = plan["prism_batch"]
     for npr in plan["prisms"]:
         for base in args.bases:
-            if all((npr, base, prec, Bp) in done for prec in args.precisions):
+            if all((npr, base, prec, Bp, path) in done for prec in args.precisions for path in args.prism_paths):
                 for prec in args.precisions:
                     measure(None, npr, base, prec, Bp, "prisms")
                 continue
@@ -204,10 +210,12 @@ def ncu_mode(args):
 
     batch = common.tile_batch(common.build_base_batch(npr, BASES[base], min(common.BASE_COLUMNS, B)), B)
     dt = common.rattle_dt(batch)
+    fused = args.paths[0] == "fused"
     s = RunSettings(t_end=dt * 1000, dt=dt, precision=prec, device=str(device), record_strain=False,
-                    steps_per_graph=1 << 30)
+                    steps_per_graph=1 << 30, fused=fused)
     integ = Integrator(batch, s, dt, 100, 16)
-    integ.load_kernels = lambda: None
+    if not fused:
+        integ.load_kernels = lambda: None
     integ.initialize()
     integ.advance(args.ncu_steps)
     wp.synchronize_device(device)
@@ -231,6 +239,10 @@ def main(argv=None):
     ap.add_argument("--budget-s", dest="budget_s", type=float, default=None,
                     help="stop starting new points after this many seconds of sweeping (compile excluded)")
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--paths", nargs="+", default=["fused", "staged"], choices=["fused", "staged"],
+                    help="step implementations: fused (block per column) and/or staged (kernel per stage)")
+    ap.add_argument("--prism-paths", dest="prism_paths", nargs="+", default=["fused"], choices=["fused", "staged"],
+                    help="paths measured in the prism sweep")
     ap.add_argument("--max-steps", dest="max_steps", type=int, default=200_000)
     ap.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
                     help="skip the 10-step Newton-iteration diagnostic after each point")

@@ -124,6 +124,8 @@ class Model:
     cab_L: wp.array  # (ne, Bp) rest length [m]
     node_start: wp.array  # (n+1,) CSR node -> cables
     node_member: wp.array
+    ncon_start: wp.array  # (n+1,) CSR node -> rigid members
+    ncon_member: wp.array
     partner: wp.array  # (n,) other end of the node's massive bar, -1 if none
     m_self: wp.array  # (n, Bp) [kg]
     m_cross: wp.array  # (n, Bp) [kg]
@@ -152,6 +154,7 @@ def build_model(batch: NetworkBatch, precision: str, device) -> Model:
     L_c = np.linalg.norm(dref_c.astype(np.float64), axis=1)
     dref_e = (X[cab[:, 1]] - X[cab[:, 0]]).astype(npr)
     node_start, node_member = node_member_csr(X.shape[0], cab)
+    ncon_start, ncon_member = node_member_csr(X.shape[0], cons.reshape(-1, 2))
     arr = lambda a, dt: wp.array(np.asarray(a), dtype=dt, device=device)  # noqa: E731
     level_nodes = h0 = None
     n_prisms = 0
@@ -186,6 +189,8 @@ def build_model(batch: NetworkBatch, precision: str, device) -> Model:
         cab_L=_dev2(batch.cable_rest_length, real, device),
         node_start=arr(node_start, wp.int32),
         node_member=arr(node_member, wp.int32),
+        ncon_start=arr(ncon_start, wp.int32),
+        ncon_member=arr(ncon_member, wp.int32),
         partner=arr(partner, wp.int32),
         m_self=_dev2(m_self, real, device),
         m_cross=_dev2(m_cross, real, device),
@@ -214,17 +219,63 @@ class Data:
     bar_err: wp.array  # (B,) max relative bar-length error after projection
     step: wp.array  # (1,) int32 completed steps
     rk: dict | None  # RK4 scratch: u0, v0, acc_u, acc_v, us, vs, each (n, B) vec3
+    fused: FusedScratch | None = None  # working rows of the fused step (warp_tensegrity.fused)
 
 
-def make_data(model: Model, velocity: np.ndarray, method: str) -> Data:
-    """velocity: (B, n, 3) initial velocity [m s-1]."""
+@dataclass
+class FusedScratch:
+    """Per-column working rows of the fused RATTLE step: column index first, so one block's
+    data are contiguous. ``block`` = threads per column block."""
+
+    u: wp.array  # (B, n) vec3 displacement [m]
+    v: wp.array  # (B, n) vec3 velocity [m s-1]
+    a: wp.array  # (B, n) vec3 unconstrained acceleration [m s-2]
+    u_prev: wp.array  # (B, n) vec3 displacement at the start of the step [m]
+    imp: wp.array  # (B, n) vec3 G^T lambda per node
+    solve: wp.array  # (B, nc*(bw+2)): Cholesky factor of G M^-1 G^T by rows (inverse diagonal in
+    # slot 0 of each row), then the multipliers; (1, 1) when they live in block shared memory
+    red: wp.array  # (B, block) per-lane values for block reductions
+
+
+def make_fused_scratch(model: Model, block: int, shared: bool) -> FusedScratch:
+    real = REAL[model.precision]
+    vec = wp.types.vector(3, real)
+    d, n, B = model.device, model.n_nodes, model.n_columns
+    nc = max(model.n_constraints, 1)
+    z = lambda: wp.zeros((B, n), dtype=vec, device=d)  # noqa: E731
+    rows = (1, 1) if shared else (B, nc * (model.bandwidth + 2))
+    return FusedScratch(
+        u=z(), v=z(), a=z(), u_prev=z(), imp=z(),
+        solve=wp.zeros(rows, dtype=real, device=d),
+        red=wp.zeros((B, block), dtype=real, device=d),
+    )
+
+
+def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int | None = None,
+              fused_shared: bool = False) -> Data:
+    """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused_block`` (threads per column
+    block) the solver scratch lives in :class:`FusedScratch` and the staged kernels' scratch
+    (u_prev, imp, band, lam) is not allocated (size-1 placeholders)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d = model.device
     n, B = model.n_nodes, model.n_columns
     nc = max(model.n_constraints, 1)
     z = lambda: wp.zeros((n, B), dtype=vec, device=d)  # noqa: E731
-    v = wp.array(np.ascontiguousarray(np.transpose(velocity, (1, 0, 2))).astype(NP_REAL[model.precision]), dtype=vec, device=d)
+    if fused_block is not None:
+        one = wp.zeros((1, 1), dtype=vec, device=d)
+        return Data(
+            u=z(), v=_device_velocity(velocity, model, vec), a=z(), u_prev=one, imp=one,
+            band=wp.zeros((1, 1, 1), dtype=real, device=d), lam=wp.zeros((1, 1), dtype=real, device=d),
+            status=wp.zeros(B, dtype=wp.int32, device=d),
+            fail_step=wp.full(B, -1, dtype=wp.int32, device=d),
+            iters=wp.zeros(B, dtype=wp.int32, device=d),
+            bar_err=wp.zeros(B, dtype=real, device=d),
+            step=wp.zeros(1, dtype=wp.int32, device=d),
+            rk=None,
+            fused=make_fused_scratch(model, fused_block, fused_shared),
+        )
+    v = _device_velocity(velocity, model, vec)
     rk = None
     if method == "rk4":
         rk = {k: z() for k in ("u0", "v0", "acc_u", "acc_v", "us", "vs")}
@@ -239,3 +290,9 @@ def make_data(model: Model, velocity: np.ndarray, method: str) -> Data:
         step=wp.zeros(1, dtype=wp.int32, device=d),
         rk=rk,
     )
+
+
+def _device_velocity(velocity: np.ndarray, model: Model, vec) -> wp.array:
+    """(B, n, 3) host -> (n, B) vec3 device."""
+    host = np.ascontiguousarray(np.transpose(velocity, (1, 0, 2))).astype(NP_REAL[model.precision])
+    return wp.array(host, dtype=vec, device=model.device)

@@ -59,6 +59,12 @@ class RunSettings:
     """Relative bar-length error above which a column is frozen and flagged."""
     steps_per_graph: int = 50
     """Steps captured in one CUDA graph."""
+    fused: bool | str = "auto"
+    """RATTLE as one fused kernel, a thread block per column and several steps per launch
+    (:mod:`warp_tensegrity.fused`); False: one kernel per stage (the only path of the other
+    methods). 'auto': fused for RATTLE, except on a GPU above
+    :data:`~warp_tensegrity.simulate.FUSED_MAX_COLUMNS` columns, where the staged kernels stream
+    faster. Both paths give the same numbers to round-off."""
     accuracy: float | None = None
     """Target relative error of the pulse measures (speed, amplitude). When given, the engine
     chooses method, precision and dt from the measured work-precision curves
@@ -97,6 +103,10 @@ class RunSettings:
             raise SettingsError(f"max_projection_iters = {self.max_projection_iters!r} must be >= 1")
         if self.accuracy is not None and not (np.isfinite(self.accuracy) and 0 < self.accuracy < 1):
             raise SettingsError(f"accuracy = {self.accuracy!r} must lie in (0, 1) (relative error of the pulse measures)")
+        if self.fused not in (True, False, "auto"):
+            raise SettingsError(f"fused = {self.fused!r}; choose true, false or 'auto'")
+        if self.fused is True and self.method != "rattle":
+            raise SettingsError(f"fused = true needs method = 'rattle' (got method = {self.method!r})")
         if int(self.steps_per_graph) < 1:
             raise SettingsError(f"steps_per_graph = {self.steps_per_graph!r} must be >= 1")
 

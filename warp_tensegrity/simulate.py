@@ -30,8 +30,17 @@ from .batch import (
 )
 from .choose import apply_accuracy, reachable_prisms
 from .columns import ColumnConfig
+from .fused import make_fused_kernels, shared_capacity
 from .kernels import make_kernels
-from .model import REAL, Data, Model, build_model, constraint_coupling, make_data, mass_entries
+from .model import (
+    REAL,
+    Data,
+    Model,
+    build_model,
+    constraint_coupling,
+    make_data,
+    mass_entries,
+)
 from .settings import BatchResult, RunSettings, SettingsError
 
 # stability limit of omega*dt for each method on an undamped oscillator
@@ -40,6 +49,12 @@ FORCE_EVALS = {"rattle": 1, "rk4": 4, "yoshida4": 3, "symplectic_euler": 1}
 _W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 YOSHIDA = (_W1, 1.0 - 2.0 * _W1, _W1)
 COLUMN_BLOCK_DIM = 64  # CUDA threads per block for the one-thread-per-column kernels
+FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one warp)
+FUSED_STEPS = 16  # most RATTLE steps per fused launch
+# fused='auto' on a GPU: above this many columns the staged kernels stream faster (benchmarks/README.md)
+FUSED_MAX_COLUMNS = 32768
+FUSED_SHARED_ON_CPU = False  # CPU blocks run alone: the global rows are as fast there (tests may switch it on)
+MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph by the fused path
 
 
 def default_device() -> str:
@@ -89,7 +104,17 @@ class Integrator:
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
             self.model: Model = build_model(batch, settings.precision, self.device)
-            self.data: Data = make_data(self.model, batch.velocity, settings.method)
+            self.fused = settings.fused is True or (
+                settings.fused == "auto" and settings.method == "rattle"
+                and (not self.device.is_cuda or batch.n_columns <= FUSED_MAX_COLUMNS))
+            lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
+            self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
+            m = self.model
+            cap = 0
+            if self.fused and (self.device.is_cuda or FUSED_SHARED_ON_CPU):
+                cap = shared_capacity(m.n_constraints, m.bandwidth, 4 if settings.precision == "fp32" else 8)
+            self.shared_cap = cap
+            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused_block, cap > 0)
             real = REAL[settings.precision]
             self.real = real
             self.k = make_kernels(real)
@@ -100,6 +125,7 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
+            self.fk = make_fused_kernels(real, cap, m.bandwidth) if self.fused else None
         self.column_kernels = {
             kern.key for kern in (self.k.project_positions, self.k.factor_project_velocities, self.k.factor_only,
                                   self.k.constrained_accel, self.k.record_energy)
@@ -107,6 +133,7 @@ class Integrator:
         self.build_time = time.perf_counter() - t0
         self.graph = None
         self.graph_steps = 0
+        self.steps_done = 0
 
     # ------------------------------------------------------------------ launch helpers
     def _block_dim(self, kernel) -> int:
@@ -166,6 +193,27 @@ class Integrator:
             m.partner, m.minv_self, m.minv_cross, m.bandwidth, u, v, d.step, d.band, a, d.lam, d.imp,
             d.status, d.fail_step])
 
+    def _fused(self, n_sub: int, init: int = 0):
+        m, d, s, f = self.model, self.data, self.settings, self.data.fused
+        wp.launch_tiled(self.fk.rattle_columns, dim=[m.n_columns], block_dim=self.fused_block, device=self.device,
+                        inputs=[
+            m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross,
+            m.cpl_sign, m.ncon_start, m.ncon_member, m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L,
+            m.node_start, m.node_member, m.partner, m.minv_self, m.minv_cross, m.bandwidth,
+            self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
+            self.real(self.dt), int(n_sub), int(init), d.step, d.u, d.v, d.a, d.bar_err, d.iters, d.status,
+            d.fail_step, f.u, f.v, f.a, f.u_prev, f.imp, f.solve, f.red])
+
+    def _fused_steps(self, n: int):
+        """n RATTLE steps as fused launches of at most FUSED_STEPS, each followed by the counter and
+        the (step-gated) records."""
+        while n > 0:
+            k = min(FUSED_STEPS, n)
+            self._fused(k)
+            self._launch(self.fk.advance_counter_by, 1, [self.data.step, k])
+            self._record()
+            n -= k
+
     def _record(self):
         m, d = self.model, self.data
         if self.strain is not None:
@@ -179,6 +227,11 @@ class Integrator:
     def load_kernels(self):
         """Compile/load the kernels this method uses now, with the block size they launch with,
         so no load happens while stepping or capturing."""
+        if self.fused:
+            self.fk.rattle_columns.module.load(self.device, self.fused_block)
+            for kern in (self.fk.advance_counter_by, self.k.record_strain, self.k.record_energy):
+                kern.module.load(self.device, self._block_dim(kern))
+            return
         rk_only = {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in vars(self.k).items():
             if isinstance(kern, wp.Kernel) and (self.settings.method == "rk4" or name not in rk_only):
@@ -188,8 +241,11 @@ class Integrator:
         """Make the initial velocity exactly admissible, factor A(u0), compute a(u0), record step 0."""
         self.load_kernels()
         d = self.data
-        self._factor_project_velocities(d.u, d.v)
-        self._gather(d.u, d.v, 0.0, d.a, d.v)
+        if self.fused:
+            self._fused(0, init=1)
+        else:
+            self._factor_project_velocities(d.u, d.v)
+            self._gather(d.u, d.v, 0.0, d.a, d.v)
         self._record()
 
     def _rattle(self, h):
@@ -228,6 +284,10 @@ class Integrator:
         self._factor_project_velocities(d.u, d.v)
 
     def step(self):
+        if self.fused:
+            self._fused_steps(1)
+            self.steps_done += 1
+            return
         h = self.dt
         method = self.settings.method
         if method == "rattle":
@@ -244,6 +304,10 @@ class Integrator:
 
     def advance(self, n: int):
         """Advance n steps: through a captured CUDA graph of steps_per_graph steps when possible."""
+        if self.fused:
+            self._advance_fused(n)
+            return
+        self.steps_done += n
         spg = int(self.settings.steps_per_graph)
         if self.device.is_cuda and n >= spg:
             if self.graph is None:
@@ -258,6 +322,30 @@ class Integrator:
                 n -= spg
         for _ in range(n):
             self.step()
+
+    def _advance_fused(self, n: int):
+        """Fused launches never straddle an output step; whole output periods (a multiple of
+        ``every`` near steps_per_graph) replay one captured graph."""
+        every = self.every
+        period = every * max(1, -(-int(self.settings.steps_per_graph) // every))
+        graphable = self.device.is_cuda and period <= MAX_GRAPH_STEPS
+        while n > 0:
+            phase = self.steps_done % every
+            if graphable and phase == 0 and n >= period:
+                if self.graph is None:
+                    gc.collect()
+                    with wp.ScopedCapture(device=self.device) as cap:
+                        for _ in range(period // every):
+                            self._fused_steps(every)  # launches end on every output step
+                    self.graph = cap.graph
+                    self.graph_steps = period
+                wp.capture_launch(self.graph)
+                k = period
+            else:
+                k = min(n, every - phase)
+                self._fused_steps(k)
+            self.steps_done += k
+            n -= k
 
     # ------------------------------------------------------------------ results
     def n_failed(self) -> int:

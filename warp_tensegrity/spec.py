@@ -69,10 +69,11 @@ RUN_DEFAULTS = {
     "steps_per_graph": _RUN_DEFAULTS["steps_per_graph"],
     "accuracy": None,
     "truncate": _RUN_DEFAULTS["truncate"],
+    "fused": _RUN_DEFAULTS["fused"],
 }
 """Every [run] key and its default (None: engine's choice)."""
 
-EXECUTION_KEYS = ("device", "shard_size")
+EXECUTION_KEYS = ("device", "shard_size", "fused")
 """[run] keys that say where/how a sweep runs, not what it computes: left out of the fingerprint."""
 
 PARAM_DEFAULTS = {"prestrain": 0.0, "v0": 0.0, "base_rigidity": 0.0}
@@ -306,6 +307,7 @@ class SweepSpec:
             failure_bar_error=r["failure_bar_error"],
             steps_per_graph=r["steps_per_graph"],
             truncate=r["truncate"],
+            fused=r["fused"],
         )
 
     def check_dt(self, dt_limit: float) -> None:
@@ -738,6 +740,13 @@ def _parse_run(ck: _Checker, t: dict) -> dict:
             b = ck.boolean(path, v)
             if b is not None:
                 run[k] = b
+        elif k == "fused":
+            if v not in (True, False, "auto") or isinstance(v, (int, float)) and not isinstance(v, bool):
+                ck.bad(path, v, 'give true (one block per column), false (one kernel per stage) or "auto"')
+            elif v is True and t.get("method", run["method"]) != "rattle":
+                ck.bad(path, v, f"the fused step is RATTLE's; run.method = {t.get('method')!r}")
+            else:
+                run[k] = v
         elif k == "dt_safety":
             x = ck.number(path, v)
             if x is not None and not (0 < x <= 0.5):

@@ -1,0 +1,100 @@
+"""The fused RATTLE step (one block per column) against the staged kernels, which are an
+independent implementation of the same scheme: same numbers to round-off, same flags."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from warp_tensegrity import simulate
+from warp_tensegrity.columns import ColumnConfig
+from warp_tensegrity.fused import SHARED_BYTES_MAX, shared_capacity
+from warp_tensegrity.settings import RunSettings, SettingsError
+from warp_tensegrity.simulate import simulate_batch
+from warp_tensegrity.spec import SpecError, parse_spec
+
+CASES = {  # FB and RB, slack-cable impacts and a prestressed one
+    "prestrain": [0.0, 0.002, 0.0, 0.002],
+    "v0": [0.005, 0.1, 0.005, 0.1],
+    "base_rigidity": [0.0, 0.0, 1.0, 1.0],
+}
+
+
+def _pair(precision, device, cfg=ColumnConfig(n_prisms=8), params=CASES, **kw):
+    out = {}
+    for fused in (False, True):
+        # 20 steps per output: launches of up to 16 steps must stop at the output steps
+        s = RunSettings(t_end=0.2, dt=5e-4, precision=precision, device=device, fused=fused, truncate=False,
+                        output_interval=0.01, **kw)
+        out[fused] = simulate_batch(cfg, params, s)
+    return out[False], out[True]
+
+
+@pytest.mark.parametrize("precision, tol", [("fp64", 1e-11), ("fp32", 1e-3)])
+def test_fused_matches_staged(precision, tol, device):
+    staged, fused = _pair(precision, device)
+    assert staged.info["output_every"] > simulate.FUSED_STEPS  # records fall between launch ends
+    assert np.all(staged.status == 0) and np.all(fused.status == 0)
+    scale = np.abs(staged.strain).max(axis=(1, 2))
+    assert np.all(scale > 1e-6)
+    rel = np.abs(fused.strain - staged.strain).max(axis=(1, 2)) / scale
+    assert np.all(rel < tol), rel
+    # energies recorded at the same output steps
+    e_rel = np.abs(fused.kinetic_energy - staged.kinetic_energy).max() / staged.kinetic_energy.max()
+    assert e_rel < tol
+    bound = 1e-12 if precision == "fp64" else 1e-6
+    assert np.all(fused.bar_length_error <= bound) and np.all(fused.bar_length_error > 0)
+    assert fused.info["max_projection_iterations"] == staged.info["max_projection_iterations"] or precision == "fp32"
+
+
+def test_emulated_lanes_and_shared_rows_match_staged():
+    """Four lanes per block on the CPU (Warp's CPU block emulation, real barriers) with the band
+    in the shared-memory buffer: the lane split, the barriers and the shared rows the GPU uses."""
+    old = (wp.config.enable_cpu_blocks, simulate.FUSED_BLOCK_DIM, simulate.FUSED_SHARED_ON_CPU)
+    try:
+        wp.config.enable_cpu_blocks = True
+        simulate.FUSED_BLOCK_DIM = 4
+        simulate.FUSED_SHARED_ON_CPU = True
+        staged, fused = _pair("fp64", "cpu", cfg=ColumnConfig(n_prisms=5))
+    finally:
+        wp.config.enable_cpu_blocks, simulate.FUSED_BLOCK_DIM, simulate.FUSED_SHARED_ON_CPU = old
+    rel = np.abs(fused.strain - staged.strain).max() / np.abs(staged.strain).max()
+    assert rel < 1e-11, rel
+    assert np.all(fused.bar_length_error <= 1e-12)
+
+
+def test_fused_flags_one_diverging_column_and_spares_the_rest(device):
+    params = {"prestrain": [0.002, 0.002, 0.002], "v0": [0.05, 0.05, 0.05], "base_rigidity": [0.0, 0.0, 0.0]}
+    cfg = ColumnConfig(n_prisms=6)
+    base = RunSettings(t_end=0.1, dt=2e-3, device=device, allow_unstable_dt=True, truncate=False, fused=True)
+    alone = simulate_batch(cfg, {k: v[:1] for k, v in params.items()}, base)
+    # column 1 gets a cable 1e6 times stiffer: dt is then far above its stability limit
+    cab = cfg.cable_EA
+    bad = dict(params, cable_EA=[cab, cab * 1e6, cab])
+    r = simulate_batch(cfg, bad, base)
+    assert r.status[1] != 0 and r.fail_step[1] > 0
+    assert r.status[0] == 0 and r.status[2] == 0
+    np.testing.assert_array_equal(r.strain[0], alone.strain[0])  # untouched, bit for bit
+
+
+def test_fused_setting_is_checked():
+    with pytest.raises(SettingsError, match="fused"):
+        RunSettings(fused="yes")
+    with pytest.raises(SettingsError, match="rattle"):
+        RunSettings(fused=True, method="rk4")
+    RunSettings(fused=False, method="rk4")  # the staged path runs every method
+
+
+def test_spec_fused_key():
+    base = '[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01] }\n[run]\nt_end = 0.01\n'
+    assert parse_spec(base + "fused = false\n").run["fused"] is False
+    with pytest.raises(SpecError, match="run.fused"):
+        parse_spec(base + 'fused = "sometimes"\n')
+    with pytest.raises(SpecError, match="run.fused"):
+        parse_spec(base + 'method = "rk4"\nfused = true\n')
+
+
+def test_shared_capacity_buckets():
+    assert shared_capacity(150, 3, 4) == 1024  # FB, 50 prisms: 750 reals
+    assert shared_capacity(300, 6, 8) == 2560  # RB, 50 prisms: 2400 reals
+    assert shared_capacity(2400, 6, 8) == 0  # RB, 400 prisms: over SHARED_BYTES_MAX, global rows
+    assert shared_capacity(2400, 6, 8) * 8 <= SHARED_BYTES_MAX
