@@ -20,6 +20,12 @@ fi
 PY=${PYTHON:-python3}
 B=${NCU_BATCH:-65536}
 CONFIGS=${NCU_CONFIGS:-"FB:fp32 RB:fp64"}
+PATH_KIND=${NCU_PATH:-staged}  # staged: the 4 step kernels; fused: rattle_columns (one launch = 16 steps)
+if [ "$PATH_KIND" = fused ]; then
+  KERNELS='rattle_columns'; SKIP=1; COUNT=2; EXTRA="--section WarpStateStats --section SchedulerStats"
+else
+  KERNELS='kick_drift|project_positions|gather_accel|factor_project_velocities'; SKIP=2; COUNT=8; EXTRA=""
+fi
 TMP=$(mktemp -d)
 for cfg in $CONFIGS; do
   base=${cfg%%:*}
@@ -28,13 +34,14 @@ for cfg in $CONFIGS; do
   echo "[ncu] $base $prec B=$B" >&2
   # skip the 2 launches of initialize (factor_project_velocities, gather_accel), then 8 = 2 steps
   "$NCU" --target-processes all --clock-control none \
-    --kernel-name regex:'kick_drift|project_positions|gather_accel|factor_project_velocities' \
-    --launch-skip 2 --launch-count 8 \
-    --section SpeedOfLight --section LaunchStats --section Occupancy \
+    --kernel-name regex:"$KERNELS" \
+    --launch-skip $SKIP --launch-count $COUNT \
+    --section SpeedOfLight --section LaunchStats --section Occupancy $EXTRA \
     --export "$rep" --force-overwrite \
     "$PY" -m benchmarks.throughput --device cuda:0 --ncu-mode --bases "$base" --precisions "$prec" \
-    --ncu-batch "$B" --ncu-steps 3 >&2
-  "$NCU" --import "$rep.ncu-rep" --csv --page details > "$OUTDIR/ncu_${base}_${prec}_B${B}.csv"
-  echo "[ncu] wrote $OUTDIR/ncu_${base}_${prec}_B${B}.csv" >&2
+    --ncu-batch "$B" --ncu-steps 32 --paths "$PATH_KIND" >&2
+  tag=""; [ "$PATH_KIND" = fused ] && tag="_fused"
+  "$NCU" --import "$rep.ncu-rep" --csv --page details > "$OUTDIR/ncu${tag}_${base}_${prec}_B${B}.csv"
+  echo "[ncu] wrote $OUTDIR/ncu${tag}_${base}_${prec}_B${B}.csv" >&2
 done
 rm -rf "$TMP"

@@ -27,7 +27,7 @@ from . import common
 
 FULL = {
     "cuda": {"batches": [1, 4, 16, 64, 256, 1024, 4096, 16384, 65536], "prisms": [10, 25, 50, 100, 200, 400],
-             "prism_batch": 4096, "target_s": 0.3, "budget_s": 150.0},
+             "prism_batch": 4096, "target_s": 0.3, "budget_s": 330.0},
     "cpu": {"batches": [1, 4, 16, 64], "prisms": [10, 25, 50, 100], "prism_batch": 4,
             "target_s": 0.25, "budget_s": 90.0},
 }

@@ -48,15 +48,20 @@ def test_fused_matches_staged(precision, tol, device):
 
 def test_emulated_lanes_and_shared_rows_match_staged():
     """Four lanes per block on the CPU (Warp's CPU block emulation, real barriers) with the band
-    in the shared-memory buffer: the lane split, the barriers and the shared rows the GPU uses."""
-    old = (wp.config.enable_cpu_blocks, simulate.FUSED_BLOCK_DIM, simulate.FUSED_SHARED_ON_CPU)
+    and node rows in the shared-memory buffers: the lane split, the barriers and the shared rows
+    the GPU uses."""
+    names = ("FUSED_BLOCK_DIM", "FUSED_SHARED_ON_CPU", "FUSED_SHARED_NODE_BYTES")
+    old = [wp.config.enable_cpu_blocks] + [getattr(simulate, n) for n in names]
     try:
         wp.config.enable_cpu_blocks = True
         simulate.FUSED_BLOCK_DIM = 4
         simulate.FUSED_SHARED_ON_CPU = True
+        simulate.FUSED_SHARED_NODE_BYTES = SHARED_BYTES_MAX  # node rows in the shared buffer too
         staged, fused = _pair("fp64", "cpu", cfg=ColumnConfig(n_prisms=5))
     finally:
-        wp.config.enable_cpu_blocks, simulate.FUSED_BLOCK_DIM, simulate.FUSED_SHARED_ON_CPU = old
+        wp.config.enable_cpu_blocks = old[0]
+        for n, v in zip(names, old[1:]):
+            setattr(simulate, n, v)
     rel = np.abs(fused.strain - staged.strain).max() / np.abs(staged.strain).max()
     assert rel < 1e-11, rel
     assert np.all(fused.bar_length_error <= 1e-12)

@@ -33,6 +33,8 @@ _SYNC = "WP_TILE_SYNC();"
 def block_sync(): ...
 
 
+NQ = 5  # node state slots per node: U, V, A, P, I (see make_fused_kernels)
+U, V, A, P, I = (wp.constant(i) for i in range(NQ))
 SHARED_BUCKET = 512  # shared-memory capacities are rounded up to a multiple of this many reals
 SHARED_BYTES_MAX = 40 * 1024  # static shared memory a block may take for the solver rows
 
@@ -45,11 +47,22 @@ def shared_capacity(n_constraints: int, bandwidth: int, real_bytes: int) -> int:
     return cap if cap * real_bytes <= SHARED_BYTES_MAX else 0
 
 
+def shared_nodes(n_nodes: int, solver_cap: int, real_bytes: int, budget: int | None = None) -> int:
+    """Nodes whose state rows (NQ vec3 each) go to shared memory beside the solver rows: all of
+    them (rounded up to 32) if they fit in ``budget`` bytes in all, else 0 (global rows)."""
+    budget = SHARED_BYTES_MAX if budget is None else budget
+    if solver_cap == 0:
+        return 0
+    nodes = -(-n_nodes // 32) * 32
+    total = solver_cap * real_bytes + nodes * NQ * 3 * real_bytes
+    return nodes if total <= budget else 0
+
+
 @functools.cache
-def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
+def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nodes: int = 0):
     """Fused kernels for scalar type ``real`` (wp.float32 or wp.float64). With ``shared_cap`` > 0
     the column's band and multipliers (n_constraints*(bandwidth+2) reals) live in that many reals
-    of block shared memory, where lane 0's dependent Cholesky chain reads back what it just wrote
+    of block shared memory, and with ``shared_nodes`` > 0 the node state rows of that many nodes too, where lane 0's dependent Cholesky chain reads back what it just wrote
     in ~30 cycles instead of a round trip to L2; else in the global rows ``sx``. The Gram-matrix
     half-bandwidth is compiled in, so lane 0's loops unroll and rows sit in registers."""
     vec = wp.types.vector(3, real)
@@ -59,6 +72,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
     winvec = wp.types.vector(max(BW, 1), real)
     ctype = "double" if real == wp.float64 else "float"
     cap = int(shared_cap)
+    qcap = int(shared_nodes) * NQ
 
     # one static buffer per block: __shared__ on CUDA; on the CPU a static array (blocks run one
     # after another there, and emulated lanes of one block share it like shared memory)
@@ -89,14 +103,45 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         else:
             sx[w, i] = value
 
+    # node state rows: entry n*NQ + slot, slots U (displacement), V (velocity), A (acceleration),
+    # P (displacement at the step start), I (G^T lambda); in shared memory when qcap > 0
+    vsnippet = f"""
+#if defined(__CUDA_ARCH__)
+    __shared__ {ctype} qraw[{3 * max(qcap, 1)}];
+#else
+    static {ctype} qraw[{3 * max(qcap, 1)}];
+#endif
+    {ctype}* q = qraw + 3 * i;
+    if (store != 0) {{ q[0] = value[0]; q[1] = value[1]; q[2] = value[2]; }}
+    return wp::vec_t<3, {ctype}>(q[0], q[1], q[2]);
+"""
+
+    @wp.func_native(vsnippet)
+    def shared_q(i: int, value: vec, store: int) -> vec: ...
+
+    @wp.func
+    def qget(sq: wp.array2d(dtype=vec), w: int, n: int, slot: int):
+        if wp.static(qcap > 0):
+            return shared_q(n * NQ + slot, vec(), 0)
+        else:
+            return sq[w, n * NQ + slot]
+
+    @wp.func
+    def qset(sq: wp.array2d(dtype=vec), w: int, n: int, slot: int, value: vec):
+        if wp.static(qcap > 0):
+            shared_q(n * NQ + slot, value, 1)
+        else:
+            sq[w, n * NQ + slot] = value
+
     @wp.func
     def pget(p: wp.array2d(dtype=real), k: int, w: int):
         return p[k, w % p.shape[1]]
 
     @wp.func
     def bar(dref: wp.array(dtype=vec), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
-            su: wp.array2d(dtype=vec), k: int, w: int):
-        return dref[k] + su[w, nj[k]] - su[w, ni[k]]
+            sq: wp.array2d(dtype=vec), slot: int, k: int, w: int):
+        """Member k's vector at the displacement in ``slot`` (U or P)."""
+        return dref[k] + qget(sq, w, nj[k], slot) - qget(sq, w, ni[k], slot)
 
     @wp.func
     def block_max(red: wp.array2d(dtype=real), x: real, w: int, lane: int, bd: int):
@@ -175,32 +220,30 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
         ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
         partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        sg: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), lo: int, simp: wp.array2d(dtype=vec),
-        su: wp.array2d(dtype=vec), scale_u: real, sv: wp.array2d(dtype=vec), scale_v: real,
-        w: int, lane: int, bd: int,
+        sq: wp.array2d(dtype=vec), g_slot: int, sx: wp.array2d(dtype=real), lo: int,
+        scale_u: real, scale_v: real, nn: int, w: int, lane: int, bd: int,
     ):
-        """d = M^-1 G(sg)^T lam (lam at sx[lo:]); su -= scale_u d; sv -= scale_v d. Each node gathers
-        its own bars."""
-        nn = su.shape[1]
+        """d = M^-1 G(u in g_slot)^T lam (lam at sx[lo:]); U -= scale_u d; V -= scale_v d. Each node
+        gathers its own bars."""
         for n in range(lane, nn, bd):
             g = vec()
             for t in range(ncon_start[n], ncon_start[n + 1]):
                 k = ncon_member[t]
-                gk = bar(con_dref, con_i, con_j, sg, k, w) * sget(sx, w, lo + k)
+                gk = bar(con_dref, con_i, con_j, sq, g_slot, k, w) * sget(sx, w, lo + k)
                 if con_j[k] == n:
                     g += gk
                 else:
                     g -= gk
-            simp[w, n] = g
+            qset(sq, w, n, I, g)
         block_sync()
         for n in range(lane, nn, bd):
-            dn = simp[w, n] * pget(minv_self, n, w)
+            dn = qget(sq, w, n, I) * pget(minv_self, n, w)
             p = partner[n]
             if p >= 0:
-                dn = dn + simp[w, p] * pget(minv_cross, n, w)
+                dn = dn + qget(sq, w, p, I) * pget(minv_cross, n, w)
             if scale_u != real(0.0):
-                su[w, n] = su[w, n] - dn * scale_u
-            sv[w, n] = sv[w, n] - dn * scale_v
+                qset(sq, w, n, U, qget(sq, w, n, U) - dn * scale_u)
+            qset(sq, w, n, V, qget(sq, w, n, V) - dn * scale_v)
         block_sync()
 
     @wp.func
@@ -217,12 +260,12 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
         node_start: wp.array(dtype=int), node_member: wp.array(dtype=int),
-        su: wp.array2d(dtype=vec), n: int, w: int,
+        sq: wp.array2d(dtype=vec), n: int, w: int,
     ):
         f = vec()
         for t in range(node_start[n], node_start[n + 1]):
             c = node_member[t]
-            fc = cable_force(bar(cab_dref, cab_i, cab_j, su, c, w), pget(cab_EA, c, w), pget(cab_EAc, c, w),
+            fc = cable_force(bar(cab_dref, cab_i, cab_j, sq, U, c, w), pget(cab_EA, c, w), pget(cab_EAc, c, w),
                              pget(cab_L, c, w))
             if cab_i[c] == n:
                 f += fc
@@ -236,19 +279,18 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
         node_start: wp.array(dtype=int), node_member: wp.array(dtype=int),
         partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        su: wp.array2d(dtype=vec), sv: wp.array2d(dtype=vec), sa: wp.array2d(dtype=vec), kick: real,
-        w: int, lane: int, bd: int,
+        sq: wp.array2d(dtype=vec), kick: real, nn: int, w: int, lane: int, bd: int,
     ):
-        """sa = M^-1 f(su); sv += kick * sa."""
-        for n in range(lane, su.shape[1], bd):
-            f = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, su, n, w)
+        """A = M^-1 f(U); V += kick * A."""
+        for n in range(lane, nn, bd):
+            f = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, sq, n, w)
             acc = f * pget(minv_self, n, w)
             p = partner[n]
             if p >= 0:
-                fp = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, su, p, w)
+                fp = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, sq, p, w)
                 acc = acc + fp * pget(minv_cross, n, w)
-            sa[w, n] = acc
-            sv[w, n] = sv[w, n] + acc * kick
+            qset(sq, w, n, A, acc)
+            qset(sq, w, n, V, qget(sq, w, n, V) + acc * kick)
         block_sync()
 
     @wp.func
@@ -257,17 +299,17 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
         cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
         minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real), bw: int,
-        su: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), red: wp.array2d(dtype=real),
+        sq: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), red: wp.array2d(dtype=real),
         w: int, lane: int, bd: int,
     ):
-        """Rows of A = G M^-1 G^T at su in parallel, then lane 0 factors. Returns 1 if positive definite."""
+        """Rows of A = G M^-1 G^T at U in parallel, then lane 0 factors. Returns 1 if positive definite."""
         nc = con_i.shape[0]
         ld = bw + 1
         for k in range(lane, nc, bd):
             for d in range(ld):
                 sset(sx, w, k * ld + d, real(0.0))
             if pget(con_active, k, w) > real(0.0):
-                bk = bar(con_dref, con_i, con_j, su, k, w)
+                bk = bar(con_dref, con_i, con_j, sq, U, k, w)
                 for t in range(cpl_start[k], cpl_start[k + 1]):
                     l = cpl_l[t]
                     if pget(con_active, l, w) > real(0.0):
@@ -277,7 +319,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
                             m = pget(minv_cross, na, w)
                         i = k * ld + k - l
                         sset(sx, w, i, sget(sx, w, i) + cpl_sign[t] * m * wp.dot(
-                            bk, bar(con_dref, con_i, con_j, su, l, w)))
+                            bk, bar(con_dref, con_i, con_j, sq, U, l, w)))
             else:
                 sset(sx, w, k * ld, real(1.0))
         block_sync()
@@ -291,27 +333,26 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
         con_active: wp.array2d(dtype=real), ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
         partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        bw: int, su: wp.array2d(dtype=vec), sv: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real),
-        simp: wp.array2d(dtype=vec), red: wp.array2d(dtype=real),
-        w: int, lane: int, bd: int,
+        bw: int, sq: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), red: wp.array2d(dtype=real),
+        nn: int, w: int, lane: int, bd: int,
     ):
-        """sv -= M^-1 G^T lam with A lam = G sv (band holds the factor of A(su)). Returns 1 if sv is finite."""
+        """V -= M^-1 G^T lam with A lam = G V (band holds the factor of A(U)). Returns 1 if V is finite."""
         nc = con_i.shape[0]
         lo = nc * (bw + 1)
         for k in range(lane, nc, bd):
             r = real(0.0)
             if pget(con_active, k, w) > real(0.0):
-                r = wp.dot(bar(con_dref, con_i, con_j, su, k, w), sv[w, con_j[k]] - sv[w, con_i[k]])
+                r = wp.dot(bar(con_dref, con_i, con_j, sq, U, k, w), qget(sq, w, con_j[k], V) - qget(sq, w, con_i[k], V))
             sset(sx, w, lo + k, r)
         block_sync()
         if lane == 0:
             band_solve(sx, nc, w)
         block_sync()
         apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross,
-                      su, sx, lo, simp, su, real(0.0), sv, real(1.0), w, lane, bd)
+                      sq, U, sx, lo, real(0.0), real(1.0), nn, w, lane, bd)
         bad = real(0.0)
-        for n in range(lane, su.shape[1], bd):
-            vn = sv[w, n]
+        for n in range(lane, nn, bd):
+            vn = qget(sq, w, n, V)
             if not (wp.isfinite(vn[0]) and wp.isfinite(vn[1]) and wp.isfinite(vn[2])):
                 bad = real(1.0)
         return block_max(red, bad, w, lane, bd) < real(0.5)
@@ -342,9 +383,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
         status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
         # Scratch (B, items), one row per column:
-        su: wp.array2d(dtype=vec), sv: wp.array2d(dtype=vec), sa: wp.array2d(dtype=vec),
-        sup: wp.array2d(dtype=vec), simp: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real),
-        red: wp.array2d(dtype=real),
+        sq: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), red: wp.array2d(dtype=real),
     ):
         """n_sub RATTLE steps of size h for column w (init = 1: make v admissible and compute a(u)
         instead). Each launch first factors A(u), which the first position projection uses."""
@@ -357,28 +396,28 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         lo = nc * (bw + 1)
         half = real(0.5) * h
         for n in range(lane, nn, bd):
-            su[w, n] = u[n, w]
-            sv[w, n] = v[n, w]
-            sa[w, n] = a[n, w]
+            qset(sq, w, n, U, u[n, w])
+            qset(sq, w, n, V, v[n, w])
+            qset(sq, w, n, A, a[n, w])
         block_sync()
         s0 = step[0]
         steps = n_sub
         if init != 0:
             if nc > 0:
                 if not factor_gram(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross,
-                                   cpl_sign, minv_self, minv_cross, bw, su, sx, red, w, lane, bd):
+                                   cpl_sign, minv_self, minv_cross, bw, sq, sx, red, w, lane, bd):
                     fail(status, fail_step, s0 + 1, w, STATUS_CONSTRAINT, lane)
                     return
                 project_velocities(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner,
-                                   minv_self, minv_cross, bw, su, sv, sx, simp, red, w, lane, bd)
+                                   minv_self, minv_cross, bw, sq, sx, red, nn, w, lane, bd)
             gather_kick(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, partner,
-                        minv_self, minv_cross, su, sv, sa, real(0.0), w, lane, bd)
+                        minv_self, minv_cross, sq, real(0.0), nn, w, lane, bd)
             steps = 0
         elif nc > 0 and steps > 0:
             # the factor of A(u) from the previous launch's velocity projection: shared memory does
             # not outlive a launch, so factor again (the same numbers: u is unchanged)
             if not factor_gram(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross,
-                               cpl_sign, minv_self, minv_cross, bw, su, sx, red, w, lane, bd):
+                               cpl_sign, minv_self, minv_cross, bw, sq, sx, red, w, lane, bd):
                 fail(status, fail_step, s0 + 1, w, STATUS_CONSTRAINT, lane)
                 steps = 0
         worst = real(0.0)
@@ -386,11 +425,11 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
         for sub in range(steps):
             # kick and drift
             for n in range(lane, nn, bd):
-                vn = sv[w, n] + sa[w, n] * half
-                sv[w, n] = vn
-                un = su[w, n]
-                sup[w, n] = un
-                su[w, n] = un + vn * h
+                vn = qget(sq, w, n, V) + qget(sq, w, n, A) * half
+                qset(sq, w, n, V, vn)
+                un = qget(sq, w, n, U)
+                qset(sq, w, n, P, un)
+                qset(sq, w, n, U, un + vn * h)
             block_sync()
             # simplified Newton onto |b_k| = L_k along M^-1 G(u_prev)^T (band: factor of A(u_prev))
             err = real(0.0)
@@ -402,7 +441,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
                 for k in range(lane, nc, bd):
                     r = real(0.0)
                     if pget(con_active, k, w) > real(0.0):
-                        b = bar(con_dref, con_i, con_j, su, k, w)
+                        b = bar(con_dref, con_i, con_j, sq, U, k, w)
                         L = con_L[k]
                         bb = wp.dot(b, b)
                         r = real(0.5) * (bb - L * L)
@@ -419,7 +458,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
                     band_solve(sx, nc, w)
                 block_sync()
                 apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross,
-                              sup, sx, lo, simp, su, real(1.0), sv, real(1.0) / h, w, lane, bd)
+                              sq, P, sx, lo, real(1.0), real(1.0) / h, nn, w, lane, bd)
                 it += 1
             most = wp.max(most, it)
             if err > worst:
@@ -432,14 +471,14 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
                 break
             # force, second half kick, velocity projection at the new positions
             gather_kick(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, partner,
-                        minv_self, minv_cross, su, sv, sa, half, w, lane, bd)
+                        minv_self, minv_cross, sq, half, nn, w, lane, bd)
             if nc > 0:
                 if not factor_gram(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross,
-                                   cpl_sign, minv_self, minv_cross, bw, su, sx, red, w, lane, bd):
+                                   cpl_sign, minv_self, minv_cross, bw, sq, sx, red, w, lane, bd):
                     fail(status, fail_step, s0 + sub + 1, w, STATUS_CONSTRAINT, lane)
                     break
                 if not project_velocities(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner,
-                                          minv_self, minv_cross, bw, su, sv, sx, simp, red, w, lane, bd):
+                                          minv_self, minv_cross, bw, sq, sx, red, nn, w, lane, bd):
                     fail(status, fail_step, s0 + sub + 1, w, STATUS_NONFINITE, lane)
                     break
         if lane == 0:
@@ -447,9 +486,9 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
             if worst > bar_err[w]:
                 bar_err[w] = worst
         for n in range(lane, nn, bd):
-            u[n, w] = su[w, n]
-            v[n, w] = sv[w, n]
-            a[n, w] = sa[w, n]
+            u[n, w] = qget(sq, w, n, U)
+            v[n, w] = qget(sq, w, n, V)
+            a[n, w] = qget(sq, w, n, A)
 
     @wp.kernel(enable_backward=False, module="unique")
     def advance_counter_by(step: wp.array(dtype=int), n: int):

@@ -225,36 +225,33 @@ class Data:
 @dataclass
 class FusedScratch:
     """Per-column working rows of the fused RATTLE step: column index first, so one block's
-    data are contiguous. ``block`` = threads per column block."""
+    data are contiguous. Rows that live in block shared memory are (1, 1) placeholders.
+    ``block`` = threads per column block."""
 
-    u: wp.array  # (B, n) vec3 displacement [m]
-    v: wp.array  # (B, n) vec3 velocity [m s-1]
-    a: wp.array  # (B, n) vec3 unconstrained acceleration [m s-2]
-    u_prev: wp.array  # (B, n) vec3 displacement at the start of the step [m]
-    imp: wp.array  # (B, n) vec3 G^T lambda per node
+    nodes: wp.array  # (B, 5 n) vec3: per node displacement [m], velocity [m s-1], acceleration
+    # [m s-2], displacement at the step start [m], G^T lambda (slots U, V, A, P, I of fused.py)
     solve: wp.array  # (B, nc*(bw+2)): Cholesky factor of G M^-1 G^T by rows (inverse diagonal in
-    # slot 0 of each row), then the multipliers; (1, 1) when they live in block shared memory
+    # slot 0 of each row), then the multipliers
     red: wp.array  # (B, block) per-lane values for block reductions
 
 
-def make_fused_scratch(model: Model, block: int, shared: bool) -> FusedScratch:
+def make_fused_scratch(model: Model, block: int, shared_solve: bool, shared_nodes: bool) -> FusedScratch:
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d, n, B = model.device, model.n_nodes, model.n_columns
     nc = max(model.n_constraints, 1)
-    z = lambda: wp.zeros((B, n), dtype=vec, device=d)  # noqa: E731
-    rows = (1, 1) if shared else (B, nc * (model.bandwidth + 2))
     return FusedScratch(
-        u=z(), v=z(), a=z(), u_prev=z(), imp=z(),
-        solve=wp.zeros(rows, dtype=real, device=d),
+        nodes=wp.zeros((1, 1) if shared_nodes else (B, 5 * n), dtype=vec, device=d),
+        solve=wp.zeros((1, 1) if shared_solve else (B, nc * (model.bandwidth + 2)), dtype=real, device=d),
         red=wp.zeros((B, block), dtype=real, device=d),
     )
 
 
 def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int | None = None,
-              fused_shared: bool = False) -> Data:
+              fused_shared: tuple[bool, bool] = (False, False)) -> Data:
     """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused_block`` (threads per column
-    block) the solver scratch lives in :class:`FusedScratch` and the staged kernels' scratch
+    block) the solver scratch lives in :class:`FusedScratch` (``fused_shared``: whether its solver
+    rows and node rows are in block shared memory instead) and the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
@@ -273,7 +270,7 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int 
             bar_err=wp.zeros(B, dtype=real, device=d),
             step=wp.zeros(1, dtype=wp.int32, device=d),
             rk=None,
-            fused=make_fused_scratch(model, fused_block, fused_shared),
+            fused=make_fused_scratch(model, fused_block, *fused_shared),
         )
     v = _device_velocity(velocity, model, vec)
     rk = None

@@ -30,7 +30,7 @@ from .batch import (
 )
 from .choose import apply_accuracy, reachable_prisms
 from .columns import ColumnConfig
-from .fused import make_fused_kernels, shared_capacity
+from .fused import make_fused_kernels, shared_capacity, shared_nodes
 from .kernels import make_kernels
 from .model import (
     REAL,
@@ -53,6 +53,9 @@ FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one war
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
 # fused='auto' on a GPU: above this many columns the staged kernels stream faster (benchmarks/README.md)
 FUSED_MAX_COLUMNS = 32768
+# bytes of shared memory per block up to which the node state rows join the solver rows there
+# (0: node rows stay in global scratch)
+FUSED_SHARED_NODE_BYTES = 0
 FUSED_SHARED_ON_CPU = False  # CPU blocks run alone: the global rows are as fast there (tests may switch it on)
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph by the fused path
 
@@ -110,11 +113,13 @@ class Integrator:
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
-            cap = 0
+            cap = nodes = 0
             if self.fused and (self.device.is_cuda or FUSED_SHARED_ON_CPU):
-                cap = shared_capacity(m.n_constraints, m.bandwidth, 4 if settings.precision == "fp32" else 8)
-            self.shared_cap = cap
-            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused_block, cap > 0)
+                rb = 4 if settings.precision == "fp32" else 8
+                cap = shared_capacity(m.n_constraints, m.bandwidth, rb)
+                nodes = shared_nodes(m.n_nodes, cap, rb, FUSED_SHARED_NODE_BYTES) if FUSED_SHARED_NODE_BYTES else 0
+            self.shared_layout = (cap, nodes)
+            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused_block, (cap > 0, nodes > 0))
             real = REAL[settings.precision]
             self.real = real
             self.k = make_kernels(real)
@@ -125,7 +130,7 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
-            self.fk = make_fused_kernels(real, cap, m.bandwidth) if self.fused else None
+            self.fk = make_fused_kernels(real, cap, m.bandwidth, nodes) if self.fused else None
         self.column_kernels = {
             kern.key for kern in (self.k.project_positions, self.k.factor_project_velocities, self.k.factor_only,
                                   self.k.constrained_accel, self.k.record_energy)
@@ -202,7 +207,7 @@ class Integrator:
             m.node_start, m.node_member, m.partner, m.minv_self, m.minv_cross, m.bandwidth,
             self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
             self.real(self.dt), int(n_sub), int(init), d.step, d.u, d.v, d.a, d.bar_err, d.iters, d.status,
-            d.fail_step, f.u, f.v, f.a, f.u_prev, f.imp, f.solve, f.red])
+            d.fail_step, f.nodes, f.solve, f.red])
 
     def _fused_steps(self, n: int):
         """n RATTLE steps as fused launches of at most FUSED_STEPS, each followed by the counter and
