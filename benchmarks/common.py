@@ -403,6 +403,11 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
         # at large B keep one graph launch under ~1/3 of a segment
         seg = target_s / reps
         spg = int(max(1, min(steps_per_graph, math.floor(seg / 3.0 / max(probe, 1e-9)))))
+        if path == "fused":
+            # whole fused launches: each launch factors A(u) once, so short launches would over-count it
+            from warp_tensegrity import simulate
+
+            spg = max(simulate.FUSED_STEPS, spg - spg % simulate.FUSED_STEPS)
         integ.settings.steps_per_graph = spg
         integ.advance(spg)  # capture + first replay
         wp.synchronize_device(device)
