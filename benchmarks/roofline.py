@@ -145,10 +145,38 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
     return k
 
 
+def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float, output_every: int = 100,
+                steps_per_launch: int = 16) -> dict:
+    """{part: (bytes, flops)} per column-step of the fused step (warp_tensegrity/fused.py).
+
+    DRAM bytes: the canonical state u, v, a read and written once per launch (6 V n), the node
+    scratch rows written back once per launch (5 V n, a column's rows stay in L1/L2 while its
+    block runs), the per-column cable rest lengths read each step (ne r, an upper estimate: at
+    B = 4,096 they stay in L2), and the outputs. Flops: the staged kernels' arithmetic (the same
+    loops) plus one extra factorisation of A(u) per launch. ``serial``: the flops lane 0 runs
+    alone (Cholesky and triangular sweeps), which occupy a whole warp each."""
+    V = 3 * r
+    staged = kernel_costs(n, ne, nc, bw, ncpl, r, it, output_every)
+    flops = sum(f for _, f in staged.values())
+    chol_f = nc * (bw + 1) ** 2
+    asm_f = 6 * nc + 14 * ncpl
+    solve_f = nc * (4 * bw + 2)
+    return {
+        "launch_io": ((6 * V * n + 5 * V * n) / steps_per_launch, 0.0),
+        "rest_lengths": (ne * r, 0.0),
+        "outputs": ((2 * r) / output_every, 0.0),
+        "arithmetic": (0.0, flops + (asm_f + chol_f) / steps_per_launch),
+        "serial": (0.0, chol_f * (1 + 1 / steps_per_launch) + solve_f * (it + 1)),
+    }
+
+
 def bound(n_prisms: int = 50, base="FB", precision: str = "fp64", device_kind: str = "h100",
           it: float | None = None, output_every: int = 100, per_column_params: str = "rest_length",
           B: int | None = None, path: str = "staged") -> dict:
-    """Bytes, flops and the roofline bound (column-steps/s) of one RATTLE column-step."""
+    """Bytes, flops and the roofline bound (column-steps/s) of one RATTLE column-step of the
+    staged kernels (path='staged') or of the fused step (path='fused'; see fused_costs)."""
+    if path == "fused":
+        return _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B)
     lab = base_label(base)
     if precision not in ("fp32", "fp64"):
         raise ValueError(f"precision = {precision!r}")
@@ -190,16 +218,52 @@ def bound(n_prisms: int = 50, base="FB", precision: str = "fp64", device_kind: s
     return out
 
 
+def _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B) -> dict:
+    lab = base_label(base)
+    dev = DEVICES[device_kind.lower()]
+    c = column_counts(int(n_prisms), lab)
+    r = 4 if precision == "fp32" else 8
+    it = DEFAULT_ITERS[(lab, precision)] if it is None else float(it)
+    k = fused_costs(c["n_nodes"], c["n_cables"], c["n_constraints"], c["bandwidth"], c["n_coupling"], r, it,
+                    output_every)
+    byts = sum(b for b, _ in k.values())
+    flops = k["arithmetic"][1]
+    serial = k["serial"][1]
+    peak = dev[precision]
+    mem = dev["bw_measured"] / byts
+    comp = peak / flops
+    # lane 0's sweeps leave 31 of 32 lanes idle: they cost a warp-instruction per flop
+    lane = peak / (flops - serial + 32 * serial)
+    out = {
+        "path": "fused", "n_prisms": int(n_prisms), "base": lab, "precision": precision, "device_kind": device_kind,
+        **c, "real_bytes": r, "newton_iters": it, "output_every": output_every,
+        "parts": {name: {"bytes": float(b), "flops": float(f)} for name, (b, f) in k.items()},
+        "bytes_per_column_step": float(byts), "flops_per_column_step": float(flops),
+        "serial_flops_per_column_step": float(serial),
+        "arithmetic_intensity": flops / byts, "peak_flops": peak, "bandwidth_measured": dev["bw_measured"],
+        "memory_bound_column_steps_per_s": mem, "compute_bound_column_steps_per_s": comp,
+        "one_lane_bound_column_steps_per_s": lane,
+        "bound_column_steps_per_s": min(mem, comp),
+        "limiter": "memory" if mem <= comp else "compute",
+    }
+    if B is not None:
+        out["B"] = int(B)
+    return out
+
+
 def sm_fill(B: int, n_sm: int = 132, block: int = BLOCK) -> float:
     """Fraction of SMs that a dim=B launch of `block`-thread blocks can keep busy."""
     return min(1.0, math.ceil(B / block) / n_sm)
 
 
-def measured_peak(results: dict, n_prisms: int, base: str, precision: str):
-    """Largest measured column_steps_per_s for (n_prisms, base, precision) in a throughput JSON."""
+def measured_peak(results: dict, n_prisms: int, base: str, precision: str, path: str = "staged"):
+    """Largest measured column_steps_per_s for (n_prisms, base, precision, path) in a throughput JSON
+    (points without a path are the staged kernels')."""
     best = None
     for p in results.get("points", []):
         if p.get("error") or p.get("n_prisms") != n_prisms or p.get("base") != base or p.get("precision") != precision:
+            continue
+        if p.get("path", "staged") != path:
             continue
         if best is None or p["column_steps_per_s"] > best["column_steps_per_s"]:
             best = p
@@ -231,6 +295,31 @@ def table(device_kind: str, prisms=(10, 25, 50, 100, 200, 400), results: dict | 
                     f"{b['memory_bound_column_steps_per_s']:.3g} | {b['compute_bound_column_steps_per_s']:.3g} | "
                     f"{meas} | {pct} |")
     return "\n".join(rows) + note
+
+
+def fused_table(device_kind: str, prisms=(10, 25, 50, 100, 200, 400), results: dict | None = None) -> str:
+    rows = ["| prisms | base | prec | it* | KB/col-step (DRAM) | kflop/col-step | of which lane 0 | "
+            "mem bound | compute bound | one-lane bound | measured (best B) | % of compute | % of one-lane |",
+            "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for npr in prisms:
+        for base in ("FB", "RB"):
+            for prec in ("fp32", "fp64"):
+                p = measured_peak(results, npr, base, prec, "fused") if results is not None else None
+                it = p.get("mean_iters") if p is not None else None
+                b = bound(npr, base, prec, device_kind, it=it, path="fused")
+                meas = pc = pl = ""
+                if p is not None:
+                    x = p["column_steps_per_s"]
+                    meas = f"{x:.3g} (B={p['B']})"
+                    pc = f"{100 * x / b['compute_bound_column_steps_per_s']:.1f}"
+                    pl = f"{100 * x / b['one_lane_bound_column_steps_per_s']:.1f}"
+                rows.append(
+                    f"| {npr} | {base} | {prec} | {b['newton_iters']:.1f} | {b['bytes_per_column_step'] / 1e3:.2f} | "
+                    f"{b['flops_per_column_step'] / 1e3:.1f} | {b['serial_flops_per_column_step'] / 1e3:.1f} | "
+                    f"{b['memory_bound_column_steps_per_s']:.3g} | {b['compute_bound_column_steps_per_s']:.3g} | "
+                    f"{b['one_lane_bound_column_steps_per_s']:.3g} | {meas} | {pc} | {pl} |")
+    return "\n".join(rows) + ("\n\n*it: Newton solve iterations per column-step (measured at the best point "
+                              "when results are given, else DEFAULT_ITERS).")
 
 
 def kernel_table(n_prisms: int, base: str, precision: str, device_kind: str) -> str:
@@ -265,7 +354,10 @@ def main(argv=None):
     d = DEVICES[a.device]
     print(f"# Roofline, {d['name']}: {d['bw_measured'] / 1e12:.2f} TB/s measured copy bandwidth "
           f"({d['bw_spec'] / 1e12:.2f} spec), {d['fp32'] / 1e12:.0f} TFLOP/s fp32, {d['fp64'] / 1e12:.0f} fp64\n")
+    print("## Staged kernels (one kernel per stage; the column solves one thread per column)\n")
     print(table(a.device, a.prisms, res))
+    print("\n## Fused step (one block per column, 16 steps per launch)\n")
+    print(fused_table(a.device, a.prisms, res))
     if a.kernels:
         for base in ("FB", "RB"):
             for prec in ("fp32", "fp64"):
