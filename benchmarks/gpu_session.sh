@@ -37,3 +37,7 @@ PY
 echo "== throughput"
 python3 -m benchmarks.throughput --device cuda:0 --out-dir "$OUT" 2>&1 | grep -v "^Module" | tail -25
 for f in "$OUT"/throughput_h*.json; do python3 -m benchmarks.roofline --results "$f" --kernels > "$OUT/roofline.md" 2>&1; done
+
+echo "== fused step: agreement with the staged kernels and launch shape"
+python3 -m benchmarks.fused_tuning --device cuda:0 --out-dir "$OUT" --batches 4096 65536 --blocks 32 64 --subs 1 16 \
+  2>&1 | grep -v "^Module" | tail -8

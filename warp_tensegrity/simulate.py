@@ -526,12 +526,14 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     state_vecs = 5 + (6 if settings.method == "rk4" else 0)
     per_col = r * (3 * n * state_vecs + nc * (bw + 2) + 3 * ne + 2 * n_out + (n_out * npr if settings.record_strain else 0))
     flops = FORCE_EVALS[settings.method] * (ne * 60 + n * 10) + nc * (bw + 1) ** 2 * (5 if settings.method == "rk4" else 2)
-    # measured (benchmarks/results): the 2-core CPU backend runs ~1 ns per flop serially; on an H200 a
-    # step is bounded below by the per-column solve's latency (~8 ms for 50 prisms), not by the batch size
+    # measured (benchmarks/results): the 2-core CPU backend runs ~1 ns per flop serially; on an H200 the
+    # fused step takes >= ~0.1 ms (FB) .. 0.7 ms (RB, 50 prisms) per step (lane 0's serial Cholesky) and
+    # sustains ~6e11 (fp32) / 3e11 (fp64) useful flop/s once the GPU is full
     device = resolve_device(settings.device)
     if device.is_cuda:
-        step_latency = 8e-3 * nc / 300.0
-        seconds = n_steps * max(step_latency, flops * batch.n_columns / 2e12)
+        step_latency = 1e-4 * (nc / 150.0) * ((bw + 1) / 4.0) ** 2
+        rate = 6e11 if settings.precision == "fp32" else 3e11
+        seconds = n_steps * max(step_latency, flops * batch.n_columns / rate)
     else:
         seconds = n_steps * batch.n_columns * flops * 1e-9
     return {
