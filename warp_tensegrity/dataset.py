@@ -97,6 +97,10 @@ _COMPRESS = {"zlib": True, "complevel": 1, "shuffle": True}
 # ---------------------------------------------------------------------- provenance
 @functools.lru_cache(maxsize=1)
 def git_commit() -> str:
+    """The checkout's commit, or $GIT_COMMIT where there is no usable .git (copied trees)."""
+    env = os.environ.get("GIT_COMMIT")
+    if env:
+        return env
     try:
         out = subprocess.run(
             ["git", "rev-parse", "HEAD"],
