@@ -23,7 +23,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .kernels import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK
+from .kernels import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, make_kernels
 
 # __syncthreads() on CUDA; on the CPU a no-op unless wp.config.enable_cpu_blocks emulates lanes
 _SYNC = "WP_TILE_SYNC();"
@@ -66,6 +66,8 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
     in ~30 cycles instead of a round trip to L2; else in the global rows ``sx``. The Gram-matrix
     half-bandwidth is compiled in, so lane 0's loops unroll and rows sit in registers."""
     vec = wp.types.vector(3, real)
+    staged = make_kernels(real)
+    pget, cable_force = staged.pget, staged.cable_force  # the same per-column read and cable law
     BW = int(bandwidth)
     LD = BW + 1
     rowvec = wp.types.vector(LD, real)
@@ -132,10 +134,6 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
             shared_q(n * NQ + slot, value, 1)
         else:
             sq[w, n * NQ + slot] = value
-
-    @wp.func
-    def pget(p: wp.array2d(dtype=real), k: int, w: int):
-        return p[k, w % p.shape[1]]
 
     @wp.func
     def bar(dref: wp.array(dtype=vec), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
@@ -245,15 +243,6 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
                 qset(sq, w, n, U, qget(sq, w, n, U) - dn * scale_u)
             qset(sq, w, n, V, qget(sq, w, n, V) - dn * scale_v)
         block_sync()
-
-    @wp.func
-    def cable_force(b: vec, EA: real, EAc: real, L: real):
-        s = wp.length(b)
-        stretch = s - L
-        k = EA
-        if stretch < real(0.0):
-            k = EAc
-        return b * (k / L * stretch / s)
 
     @wp.func
     def node_force(

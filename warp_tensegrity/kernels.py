@@ -469,4 +469,5 @@ def make_kernels(real):
         project_positions=project_positions, factor_project_velocities=factor_project_velocities,
         factor_only=factor_only, constrained_accel=constrained_accel, advance_counter=advance_counter,
         record_strain=record_strain, record_energy=record_energy,
+        pget=pget, cable_force=cable_force,  # shared with the fused step
     )

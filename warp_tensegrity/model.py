@@ -259,34 +259,24 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int 
     n, B = model.n_nodes, model.n_columns
     nc = max(model.n_constraints, 1)
     z = lambda: wp.zeros((n, B), dtype=vec, device=d)  # noqa: E731
-    if fused_block is not None:
-        one = wp.zeros((1, 1), dtype=vec, device=d)
-        return Data(
-            u=z(), v=_device_velocity(velocity, model, vec), a=z(), u_prev=one, imp=one,
-            band=wp.zeros((1, 1, 1), dtype=real, device=d), lam=wp.zeros((1, 1), dtype=real, device=d),
-            status=wp.zeros(B, dtype=wp.int32, device=d),
-            fail_step=wp.full(B, -1, dtype=wp.int32, device=d),
-            iters=wp.zeros(B, dtype=wp.int32, device=d),
-            bar_err=wp.zeros(B, dtype=real, device=d),
-            step=wp.zeros(1, dtype=wp.int32, device=d),
-            rk=None,
-            fused=make_fused_scratch(model, fused_block, *fused_shared),
-        )
-    v = _device_velocity(velocity, model, vec)
-    rk = None
-    if method == "rk4":
-        rk = {k: z() for k in ("u0", "v0", "acc_u", "acc_v", "us", "vs")}
-    return Data(
-        u=z(), v=v, a=z(), u_prev=z(), imp=z(),
-        band=wp.zeros((nc, model.bandwidth + 1, B), dtype=real, device=d),
-        lam=wp.zeros((nc, B), dtype=real, device=d),
+    common = dict(
+        u=z(), v=_device_velocity(velocity, model, vec), a=z(),
         status=wp.zeros(B, dtype=wp.int32, device=d),
         fail_step=wp.full(B, -1, dtype=wp.int32, device=d),
         iters=wp.zeros(B, dtype=wp.int32, device=d),
         bar_err=wp.zeros(B, dtype=real, device=d),
         step=wp.zeros(1, dtype=wp.int32, device=d),
-        rk=rk,
     )
+    if fused_block is not None:
+        one = wp.zeros((1, 1), dtype=vec, device=d)
+        return Data(**common, u_prev=one, imp=one, band=wp.zeros((1, 1, 1), dtype=real, device=d),
+                    lam=wp.zeros((1, 1), dtype=real, device=d), rk=None,
+                    fused=make_fused_scratch(model, fused_block, *fused_shared))
+    rk = None
+    if method == "rk4":
+        rk = {k: z() for k in ("u0", "v0", "acc_u", "acc_v", "us", "vs")}
+    return Data(**common, u_prev=z(), imp=z(), band=wp.zeros((nc, model.bandwidth + 1, B), dtype=real, device=d),
+                lam=wp.zeros((nc, B), dtype=real, device=d), rk=rk)
 
 
 def _device_velocity(velocity: np.ndarray, model: Model, vec) -> wp.array:
