@@ -63,35 +63,32 @@ def agreement(device: str) -> list[dict]:
     return rows
 
 
-def shapes(device, batches, blocks, subs, target_s: float, node_bytes=(None,)) -> list[dict]:
+def shapes(device, batches, blocks, subs, target_s: float) -> list[dict]:
     from warp_tensegrity import simulate
 
     rows = []
-    defaults = (simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS, simulate.FUSED_SHARED_NODE_BYTES)
+    defaults = (simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS)
     for base, beta in (("FB", 0.0), ("RB", 1.0)):
         small = common.build_base_batch(50, beta, common.BASE_COLUMNS)
         dt = common.rattle_dt(small)
         for prec in ("fp32", "fp64"):
             for B in batches:
                 batch = common.tile_batch(small, B)
-                combos = [(bd, 16, nb) for bd in blocks for nb in node_bytes]
-                combos += [(blocks[0], k, node_bytes[0]) for k in subs if k != 16]
-                for bd, k, nb in combos:
+                combos = [(bd, 16) for bd in blocks] + [(blocks[0], k) for k in subs if k != 16]
+                for bd, k in combos:
                     simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS = bd, k
-                    if nb is not None:
-                        simulate.FUSED_SHARED_NODE_BYTES = nb
                     try:
                         p = common.time_batch(batch, base, 50, prec, device, target_s=target_s, reps=3,
                                               diag_steps=0, dt=dt, path="fused").as_dict()
-                        p.update(block_dim=bd, steps_per_launch=k, shared_node_bytes=simulate.FUSED_SHARED_NODE_BYTES)
-                        print(f"[shape] {base} {prec} B={B} block {bd} steps/launch {k} node bytes {nb}: "
+                        p.update(block_dim=bd, steps_per_launch=k)
+                        print(f"[shape] {base} {prec} B={B} block {bd} steps/launch {k}: "
                               f"{p['column_steps_per_s']:.4g} col-steps/s", flush=True)
                     except Exception as exc:  # noqa: BLE001
                         p = {"base": base, "precision": prec, "B": B, "block_dim": bd, "steps_per_launch": k,
                              "error": repr(exc)}
                         print(f"[shape] ERROR {p}", flush=True)
                     rows.append(p)
-    simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS, simulate.FUSED_SHARED_NODE_BYTES = defaults
+    simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS = defaults
     return rows
 
 
@@ -102,8 +99,6 @@ def main(argv=None):
     ap.add_argument("--batches", type=int, nargs="+", default=[4096, 65536])
     ap.add_argument("--blocks", type=int, nargs="+", default=[32, 64, 128])
     ap.add_argument("--subs", type=int, nargs="+", default=[1, 4, 16])
-    ap.add_argument("--node-bytes", dest="node_bytes", type=int, nargs="+", default=[None],
-                    help="FUSED_SHARED_NODE_BYTES values to compare (0: node rows in global memory)")
     ap.add_argument("--target-s", dest="target_s", type=float, default=0.3)
     ap.add_argument("--skip-agreement", action="store_true")
     a = ap.parse_args(argv)
@@ -119,7 +114,7 @@ def main(argv=None):
     if not a.skip_agreement:
         doc["agreement"] = agreement(a.device)
         common.write_json(out, doc)
-    doc["shapes"] = shapes(device, a.batches, a.blocks, a.subs, a.target_s, a.node_bytes)
+    doc["shapes"] = shapes(device, a.batches, a.blocks, a.subs, a.target_s)
     common.write_json(out, doc)
     print(f"[fused_tuning] wrote {out}", flush=True)
     return 0

@@ -332,13 +332,19 @@ def part_strain(device, B, repeats, log) -> dict:
         r = t[str(k)]["result"]
         out[f"record_strain={k}"] = {**summary(t[str(k)], r.n_steps * B), "device_bytes": device_bytes(batch, s),
                                      "host_bytes": host_result_bytes(r), "n_out": len(r.time)}
-    a, b = out["record_strain=True"], out["record_strain=False"]
-    out["speedup"] = a["wall_min_s"] / b["wall_min_s"]
-    out["speedup_median"] = a["wall_median_s"] / b["wall_median_s"]
-    out["speedup_end_to_end"] = a["total_min_s"] / b["total_min_s"]
-    out["memory_factor"] = a["device_bytes"]["total"] / b["device_bytes"]["total"]
-    out["host_memory_factor"] = a["host_bytes"]["total"] / b["host_bytes"]["total"]
+    out.update(_savings(out["record_strain=True"], out["record_strain=False"]))
     return out
+
+
+def _savings(a: dict, b: dict) -> dict:
+    """Time and memory of variant a over variant b (each a summary with device/host bytes)."""
+    return {
+        "speedup": a["wall_min_s"] / b["wall_min_s"],
+        "speedup_median": a["wall_median_s"] / b["wall_median_s"],
+        "speedup_end_to_end": a["total_min_s"] / b["total_min_s"],
+        "memory_factor": a["device_bytes"]["total"] / b["device_bytes"]["total"],
+        "host_memory_factor": a["host_bytes"]["total"] / b["host_bytes"]["total"],
+    }
 
 
 def part_outputs(device, B, repeats, log) -> dict:
@@ -360,12 +366,7 @@ def part_outputs(device, B, repeats, log) -> dict:
     ra, rb = t["every step"]["result"], t["every 0.01 s"]["result"]
     every = rb.info["output_every"]
     out["decimated_equals_every_step_subsampled"] = bool(np.array_equal(ra.strain[:, ::every], rb.strain))
-    a, b = out["every step"], out["every 0.01 s"]
-    out["speedup"] = a["wall_min_s"] / b["wall_min_s"]
-    out["speedup_median"] = a["wall_median_s"] / b["wall_median_s"]
-    out["speedup_end_to_end"] = a["total_min_s"] / b["total_min_s"]
-    out["memory_factor"] = a["device_bytes"]["total"] / b["device_bytes"]["total"]
-    out["host_memory_factor"] = a["host_bytes"]["total"] / b["host_bytes"]["total"]
+    out.update(_savings(out["every step"], out["every 0.01 s"]))
     return out
 
 

@@ -48,15 +48,13 @@ def test_fused_matches_staged(precision, tol, device):
 
 def test_emulated_lanes_and_shared_rows_match_staged():
     """Four lanes per block on the CPU (Warp's CPU block emulation, real barriers) with the band
-    and node rows in the shared-memory buffers: the lane split, the barriers and the shared rows
-    the GPU uses."""
-    names = ("FUSED_BLOCK_DIM", "FUSED_SHARED_ON_CPU", "FUSED_SHARED_NODE_BYTES")
+    in the shared-memory buffer: the lane split, the barriers and the shared rows the GPU uses."""
+    names = ("FUSED_BLOCK_DIM", "FUSED_SHARED_ON_CPU")
     old = [wp.config.enable_cpu_blocks] + [getattr(simulate, n) for n in names]
     try:
         wp.config.enable_cpu_blocks = True
         simulate.FUSED_BLOCK_DIM = 4
         simulate.FUSED_SHARED_ON_CPU = True
-        simulate.FUSED_SHARED_NODE_BYTES = SHARED_BYTES_MAX  # node rows in the shared buffer too
         staged, fused = _pair("fp64", "cpu", cfg=ColumnConfig(n_prisms=5))
     finally:
         wp.config.enable_cpu_blocks = old[0]

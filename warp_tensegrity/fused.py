@@ -6,11 +6,12 @@ DRAM and the step is latency-bound (``benchmarks/results/ncu_*``). Here a block 
 
 * its lanes take nodes (kick, drift, force gather, impulses) and members (residuals, Gram rows)
   in turn, ``for n in range(lane, n_nodes, block_dim)``;
-* lane 0 alone runs the sequential banded Cholesky factor and the two triangular sweeps;
-* the column's working set (state, band, multipliers) sits in per-column scratch rows
-  ``s*[w, item]``, contiguous per column so it stays in L1/L2 across the projection iterations
-  and the ``n_sub`` steps of a launch; the canonical ``(n, B)`` state is read once and written
-  once per launch.
+* lane 0 alone runs the sequential banded Cholesky factor and the two triangular sweeps, with
+  the band and multipliers in block shared memory when they fit (else in the global rows
+  ``sx[w, :]``) and the current row in registers;
+* the node state sits in per-column scratch rows ``sq[w, :]``, contiguous per column so it stays
+  in L1/L2 across the projection iterations and the ``n_sub`` steps of a launch; the canonical
+  ``(n, B)`` state is read once and written once per launch.
 
 Barriers are Warp's tile barrier (``__syncthreads()`` on CUDA). On the CPU a block has one
 thread (Warp's CPU tile semantics), which then runs every loop itself, so the same kernel is
@@ -47,24 +48,14 @@ def shared_capacity(n_constraints: int, bandwidth: int, real_bytes: int) -> int:
     return cap if cap * real_bytes <= SHARED_BYTES_MAX else 0
 
 
-def shared_nodes(n_nodes: int, solver_cap: int, real_bytes: int, budget: int | None = None) -> int:
-    """Nodes whose state rows (NQ vec3 each) go to shared memory beside the solver rows: all of
-    them (rounded up to 32) if they fit in ``budget`` bytes in all, else 0 (global rows)."""
-    budget = SHARED_BYTES_MAX if budget is None else budget
-    if solver_cap == 0:
-        return 0
-    nodes = -(-n_nodes // 32) * 32
-    total = solver_cap * real_bytes + nodes * NQ * 3 * real_bytes
-    return nodes if total <= budget else 0
-
-
 @functools.cache
-def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nodes: int = 0):
+def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3):
     """Fused kernels for scalar type ``real`` (wp.float32 or wp.float64). With ``shared_cap`` > 0
     the column's band and multipliers (n_constraints*(bandwidth+2) reals) live in that many reals
-    of block shared memory, and with ``shared_nodes`` > 0 the node state rows of that many nodes too, where lane 0's dependent Cholesky chain reads back what it just wrote
+    of block shared memory, where lane 0's dependent Cholesky chain reads back what it just wrote
     in ~30 cycles instead of a round trip to L2; else in the global rows ``sx``. The Gram-matrix
-    half-bandwidth is compiled in, so lane 0's loops unroll and rows sit in registers."""
+    half-bandwidth is compiled in, so lane 0's loops unroll and rows sit in registers. (Node rows
+    in shared memory too were measured and gained nothing: benchmarks/results/fused_tuning_h200.json.)"""
     vec = wp.types.vector(3, real)
     staged = make_kernels(real)
     pget, cable_force = staged.pget, staged.cable_force  # the same per-column read and cable law
@@ -74,7 +65,6 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
     winvec = wp.types.vector(max(BW, 1), real)
     ctype = "double" if real == wp.float64 else "float"
     cap = int(shared_cap)
-    qcap = int(shared_nodes) * NQ
 
     # one static buffer per block: __shared__ on CUDA; on the CPU a static array (blocks run one
     # after another there, and emulated lanes of one block share it like shared memory)
@@ -106,34 +96,14 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
             sx[w, i] = value
 
     # node state rows: entry n*NQ + slot, slots U (displacement), V (velocity), A (acceleration),
-    # P (displacement at the step start), I (G^T lambda); in shared memory when qcap > 0
-    vsnippet = f"""
-#if defined(__CUDA_ARCH__)
-    __shared__ {ctype} qraw[{3 * max(qcap, 1)}];
-#else
-    static {ctype} qraw[{3 * max(qcap, 1)}];
-#endif
-    {ctype}* q = qraw + 3 * i;
-    if (store != 0) {{ q[0] = value[0]; q[1] = value[1]; q[2] = value[2]; }}
-    return wp::vec_t<3, {ctype}>(q[0], q[1], q[2]);
-"""
-
-    @wp.func_native(vsnippet)
-    def shared_q(i: int, value: vec, store: int) -> vec: ...
-
+    # P (displacement at the step start), I (G^T lambda)
     @wp.func
     def qget(sq: wp.array2d(dtype=vec), w: int, n: int, slot: int):
-        if wp.static(qcap > 0):
-            return shared_q(n * NQ + slot, vec(), 0)
-        else:
-            return sq[w, n * NQ + slot]
+        return sq[w, n * NQ + slot]
 
     @wp.func
     def qset(sq: wp.array2d(dtype=vec), w: int, n: int, slot: int, value: vec):
-        if wp.static(qcap > 0):
-            shared_q(n * NQ + slot, value, 1)
-        else:
-            sq[w, n * NQ + slot] = value
+        sq[w, n * NQ + slot] = value
 
     @wp.func
     def bar(dref: wp.array(dtype=vec), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
@@ -287,16 +257,15 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
         con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
         cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real), bw: int,
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
         sq: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), red: wp.array2d(dtype=real),
         w: int, lane: int, bd: int,
     ):
         """Rows of A = G M^-1 G^T at U in parallel, then lane 0 factors. Returns 1 if positive definite."""
         nc = con_i.shape[0]
-        ld = bw + 1
         for k in range(lane, nc, bd):
-            for d in range(ld):
-                sset(sx, w, k * ld + d, real(0.0))
+            for d in range(LD):
+                sset(sx, w, k * LD + d, real(0.0))
             if pget(con_active, k, w) > real(0.0):
                 bk = bar(con_dref, con_i, con_j, sq, U, k, w)
                 for t in range(cpl_start[k], cpl_start[k + 1]):
@@ -306,11 +275,11 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
                         m = pget(minv_self, na, w)
                         if cpl_cross[t] != 0:
                             m = pget(minv_cross, na, w)
-                        i = k * ld + k - l
+                        i = k * LD + k - l
                         sset(sx, w, i, sget(sx, w, i) + cpl_sign[t] * m * wp.dot(
                             bk, bar(con_dref, con_i, con_j, sq, U, l, w)))
             else:
-                sset(sx, w, k * ld, real(1.0))
+                sset(sx, w, k * LD, real(1.0))
         block_sync()
         ok = real(0.0)
         if lane == 0:
@@ -322,12 +291,12 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
         con_active: wp.array2d(dtype=real), ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
         partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        bw: int, sq: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), red: wp.array2d(dtype=real),
+        sq: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real), red: wp.array2d(dtype=real),
         nn: int, w: int, lane: int, bd: int,
     ):
         """V -= M^-1 G^T lam with A lam = G V (band holds the factor of A(U)). Returns 1 if V is finite."""
         nc = con_i.shape[0]
-        lo = nc * (bw + 1)
+        lo = nc * LD
         for k in range(lane, nc, bd):
             r = real(0.0)
             if pget(con_active, k, w) > real(0.0):
@@ -365,7 +334,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
         node_start: wp.array(dtype=int), node_member: wp.array(dtype=int),
         partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        bw: int, tol: real, max_iter: int, fail_tol: real,
+        tol: real, max_iter: int, fail_tol: real,
         h: real, n_sub: int, init: int, step: wp.array(dtype=int),
         # Data in/out:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
@@ -382,7 +351,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
         bd = wp.block_dim()
         nn = u.shape[0]
         nc = con_i.shape[0]
-        lo = nc * (bw + 1)
+        lo = nc * LD
         half = real(0.5) * h
         for n in range(lane, nn, bd):
             qset(sq, w, n, U, u[n, w])
@@ -394,11 +363,11 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
         if init != 0:
             if nc > 0:
                 if not factor_gram(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross,
-                                   cpl_sign, minv_self, minv_cross, bw, sq, sx, red, w, lane, bd):
+                                   cpl_sign, minv_self, minv_cross, sq, sx, red, w, lane, bd):
                     fail(status, fail_step, s0 + 1, w, STATUS_CONSTRAINT, lane)
                     return
                 project_velocities(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner,
-                                   minv_self, minv_cross, bw, sq, sx, red, nn, w, lane, bd)
+                                   minv_self, minv_cross, sq, sx, red, nn, w, lane, bd)
             gather_kick(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, partner,
                         minv_self, minv_cross, sq, real(0.0), nn, w, lane, bd)
             steps = 0
@@ -406,7 +375,7 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
             # the factor of A(u) from the previous launch's velocity projection: shared memory does
             # not outlive a launch, so factor again (the same numbers: u is unchanged)
             if not factor_gram(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross,
-                               cpl_sign, minv_self, minv_cross, bw, sq, sx, red, w, lane, bd):
+                               cpl_sign, minv_self, minv_cross, sq, sx, red, w, lane, bd):
                 fail(status, fail_step, s0 + 1, w, STATUS_CONSTRAINT, lane)
                 steps = 0
         worst = real(0.0)
@@ -463,11 +432,11 @@ def make_fused_kernels(real, shared_cap: int = 0, bandwidth: int = 3, shared_nod
                         minv_self, minv_cross, sq, half, nn, w, lane, bd)
             if nc > 0:
                 if not factor_gram(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross,
-                                   cpl_sign, minv_self, minv_cross, bw, sq, sx, red, w, lane, bd):
+                                   cpl_sign, minv_self, minv_cross, sq, sx, red, w, lane, bd):
                     fail(status, fail_step, s0 + sub + 1, w, STATUS_CONSTRAINT, lane)
                     break
                 if not project_velocities(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner,
-                                          minv_self, minv_cross, bw, sq, sx, red, nn, w, lane, bd):
+                                          minv_self, minv_cross, sq, sx, red, nn, w, lane, bd):
                     fail(status, fail_step, s0 + sub + 1, w, STATUS_NONFINITE, lane)
                     break
         if lane == 0:

@@ -235,23 +235,23 @@ class FusedScratch:
     red: wp.array  # (B, block) per-lane values for block reductions
 
 
-def make_fused_scratch(model: Model, block: int, shared_solve: bool, shared_nodes: bool) -> FusedScratch:
+def make_fused_scratch(model: Model, block: int, shared_solve: bool) -> FusedScratch:
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d, n, B = model.device, model.n_nodes, model.n_columns
     nc = max(model.n_constraints, 1)
     return FusedScratch(
-        nodes=wp.zeros((1, 1) if shared_nodes else (B, 5 * n), dtype=vec, device=d),
+        nodes=wp.zeros((B, 5 * n), dtype=vec, device=d),
         solve=wp.zeros((1, 1) if shared_solve else (B, nc * (model.bandwidth + 2)), dtype=real, device=d),
         red=wp.zeros((B, block), dtype=real, device=d),
     )
 
 
 def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int | None = None,
-              fused_shared: tuple[bool, bool] = (False, False)) -> Data:
+              fused_shared: bool = False) -> Data:
     """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused_block`` (threads per column
     block) the solver scratch lives in :class:`FusedScratch` (``fused_shared``: whether its solver
-    rows and node rows are in block shared memory instead) and the staged kernels' scratch
+    rows are in block shared memory instead) and the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
@@ -271,7 +271,7 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int 
         one = wp.zeros((1, 1), dtype=vec, device=d)
         return Data(**common, u_prev=one, imp=one, band=wp.zeros((1, 1, 1), dtype=real, device=d),
                     lam=wp.zeros((1, 1), dtype=real, device=d), rk=None,
-                    fused=make_fused_scratch(model, fused_block, *fused_shared))
+                    fused=make_fused_scratch(model, fused_block, fused_shared))
     rk = None
     if method == "rk4":
         rk = {k: z() for k in ("u0", "v0", "acc_u", "acc_v", "us", "vs")}

@@ -30,17 +30,9 @@ from .batch import (
 )
 from .choose import apply_accuracy, reachable_prisms
 from .columns import ColumnConfig
-from .fused import make_fused_kernels, shared_capacity, shared_nodes
+from .fused import make_fused_kernels, shared_capacity
 from .kernels import make_kernels
-from .model import (
-    REAL,
-    Data,
-    Model,
-    build_model,
-    constraint_coupling,
-    make_data,
-    mass_entries,
-)
+from .model import REAL, Data, Model, build_model, constraint_coupling, make_data, mass_entries
 from .settings import BatchResult, RunSettings, SettingsError
 
 # stability limit of omega*dt for each method on an undamped oscillator
@@ -53,9 +45,6 @@ FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one war
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
 # fused='auto' on a GPU: above this many columns the staged kernels stream faster (benchmarks/README.md)
 FUSED_MAX_COLUMNS = 32768
-# bytes of shared memory per block up to which the node state rows join the solver rows there
-# (0: node rows stay in global scratch)
-FUSED_SHARED_NODE_BYTES = 0
 FUSED_SHARED_ON_CPU = False  # CPU blocks run alone: the global rows are as fast there (tests may switch it on)
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph by the fused path
 
@@ -113,13 +102,10 @@ class Integrator:
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
-            cap = nodes = 0
+            cap = 0  # reals of shared memory for the band and multipliers (0: global rows)
             if self.fused and (self.device.is_cuda or FUSED_SHARED_ON_CPU):
-                rb = 4 if settings.precision == "fp32" else 8
-                cap = shared_capacity(m.n_constraints, m.bandwidth, rb)
-                nodes = shared_nodes(m.n_nodes, cap, rb, FUSED_SHARED_NODE_BYTES) if FUSED_SHARED_NODE_BYTES else 0
-            self.shared_layout = (cap, nodes)
-            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused_block, (cap > 0, nodes > 0))
+                cap = shared_capacity(m.n_constraints, m.bandwidth, 4 if settings.precision == "fp32" else 8)
+            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused_block, cap > 0)
             real = REAL[settings.precision]
             self.real = real
             self.k = make_kernels(real)
@@ -130,7 +116,7 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
-            self.fk = make_fused_kernels(real, cap, m.bandwidth, nodes) if self.fused else None
+            self.fk = make_fused_kernels(real, cap, m.bandwidth) if self.fused else None
         self.column_kernels = {
             kern.key for kern in (self.k.project_positions, self.k.factor_project_velocities, self.k.factor_only,
                                   self.k.constrained_accel, self.k.record_energy)
@@ -204,8 +190,7 @@ class Integrator:
                         inputs=[
             m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross,
             m.cpl_sign, m.ncon_start, m.ncon_member, m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L,
-            m.node_start, m.node_member, m.partner, m.minv_self, m.minv_cross, m.bandwidth,
-            self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
+            m.node_start, m.node_member, m.partner, m.minv_self, m.minv_cross, self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
             self.real(self.dt), int(n_sub), int(init), d.step, d.u, d.v, d.a, d.bar_err, d.iters, d.status,
             d.fail_step, f.nodes, f.solve, f.red])
 
@@ -289,9 +274,13 @@ class Integrator:
         self._factor_project_velocities(d.u, d.v)
 
     def step(self):
+        """One step (eager launches)."""
+        self.steps_done += 1
+        self._step_launches()
+
+    def _step_launches(self):
         if self.fused:
             self._fused_steps(1)
-            self.steps_done += 1
             return
         h = self.dt
         method = self.settings.method
@@ -312,18 +301,18 @@ class Integrator:
         if self.fused:
             self._advance_fused(n)
             return
-        self.steps_done += n
-        spg = int(self.settings.steps_per_graph)
+        spg = self.graph_steps or int(self.settings.steps_per_graph)  # a captured graph fixes it
         if self.device.is_cuda and n >= spg:
             if self.graph is None:
                 gc.collect()
                 with wp.ScopedCapture(device=self.device) as cap:
                     for _ in range(spg):
-                        self.step()
+                        self._step_launches()
                 self.graph = cap.graph
                 self.graph_steps = spg
             while n >= spg:
                 wp.capture_launch(self.graph)
+                self.steps_done += spg
                 n -= spg
         for _ in range(n):
             self.step()
@@ -332,7 +321,7 @@ class Integrator:
         """Fused launches never straddle an output step; whole output periods (a multiple of
         ``every`` near steps_per_graph) replay one captured graph."""
         every = self.every
-        period = every * max(1, -(-int(self.settings.steps_per_graph) // every))
+        period = self.graph_steps or every * max(1, -(-int(self.settings.steps_per_graph) // every))
         graphable = self.device.is_cuda and period <= MAX_GRAPH_STEPS
         while n > 0:
             phase = self.steps_done % every
