@@ -220,14 +220,23 @@ def rattle_dt(batch, safety: float = 0.25) -> float:
 
 
 # ---------------------------------------------------------------------- kernels
-def rattle_modules(precision: str):
+def kernel_modules(spaces) -> list:
+    """Modules of the RATTLE step's kernels found in the given kernel namespaces."""
     import warp as wp
 
-    from warp_tensegrity.kernels import make_kernels
+    return [getattr(ns, n).module for ns in spaces for n in RATTLE_KERNELS
+            if isinstance(getattr(ns, n, None), wp.Kernel)]
+
+
+def rattle_modules(precision: str, bandwidths=(3, 6), register_caps=(None,)):
+    """Modules of the staged RATTLE kernels for the Gram-matrix half-bandwidths of FB (3) and RB (6)
+    columns and the given register caps (the solver kernels are compiled per bandwidth and cap)."""
+    from warp_tensegrity.kernels import make_kernels, make_solver_kernels
     from warp_tensegrity.model import REAL
 
-    k = make_kernels(REAL[precision])
-    return [getattr(k, name).module for name in RATTLE_KERNELS if isinstance(getattr(k, name), wp.Kernel)]
+    real = REAL[precision]
+    return kernel_modules([make_kernels(real)] + [make_solver_kernels(real, bw, regs) for bw in bandwidths
+                                                   for regs in register_caps])
 
 
 def precompile(device, precisions, max_workers: int | None = None) -> float:
@@ -235,9 +244,12 @@ def precompile(device, precisions, max_workers: int | None = None) -> float:
     threads. Returns the seconds taken."""
     import warp as wp
 
+    from warp_tensegrity import simulate
+
+    caps = (None, simulate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
     mods = []
     for p in precisions:
-        mods += rattle_modules(p)
+        mods += rattle_modules(p, register_caps=caps)
     workers = max_workers if max_workers is not None else max(1, min(len(mods), os.cpu_count() or 1, 16))
     t0 = time.perf_counter()
     # block_dim=None: the variant an ordinary launch uses (1 on the CPU, the module default on CUDA)
@@ -381,7 +393,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     if path != "fused":
         # the needed kernels were force-loaded with the launch block size; Integrator.load_kernels
         # would also compile the RK4-only kernels (and, on the CPU, a second block-size variant)
-        mods = rattle_modules(precision)
+        mods = kernel_modules([integ.k, integ.ks])
         integ.load_kernels = lambda: wp.force_load(device=device, modules=mods, max_workers=0)  # cheap when loaded
     wp.synchronize_device(device)
     pool1 = mempool_used(device)

@@ -117,8 +117,9 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
     res_f = 18 * nc
     solve_b = 2 * band + 4 * nc * r
     solve_f = nc * (4 * bw + 2)
-    imp_b = 9 * V * n + r * nc + minv_bytes  # zero imp, read u_prev, imp RMW, read imp, u RMW, v RMW
-    imp_f = 15 * nc + 15 * n
+    # impulse: each node gathers its members (read u_prev, lam; write imp), then read imp, u RMW, v RMW
+    imp_b = 7 * V * n + r * nc + minv_bytes
+    imp_f = 24 * nc + 15 * n
     k["project_positions"] = ((it + 1) * res_b + it * (solve_b + imp_b) + 4 * I + 2 * r,
                               (it + 1) * res_f + it * (solve_f + imp_f))
 
@@ -126,17 +127,17 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
     k["gather_accel"] = (4 * V * n + ne * r + ea_bytes + minv_bytes + I,
                          2 * ne * 22 + 15 * n)
 
-    # factor_project_velocities: assemble (band write) + Cholesky (band read + write), rhs, solve,
-    # impulse on v (scale2 = 0), finiteness check of v
+    # factor_project_velocities: assemble and factor each row in registers (band written once; the
+    # bw rows above are re-read from L2), rhs, solve, impulse on v (scale2 = 0), finiteness check of v
     chol_f = nc * (bw + 1) ** 2
     asm_f = 6 * nc + 14 * ncpl
     k["factor_project_velocities"] = (
-        3 * band + V * n + act_bytes + minv_bytes  # assemble + Cholesky, u
+        band + V * n + act_bytes + minv_bytes  # assemble + Cholesky, u
         + V * n + nc * r  # rhs: v, lam
         + solve_b  # triangular solves
-        + 7 * V * n + nc * r + minv_bytes  # impulse on v
+        + 5 * V * n + nc * r + minv_bytes  # impulse on v: read u, lam; write imp; read imp; v RMW
         + V * n,  # isfinite(v)
-        asm_f + chol_f + 14 * nc + solve_f + 15 * nc + 9 * n)
+        asm_f + chol_f + 14 * nc + solve_f + 24 * nc + 9 * n)
 
     k["advance_counter"] = (0, 0)
     # record_energy: u, v, rest lengths, 2 outputs, once every output_every steps

@@ -142,258 +142,12 @@ def make_kernels(real):
             u_next[n, w] = u0[n, w] + du * c_next
             v_next[n, w] = v0[n, w] + dv * c_next
 
-    # ------------------------------------------------------------------ per-column solver pieces
-    @wp.func
-    def assemble_factor(
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), bw: int, w: int,
-    ):
-        """Assemble A = G M^-1 G^T at u into the band and factor it in place (A = L L^T).
-        Returns False if a pivot is not positive (singular constraints)."""
-        nc = con_i.shape[0]
-        ok = bool(True)
-        for k in range(nc):
-            for d in range(bw + 1):
-                band[k, d, w] = real(0.0)
-            act = pget(con_active, k, w)
-            if act > real(0.0):
-                bk = member_vec(con_dref, con_i, con_j, u, k, w)
-                for t in range(cpl_start[k], cpl_start[k + 1]):
-                    l = cpl_l[t]
-                    if pget(con_active, l, w) > real(0.0):
-                        bl = member_vec(con_dref, con_i, con_j, u, l, w)
-                        na = cpl_a[t]
-                        m = pget(minv_self, na, w)
-                        if cpl_cross[t] != 0:
-                            m = pget(minv_cross, na, w)
-                        band[k, k - l, w] = band[k, k - l, w] + cpl_sign[t] * m * wp.dot(bk, bl)
-            else:
-                band[k, 0, w] = real(1.0)
-        # banded Cholesky, row by row
-        for k in range(nc):
-            for dd in range(bw):
-                d = bw - dd  # l = k - d ascending
-                l = k - d
-                if l >= 0:
-                    s = band[k, d, w]
-                    for e in range(d + 1, bw + 1):
-                        if k - e >= 0:
-                            s -= band[k, e, w] * band[l, e - d, w]
-                    band[k, d, w] = s / band[l, 0, w]
-            s = band[k, 0, w]
-            for e in range(1, bw + 1):
-                if k - e >= 0:
-                    s -= band[k, e, w] * band[k, e, w]
-            if s > real(0.0):
-                band[k, 0, w] = wp.sqrt(s)
-            else:
-                band[k, 0, w] = real(1.0)
-                ok = False
-        return ok
-
-    @wp.func
-    def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), bw: int, w: int):
-        """Solve L L^T x = rhs in place (rhs given in x)."""
-        nc = x.shape[0]
-        for k in range(nc):
-            s = x[k, w]
-            for e in range(1, bw + 1):
-                if k - e >= 0:
-                    s -= band[k, e, w] * x[k - e, w]
-            x[k, w] = s / band[k, 0, w]
-        for kk in range(nc):
-            k = nc - 1 - kk
-            s = x[k, w]
-            for e in range(1, bw + 1):
-                if k + e < nc:
-                    s -= band[k + e, e, w] * x[k + e, w]
-            x[k, w] = s / band[k, 0, w]
-
-    @wp.func
-    def apply_impulse(
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        ug: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        scale: real, y: wp.array2d(dtype=vec), scale2: real, y2: wp.array2d(dtype=vec), w: int,
-    ):
-        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam."""
-        nn = imp.shape[0]
-        for n in range(nn):
-            imp[n, w] = vec()
-        for k in range(con_i.shape[0]):
-            g = member_vec(con_dref, con_i, con_j, ug, k, w) * lam[k, w]
-            imp[con_j[k], w] = imp[con_j[k], w] + g
-            imp[con_i[k], w] = imp[con_i[k], w] - g
-        for n in range(nn):
-            d = imp[n, w] * pget(minv_self, n, w)
-            p = partner[n]
-            if p >= 0:
-                d = d + imp[p, w] * pget(minv_cross, n, w)
-            y[n, w] = y[n, w] - d * scale
-            if scale2 != real(0.0):
-                y2[n, w] = y2[n, w] - d * scale2
-
-    @wp.func
-    def project_rates(
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real),
-        minv_cross: wp.array2d(dtype=real), bw: int, u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec),
-        with_bdot: int, band: wp.array3d(dtype=real), y: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real),
-        imp: wp.array2d(dtype=vec), w: int,
-    ):
-        """With the band holding the factor of A(u): solve A lam = G(u) y (+ |b'|^2 if with_bdot, the
-        index-1 acceleration term) and set y -= M^-1 G(u)^T lam. y = v: velocity projection; y = a:
-        constrained acceleration."""
-        for k in range(con_i.shape[0]):
-            r = real(0.0)
-            if pget(con_active, k, w) > real(0.0):
-                b = member_vec(con_dref, con_i, con_j, u, k, w)
-                r = wp.dot(b, y[con_j[k], w] - y[con_i[k], w])
-                if with_bdot != 0:
-                    bd = v[con_j[k], w] - v[con_i[k], w]
-                    r += wp.dot(bd, bd)
-            lam[k, w] = r
-        band_solve(band, lam, bw, w)
-        apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, u, lam, imp,
-                      real(1.0), y, real(0.0), y, w)
-
+    # ------------------------------------------------------------------ failure flag
     @wp.func
     def fail(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), step: wp.array(dtype=int), w: int, code: int):
         if status[w] == STATUS_OK:
             status[w] = code
             fail_step[w] = step[0] + 1
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def project_positions(
-        # Model:
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_L: wp.array(dtype=real), con_active: wp.array2d(dtype=real),
-        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        bw: int, tol: real, max_iter: int, fail_tol: real, inv_dt: real,
-        # Data in:
-        band: wp.array3d(dtype=real), ug: wp.array2d(dtype=vec), step: wp.array(dtype=int),
-        # Data out:
-        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
-        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
-    ):
-        """Simplified Newton onto |b_k| = L_k along M^-1 G(ug)^T, with the band holding the factor of
-        G(ug) M^-1 G(ug)^T. v -= inv_dt * du (RATTLE's velocity update; 0 for plain projection)."""
-        w = wp.tid()
-        if status[w] != STATUS_OK:
-            return
-        nc = con_i.shape[0]
-        err = real(0.0)
-        prev = real(0.0)
-        it = int(0)
-        while True:
-            prev = err
-            err = real(0.0)
-            for k in range(nc):
-                b = member_vec(con_dref, con_i, con_j, u, k, w)
-                L = con_L[k]
-                bb = wp.dot(b, b)
-                r = real(0.0)
-                if pget(con_active, k, w) > real(0.0):
-                    r = real(0.5) * (bb - L * L)
-                    e = wp.abs(wp.sqrt(bb) - L) / L
-                    if not (e <= err):  # also catches NaN
-                        err = e
-                lam[k, w] = r
-            if err <= tol or it >= max_iter:
-                break
-            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                break  # stalled at round-off just above tol: more iterations cannot help
-            band_solve(band, lam, bw, w)
-            apply_impulse(con_i, con_j, con_dref, partner, minv_self, minv_cross, ug, lam, imp,
-                          real(1.0), u, inv_dt, v, w)
-            it += 1
-        iters[w] = wp.max(iters[w], it)
-        if not wp.isfinite(err):
-            fail(status, fail_step, step, w, STATUS_NONFINITE)
-        elif err > fail_tol:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
-        if err > bar_err[w]:
-            bar_err[w] = err
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def factor_project_velocities(
-        # Model:
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        bw: int,
-        # Data in:
-        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
-        # Data out:
-        band: wp.array3d(dtype=real), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
-    ):
-        """Factor A(u) (kept for the next position projection) and project v onto G(u) v = 0."""
-        w = wp.tid()
-        if status[w] != STATUS_OK:
-            return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, bw, w)
-        if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
-            return
-        project_rates(con_i, con_j, con_dref, con_active, partner, minv_self, minv_cross, bw, u, v, 0,
-                      band, v, lam, imp, w)
-        for n in range(u.shape[0]):
-            if not (wp.isfinite(v[n, w][0]) and wp.isfinite(v[n, w][1]) and wp.isfinite(v[n, w][2])):
-                fail(status, fail_step, step, w, STATUS_NONFINITE)
-                return
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def factor_only(
-        # Model:
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real), bw: int,
-        # Data in:
-        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
-        # Data out:
-        band: wp.array3d(dtype=real), status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
-    ):
-        w = wp.tid()
-        if status[w] != STATUS_OK:
-            return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, bw, w)
-        if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def constrained_accel(
-        # Model:
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        bw: int,
-        # Data in:
-        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
-        # Data out:
-        band: wp.array3d(dtype=real), a: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
-    ):
-        """Index-1 multipliers: A lam = G a_free + |b'|^2; a -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
-        w = wp.tid()
-        if status[w] != STATUS_OK:
-            return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, bw, w)
-        if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
-            return
-        project_rates(con_i, con_j, con_dref, con_active, partner, minv_self, minv_cross, bw, u, v, 1,
-                      band, a, lam, imp, w)
 
     # ------------------------------------------------------------------ outputs
     @wp.kernel(enable_backward=False, module="unique")
@@ -466,8 +220,320 @@ def make_kernels(real):
 
     return SimpleNamespace(
         real=real, vec=vec, gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage,
-        project_positions=project_positions, factor_project_velocities=factor_project_velocities,
-        factor_only=factor_only, constrained_accel=constrained_accel, advance_counter=advance_counter,
-        record_strain=record_strain, record_energy=record_energy,
-        pget=pget, cable_force=cable_force,  # shared with the fused step
+        advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
+        pget=pget, member_vec=member_vec, cable_force=cable_force, fail=fail,  # shared with the solvers
+    )
+
+
+@functools.cache
+def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
+    """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
+    the Gram-matrix half-bandwidth ``bandwidth`` compiled in: lane loops over the band unroll, the
+    row being factored and the last ``bandwidth`` unknowns of a triangular sweep sit in registers,
+    and each sweep loads the next row while it works on the current one. ``max_registers`` caps
+    the registers per CUDA thread (``__maxnreg__``; None: the compiler's choice).
+
+    The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
+    except the diagonal slot, which holds 1/L[k, k]."""
+    k0 = make_kernels(real)
+    vec, pget, member_vec, fail = k0.vec, k0.pget, k0.member_vec, k0.fail
+    BW = int(bandwidth)
+    LD = BW + 1
+    rowvec = wp.types.vector(LD, real)
+    winvec = wp.types.vector(max(BW, 1), real)
+    kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
+
+    @wp.func
+    def band_row(band: wp.array3d(dtype=real), k: int, w: int):
+        r = rowvec()
+        for e in range(LD):
+            r[e] = band[k, e, w]
+        return r
+
+    @wp.func
+    def band_col(band: wp.array3d(dtype=real), k: int, nc: int, w: int):
+        """(1/L[k,k], L[k+1,k], ..., L[k+BW,k]): what the backward sweep needs at row k."""
+        c = rowvec()
+        c[0] = band[k, 0, w]
+        for e in range(BW):
+            if k + e + 1 < nc:
+                c[e + 1] = band[k + e + 1, e + 1, w]
+        return c
+
+    @wp.func
+    def assemble_factor(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
+    ):
+        """Assemble row k of A = G M^-1 G^T at u in registers, factor it against the rows above
+        (A = L L^T) and store it. Returns False if a pivot is not positive (singular constraints)."""
+        nc = con_i.shape[0]
+        ok = bool(True)
+        for k in range(nc):
+            r = rowvec()
+            if pget(con_active, k, w) > real(0.0):
+                bk = member_vec(con_dref, con_i, con_j, u, k, w)
+                for t in range(cpl_start[k], cpl_start[k + 1]):
+                    l = cpl_l[t]
+                    if pget(con_active, l, w) > real(0.0):
+                        na = cpl_a[t]
+                        m = pget(minv_self, na, w)
+                        if cpl_cross[t] != 0:
+                            m = pget(minv_cross, na, w)
+                        val = cpl_sign[t] * m * wp.dot(bk, member_vec(con_dref, con_i, con_j, u, l, w))
+                        for e in range(LD):
+                            if k - l == e:
+                                r[e] += val
+            else:
+                r[0] = real(1.0)
+            for dd in range(BW):
+                d = BW - dd  # l = k - d ascending
+                l = k - d
+                if l >= 0:
+                    s = r[d]
+                    for e in range(d + 1, LD):
+                        s -= r[e] * band[l, e - d, w]
+                    r[d] = s * band[l, 0, w]
+            s = r[0]
+            for e in range(1, LD):
+                s -= r[e] * r[e]
+            if s > real(0.0):
+                r[0] = real(1.0) / wp.sqrt(s)
+            else:
+                r[0] = real(1.0)
+                ok = False
+            for e in range(LD):
+                band[k, e, w] = r[e]
+        return ok
+
+    @wp.func
+    def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), w: int):
+        """Solve L L^T x = rhs in place (rhs given in x)."""
+        nc = x.shape[0]
+        xw = winvec()  # xw[e] = x[k - 1 - e] (forward), x[k + 1 + e] (backward)
+        nxt = band_row(band, 0, w)
+        nrhs = x[0, w]
+        for k in range(nc):
+            cur = nxt
+            s = nrhs
+            if k + 1 < nc:  # issue the next row's loads before this row's dependent chain
+                nxt = band_row(band, k + 1, w)
+                nrhs = x[k + 1, w]
+            for e in range(BW):
+                s -= cur[e + 1] * xw[e]
+            xk = s * cur[0]
+            x[k, w] = xk
+            for e in range(BW - 1):
+                xw[BW - 1 - e] = xw[BW - 2 - e]
+            xw[0] = xk
+        xw = winvec()
+        nxt = band_col(band, nc - 1, nc, w)
+        nrhs = x[nc - 1, w]
+        for kk in range(nc):
+            k = nc - 1 - kk
+            cur = nxt
+            s = nrhs
+            if k > 0:
+                nxt = band_col(band, k - 1, nc, w)
+                nrhs = x[k - 1, w]
+            for e in range(BW):
+                s -= cur[e + 1] * xw[e]
+            xk = s * cur[0]
+            x[k, w] = xk
+            for e in range(BW - 1):
+                xw[BW - 1 - e] = xw[BW - 2 - e]
+            xw[0] = xk
+
+    @wp.func
+    def apply_impulse(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        ug: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        scale: real, y: wp.array2d(dtype=vec), scale2: real, y2: wp.array2d(dtype=vec), w: int,
+    ):
+        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam. Each node gathers its
+        own members into imp (no read-modify-write chains), then applies M^-1."""
+        nn = imp.shape[0]
+        for n in range(nn):
+            g = vec()
+            for t in range(ncon_start[n], ncon_start[n + 1]):
+                k = ncon_member[t]
+                gk = member_vec(con_dref, con_i, con_j, ug, k, w) * lam[k, w]
+                if con_j[k] == n:
+                    g += gk
+                else:
+                    g -= gk
+            imp[n, w] = g
+        for n in range(nn):
+            d = imp[n, w] * pget(minv_self, n, w)
+            p = partner[n]
+            if p >= 0:
+                d = d + imp[p, w] * pget(minv_cross, n, w)
+            y[n, w] = y[n, w] - d * scale
+            if scale2 != real(0.0):
+                y2[n, w] = y2[n, w] - d * scale2
+
+    @wp.func
+    def project_rates(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec),
+        with_bdot: int, band: wp.array3d(dtype=real), y: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real),
+        imp: wp.array2d(dtype=vec), w: int,
+    ):
+        """With the band holding the factor of A(u): solve A lam = G(u) y (+ |b'|^2 if with_bdot, the
+        index-1 acceleration term) and set y -= M^-1 G(u)^T lam. y = v: velocity projection; y = a:
+        constrained acceleration."""
+        for k in range(con_i.shape[0]):
+            r = real(0.0)
+            if pget(con_active, k, w) > real(0.0):
+                b = member_vec(con_dref, con_i, con_j, u, k, w)
+                r = wp.dot(b, y[con_j[k], w] - y[con_i[k], w])
+                if with_bdot != 0:
+                    bd = v[con_j[k], w] - v[con_i[k], w]
+                    r += wp.dot(bd, bd)
+            lam[k, w] = r
+        band_solve(band, lam, w)
+        apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, u, lam,
+                      imp, real(1.0), y, real(0.0), y, w)
+
+    @wp.kernel(**kopts)
+    def project_positions(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_L: wp.array(dtype=real), con_active: wp.array2d(dtype=real),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        tol: real, max_iter: int, fail_tol: real, inv_dt: real,
+        # Data in:
+        band: wp.array3d(dtype=real), ug: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Simplified Newton onto |b_k| = L_k along M^-1 G(ug)^T, with the band holding the factor of
+        G(ug) M^-1 G(ug)^T. v -= inv_dt * du (RATTLE's velocity update; 0 for plain projection)."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        nc = con_i.shape[0]
+        err = real(0.0)
+        prev = real(0.0)
+        it = int(0)
+        while True:
+            prev = err
+            err = real(0.0)
+            for k in range(nc):
+                r = real(0.0)
+                if pget(con_active, k, w) > real(0.0):
+                    b = member_vec(con_dref, con_i, con_j, u, k, w)
+                    L = con_L[k]
+                    bb = wp.dot(b, b)
+                    r = real(0.5) * (bb - L * L)
+                    e = wp.abs(wp.sqrt(bb) - L) / L
+                    if not (e <= err):  # also catches NaN
+                        err = e
+                lam[k, w] = r
+            if err <= tol or it >= max_iter:
+                break
+            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
+                break  # stalled at round-off just above tol: more iterations cannot help
+            band_solve(band, lam, w)
+            apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, ug,
+                          lam, imp, real(1.0), u, inv_dt, v, w)
+            it += 1
+        iters[w] = wp.max(iters[w], it)
+        if not wp.isfinite(err):
+            fail(status, fail_step, step, w, STATUS_NONFINITE)
+        elif err > fail_tol:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+        if err > bar_err[w]:
+            bar_err[w] = err
+
+    @wp.kernel(**kopts)
+    def factor_project_velocities(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        # Data in:
+        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Factor A(u) (kept for the next position projection) and project v onto G(u) v = 0."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, w)
+        if not ok:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            return
+        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                      u, v, 0, band, v, lam, imp, w)
+        for n in range(u.shape[0]):
+            if not (wp.isfinite(v[n, w][0]) and wp.isfinite(v[n, w][1]) and wp.isfinite(v[n, w][2])):
+                fail(status, fail_step, step, w, STATUS_NONFINITE)
+                return
+
+    @wp.kernel(**kopts)
+    def factor_only(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        # Data in:
+        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, w)
+        if not ok:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+
+    @wp.kernel(**kopts)
+    def constrained_accel(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        # Data in:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), a: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Index-1 multipliers: A lam = G a_free + |b'|^2; a -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, w)
+        if not ok:
+            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            return
+        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                      u, v, 1, band, a, lam, imp, w)
+
+    return SimpleNamespace(
+        real=real, bandwidth=BW, project_positions=project_positions,
+        factor_project_velocities=factor_project_velocities, factor_only=factor_only,
+        constrained_accel=constrained_accel,
     )

@@ -31,7 +31,7 @@ from .batch import (
 from .choose import apply_accuracy, reachable_prisms
 from .columns import ColumnConfig
 from .fused import make_fused_kernels, shared_capacity
-from .kernels import make_kernels
+from .kernels import make_kernels, make_solver_kernels
 from .model import REAL, Data, Model, build_model, constraint_coupling, make_data, mass_entries
 from .settings import BatchResult, RunSettings, SettingsError
 
@@ -41,6 +41,11 @@ FORCE_EVALS = {"rattle": 1, "rk4": 4, "yoshida4": 3, "symplectic_euler": 1}
 _W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 YOSHIDA = (_W1, 1.0 - 2.0 * _W1, _W1)
 COLUMN_BLOCK_DIM = 64  # CUDA threads per block for the one-thread-per-column kernels
+# Registers per CUDA thread of the column-solver kernels from COLUMN_CAP_FROM columns up: more
+# columns in flight at once, for a few spills (benchmarks/results/staged_tuning_h200.json: +5-18 %
+# at 131,072 and 262,144 columns, -6-10 % at 65,536, where every column is in flight already).
+COLUMN_MAX_REGISTERS = 64
+COLUMN_CAP_FROM = 131072
 FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one warp)
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
 # fused='auto' on a GPU: above this many columns the staged kernels stream faster (benchmarks/README.md)
@@ -109,6 +114,8 @@ class Integrator:
             real = REAL[settings.precision]
             self.real = real
             self.k = make_kernels(real)
+            regs = COLUMN_MAX_REGISTERS if self.device.is_cuda and batch.n_columns >= COLUMN_CAP_FROM else None
+            self.ks = make_solver_kernels(real, self.model.bandwidth, regs)
             m = self.model
             B = m.n_columns
             self.strain = None
@@ -118,8 +125,8 @@ class Integrator:
             self.elastic = wp.zeros((n_out, B), dtype=real)
             self.fk = make_fused_kernels(real, cap, m.bandwidth) if self.fused else None
         self.column_kernels = {
-            kern.key for kern in (self.k.project_positions, self.k.factor_project_velocities, self.k.factor_only,
-                                  self.k.constrained_accel, self.k.record_energy)
+            kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
+                                  self.ks.constrained_accel, self.k.record_energy)
         }
         self.build_time = time.perf_counter() - t0
         self.graph = None
@@ -152,9 +159,9 @@ class Integrator:
         m, d, s = self.model, self.data, self.settings
         if m.n_constraints == 0:
             return
-        self._launch(self.k.project_positions, m.n_columns, [
-            m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.partner, m.minv_self, m.minv_cross,
-            m.bandwidth, self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
+        self._launch(self.ks.project_positions, m.n_columns, [
+            m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.ncon_start, m.ncon_member, m.partner,
+            m.minv_self, m.minv_cross, self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
             self.real(inv_dt), d.band, ug, d.step, d.u, d.v, d.lam, d.imp, d.bar_err, d.iters, d.status, d.fail_step])
 
     def _cpl(self):
@@ -165,23 +172,23 @@ class Integrator:
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.k.factor_project_velocities, m.n_columns, self._cpl() + [
-            m.partner, m.minv_self, m.minv_cross, m.bandwidth, u, d.step, d.band, v, d.lam, d.imp,
+        self._launch(self.ks.factor_project_velocities, m.n_columns, self._cpl() + [
+            m.ncon_start, m.ncon_member, m.partner, m.minv_self, m.minv_cross, u, d.step, d.band, v, d.lam, d.imp,
             d.status, d.fail_step])
 
     def _factor(self, u):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.k.factor_only, m.n_columns, self._cpl() + [
-            m.minv_self, m.minv_cross, m.bandwidth, u, d.step, d.band, d.status, d.fail_step])
+        self._launch(self.ks.factor_only, m.n_columns, self._cpl() + [
+            m.minv_self, m.minv_cross, u, d.step, d.band, d.status, d.fail_step])
 
     def _constrained_accel(self, u, v, a):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.k.constrained_accel, m.n_columns, self._cpl() + [
-            m.partner, m.minv_self, m.minv_cross, m.bandwidth, u, v, d.step, d.band, a, d.lam, d.imp,
+        self._launch(self.ks.constrained_accel, m.n_columns, self._cpl() + [
+            m.ncon_start, m.ncon_member, m.partner, m.minv_self, m.minv_cross, u, v, d.step, d.band, a, d.lam, d.imp,
             d.status, d.fail_step])
 
     def _fused(self, n_sub: int, init: int = 0):
@@ -223,7 +230,7 @@ class Integrator:
                 kern.module.load(self.device, self._block_dim(kern))
             return
         rk_only = {"rk_stage", "constrained_accel", "factor_only"}
-        for name, kern in vars(self.k).items():
+        for name, kern in {**vars(self.k), **vars(self.ks)}.items():
             if isinstance(kern, wp.Kernel) and (self.settings.method == "rk4" or name not in rk_only):
                 kern.module.load(self.device, self._block_dim(kern))
 

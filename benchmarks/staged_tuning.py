@@ -1,0 +1,83 @@
+"""Launch shape of the staged step's column solvers (one thread per column) at large batch.
+
+Column-steps/s of the staged RATTLE step for 50-prism columns (FB and RB, fp32 and fp64) against
+the batch size, for CUDA threads per block of the column-solver kernels and a cap on their
+registers per thread (``__maxnreg__``; fewer registers let more columns run at once, at the price
+of spills). The engine's choice: ``simulate.COLUMN_BLOCK_DIM`` threads per block, and
+``COLUMN_MAX_REGISTERS`` registers from ``COLUMN_CAP_FROM`` columns up.
+
+Usage::
+
+    python -m benchmarks.staged_tuning --device cuda:0 --out-dir benchmarks/results --label h200
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from . import common
+
+
+def shapes(device, batches, blocks, regs, target_s: float, bases, precisions) -> list[dict]:
+    from warp_tensegrity import simulate
+
+    rows = []
+    defaults = (simulate.COLUMN_BLOCK_DIM, simulate.COLUMN_MAX_REGISTERS, simulate.COLUMN_CAP_FROM)
+    simulate.COLUMN_CAP_FROM = 0  # the cap (or none) at every batch size
+    for base in bases:
+        small = common.build_base_batch(50, 1.0 if base == "RB" else 0.0, common.BASE_COLUMNS)
+        dt = common.rattle_dt(small)
+        for prec in precisions:
+            for B in batches:
+                batch = common.tile_batch(small, B)
+                for bd in blocks:
+                    for r in regs:
+                        simulate.COLUMN_BLOCK_DIM, simulate.COLUMN_MAX_REGISTERS = bd, r
+                        try:
+                            p = common.time_batch(batch, base, 50, prec, device, target_s=target_s, reps=3,
+                                                  diag_steps=0, dt=dt, path="staged").as_dict()
+                            p.update(block_dim=bd, max_registers=r)
+                            print(f"[staged] {base} {prec} B={B} block {bd} regs {r}: "
+                                  f"{p['column_steps_per_s']:.4g} col-steps/s", flush=True)
+                        except Exception as exc:  # noqa: BLE001 - out of memory at the largest B
+                            p = {"base": base, "precision": prec, "B": B, "block_dim": bd, "max_registers": r,
+                                 "error": repr(exc)}
+                            print(f"[staged] ERROR {p}", flush=True)
+                        rows.append(p)
+                del batch
+    simulate.COLUMN_BLOCK_DIM, simulate.COLUMN_MAX_REGISTERS, simulate.COLUMN_CAP_FROM = defaults
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--device", default="cuda:0")
+    ap.add_argument("--out-dir", dest="out_dir", default=str(common.RESULTS))
+    ap.add_argument("--label", default=None, help="file suffix (default: the device kind)")
+    ap.add_argument("--batches", type=int, nargs="+", default=[16384, 65536, 131072, 262144])
+    ap.add_argument("--blocks", type=int, nargs="+", default=[64])
+    ap.add_argument("--regs", type=int, nargs="+", default=[0], help="register caps; 0: none")
+    ap.add_argument("--bases", nargs="+", default=["FB", "RB"])
+    ap.add_argument("--precisions", nargs="+", default=["fp32", "fp64"])
+    ap.add_argument("--target-s", dest="target_s", type=float, default=0.3)
+    a = ap.parse_args(argv)
+    import warp as wp
+
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
+    device = wp.get_device(a.device)
+    tag = a.label or ("cpu" if device.is_cpu else common.device_kind(device.name))
+    out = Path(a.out_dir) / f"staged_tuning_{tag}.json"
+    doc = {"kind": "staged_tuning", "meta": common.run_metadata(device)}
+    doc["shapes"] = shapes(device, a.batches, a.blocks, [r or None for r in a.regs], a.target_s, a.bases,
+                           a.precisions)
+    common.write_json(out, doc)
+    print(f"[staged_tuning] wrote {out}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
