@@ -28,11 +28,10 @@ Assumptions (stated once, used everywhere):
 5. flops: add, mul, FMA as 1 / 1 / 2; division and sqrt count 1 each. Integer index work,
    compares and branches are not counted.
 6. it (solve iterations per column-step, mean over columns and steps) defaults to what this
-   harness measured on 64 columns of 50 prisms over 400 steps (DEFAULT_ITERS): FB fp32 2.0,
-   FB fp64 3.5, RB fp32 5.0, RB fp64 5.6. On the GPU a warp of 32 columns runs as many
-   iterations as its slowest column (RB fp32: 0.8% of column-steps stop at the cap of 25
-   without reaching the tolerance; in 102 of those 400 steps at least one of the 64 columns
-   did), which costs time but not DRAM bytes; the bound does not include it.
+   harness measured on the H200 at large B (DEFAULT_ITERS): FB fp32 2.0, FB fp64 3.5,
+   RB fp32 2.2 (fp32 tolerance 3e-7), RB fp64 5.6. On the GPU a warp of 32 columns runs as
+   many iterations as its slowest column (RB fp32: mean 2.26, warp max 2.5 at B = 262,144),
+   which costs time but not DRAM bytes; the bound does not include it.
 
 Bounds: memory = measured device-to-device copy bandwidth / bytes; compute = non-tensor peak
 of the precision / flops; roof = min. ``sm_fill(B)`` reports how much of the GPU the
@@ -58,7 +57,7 @@ DEVICES = {
     "h200": {"name": "NVIDIA H200 (SXM)", "bw_spec": 4.8e12, "bw_measured": 4.3e12,
              "fp32": 67e12, "fp64": 34e12, "sm": 132, "l2_bytes": 60e6},
 }
-DEFAULT_ITERS = {("FB", "fp32"): 2.0, ("FB", "fp64"): 3.5, ("RB", "fp32"): 5.0, ("RB", "fp64"): 5.6}
+DEFAULT_ITERS = {("FB", "fp32"): 2.0, ("FB", "fp64"): 3.5, ("RB", "fp32"): 2.2, ("RB", "fp64"): 5.6}
 BLOCK = 256  # Warp's default CUDA block size (wp.launch without block_dim)
 NODE_FLOPS_KICK = 12
 

@@ -49,7 +49,7 @@ COLUMN_CAP_FROM = 131072
 FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one warp)
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
 # fused='auto' on a GPU: above this many columns the staged kernels stream faster (H200: the fused
-# step is 1.3-1.6x faster at 16,384 columns but for RB fp64, 0.8-0.95x at 32,768; benchmarks/README.md)
+# step is 1.25-1.55x faster at 16,384 columns, RB fp64 0.87x; 0.5-0.93x at 32,768; benchmarks/README.md)
 FUSED_MAX_COLUMNS = 16384
 FUSED_SHARED_ON_CPU = False  # CPU blocks run alone: the global rows are as fast there (tests may switch it on)
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph by the fused path
