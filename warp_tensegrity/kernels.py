@@ -35,14 +35,7 @@ def make_kernels(real):
 
     @wp.func
     def pget(p: wp.array2d(dtype=real), k: int, w: int):
-        """p[k, w % p.shape[1]], without the integer division in the usual cases (a parameter
-        shared by all columns, or one per column)."""
-        n = p.shape[1]
-        if n == 1:
-            return p[k, 0]
-        if w < n:
-            return p[k, w]
-        return p[k, w % n]
+        return p[k, w % p.shape[1]]
 
     @wp.func
     def member_vec(dref: wp.array(dtype=vec), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
