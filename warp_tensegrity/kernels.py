@@ -142,13 +142,6 @@ def make_kernels(real):
             u_next[n, w] = u0[n, w] + du * c_next
             v_next[n, w] = v0[n, w] + dv * c_next
 
-    # ------------------------------------------------------------------ failure flag
-    @wp.func
-    def fail(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), step: wp.array(dtype=int), w: int, code: int):
-        if status[w] == STATUS_OK:
-            status[w] = code
-            fail_step[w] = step[0] + 1
-
     # ------------------------------------------------------------------ outputs
     @wp.kernel(enable_backward=False, module="unique")
     def advance_counter(step: wp.array(dtype=int)):
@@ -221,7 +214,7 @@ def make_kernels(real):
     return SimpleNamespace(
         real=real, vec=vec, gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage,
         advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
-        pget=pget, member_vec=member_vec, cable_force=cable_force, fail=fail,  # shared with the solvers
+        pget=pget, member_vec=member_vec, cable_force=cable_force,  # shared with the solvers
     )
 
 
@@ -236,12 +229,18 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
     The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
     except the diagonal slot, which holds 1/L[k, k]."""
     k0 = make_kernels(real)
-    vec, pget, member_vec, fail = k0.vec, k0.pget, k0.member_vec, k0.fail
+    vec, pget, member_vec = k0.vec, k0.pget, k0.member_vec
     BW = int(bandwidth)
     LD = BW + 1
     rowvec = wp.types.vector(LD, real)
     winvec = wp.types.vector(max(BW, 1), real)
     kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
+
+    @wp.func
+    def fail(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), step: wp.array(dtype=int), w: int, code: int):
+        if status[w] == STATUS_OK:
+            status[w] = code
+            fail_step[w] = step[0] + 1
 
     @wp.func
     def band_row(band: wp.array3d(dtype=real), k: int, w: int):
