@@ -3,15 +3,17 @@
 Layout (see :mod:`warp_tensegrity.model`): every batched array is ``(n_items, B)`` with the
 column index ``w`` fastest, so per-node/per-member launches ``dim=(n_items, B)`` and
 per-column solver threads (``dim=B``, looping over items) both read coalesced memory.
-Per-column parameters may have a trailing size of 1 (shared) and are read as ``p[k, w % p.shape[1]]``.
+Per-column parameters may have a trailing size of 1 (shared) and are read as ``p[k, w % p.shape[1]]``;
+the hot kernels compute each array's column index ``w % p.shape[1]`` once per thread.
 
 State is the displacement ``u = x - X`` from the reference configuration, so fp32 keeps
 bar vectors ``b = d_ref + u_j - u_i`` to ~1e-7 relative even far from the origin.
 
 Kernel arguments are grouped as ``# Model:`` (topology and parameters), ``# Data in:`` and
-``# Data out:``. One thread per node (kick, drift, force gather), per prism (strain), or per
-column (constraint solves: banded Cholesky of the Gram matrix G M^-1 G^T, which handles
-bars sharing nodes and rigid-link loops alike).
+``# Data out:``. One thread per node (kick, drift), per block of M (force gather: a massive
+bar's two nodes, or a lone node), per prism (strain), or per column (constraint solves: banded
+Cholesky of the Gram matrix G M^-1 G^T, which handles bars sharing nodes and rigid-link loops
+alike).
 """
 
 
@@ -53,6 +55,24 @@ def make_kernels(real):
         t = k / L * stretch
         return b * (t / s)
 
+    @wp.func
+    def node_force(
+        cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
+        cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
+        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), u: wp.array2d(dtype=vec),
+        n: int, w: int, wE: int, wC: int, wL: int,
+    ):
+        """Sum of the cable forces on node n; wE, wC, wL: column w's index into EA, EA_c, L."""
+        f = vec()
+        for t in range(node_start[n], node_start[n + 1]):
+            c = node_member[t]
+            fc = cable_force(member_vec(cab_dref, cab_i, cab_j, u, c, w), cab_EA[c, wE], cab_EAc[c, wC], cab_L[c, wL])
+            if cab_i[c] == n:
+                f += fc
+            else:
+                f -= fc
+        return f
+
     # ------------------------------------------------------------------ per-node kernels
     @wp.kernel(enable_backward=False, module="unique")
     def gather_accel(
@@ -60,38 +80,39 @@ def make_kernels(real):
         cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
         node_start: wp.array(dtype=int), node_member: wp.array(dtype=int),
-        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        mass_blocks: wp.array2d(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
         status: wp.array(dtype=int),
         # Data in:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), kick: real,
         # Data out:
         a: wp.array2d(dtype=vec), v_out: wp.array2d(dtype=vec),
     ):
-        """a = M^-1 f(u) (unconstrained); v_out = v + kick * a. Each node sums its own members."""
-        n, w = wp.tid()
+        """a = M^-1 f(u) (unconstrained); v_out = v + kick * a. One thread per block of M: a massive
+        bar's two nodes, which M^-1 couples, or a lone node; each node sums its own members."""
+        blk, w = wp.tid()
         if status[w] != STATUS_OK:
             return
-        f = vec()
-        fp = vec()
-        p = partner[n]
-        for t in range(node_start[n], node_start[n + 1]):
-            c = node_member[t]
-            fc = cable_force(member_vec(cab_dref, cab_i, cab_j, u, c, w), pget(cab_EA, c, w), pget(cab_EAc, c, w), pget(cab_L, c, w))
-            if cab_i[c] == n:
-                f += fc
-            else:
-                f -= fc
-        if p >= 0:
-            for t in range(node_start[p], node_start[p + 1]):
-                c = node_member[t]
-                fc = cable_force(member_vec(cab_dref, cab_i, cab_j, u, c, w), pget(cab_EA, c, w), pget(cab_EAc, c, w), pget(cab_L, c, w))
-                if cab_i[c] == p:
-                    fp += fc
-                else:
-                    fp -= fc
-        acc = f * pget(minv_self, n, w) + fp * pget(minv_cross, n, w)
-        a[n, w] = acc
-        v_out[n, w] = v[n, w] + acc * kick
+        wE = w % cab_EA.shape[1]
+        wC = w % cab_EAc.shape[1]
+        wL = w % cab_L.shape[1]
+        ws = w % minv_self.shape[1]
+        na = mass_blocks[blk, 0]
+        nb = mass_blocks[blk, 1]
+        fa = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, u, na, w, wE, wC, wL)
+        if nb < 0:
+            acc = fa * minv_self[na, ws]
+            a[na, w] = acc
+            v_out[na, w] = v[na, w] + acc * kick
+        else:
+            fb = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, u, nb, w,
+                            wE, wC, wL)
+            wx = w % minv_cross.shape[1]
+            acc = fa * minv_self[na, ws] + fb * minv_cross[na, wx]
+            a[na, w] = acc
+            v_out[na, w] = v[na, w] + acc * kick
+            acc = fb * minv_self[nb, ws] + fa * minv_cross[nb, wx]
+            a[nb, w] = acc
+            v_out[nb, w] = v[nb, w] + acc * kick
 
     @wp.kernel(enable_backward=False, module="unique")
     def kick_drift(
@@ -229,7 +250,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
     The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
     except the diagonal slot, which holds 1/L[k, k]."""
     k0 = make_kernels(real)
-    vec, pget, member_vec = k0.vec, k0.pget, k0.member_vec
+    vec, member_vec = k0.vec, k0.member_vec
     BW = int(bandwidth)
     LD = BW + 1
     rowvec = wp.types.vector(LD, real)
@@ -270,18 +291,21 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
         """Assemble row k of A = G M^-1 G^T at u in registers, factor it against the rows above
         (A = L L^T) and store it. Returns False if a pivot is not positive (singular constraints)."""
         nc = con_i.shape[0]
+        wa = w % con_active.shape[1]  # column w's index into per-column parameters (hoisted)
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
         ok = bool(True)
         for k in range(nc):
             r = rowvec()
-            if pget(con_active, k, w) > real(0.0):
+            if con_active[k, wa] > real(0.0):
                 bk = member_vec(con_dref, con_i, con_j, u, k, w)
                 for t in range(cpl_start[k], cpl_start[k + 1]):
                     l = cpl_l[t]
-                    if pget(con_active, l, w) > real(0.0):
+                    if con_active[l, wa] > real(0.0):
                         na = cpl_a[t]
-                        m = pget(minv_self, na, w)
+                        m = minv_self[na, ws]
                         if cpl_cross[t] != 0:
-                            m = pget(minv_cross, na, w)
+                            m = minv_cross[na, wx]
                         val = cpl_sign[t] * m * wp.dot(bk, member_vec(con_dref, con_i, con_j, u, l, w))
                         for e in range(LD):
                             if k - l == e:
@@ -355,8 +379,12 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
         scale: real, y: wp.array2d(dtype=vec), scale2: real, y2: wp.array2d(dtype=vec), w: int,
     ):
         """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam. Each node gathers its
-        own members into imp (no read-modify-write chains), then applies M^-1."""
+        own members (no read-modify-write chains). A node whose M^-1 row is its own (partner -1)
+        is updated at once; a massive bar's two free nodes go through imp, then M^-1 couples them."""
         nn = imp.shape[0]
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
+        n_coupled = int(0)
         for n in range(nn):
             g = vec()
             for t in range(ncon_start[n], ncon_start[n + 1]):
@@ -366,15 +394,22 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
                     g += gk
                 else:
                     g -= gk
-            imp[n, w] = g
-        for n in range(nn):
-            d = imp[n, w] * pget(minv_self, n, w)
-            p = partner[n]
-            if p >= 0:
-                d = d + imp[p, w] * pget(minv_cross, n, w)
-            y[n, w] = y[n, w] - d * scale
-            if scale2 != real(0.0):
-                y2[n, w] = y2[n, w] - d * scale2
+            if partner[n] < 0:
+                d = g * minv_self[n, ws]
+                y[n, w] = y[n, w] - d * scale
+                if scale2 != real(0.0):
+                    y2[n, w] = y2[n, w] - d * scale2
+            else:
+                imp[n, w] = g
+                n_coupled += 1
+        if n_coupled > 0:
+            for n in range(nn):
+                p = partner[n]
+                if p >= 0:
+                    d = imp[n, w] * minv_self[n, ws] + imp[p, w] * minv_cross[n, wx]
+                    y[n, w] = y[n, w] - d * scale
+                    if scale2 != real(0.0):
+                        y2[n, w] = y2[n, w] - d * scale2
 
     @wp.func
     def project_rates(
@@ -388,9 +423,10 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
         """With the band holding the factor of A(u): solve A lam = G(u) y (+ |b'|^2 if with_bdot, the
         index-1 acceleration term) and set y -= M^-1 G(u)^T lam. y = v: velocity projection; y = a:
         constrained acceleration."""
+        wa = w % con_active.shape[1]
         for k in range(con_i.shape[0]):
             r = real(0.0)
-            if pget(con_active, k, w) > real(0.0):
+            if con_active[k, wa] > real(0.0):
                 b = member_vec(con_dref, con_i, con_j, u, k, w)
                 r = wp.dot(b, y[con_j[k], w] - y[con_i[k], w])
                 if with_bdot != 0:
@@ -422,6 +458,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
         if status[w] != STATUS_OK:
             return
         nc = con_i.shape[0]
+        wa = w % con_active.shape[1]
         err = real(0.0)
         prev = real(0.0)
         it = int(0)
@@ -430,7 +467,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
             err = real(0.0)
             for k in range(nc):
                 r = real(0.0)
-                if pget(con_active, k, w) > real(0.0):
+                if con_active[k, wa] > real(0.0):
                     b = member_vec(con_dref, con_i, con_j, u, k, w)
                     L = con_L[k]
                     bb = wp.dot(b, b)

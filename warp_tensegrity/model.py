@@ -81,9 +81,16 @@ def mass_entries(batch: NetworkBatch):
             det = m_self[:, a] * m_self[:, p] - m_cross[:, a] ** 2
             minv_self[:, a] = m_self[:, p] / det
             minv_cross[:, a] = -m_cross[:, a] / det
-    fixed_partner = (partner >= 0) & ~free[np.maximum(partner, 0)]
-    partner_dev = np.where(fixed_partner, -1, partner).astype(np.int32)
+    # the device kernels couple two nodes only when both are free (a fixed node's M^-1 row is 0)
+    both_free = (partner >= 0) & free & free[np.maximum(partner, 0)]
+    partner_dev = np.where(both_free, partner, -1).astype(np.int32)
     return partner, partner_dev, m_self, m_cross, minv_self, minv_cross
+
+
+def mass_blocks(partner: np.ndarray) -> np.ndarray:
+    """(nb, 2) blocks of M: a massive bar's two nodes (i < j), or a lone node and -1."""
+    return np.array([(a, int(p) if p > a else -1) for a, p in enumerate(partner) if p < 0 or p > a],
+                    dtype=np.int32).reshape(-1, 2)
 
 
 def node_member_csr(n_nodes: int, members: np.ndarray):
@@ -126,7 +133,8 @@ class Model:
     node_member: wp.array
     ncon_start: wp.array  # (n+1,) CSR node -> rigid members
     ncon_member: wp.array
-    partner: wp.array  # (n,) other end of the node's massive bar, -1 if none
+    partner: wp.array  # (n,) other end of the node's massive bar if both are free, else -1
+    mass_blocks: wp.array  # (nb, 2) int32: blocks of M (massive bar i < j, or lone node and -1)
     m_self: wp.array  # (n, Bp) [kg]
     m_cross: wp.array  # (n, Bp) [kg]
     minv_self: wp.array  # (n, Bp) [kg-1], 0 at fixed nodes
@@ -192,6 +200,7 @@ def build_model(batch: NetworkBatch, precision: str, device) -> Model:
         ncon_start=arr(ncon_start, wp.int32),
         ncon_member=arr(ncon_member, wp.int32),
         partner=arr(partner, wp.int32),
+        mass_blocks=arr(mass_blocks(partner_full), wp.int32),
         m_self=_dev2(m_self, real, device),
         m_cross=_dev2(m_cross, real, device),
         minv_self=_dev2(minv_self, real, device),

@@ -147,9 +147,9 @@ class Integrator:
 
     def _gather(self, u, v, kick, a, v_out):
         m, d = self.model, self.data
-        self._launch(self.k.gather_accel, (m.n_nodes, m.n_columns), [
+        self._launch(self.k.gather_accel, (m.mass_blocks.shape[0], m.n_columns), [
             m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L, m.node_start, m.node_member,
-            m.partner, m.minv_self, m.minv_cross, d.status, u, v, self.real(kick), a, v_out])
+            m.mass_blocks, m.minv_self, m.minv_cross, d.status, u, v, self.real(kick), a, v_out])
 
     def _kick_drift(self, kick, drift):
         m, d = self.model, self.data
