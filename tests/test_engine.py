@@ -67,15 +67,20 @@ def test_rattle_energy_error_scales_as_dt_squared(device):
 
 
 def test_rattle_energy_has_no_secular_drift(device):
-    """Bounded oscillating error: the worst deviation late in a long run is no larger than early on."""
-    params = {"prestrain": [0.002], "v0": [0.1], "base_rigidity": [0.0]}
+    """Smooth (taut) dynamics: RATTLE's energy error oscillates at a fixed level over 40 s, ~3,000
+    periods of the slowest mode; the late worst case equals the early one to a few percent.
+    (Where cables slacken and re-tighten, the cable law's kink breaks the smoothness that backward
+    error analysis needs, and the error random-walks instead; see the README.)"""
+    params = {"prestrain": [0.01], "v0": [0.002], "base_rigidity": [0.0]}
     s = RunSettings(t_end=40.0, dt=2e-3, output_interval=0.02, device=device)
     cfg = ColumnConfig(n_prisms=4, impact_admissibility="project", end_base_mass="full")
     r = simulate_batch(cfg, params, s)
     E = r.kinetic_energy[0] + r.elastic_energy[0]
     dev = np.abs(E - E[0]) / r.kinetic_energy[0, 0]
     half = len(dev) // 2
-    assert dev[half:].max() < 1.5 * dev[:half].max()
+    assert 1e-4 < dev[:half].max() < 1e-2  # a real O(dt^2) error, resolved
+    assert dev[half:].max() < 1.05 * dev[:half].max()
+    params = {"prestrain": [0.002], "v0": [0.1], "base_rigidity": [0.0]}
     # RK4 by contrast dissipates: its energy decays monotonically at coarse dt
     r4 = simulate_batch(cfg, params, RunSettings(t_end=40.0, dt=8e-3, method="rk4", output_interval=0.02, device=device))
     E4 = r4.kinetic_energy[0] + r4.elastic_energy[0]

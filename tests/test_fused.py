@@ -101,3 +101,18 @@ def test_shared_capacity_buckets():
     assert shared_capacity(300, 6, 8) == 2560  # RB, 50 prisms: 2400 reals
     assert shared_capacity(2400, 6, 8) == 0  # RB, 400 prisms: over SHARED_BYTES_MAX, global rows
     assert shared_capacity(2400, 6, 8) * 8 <= SHARED_BYTES_MAX
+
+
+@pytest.mark.parametrize("precision, tol", [("fp64", 1e-12), ("fp32", 1e-5)])
+def test_gram_assembly_with_bar_window_matches_reload(precision, tol, device, monkeypatch):
+    """The staged factorisation with the bar vectors of the last bw + 1 rows in registers against
+    the one that reloads them for every coupling term (FB and RB columns, slack and taut)."""
+    runs = {}
+    for window in (False, True):
+        monkeypatch.setattr(simulate, "COLUMN_BAR_WINDOW", window)
+        s = RunSettings(t_end=0.1, dt=5e-4, precision=precision, device=device, fused=False, truncate=False,
+                        output_interval=0.01)
+        runs[window] = simulate_batch(ColumnConfig(n_prisms=8), CASES, s)
+    scale = np.abs(runs[False].strain).max(axis=(1, 2))
+    rel = np.abs(runs[True].strain - runs[False].strain).max(axis=(1, 2)) / scale
+    assert np.all(scale > 1e-6) and np.all(rel < tol), rel

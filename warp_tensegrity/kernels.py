@@ -52,35 +52,30 @@ def make_kernels(real):
         k = EA
         if stretch < real(0.0):
             k = EAc
-        t = k / L * stretch
-        return b * (t / s)
+        return b * (k * stretch / (L * s))  # tension k/L (s - L), along b/s: one division
 
     @wp.func
     def node_force(
-        cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
-        cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
-        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), u: wp.array2d(dtype=vec),
-        n: int, w: int, wE: int, wC: int, wL: int,
+        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), node_other: wp.array(dtype=int),
+        node_dref: wp.array(dtype=vec), cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
+        cab_L: wp.array2d(dtype=real), u: wp.array2d(dtype=vec), n: int, w: int, wE: int, wC: int, wL: int,
     ):
-        """Sum of the cable forces on node n; wE, wC, wL: column w's index into EA, EA_c, L."""
+        """Sum of the cable forces on node n, each along its vector from n to the cable's other end;
+        wE, wC, wL: column w's index into EA, EA_c, L."""
+        un = u[n, w]
         f = vec()
         for t in range(node_start[n], node_start[n + 1]):
             c = node_member[t]
-            fc = cable_force(member_vec(cab_dref, cab_i, cab_j, u, c, w), cab_EA[c, wE], cab_EAc[c, wC], cab_L[c, wL])
-            if cab_i[c] == n:
-                f += fc
-            else:
-                f -= fc
+            f += cable_force(node_dref[t] + u[node_other[t], w] - un, cab_EA[c, wE], cab_EAc[c, wC], cab_L[c, wL])
         return f
 
     # ------------------------------------------------------------------ per-node kernels
     @wp.kernel(enable_backward=False, module="unique")
     def gather_accel(
         # Model:
-        cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
-        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int),
-        mass_blocks: wp.array2d(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), node_other: wp.array(dtype=int),
+        node_dref: wp.array(dtype=vec), mass_blocks: wp.array2d(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
         status: wp.array(dtype=int),
         # Data in:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), kick: real,
@@ -98,13 +93,13 @@ def make_kernels(real):
         ws = w % minv_self.shape[1]
         na = mass_blocks[blk, 0]
         nb = mass_blocks[blk, 1]
-        fa = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, u, na, w, wE, wC, wL)
+        fa = node_force(node_start, node_member, node_other, node_dref, cab_EA, cab_EAc, cab_L, u, na, w, wE, wC, wL)
         if nb < 0:
             acc = fa * minv_self[na, ws]
             a[na, w] = acc
             v_out[na, w] = v[na, w] + acc * kick
         else:
-            fb = node_force(cab_i, cab_j, cab_dref, cab_EA, cab_EAc, cab_L, node_start, node_member, u, nb, w,
+            fb = node_force(node_start, node_member, node_other, node_dref, cab_EA, cab_EAc, cab_L, u, nb, w,
                             wE, wC, wL)
             wx = w % minv_cross.shape[1]
             acc = fa * minv_self[na, ws] + fb * minv_cross[na, wx]
@@ -240,12 +235,14 @@ def make_kernels(real):
 
 
 @functools.cache
-def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
+def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
     """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
     the Gram-matrix half-bandwidth ``bandwidth`` compiled in: lane loops over the band unroll, the
     row being factored and the last ``bandwidth`` unknowns of a triangular sweep sit in registers,
     and each sweep loads the next row while it works on the current one. ``max_registers`` caps
-    the registers per CUDA thread (``__maxnreg__``; None: the compiler's choice).
+    the registers per CUDA thread (``__maxnreg__``; None: the compiler's choice). ``bar_window``
+    keeps the bar vectors of the last ``bandwidth`` + 1 rows in registers while the Gram matrix is
+    assembled (None: for fp32 only; fp64 spills them at 64 registers).
 
     The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
     except the diagonal slot, which holds 1/L[k, k]."""
@@ -255,6 +252,8 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
     LD = BW + 1
     rowvec = wp.types.vector(LD, real)
     winvec = wp.types.vector(max(BW, 1), real)
+    if bar_window is None:
+        bar_window = real == wp.float32
     kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
 
     @wp.func
@@ -281,15 +280,40 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
         return c
 
     @wp.func
-    def assemble_factor(
+    def factor_store_row(band: wp.array3d(dtype=real), r: rowvec, k: int, w: int):
+        """Factor assembled row k of A against the rows above (A = L L^T) and store it. Returns
+        False if the pivot is not positive (singular constraints)."""
+        for dd in range(BW):
+            d = BW - dd  # l = k - d ascending
+            l = k - d
+            if l >= 0:
+                s = r[d]
+                for e in range(d + 1, LD):
+                    s -= r[e] * band[l, e - d, w]
+                r[d] = s * band[l, 0, w]
+        s = r[0]
+        for e in range(1, LD):
+            s -= r[e] * r[e]
+        ok = bool(True)
+        if s > real(0.0):
+            r[0] = real(1.0) / wp.sqrt(s)
+        else:
+            r[0] = real(1.0)
+            ok = False
+        for e in range(LD):
+            band[k, e, w] = r[e]
+        return ok
+
+    @wp.func
+    def assemble_factor_reload(
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
         con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
         cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
         minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
         u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
     ):
-        """Assemble row k of A = G M^-1 G^T at u in registers, factor it against the rows above
-        (A = L L^T) and store it. Returns False if a pivot is not positive (singular constraints)."""
+        """Assemble each row k of A = G M^-1 G^T at u in registers (bar vectors of the coupled rows
+        reloaded from u), factor it and store it. Returns False on a non-positive pivot."""
         nc = con_i.shape[0]
         wa = w % con_active.shape[1]  # column w's index into per-column parameters (hoisted)
         ws = w % minv_self.shape[1]
@@ -312,25 +336,58 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None):
                                 r[e] += val
             else:
                 r[0] = real(1.0)
-            for dd in range(BW):
-                d = BW - dd  # l = k - d ascending
-                l = k - d
-                if l >= 0:
-                    s = r[d]
-                    for e in range(d + 1, LD):
-                        s -= r[e] * band[l, e - d, w]
-                    r[d] = s * band[l, 0, w]
-            s = r[0]
-            for e in range(1, LD):
-                s -= r[e] * r[e]
-            if s > real(0.0):
-                r[0] = real(1.0) / wp.sqrt(s)
+            if not factor_store_row(band, r, k, w):
+                ok = False
+        return ok
+
+    @wp.func
+    def assemble_factor_window(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
+    ):
+        """As assemble_factor_reload, with the bar vectors of rows k-BW..k kept in registers (zero
+        for an inactive row): each is loaded once instead of once per coupling term."""
+        nc = con_i.shape[0]
+        wa = w % con_active.shape[1]
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
+        bx = rowvec()  # bx[e], by[e], bz[e]: bar vector of row k - e
+        by = rowvec()
+        bz = rowvec()
+        ok = bool(True)
+        for k in range(nc):
+            for e in range(BW):
+                bx[BW - e] = bx[BW - 1 - e]
+                by[BW - e] = by[BW - 1 - e]
+                bz[BW - e] = bz[BW - 1 - e]
+            r = rowvec()
+            bk = vec()
+            if con_active[k, wa] > real(0.0):
+                bk = member_vec(con_dref, con_i, con_j, u, k, w)
+            bx[0] = bk[0]
+            by[0] = bk[1]
+            bz[0] = bk[2]
+            if con_active[k, wa] > real(0.0):
+                for t in range(cpl_start[k], cpl_start[k + 1]):
+                    na = cpl_a[t]
+                    m = minv_self[na, ws]
+                    if cpl_cross[t] != 0:
+                        m = minv_cross[na, wx]
+                    sm = cpl_sign[t] * m
+                    d = k - cpl_l[t]
+                    for e in range(LD):
+                        if d == e:
+                            r[e] += sm * (bk[0] * bx[e] + bk[1] * by[e] + bk[2] * bz[e])
             else:
                 r[0] = real(1.0)
+            if not factor_store_row(band, r, k, w):
                 ok = False
-            for e in range(LD):
-                band[k, e, w] = r[e]
         return ok
+
+    assemble_factor = assemble_factor_window if bar_window else assemble_factor_reload
 
     @wp.func
     def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), w: int):

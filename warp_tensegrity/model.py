@@ -93,6 +93,14 @@ def mass_blocks(partner: np.ndarray) -> np.ndarray:
                     dtype=np.int32).reshape(-1, 2)
 
 
+def node_incidence(start: np.ndarray, member: np.ndarray, members: np.ndarray, dref: np.ndarray):
+    """For each CSR entry t of node n: the member's other end, and its reference vector from n."""
+    node = np.repeat(np.arange(len(start) - 1), np.diff(start))
+    first = members[member, 0] == node
+    other = np.where(first, members[member, 1], members[member, 0]).astype(np.int32)
+    return other, np.where(first[:, None], dref[member], -dref[member])
+
+
 def node_member_csr(n_nodes: int, members: np.ndarray):
     order = np.argsort(np.concatenate([members[:, 0], members[:, 1]]), kind="stable")
     mid = np.concatenate([np.arange(len(members)), np.arange(len(members))])[order]
@@ -131,6 +139,8 @@ class Model:
     cab_L: wp.array  # (ne, Bp) rest length [m]
     node_start: wp.array  # (n+1,) CSR node -> cables
     node_member: wp.array
+    node_other: wp.array  # (2 ne,) other end of node_member's cable
+    node_dref: wp.array  # (2 ne,) vec3: reference vector from the node to node_other [m]
     ncon_start: wp.array  # (n+1,) CSR node -> rigid members
     ncon_member: wp.array
     partner: wp.array  # (n,) other end of the node's massive bar if both are free, else -1
@@ -162,6 +172,7 @@ def build_model(batch: NetworkBatch, precision: str, device) -> Model:
     L_c = np.linalg.norm(dref_c.astype(np.float64), axis=1)
     dref_e = (X[cab[:, 1]] - X[cab[:, 0]]).astype(npr)
     node_start, node_member = node_member_csr(X.shape[0], cab)
+    node_other, node_dref = node_incidence(node_start, node_member, cab, dref_e)
     ncon_start, ncon_member = node_member_csr(X.shape[0], cons.reshape(-1, 2))
     arr = lambda a, dt: wp.array(np.asarray(a), dtype=dt, device=device)  # noqa: E731
     level_nodes = h0 = None
@@ -197,6 +208,8 @@ def build_model(batch: NetworkBatch, precision: str, device) -> Model:
         cab_L=_dev2(batch.cable_rest_length, real, device),
         node_start=arr(node_start, wp.int32),
         node_member=arr(node_member, wp.int32),
+        node_other=arr(node_other, wp.int32),
+        node_dref=arr(node_dref, vec),
         ncon_start=arr(ncon_start, wp.int32),
         ncon_member=arr(ncon_member, wp.int32),
         partner=arr(partner, wp.int32),

@@ -46,6 +46,9 @@ COLUMN_BLOCK_DIM = 64  # CUDA threads per block for the one-thread-per-column ke
 # at 131,072 and 262,144 columns, -6-10 % at 65,536, where every column is in flight already).
 COLUMN_MAX_REGISTERS = 64
 COLUMN_CAP_FROM = 131072
+# Bar vectors of the last bw + 1 rows in registers while assembling the Gram matrix
+# (kernels.make_solver_kernels): None = fp32 only (fp64 would spill them under the cap).
+COLUMN_BAR_WINDOW = None
 FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one warp)
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
 # fused='auto' on a GPU: above this many columns the staged kernels stream faster (H200: the fused
@@ -116,7 +119,7 @@ class Integrator:
             self.real = real
             self.k = make_kernels(real)
             regs = COLUMN_MAX_REGISTERS if self.device.is_cuda and batch.n_columns >= COLUMN_CAP_FROM else None
-            self.ks = make_solver_kernels(real, self.model.bandwidth, regs)
+            self.ks = make_solver_kernels(real, self.model.bandwidth, regs, COLUMN_BAR_WINDOW)
             m = self.model
             B = m.n_columns
             self.strain = None
@@ -148,7 +151,7 @@ class Integrator:
     def _gather(self, u, v, kick, a, v_out):
         m, d = self.model, self.data
         self._launch(self.k.gather_accel, (m.mass_blocks.shape[0], m.n_columns), [
-            m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L, m.node_start, m.node_member,
+            m.cab_EA, m.cab_EAc, m.cab_L, m.node_start, m.node_member, m.node_other, m.node_dref,
             m.mass_blocks, m.minv_self, m.minv_cross, d.status, u, v, self.real(kick), a, v_out])
 
     def _kick_drift(self, kick, drift):
