@@ -23,10 +23,13 @@ PAPER_CASES = {
 
 
 def git_commit() -> str:
+    """GIT_COMMIT if set (a copied working tree may carry a stale .git), else git rev-parse HEAD."""
+    if os.environ.get("GIT_COMMIT"):
+        return os.environ["GIT_COMMIT"]
     try:
         return subprocess.check_output(["git", "rev-parse", "HEAD"], text=True, stderr=subprocess.DEVNULL).strip()
     except Exception:
-        return os.environ.get("GIT_COMMIT", "unknown")
+        return "unknown"
 
 
 def run(device, precision, method, t_end, out):
