@@ -119,6 +119,24 @@ def device_kind(name: str) -> str:
     return "other"
 
 
+def device_tag(device: str) -> str:
+    """A device name fit for a file name: 'cuda:0' -> 'cuda0'."""
+    return device.replace(":", "")
+
+
+def save_study(ds, root: Path, stem: str, tag: str, plot, summary) -> Path:
+    """Write a study's dataset to root/data/<stem>_<tag>.nc, draw its figures under root/figures
+    with ``plot(ds, fig_dir, tag)``, and print the paths and ``summary(ds)``."""
+    (root / "data").mkdir(parents=True, exist_ok=True)
+    path = root / "data" / f"{stem}_{tag}.nc"
+    ds.to_netcdf(path, engine="netcdf4")
+    print(path)
+    for p in plot(ds, root / "figures", tag):
+        print(p)
+    print(summary(ds))
+    return path
+
+
 def write_json(path: str | Path, obj) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .common import device_tag, save_study
+
 METHODS = ("rattle", "rk4", "yoshida4", "symplectic_euler")
 COLORS = {"rattle": "C0", "rk4": "C1", "yoshida4": "C2", "symplectic_euler": "C3"}
 N_PRISMS = 6
@@ -68,10 +70,6 @@ ENERGY_RUNS = tuple((m, "fp64") for m in METHODS) + (("rattle", "fp32"),)
 
 def log(msg: str):
     print(f"[stability {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
-
-
-def device_tag(device: str) -> str:
-    return device.replace(":", "")
 
 
 def stability_cases():
@@ -528,14 +526,7 @@ def main(argv=None):
         a.device = "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
     root = Path(a.out)
     ds = run_benchmark(a.device, a.quick)
-    tag = device_tag(a.device) + ("_quick" if a.quick else "")
-    (root / "data").mkdir(parents=True, exist_ok=True)
-    path = root / "data" / f"stab_{tag}.nc"
-    ds.to_netcdf(path, engine="netcdf4")
-    print(path)
-    for p in plot(ds, root / "figures", tag):
-        print(p)
-    print(summary(ds))
+    save_study(ds, root, "stab", device_tag(a.device) + ("_quick" if a.quick else ""), plot, summary)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .common import device_tag, save_study
+
 METHODS = ("rattle", "rk4", "yoshida4", "symplectic_euler")
 PRECISIONS = ("fp64", "fp32")
 # name, prestrain, v0 [m/s], base_rigidity: the paper's FB/RB columns, weak impact at p = 0
@@ -70,10 +72,6 @@ MEASURE_LABEL = {
     "bar": "max bar-length error |l-L|/L",
 }
 COLORS = {"rattle": "C0", "rk4": "C1", "yoshida4": "C2", "symplectic_euler": "C3"}
-
-
-def device_tag(device: str) -> str:
-    return device.replace(":", "")
 
 
 def log(msg: str):
@@ -574,14 +572,7 @@ def main(argv=None):
         print(f"{ref_path} ({time.perf_counter() - t0:.1f} s)")
         return
     ds = run_benchmark(a.device, a.quick, replicas, a.ref_device, ref_path)
-    tag = device_tag(a.device) + ("_quick" if a.quick else "")
-    (root / "data").mkdir(parents=True, exist_ok=True)
-    path = root / "data" / f"wp_{tag}.nc"
-    ds.to_netcdf(path, engine="netcdf4")
-    print(path)
-    for p in plot(ds, root / "figures", tag):
-        print(p)
-    print(summary(ds))
+    save_study(ds, root, "wp", device_tag(a.device) + ("_quick" if a.quick else ""), plot, summary)
 
 
 if __name__ == "__main__":
