@@ -49,6 +49,8 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
     if dry_run:
         p.add_argument("--dry-run", action="store_true",
                        help="print the number of columns and shards and the estimated memory and time; run nothing")
+    p.add_argument("--memory-limit", default=None, metavar="SIZE",
+                   help="host memory for the shards in flight, e.g. 512MB (lowers the shard size to fit)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--verbose", action="store_true", help="let Warp print its start-up and module-load messages")
 
@@ -63,10 +65,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     p = sub.add_parser("run", help="run a sweep spec into a netCDF file",
-                       description="Run SPEC: shards go to OUT.shards/, then combine into OUT.")
+                       description="Run SPEC: shards stream into the Zarr store OUT.sweep/ as they finish; "
+                                   "OUT is exported from it (netCDF).")
     p.add_argument("spec", metavar="SPEC", help="sweep spec (TOML)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="combined netCDF output")
-    p.add_argument("--overwrite", action="store_true", help="discard an earlier run's shards and output")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="netCDF output (the store goes to OUT.nc.sweep/)")
+    p.add_argument("--overwrite", action="store_true", help="discard an earlier run's store and output")
     _add_exec_options(p)
 
     p = sub.add_parser("resume", help="finish an interrupted run",
@@ -80,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("output", metavar="OUT.nc")
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
-    p = sub.add_parser("combine", help="combine the shards of a run into OUT.nc")
+    p = sub.add_parser("combine", help="export a finished run's store to OUT.nc again")
     p.add_argument("output", metavar="OUT.nc")
     return parser
 
@@ -162,6 +165,7 @@ def _dispatch(args) -> int:
                 if args.output and Path(args.output) != out:
                     raise sweep.SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
+        plan = sweep.apply_memory_limit(plan, args.memory_limit)
         if args.dry_run:
             print(sweep.dry_run(plan))
             if args.command == "resume" and plan.shard_dir.exists():

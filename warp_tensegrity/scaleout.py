@@ -1,8 +1,9 @@
 """Scale a sweep out with Dask distributed: shards are tasks, one worker per GPU (or N CPU workers).
 
-Each task runs one shard on its worker and writes the shard file atomically (a temporary file in
-the shard directory, then os.replace), returning the path; the client combines the shard files
-with xarray exactly as a single-process run does, so both give the same dataset.
+Each task runs one shard on its worker and writes its region of the sweep's Zarr store (one chunk
+per shard along ``case``, so no two tasks touch one file), returning the shard's checksums; only the
+client records a shard as done in the manifest, exactly as a single-process run does, so both give
+the same dataset.
 
 * ``n_workers=N``: a LocalCluster of N single-threaded worker processes. With device None
   (auto) and GPUs present, worker k uses ``cuda:(k % n_gpus)``; with ``device="cpu"`` all
@@ -13,8 +14,6 @@ with xarray exactly as a single-process run does, so both give the same dataset.
 """
 
 from __future__ import annotations
-
-from pathlib import Path
 
 _WORKER_DEVICE_KEY = "warp_tensegrity_device"
 
@@ -41,8 +40,8 @@ def _quiet_warp() -> None:
 
 
 def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
-    """Runs on a worker: compute shard ``index``, write it atomically, return (index, path, n_failed)."""
-    from . import sweep
+    """Runs on a worker: compute shard ``index``, write its region of the store, return (index, record)."""
+    from . import zstore
     from .spec import code_version
 
     if quiet:
@@ -62,11 +61,7 @@ def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
             device = device_map.get(get_worker().address)
         except Exception:
             device = None
-    path = sweep.run_shard(plan, index, device=device)
-    st = sweep.check_shard(plan, index)
-    if st.state != "done":
-        raise RuntimeError(f"shard {index} written to {path} does not check out: {st.reason}")
-    return index, str(path), st.n_failed
+    return index, zstore.compute_and_write(plan, index, device=device)
 
 
 def _device_map(client, device: str | None) -> dict:
@@ -90,8 +85,9 @@ def local_cluster(n_workers: int, **kwargs):
 
 
 def run_shards_dask(plan, indices, *, n_workers: int | None = None, scheduler: str | None = None, client=None,
-                    bar=None) -> list[Path]:
-    """Run shards ``indices`` of ``plan`` as Dask tasks; returns the shard paths (in ``indices`` order)."""
+                    on_result=None) -> dict:
+    """Run shards ``indices`` of ``plan`` as Dask tasks; ``on_result(index, record)`` on the client as
+    each finishes (in completion order); returns {index: record}."""
     from distributed import Client, as_completed
 
     cluster = None
@@ -115,18 +111,13 @@ def run_shards_dask(plan, indices, *, n_workers: int | None = None, scheduler: s
             dmap = None
         futures = client.map(_shard_task, [plan] * len(indices), list(indices), [dmap] * len(indices),
                              pure=False, retries=0)
-        paths = {}
-        done_cols = bar.done if bar is not None else 0
-        failed = bar.diverged if bar is not None else 0
+        records = {}
         for fut in as_completed(futures):
-            index, path, n_failed = fut.result()
-            a, b = plan.shards[index]
-            paths[index] = Path(path)
-            done_cols += b - a
-            failed += n_failed
-            if bar is not None:
-                bar.update(done_cols, failed, force=True)
-        return [paths[i] for i in indices]
+            index, record = fut.result()
+            records[index] = record
+            if on_result is not None:
+                on_result(index, record)
+        return records
     finally:
         if own_client:
             client.close()

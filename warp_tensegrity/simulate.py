@@ -446,7 +446,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
     )
 
 
-def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, progress=None) -> BatchResult:
+def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, progress=None,
+                   prisms_simulated: int | None = None) -> BatchResult:
     """Simulate B T3 columns of one topology, each with its own parameters.
 
     ``params`` maps names in :data:`~warp_tensegrity.settings.COLUMN_PARAMETERS` to arrays of
@@ -454,10 +455,11 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     ``progress(steps_done, n_steps, n_failed)`` is called about twice a second.
     With ``settings.accuracy`` the method, precision and dt are chosen from it; with
     ``settings.truncate`` only the prisms a wave can reach within t_end are simulated. Both are
-    reported in ``result.info['choices']``.
+    reported in ``result.info['choices']``. ``prisms_simulated`` fixes that count instead (a sweep
+    decides it once for all its columns, so no shard depends on which columns it holds).
     """
     n = config.n_prisms
-    n_sim = prisms_to_simulate(config, params, settings)
+    n_sim = prisms_to_simulate(config, params, settings) if prisms_simulated is None else int(prisms_simulated)
     settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
     sim_config = _far_end(config, n_sim) if n_sim < n else config
     batch = column_batch(sim_config, params)

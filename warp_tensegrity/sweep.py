@@ -1,24 +1,18 @@
 """Run a sweep spec: plan the shards, run each shard through the engine, measure every column,
-write one netCDF file per shard atomically, combine them into the sweep's dataset.
+stream each finished shard into the sweep's Zarr store, export netCDF (see :mod:`.zstore`).
 
-Files for ``OUT.nc``::
+Files for ``OUT.nc``: ``OUT.nc.sweep/`` (store.zarr, manifest.json with per-shard checksums,
+spec.toml), ``.OUT.nc.lock`` while a run writes, and the netCDF export ``OUT.nc``.
 
-    OUT.nc.shards/manifest.json     what the shards belong to (fingerprint, shard size, device)
-    OUT.nc.shards/spec.toml         the spec text (so ``resume OUT.nc`` needs nothing else)
-    OUT.nc.shards/shard-00000.nc    columns [0, shard_size), ...
-    OUT.nc                          the combined dataset
-
-A shard is reused only when it opens cleanly, covers the same columns, carries the same
-fingerprint (canonical spec + code version) and was made with the same Warp version;
-every other shard is recomputed. The engine is called only through :func:`simulate_batch`.
+A shard is reused only when the manifest records it, its data match their checksums, and the
+store was made for the same fingerprint (canonical spec + code version), shard size and Warp
+version; every other shard is recomputed. The engine is called only through :func:`simulate_batch`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -30,8 +24,6 @@ from . import dataset as D
 from .settings import RunSettings
 from .spec import SpecError, SweepSpec, code_version, load_spec
 
-MANIFEST = "manifest.json"
-SPEC_COPY = "spec.toml"
 
 
 class SweepError(RuntimeError):
@@ -39,11 +31,11 @@ class SweepError(RuntimeError):
 
 
 # ---------------------------------------------------------------------- engine entry points
-def simulate_batch(config, params, settings, progress=None):
+def simulate_batch(config, params, settings, progress=None, prisms_simulated=None):
     """The one place the engine runs (tests monkeypatch this)."""
     from .simulate import simulate_batch as engine
 
-    return engine(config, params, settings, progress=progress)
+    return engine(config, params, settings, progress=progress, prisms_simulated=prisms_simulated)
 
 
 def estimate_batch(config, params, settings) -> dict:
@@ -61,12 +53,10 @@ def measure_pulse(strain, time, prism_height, threshold=None) -> dict:
 
 # ---------------------------------------------------------------------- planning
 def shard_dir_for(out) -> Path:
-    out = Path(out)
-    return out.with_name(out.name + ".shards")
+    """The run's work directory (store, manifest, spec copy)."""
+    from .zstore import work_dir_for
 
-
-def shard_name(index: int) -> str:
-    return f"shard-{index:05d}.nc"
+    return work_dir_for(out)
 
 
 @dataclass
@@ -87,6 +77,8 @@ class SweepPlan:
     settings: RunSettings | None = None
     """Engine settings with dt resolved once for the whole sweep (None until estimated)."""
     estimate: dict = field(default_factory=dict)
+    prisms_simulated: int | None = None
+    """Prisms every shard simulates (settings.truncate: decided once from all the sweep's columns)."""
 
     @property
     def n_shards(self) -> int:
@@ -99,9 +91,6 @@ class SweepPlan:
     @property
     def shard_dir(self) -> Path:
         return shard_dir_for(self.out)
-
-    def shard_path(self, index: int) -> Path:
-        return self.shard_dir / shard_name(index)
 
     @property
     def dt(self) -> float:
@@ -151,6 +140,9 @@ def resolve_dt(plan: SweepPlan) -> SweepPlan:
     spec.check_dt(float(est["dt_limit"]))
     dt = float(est["dt"]) if isinstance(spec.run["dt"], str) else float(spec.run["dt"])
     plan.settings = spec.run_settings(device=plan.device, dt=dt)
+    from .simulate import prisms_to_simulate
+
+    plan.prisms_simulated = prisms_to_simulate(spec.scene, plan.params, plan.settings)
     return plan
 
 
@@ -184,7 +176,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
     settings = plan.settings if device is None else dataclasses.replace(plan.settings, device=device)
-    result = simulate_batch(spec.scene, params, settings, progress=progress)
+    result = simulate_batch(spec.scene, params, settings, progress=progress, prisms_simulated=plan.prisms_simulated)
     meas = measure_columns(result, spec.scene.height)
     attrs = {
         "Conventions": D.CONVENTIONS,
@@ -214,94 +206,10 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     return D.shard_dataset(spec, plan.params, start, stop, result, meas, attrs)
 
 
-def run_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None) -> Path:
-    """Compute shard ``index`` and write it atomically; returns its path."""
-    ds = compute_shard(plan, index, device=device, progress=progress)
-    return D.write_netcdf(ds, plan.shard_path(index))
-
-
-# ---------------------------------------------------------------------- shard bookkeeping
-@dataclass
-class ShardState:
-    index: int
-    path: Path
-    state: str
-    """'done', 'missing', 'stale' (other spec/code/range) or 'corrupt' (does not open)."""
-    reason: str = ""
-    n_failed: int = 0
-    n_columns: int = 0
-
-
-def check_shard(plan: SweepPlan, index: int) -> ShardState:
-    path = plan.shard_path(index)
-    start, stop = plan.shards[index]
-    if not path.exists():
-        return ShardState(index, path, "missing", n_columns=stop - start)
-    try:
-        ds = D.open_sweep(path, load=True)
-    except Exception as e:  # truncated or not netCDF at all
-        return ShardState(index, path, "corrupt", f"{type(e).__name__}: {e}", n_columns=stop - start)
-    a = ds.attrs
-    reason = ""
-    if a.get("fingerprint") != plan.fingerprint:
-        reason = "fingerprint differs (spec or code changed)"
-    elif (int(a.get("case_start", -1)), int(a.get("case_stop", -1))) != (start, stop):
-        reason = f"covers columns {a.get('case_start')}:{a.get('case_stop')}, expected {start}:{stop}"
-    elif a.get("warp_version") != D.warp_version():
-        reason = f"made with Warp {a.get('warp_version')}, this is Warp {D.warp_version()}"
-    elif ds.sizes.get("case") != stop - start or "status" not in ds:
-        reason = "incomplete contents"
-    if reason:
-        return ShardState(index, path, "stale", reason, n_columns=stop - start)
-    return ShardState(index, path, "done", n_failed=int((ds["status"].values != 0).sum()), n_columns=stop - start)
-
-
-def _clean_tmp(shard_dir: Path) -> None:
-    for p in shard_dir.glob(".*.tmp"):
-        try:
-            p.unlink()
-        except OSError:
-            pass
-
-
-def _write_manifest(plan: SweepPlan) -> None:
-    d = plan.shard_dir
-    d.mkdir(parents=True, exist_ok=True)
-    (d / f".{SPEC_COPY}.tmp").write_text(plan.spec.text)
-    os.replace(d / f".{SPEC_COPY}.tmp", d / SPEC_COPY)
-    manifest = {
-        "spec_file": str(plan.spec.source) if plan.spec.source else None,
-        "spec_sha256": plan.spec.text_sha256,
-        "fingerprint": plan.fingerprint,
-        "code_version": plan.code_version,
-        "n_columns": plan.n_columns,
-        "shard_size": plan.shard_size,
-        "n_shards": plan.n_shards,
-        "device": plan.device,
-        "output": plan.out.name,
-    }
-    tmp = d / f".{MANIFEST}.tmp"
-    tmp.write_text(json.dumps(manifest, indent=2) + "\n")
-    os.replace(tmp, d / MANIFEST)
-
-
-def read_manifest(out) -> dict:
-    d = shard_dir_for(out)
-    if not d.is_dir():
-        raise SweepError(f"no run found for {out}: {d}/ does not exist (start one with `warp-tensegrity run SPEC -o {out}`)")
-    try:
-        manifest = json.loads((d / MANIFEST).read_text())
-        text = (d / SPEC_COPY).read_text()
-    except (OSError, ValueError) as e:
-        raise SweepError(
-            f"{d} has no readable {MANIFEST}/{SPEC_COPY} ({e}); give the spec: resume SPEC -o {out}"
-        ) from None
-    manifest["spec_text"] = text
-    return manifest
-
-
 def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True) -> SweepPlan:
-    m = read_manifest(out)
+    from .zstore import read_run
+
+    m = read_run(out)
     spec = load_spec(m["spec_text"])
     if m.get("spec_file"):
         spec.source = m["spec_file"]
@@ -383,92 +291,42 @@ class ProgressBar:
 
 
 # ---------------------------------------------------------------------- whole sweeps
-def _prepare_dir(plan: SweepPlan, overwrite: bool, resume: bool) -> None:
-    d = plan.shard_dir
-    if d.exists() and not resume:
-        existing = sorted(d.glob("shard-*.nc"))
-        if existing or (d / MANIFEST).exists():
-            if not overwrite:
-                raise SweepError(
-                    f"{d} already holds a run ({len(existing)} shard files); continue it with "
-                    f"`warp-tensegrity resume {plan.out}` or start over with --overwrite"
-                )
-            for p in existing + [d / MANIFEST, d / SPEC_COPY]:
-                if p.exists():
-                    p.unlink()
-    if not resume and plan.out.exists():
-        if not overwrite:
-            raise SweepError(f"{plan.out} exists; give another output, or --overwrite to replace it")
-        plan.out.unlink()
-    d.mkdir(parents=True, exist_ok=True)
-    _clean_tmp(d)
-    _write_manifest(plan)
+def execute(plan: SweepPlan, *, resume: bool = False, overwrite: bool = False, progress: bool = True,
+            dask_workers: int | None = None, scheduler: str | None = None, client=None, stream=None,
+            combine_output: bool = True) -> Path | None:
+    """Run (or resume) every shard of ``plan`` that is not done, streaming into the store; export plan.out."""
+    from . import zstore
+
+    return zstore.execute(plan, resume=resume, overwrite=overwrite, progress=progress, dask_workers=dask_workers,
+                          scheduler=scheduler, client=client, stream=stream, export=combine_output)
 
 
-def execute(
-    plan: SweepPlan,
-    *,
-    resume: bool = False,
-    overwrite: bool = False,
-    progress: bool = True,
-    dask_workers: int | None = None,
-    scheduler: str | None = None,
-    client=None,
-    stream=None,
-    combine_output: bool = True,
-) -> Path | None:
-    """Run (or resume) every shard of ``plan`` that is not done, then combine into plan.out."""
-    if plan.out is None:
-        raise SweepError("no output path")
-    if plan.settings is None:
-        resolve_dt(plan)
-    _prepare_dir(plan, overwrite=overwrite, resume=resume)
-    states = [check_shard(plan, i) for i in range(plan.n_shards)] if resume else [
-        ShardState(i, plan.shard_path(i), "missing", n_columns=b - a) for i, (a, b) in enumerate(plan.shards)
-    ]
-    todo = [s.index for s in states if s.state != "done"]
-    done_cols = sum(s.n_columns for s in states if s.state == "done")
-    done_failed = sum(s.n_failed for s in states if s.state == "done")
-    bar = ProgressBar(plan.n_columns, done_cols, done_failed, stream=stream, enabled=progress)
-    if todo:
-        if dask_workers or scheduler or client is not None:
-            from .scaleout import run_shards_dask
+def apply_memory_limit(plan: SweepPlan, memory_limit) -> SweepPlan:
+    """Shrink the shard size so the shards alive on the host fit in ``memory_limit`` (bytes or '64MB')."""
+    if memory_limit is None:
+        return plan
+    from .zstore import limit_shard_size, parse_bytes
 
-            run_shards_dask(plan, todo, n_workers=dask_workers, scheduler=scheduler, client=client, bar=bar)
-        else:
-            for i in todo:
-                a, b = plan.shards[i]
-
-                def cb(steps_done, n_steps, n_failed, _a=a, _b=b):
-                    frac = steps_done / n_steps if n_steps else 1.0
-                    bar.update(done_cols + (_b - _a) * frac, done_failed + n_failed)
-
-                path = run_shard(plan, i, progress=cb)
-                st = check_shard(plan, i)
-                if st.state != "done":
-                    raise SweepError(f"shard {i} was written to {path} but does not check out: {st.reason}")
-                done_cols += b - a
-                done_failed += st.n_failed
-                bar.update(done_cols, done_failed, force=True)
-    bar.close()
-    if combine_output:
-        return combine(plan)
-    return None
+    n = limit_shard_size(plan, parse_bytes(memory_limit) if isinstance(memory_limit, str) else int(memory_limit))
+    if n != plan.shard_size:
+        plan.shard_size = n
+        plan.shards = plan.spec.shards(n)
+    return plan
 
 
 def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=True,
-              dask_workers=None, scheduler=None, client=None, stream=None) -> Path:
-    """Run a spec (SweepSpec, path or TOML text) into ``out`` (netCDF)."""
+              dask_workers=None, scheduler=None, client=None, stream=None, memory_limit=None) -> Path:
+    """Run a spec (SweepSpec, path or TOML text) into ``out`` (netCDF, exported from ``out.sweep/``)."""
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
-    plan = plan_sweep(spec, out, device=device, shard_size=shard_size)
+    plan = apply_memory_limit(plan_sweep(spec, out, device=device, shard_size=shard_size), memory_limit)
     return execute(plan, resume=resume, overwrite=overwrite, progress=progress, dask_workers=dask_workers,
                    scheduler=scheduler, client=client, stream=stream)
 
 
 def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=True, dask_workers=None,
                  scheduler=None, client=None, stream=None) -> Path:
-    """Finish an interrupted run: reuse the shards that check out, recompute the others, combine."""
+    """Finish an interrupted run: reuse the shards that check out, recompute the others, export."""
     if spec is None:
         plan = load_plan_from_manifest(out, device=device, shard_size=shard_size)
     else:
@@ -480,85 +338,23 @@ def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=True,
 
 
 def combine(plan_or_out, spec=None) -> Path:
-    """Combine every shard into plan.out (atomically). Refuses while shards are missing or stale."""
-    plan = plan_or_out if isinstance(plan_or_out, SweepPlan) else None
-    if plan is None:
-        if spec is None:
-            plan = load_plan_from_manifest(plan_or_out, estimate=False)
-        else:
-            plan = plan_sweep(spec if isinstance(spec, SweepSpec) else load_spec(spec), plan_or_out, estimate=False)
-    bad = [s for s in (check_shard(plan, i) for i in range(plan.n_shards)) if s.state != "done"]
-    if bad:
-        listing = ", ".join(f"{s.index} ({s.state}{': ' + s.reason if s.reason else ''})" for s in bad[:8])
-        more = f" and {len(bad) - 8} more" if len(bad) > 8 else ""
-        raise SweepError(
-            f"{len(bad)} of {plan.n_shards} shards are not done: {listing}{more}; "
-            f"run `warp-tensegrity resume {plan.out}`"
-        )
-    shards = [D.open_sweep(plan.shard_path(i)) for i in range(plan.n_shards)]
-    ds = D.combine_shards(plan.spec, shards)
-    return D.write_netcdf(ds, plan.out)
+    """(Re-)export the finished store of a run to its netCDF output. Refuses while shards are not done."""
+    from .zstore import export
+
+    if isinstance(plan_or_out, SweepPlan):
+        return export(plan_or_out.out, plan_or_out)
+    return export(plan_or_out, spec if spec is None or isinstance(spec, SweepSpec) else load_spec(spec))
 
 
 def sweep_status(out, spec=None) -> dict:
-    """Cases done, diverged and remaining, per shard state."""
-    if spec is None and not shard_dir_for(out).exists() and Path(out).exists():
-        return _status_from_output(out)
+    """Cases done, diverged and remaining, per shard state (shards verified against their checksums)."""
+    from .zstore import status
+
     if spec is None:
-        plan = load_plan_from_manifest(out, estimate=False)
+        plan = load_plan_from_manifest(out, estimate=True)
     else:
-        plan = plan_sweep(spec if isinstance(spec, SweepSpec) else load_spec(spec), out, estimate=False)
-    states = [check_shard(plan, i) for i in range(plan.n_shards)]
-    done = [s for s in states if s.state == "done"]
-    out = Path(out)
-    combined = False
-    if out.exists():
-        try:
-            with D.open_sweep(out, load=False) as ds:
-                combined = ds.attrs.get("fingerprint") == plan.fingerprint
-        except Exception:
-            combined = False
-    return {
-        "output": str(out),
-        "spec": plan.spec.source,
-        "columns": plan.n_columns,
-        "shards": plan.n_shards,
-        "shard_size": plan.shard_size,
-        "shards_done": len(done),
-        "cases_done": sum(s.n_columns for s in done),
-        "cases_diverged": sum(s.n_failed for s in done),
-        "cases_remaining": plan.n_columns - sum(s.n_columns for s in done),
-        "shards_missing": [s.index for s in states if s.state == "missing"],
-        "shards_stale": [(s.index, s.reason) for s in states if s.state == "stale"],
-        "shards_corrupt": [(s.index, s.reason) for s in states if s.state == "corrupt"],
-        "combined": combined,
-        "fingerprint": plan.fingerprint,
-    }
-
-
-def _status_from_output(out) -> dict:
-    """Status of a combined output whose shard directory is gone."""
-    try:
-        ds = D.open_sweep(out)
-    except Exception as e:
-        raise SweepError(f"{out} does not open ({type(e).__name__}: {e}) and has no shard directory") from None
-    n = int(ds.attrs.get("n_columns", ds["status"].size))
-    return {
-        "output": str(out),
-        "spec": ds.attrs.get("spec_file"),
-        "columns": n,
-        "shards": 0,
-        "shard_size": 0,
-        "shards_done": 0,
-        "cases_done": n,
-        "cases_diverged": int((ds["status"].values != 0).sum()),
-        "cases_remaining": 0,
-        "shards_missing": [],
-        "shards_stale": [],
-        "shards_corrupt": [],
-        "combined": True,
-        "fingerprint": ds.attrs.get("fingerprint"),
-    }
+        plan = plan_sweep(spec if isinstance(spec, SweepSpec) else load_spec(spec), out)
+    return status(plan)
 
 
 def dry_run(plan: SweepPlan) -> str:

@@ -1,0 +1,412 @@
+"""The streaming store (issues 14 and 18): shards stream into one Zarr store, atomically and with
+checksums; bounded host memory; pipelined writes; kill-and-resume at random points; corrupted
+data recomputed; locks and --overwrite; bit-identical results run to run and across shard sizes."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import resource
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from warp_tensegrity import cli, sweep, zstore
+from warp_tensegrity.dataset import drop_run_dependent
+from warp_tensegrity.dataset import open_sweep as open_nc
+
+REPO = Path(__file__).resolve().parents[1]
+
+GRID_SPEC = """
+title = "store test grid"
+[scene]
+n_prisms = 6
+
+[sweep]
+grid = { prestrain = [0.0, 0.002], v0 = [0.003, 0.006], base_rigidity = [0.0, 1.0] }
+
+[run]
+t_end = 0.2
+output_interval = 0.005
+device = "cpu"
+shard_size = 3
+record_strain = true
+"""
+
+CASES_SPEC = """
+title = "store test cases"
+[scene]
+n_prisms = 5
+
+[sweep]
+cases = [
+  { label = "FB soft", prestrain = 0.0,   v0 = 0.004, base_rigidity = 0.0 },
+  { label = "RB",      prestrain = 0.002, v0 = 0.008, base_rigidity = 1.0 },
+  { label = "mid",     prestrain = 0.001, v0 = 0.006, base_rigidity = 0.5 },
+]
+
+[run]
+t_end = 0.1
+output_interval = 0.01
+device = "cpu"
+shard_size = 2
+record_strain = true
+"""
+
+
+def write(d: Path, text: str, name: str = "spec.toml") -> Path:
+    p = d / name
+    p.write_text(text)
+    return p
+
+
+def run_cli(*args) -> int:
+    extra = ["--no-progress"] if args[0] in ("run", "resume") else []
+    return cli.main([*map(str, args), *extra])
+
+
+def assert_bitwise(a: xr.Dataset, b: xr.Dataset, extra=()):
+    """Identical datasets (xarray), and every numeric array identical byte for byte (NaN payloads too)."""
+    a, b = drop_run_dependent(a, extra), drop_run_dependent(b, extra)
+    xr.testing.assert_identical(a, b)
+    for k in a.variables:
+        x, y = np.asarray(a[k].values), np.asarray(b[k].values)
+        if x.dtype.kind in "OUT":  # labels: netCDF and Zarr read strings back as different dtypes
+            assert [str(s) for s in x.ravel()] == [str(s) for s in y.ravel()], k
+        else:
+            assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), k
+
+
+def subprocess_env(**extra) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop(zstore.FAULT_ENV, None)
+    env.update(extra)
+    return env
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """One uninterrupted run of GRID_SPEC (in-process, shard size 3)."""
+    d = tmp_path_factory.mktemp("reference")
+    out = d / "ref.nc"
+    assert run_cli("run", write(d, GRID_SPEC), "-o", out) == 0
+    return open_nc(out)
+
+
+# ---------------------------------------------------------------------- layout, lazy open
+def test_store_is_chunked_per_shard_and_opens_lazily(tmp_path):
+    out = tmp_path / "cases.nc"
+    assert run_cli("run", write(tmp_path, CASES_SPEC), "-o", out) == 0
+    store = zstore.SweepStore(out)
+    manifest = json.loads(store.manifest_path.read_text())
+    assert sorted(manifest["shards"]) == ["0", "1"] and manifest["shard_size"] == 2
+    # one chunk per shard along case: shard 1 (columns 2:3) owns chunk c/1/...
+    raw = xr.open_zarr(store.zarr, consolidated=False, decode_timedelta=False)
+    assert raw["strain"].encoding["chunks"][0] == 2
+    assert (store.zarr / "strain" / "c" / "1").is_dir()
+    lazy = zstore.open_sweep(out)
+    import dask.array as da
+
+    assert isinstance(lazy["strain"].data, da.Array) and lazy["strain"].chunks[0] == (2, 1)
+    assert list(lazy["case_label"].values) == ["FB soft", "RB", "mid"]
+    exported = open_nc(out)
+    assert_bitwise(lazy.load(), exported)
+    # the shards' regions of the store tile the export
+    for i, (a, b) in enumerate([(0, 2), (2, 3)]):
+        rec = manifest["shards"][str(i)]
+        assert (rec["case_start"], rec["case_stop"]) == (a, b)
+        assert rec["sha256"]["strain"] == zstore.array_sha256(exported["strain"].values[a:b])
+    # open_sweep also takes the work directory, and a bare netCDF file (lazily)
+    assert_bitwise(zstore.open_sweep(store.dir).load(), exported)
+    nc = zstore.open_sweep(tmp_path / "cases.nc.sweep" / ".." / "cases.nc")
+    assert nc.sizes == exported.sizes
+
+
+def test_netcdf_export_is_written_chunk_by_chunk(tmp_path, monkeypatch):
+    """The export never asks the store for more than one shard's chunk of a variable at once."""
+    out = tmp_path / "g.nc"
+    assert run_cli("run", write(tmp_path, GRID_SPEC), "-o", out) == 0
+    ds = zstore.SweepStore(out).dataset()
+    biggest = max(max(int(np.prod(c)) for c in _chunk_shapes(v)) for v in ds.data_vars.values())
+    assert biggest <= 3 * 41 * 6  # a shard of strain: shard_size x time x prism
+    assert run_cli("combine", out) == 0  # re-export from the store
+
+
+def _chunk_shapes(v):
+    import itertools
+
+    return itertools.product(*v.chunks)
+
+
+# ---------------------------------------------------------------------- determinism
+def test_bit_identical_run_to_run_and_across_shard_sizes(tmp_path, reference):
+    spec = write(tmp_path, GRID_SPEC)
+    for size in (3, 1, 8):
+        out = tmp_path / f"s{size}.nc"
+        assert run_cli("run", spec, "-o", out, "--shard-size", size) == 0
+        assert json.loads(zstore.SweepStore(out).manifest_path.read_text())["n_shards"] == -(-8 // size)
+        assert_bitwise(open_nc(out), reference)
+    # run to run at one shard size: the manifest checksums agree shard by shard
+    a = json.loads(zstore.SweepStore(tmp_path / "s3.nc").manifest_path.read_text())["shards"]
+    b = json.loads(zstore.SweepStore(reference.encoding["source"]).manifest_path.read_text())["shards"]
+    assert {i: r["sha256"] for i, r in a.items()} == {i: r["sha256"] for i, r in b.items()}
+
+
+# ---------------------------------------------------------------------- pipelining
+def test_stepping_of_the_next_shard_overlaps_the_write(tmp_path, monkeypatch):
+    """The writer of shard k waits until shard k+1 has started stepping: without a writer thread
+    this would deadlock (and fail after the timeout)."""
+    started = {}
+    overlapped = []
+    real_compute, real_write = sweep.compute_shard, zstore.SweepStore.write_shard
+
+    def compute(plan, index, device=None, progress=None):
+        started.setdefault(index, threading.Event()).set()
+        return real_compute(plan, index, device=device, progress=progress)
+
+    def write_shard(self, plan, index, ds, time):
+        if index + 1 < plan.n_shards:
+            ev = started.setdefault(index + 1, threading.Event())
+            overlapped.append(ev.wait(timeout=60))
+        return real_write(self, plan, index, ds, time)
+
+    monkeypatch.setattr(sweep, "compute_shard", compute)
+    monkeypatch.setattr(zstore.SweepStore, "write_shard", write_shard)
+    out = tmp_path / "p.nc"
+    assert run_cli("run", write(tmp_path, GRID_SPEC), "-o", out) == 0
+    assert overlapped == [True, True]
+
+
+# ---------------------------------------------------------------------- output safety
+def test_existing_output_refused_without_overwrite(tmp_path, capsys):
+    spec = write(tmp_path, CASES_SPEC)
+    out = tmp_path / "o.nc"
+    assert run_cli("run", spec, "-o", out) == 0
+    assert run_cli("run", spec, "-o", out) == 1
+    err = capsys.readouterr().err
+    assert "already holds a run" in err and "--overwrite" in err and "Traceback" not in err
+    # a bare netCDF file at the output is refused too
+    other = tmp_path / "plain.nc"
+    other.write_bytes(b"not mine")
+    assert run_cli("run", spec, "-o", other) == 1
+    assert "plain.nc exists" in capsys.readouterr().err and other.read_bytes() == b"not mine"
+    assert run_cli("run", spec, "-o", out, "--overwrite") == 0
+
+
+def test_second_run_into_the_same_output_is_locked_out(tmp_path, capsys):
+    """A real concurrent run (paused mid-sweep by the fault hook) holds the lock; a second run and a
+    resume into the same output stop at once with a clear message; after the first dies, resume works."""
+    spec = write(tmp_path, GRID_SPEC)
+    out = tmp_path / "l.nc"
+    marker = tmp_path / "paused"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "warp_tensegrity", "run", str(spec), "-o", str(out), "--no-progress"],
+        env=subprocess_env(**{zstore.FAULT_ENV: "after-mark@1:pause", zstore.FAULT_FILE_ENV: str(marker)}),
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        _wait_for(marker, proc)
+        for args in (("run", spec, "-o", out, "--overwrite"), ("resume", out)):
+            assert run_cli(*args) == 1
+            err = capsys.readouterr().err
+            assert "being written by another run" in err and ".l.nc.lock" in err, err
+        assert zstore.SweepStore(out).dir.exists()  # --overwrite did not delete the running store
+    finally:
+        proc.kill()
+        proc.wait()
+        proc.stderr.close()
+    assert run_cli("resume", out) == 0  # the lock died with its holder
+    with zstore.SweepLock(out):  # held here: the CLI refuses
+        assert run_cli("combine", out) == 1
+    assert "being written by another run" in capsys.readouterr().err
+
+
+def _wait_for(marker: Path, proc, timeout=180.0):
+    deadline = time.monotonic() + timeout
+    while not marker.exists():
+        if proc.poll() is not None:
+            pytest.fail(f"run exited early (rc {proc.returncode}): {proc.stderr.read().decode()[-3000:]}")
+        if time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail("fault hook not reached")
+        time.sleep(0.01)
+
+
+# ---------------------------------------------------------------------- kill and resume
+KILL_CLASSES = {
+    "stepping": [("stepping", "many")],
+    "write": [("write-begin", "many"), ("mid-write", "many2"), ("before-mark", "many"), ("after-mark", "many")],
+    "finalise": [("finalise", 1), ("mid-export", 1), ("before-replace", 1)],
+}
+
+
+def _kill_run(args, point: str, hit: int, action: str, delay: float, tmp_path: Path):
+    """Run the CLI in a subprocess with the fault hook armed; SIGKILL it (by the hook, or by the
+    test ``delay`` seconds after the hook marked the point). Returns the exit code."""
+    marker = tmp_path / f"mark-{point}-{hit}-{time.monotonic_ns()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "warp_tensegrity", *map(str, args), "--no-progress"],
+        env=subprocess_env(**{zstore.FAULT_ENV: f"{point}@{hit}:{action}", zstore.FAULT_FILE_ENV: str(marker)}),
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        if action == "mark":
+            deadline = time.monotonic() + 180
+            while not marker.exists() and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.005)
+            time.sleep(delay)
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=180)
+        err = proc.stderr.read().decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
+    assert proc.returncode in (0, -signal.SIGKILL), err[-3000:]
+    assert "Traceback" not in err, err[-3000:]
+    return proc.returncode
+
+
+@pytest.mark.parametrize("seed", [int(os.environ.get("WT_KILL_SEED", 18))])
+def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, reference, seed):
+    """SIGKILL during stepping, mid-write and during finalise (point, arrival and delay drawn from a
+    seeded RNG; the second and third kills hit `resume` runs), then `resume`: bit-identical."""
+    rng = random.Random(seed)
+    spec = write(tmp_path, GRID_SPEC)
+    out = tmp_path / "k.nc"
+    store = zstore.SweepStore(out)
+    n_shards = 8
+    log = []
+    for k, cls in enumerate(("stepping", "write", "finalise")):
+        point, hits = rng.choice(KILL_CLASSES[cls])
+        done = len(json.loads(store.manifest_path.read_text())["shards"]) if store.manifest_path.exists() else 0
+        left = max(n_shards - done, 1)
+        hit = 1 if hits == 1 else rng.randint(1, (2 * left if hits == "many2" else left))
+        action = rng.choice(["kill", "mark"])
+        delay = rng.uniform(0.0, 0.25)
+        args = ("run", spec, "-o", out, "--shard-size", 1) if k == 0 else ("resume", out)
+        before = dict(json.loads(store.manifest_path.read_text())["shards"]) if store.manifest_path.exists() else {}
+        rc = _kill_run(args, point, hit, action, delay, tmp_path)
+        log.append((point, hit, action, round(delay, 3), rc))
+        # after any kill: shards recorded earlier are still recorded with the same checksums,
+        # an existing export is complete, and no shard is recorded whose data do not check out
+        after = json.loads(store.manifest_path.read_text())["shards"] if store.manifest_path.exists() else {}
+        assert all(after[i]["sha256"] == r["sha256"] for i, r in before.items()), log
+        if out.exists():
+            assert_bitwise(open_nc(out), reference)
+        plan = sweep.load_plan_from_manifest(out)
+        st = zstore.status(plan)
+        assert st["shards_corrupt"] == [] and st["shards_stale"] == [], (log, st)
+        assert st["shards_done"] == len(after), (log, st)
+    kept = {i: (store.zarr / "strain" / "c" / i).stat().st_mtime_ns
+            for i in json.loads(store.manifest_path.read_text())["shards"]}
+    assert run_cli("resume", out) == 0, log
+    for i, mtime in kept.items():  # shards done before the last kill were reused, not rewritten
+        assert (store.zarr / "strain" / "c" / i).stat().st_mtime_ns == mtime, (i, log)
+    assert_bitwise(open_nc(out), reference)
+    assert_bitwise(zstore.open_sweep(out).load(), reference)
+    assert not list(tmp_path.glob(".k.nc.*.tmp")) and not list(store.dir.glob(".*.tmp"))
+    assert run_cli("status", out) == 0
+
+
+def test_corrupt_truncated_chunks_and_manifest_are_detected_and_recomputed(tmp_path, reference, capsys):
+    spec = write(tmp_path, GRID_SPEC)
+    out = tmp_path / "c.nc"
+    assert run_cli("run", spec, "-o", out) == 0
+    store = zstore.SweepStore(out)
+    # shard 1: a chunk file truncated; shard 2: a chunk rewritten with other, valid-looking data
+    chunk = next((store.zarr / "strain" / "c" / "1").rglob("*"))
+    while chunk.is_dir():
+        chunk = next(chunk.iterdir())
+    chunk.write_bytes(chunk.read_bytes()[:10])
+    import zarr
+
+    g = zarr.open_group(str(store.zarr), mode="r+")
+    g["kinetic_energy"][6:8] = g["kinetic_energy"][6:8] * (1 + 1e-15) + 1e-300
+    mtime0 = next((store.zarr / "strain" / "c" / "0").rglob("*")).stat().st_mtime_ns
+    st = sweep.sweep_status(out)
+    assert [i for i, _ in st["shards_corrupt"]] == [1, 2] and st["cases_remaining"] == 5, st
+    assert run_cli("status", out) == cli.EXIT_INCOMPLETE
+    capsys.readouterr()
+    assert run_cli("combine", out) == 1  # export refuses data that do not check out ...
+    err = capsys.readouterr().err
+    assert "2 of 3 shards" in err and "resume" in err and "Traceback" not in err
+    assert run_cli("resume", out) == 0  # ... resume re-reads, recomputes 1 and 2
+    err = capsys.readouterr().err
+    assert "shard 1 is corrupt" in err and "shard 2 is corrupt" in err and "shard 0" not in err
+    assert next((store.zarr / "strain" / "c" / "0").rglob("*")).stat().st_mtime_ns == mtime0
+    assert_bitwise(open_nc(out), reference)
+
+    # a manifest with one flipped byte: detected by its own checksum; every shard is recomputed
+    text = store.manifest_path.read_text()
+    i = text.index('"n_failed": 0') + len('"n_failed": ')
+    store.manifest_path.write_text(text[:i] + "1" + text[i + 1:])
+    assert sweep.sweep_status(out)["shards_done"] == 0
+    with pytest.raises(sweep.SweepError, match="checksum"):
+        zstore.open_sweep(out.with_name("c.nc.sweep"))
+    assert run_cli("resume", out) == 0
+    assert "manifest checksum does not match" in capsys.readouterr().err
+    assert_bitwise(open_nc(out), reference)
+    # a truncated manifest likewise
+    store.manifest_path.write_text(store.manifest_path.read_text()[:50])
+    assert run_cli("resume", out) == 0
+    assert "manifest does not parse" in capsys.readouterr().err
+    assert_bitwise(open_nc(out), reference)
+
+
+# ---------------------------------------------------------------------- bounded memory
+RSS_SCRIPT = textwrap.dedent("""
+    import json, resource, sys
+    import warp as wp
+    wp.config.quiet = True
+    from warp_tensegrity import sweep, zstore
+    from warp_tensegrity.spec import load_spec
+    spec_text, out, cap = sys.argv[1], sys.argv[2], int(sys.argv[3])
+    rss = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    # warm-up: the same scene, 2 columns, through the whole path (imports, kernels, store, export)
+    warm = load_spec(spec_text, overrides={"run": {"shard_size": 1}})
+    warm.grid = {k: v[:1] for k, v in warm.grid.items()}
+    warm.grid[next(iter(warm.grid))] = list(load_spec(spec_text).grid[next(iter(warm.grid))][:2])
+    sweep.run_sweep(warm, out + ".warm.nc", progress=False)
+    base = rss()
+    plan = sweep.apply_memory_limit(sweep.plan_sweep(load_spec(spec_text), out), cap)
+    sweep.execute(plan, progress=False)
+    print(json.dumps({"baseline_rss": base, "peak_rss": rss(), "shard_size": plan.shard_size,
+                      "n_shards": plan.n_shards, "host_bytes_per_column": zstore.host_bytes_per_column(plan)}))
+""")
+
+
+def test_peak_rss_stays_under_the_memory_limit(tmp_path):
+    """A sweep whose output is > 4x the memory limit: the host memory the sweep adds to the process
+    (peak RSS minus the RSS after imports, kernel loads and a 2-column warm-up run) stays under it."""
+    cap = 16 * 2**20
+    n_v0, n_pre = 25, 40  # 1000 columns x 1001 outputs x (6 prisms + 2 energies) x 8 B = 64 MB
+    spec = GRID_SPEC.replace(
+        "grid = { prestrain = [0.0, 0.002], v0 = [0.003, 0.006], base_rigidity = [0.0, 1.0] }",
+        f"grid = {{ v0 = {[round(0.002 + 1e-4 * i, 6) for i in range(n_v0)]}, "
+        f"prestrain = {[round(5e-5 * i, 7) for i in range(n_pre)]} }}",
+    ).replace("t_end = 0.2", "t_end = 0.4").replace("output_interval = 0.005", "output_interval = 0.0004")
+    out = tmp_path / "big.nc"
+    r = subprocess.run([sys.executable, "-c", RSS_SCRIPT, spec, str(out), str(cap)], env=subprocess_env(),
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    m = json.loads(r.stdout.strip().splitlines()[-1])
+    ds = zstore.open_sweep(out)
+    output_bytes = sum(v.nbytes for v in ds.data_vars.values())
+    m.update(output_bytes=output_bytes, cap=cap, sweep_rss=m["peak_rss"] - m["baseline_rss"])
+    print(json.dumps(m))
+    assert output_bytes >= 4 * cap, m
+    assert m["n_shards"] >= 8, m
+    assert m["sweep_rss"] < cap, m
+    # children's peak as the OS saw it (the whole process, baseline included)
+    assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 >= m["peak_rss"]
+    np.testing.assert_array_equal(open_nc(out)["status"].values, 0)

@@ -1,0 +1,823 @@
+"""The streaming sweep store: shards write into one chunked Zarr store as they finish; no combine pass.
+
+Files for ``OUT.nc``::
+
+    OUT.nc.sweep/store.zarr      case-stacked Zarr store; one chunk along ``case`` per shard
+    OUT.nc.sweep/manifest.json   header (fingerprint, shard size, ...) and the done shards with
+                                 their checksums; the manifest carries its own sha256
+    OUT.nc.sweep/spec.toml       the spec text (``resume OUT.nc`` needs nothing else)
+    .OUT.nc.lock                 held while a run/resume/export writes (filelock)
+    OUT.nc                       netCDF export, written from the store chunk by chunk
+
+A shard is visible only when complete: its region of the store is written (each chunk file
+replaced atomically by Zarr's LocalStore), the chunk files fsync'd, and only then is the shard
+recorded as done, with a sha256 per variable, in the manifest (temporary file, fsync, os.replace).
+Resume re-reads every recorded shard and recomputes the ones whose checksums do not match.
+See ``docs/guarantees.md`` for what is guaranteed and how each guarantee is tested.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import queue
+import shutil
+import signal
+import sys
+import threading
+import time as _time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import xarray as xr
+
+from . import dataset as D
+from .sweep import SweepError
+
+STORE = "store.zarr"
+MANIFEST = "manifest.json"
+SPEC_COPY = "spec.toml"
+FORMAT = "warp_tensegrity-store-1"
+IN_FLIGHT = 2
+"""Shards alive on the host at once in a serial run: one stepping, one being written."""
+HOST_COPIES = 4
+"""Host bytes a shard needs while stepping and measuring, in units of its output bytes
+(engine arrays, their float64 copies, measurement temporaries); calibrated by
+tests/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
+
+FAULT_ENV = "WARP_TENSEGRITY_FAULT"
+FAULT_FILE_ENV = "WARP_TENSEGRITY_FAULT_FILE"
+FAULT_POINTS = ("stepping", "write-begin", "mid-write", "before-mark", "after-mark", "finalise", "mid-export",
+                "before-replace")
+
+
+class StoreError(SweepError):
+    """The store cannot be used as asked; the message says what to do."""
+
+
+# ---------------------------------------------------------------------- fault hook (tests)
+_fault_hits: dict = {}
+
+
+def fault(point: str) -> None:
+    """Test hook: with ``WARP_TENSEGRITY_FAULT=POINT[@HIT][:ACTION]`` the HIT-th (default 1st)
+    arrival at POINT kills this process with SIGKILL (ACTION ``kill``), or touches
+    ``$WARP_TENSEGRITY_FAULT_FILE`` and waits to be killed (``pause``) or goes on (``mark``:
+    the test then kills after a random delay). Unset: does nothing."""
+    spec = os.environ.get(FAULT_ENV)
+    if not spec:
+        return
+    name, _, action = spec.partition(":")
+    name, _, hit = name.partition("@")
+    if name != point:
+        return
+    _fault_hits[point] = _fault_hits.get(point, 0) + 1
+    if _fault_hits[point] != int(hit or 1):
+        return
+    action = action or "kill"
+    marker = os.environ.get(FAULT_FILE_ENV)
+    if marker and action in ("pause", "mark"):
+        Path(marker).write_text(point)
+    if action == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    elif action == "pause":
+        while True:
+            _time.sleep(1.0)
+
+
+# ---------------------------------------------------------------------- paths
+def work_dir_for(out) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".sweep")
+
+
+def lock_path_for(out) -> Path:
+    out = Path(out)
+    return out.with_name(f".{out.name}.lock")
+
+
+def _fsync_path(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    """Temporary file in the same directory, fsync, os.replace, fsync of the directory."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_path(path.parent)
+
+
+# ---------------------------------------------------------------------- locking
+class SweepLock:
+    """An exclusive lock on an output (filelock): a second run into the same output fails at once."""
+
+    def __init__(self, out):
+        from filelock import FileLock
+
+        self.out = Path(out)
+        self.path = lock_path_for(out)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = FileLock(str(self.path), timeout=0)
+
+    def __enter__(self):
+        from filelock import Timeout
+
+        try:
+            self._lock.acquire()
+        except Timeout:
+            raise StoreError(
+                f"{self.out} is being written by another run (lock {self.path} is held); wait for that "
+                f"run to finish, or give another output"
+            ) from None
+        return self
+
+    def __exit__(self, *exc):
+        self._lock.release()
+        return False
+
+
+# ---------------------------------------------------------------------- checksums
+def _canonical(a: np.ndarray) -> np.ndarray:
+    """NaN payloads canonicalised (the CF encoding may rewrite them), C order."""
+    a = np.ascontiguousarray(a)
+    if a.dtype.kind == "f" and np.isnan(a).any():
+        a = np.where(np.isnan(a), np.nan, a).astype(a.dtype)
+    return a
+
+
+def array_sha256(a) -> str:
+    a = np.asarray(a)
+    h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+    if a.dtype.kind == "O":
+        h.update("\x00".join(map(str, a.ravel())).encode())
+    else:
+        h.update(_canonical(a).tobytes())
+    return h.hexdigest()
+
+
+def _content_sha(content: dict) -> str:
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+
+# ---------------------------------------------------------------------- manifest
+class Manifest:
+    """The store's header and done-shard records; rewritten atomically on every change."""
+
+    def __init__(self, path: Path, content: dict):
+        self.path = path
+        self.content = content
+        self._lock = threading.Lock()
+
+    @property
+    def shards(self) -> dict:
+        return self.content["shards"]
+
+    def save(self) -> None:
+        with self._lock:
+            body = json.dumps({**self.content, "sha256": _content_sha(self.content)}, indent=1, sort_keys=True)
+            _atomic_write_text(self.path, body + "\n")
+
+    def mark_done(self, index: int, record: dict) -> None:
+        self.shards[str(index)] = record
+        self.save()
+
+    @staticmethod
+    def read(path: Path) -> tuple[dict | None, str]:
+        """(content, '') or (None, why it cannot be used)."""
+        try:
+            raw = json.loads(path.read_text())
+        except FileNotFoundError:
+            return None, "no manifest"
+        except (OSError, ValueError, UnicodeDecodeError) as e:
+            return None, f"manifest does not parse ({type(e).__name__}: {e})"
+        if not isinstance(raw, dict) or "sha256" not in raw:
+            return None, "manifest has no checksum"
+        sha = raw.pop("sha256")
+        if _content_sha(raw) != sha:
+            return None, "manifest checksum does not match its contents"
+        if raw.get("format") != FORMAT:
+            return None, f"manifest format {raw.get('format')!r}, expected {FORMAT!r}"
+        return raw, ""
+
+
+# ---------------------------------------------------------------------- layout
+def _template(plan, time: np.ndarray) -> xr.Dataset:
+    """A one-column shard dataset: the variables, dims, dtypes and attributes every shard has."""
+    spec = plan.spec
+    P, T = spec.scene.n_prisms, len(time)
+    z = lambda *s: np.zeros(s)  # noqa: E731
+    result = SimpleNamespace(
+        n_columns=1, status=np.zeros(1, np.int8), fail_step=np.zeros(1, np.int64), energy_error=z(1),
+        bar_length_error=z(1), kinetic_energy=z(1, T), elastic_energy=z(1, T), strain=z(1, T, P), time=time)
+    meas = {k: z(1) for k in D.MEASUREMENTS}
+    meas["arrival_time"] = z(1, P)
+    return D.shard_dataset(spec, plan.params, 0, 1, result, meas, {})
+
+
+def plan_time(plan) -> np.ndarray:
+    """The output times every shard must produce, from the engine's own estimate (dt fixed by the plan)."""
+    from .sweep import estimate_batch
+
+    est = estimate_batch(plan.spec.scene, plan.params, plan.settings)
+    return np.arange(int(est["n_out"])) * int(est["output_every"]) * float(est["dt"])
+
+
+def _case_vars(ds: xr.Dataset) -> list[str]:
+    return [k for k in ds.data_vars if ds[k].dims[:1] == ("case",)]
+
+
+def _header(plan, time: np.ndarray) -> dict:
+    return {
+        "format": FORMAT,
+        "fingerprint": plan.fingerprint,
+        "code_version": plan.code_version,
+        "spec_sha256": plan.spec.text_sha256,
+        "spec_file": str(plan.spec.source) if plan.spec.source else None,
+        "n_columns": plan.n_columns,
+        "shard_size": plan.shard_size,
+        "n_shards": plan.n_shards,
+        "device": plan.device,
+        "output": plan.out.name,
+        "time_sha256": array_sha256(time),
+        "n_time": int(len(time)),
+    }
+
+
+class SweepStore:
+    """One sweep's work directory: the Zarr store, its manifest and the spec copy."""
+
+    def __init__(self, out):
+        self.out = Path(out).absolute()
+        self.dir = work_dir_for(self.out)
+        self.zarr = self.dir / STORE
+        self.manifest_path = self.dir / MANIFEST
+        self.manifest: Manifest | None = None
+
+    def exists(self) -> bool:
+        return self.dir.exists() and (self.manifest_path.exists() or self.zarr.exists())
+
+    def remove(self) -> None:
+        if self.dir.exists():
+            shutil.rmtree(self.dir)
+
+    def clean_tmp(self) -> None:
+        for d in (self.dir, self.out.parent):
+            for p in d.glob(f".{self.out.name}.*.tmp") if d == self.out.parent else d.glob(".*.tmp"):
+                p.unlink(missing_ok=True)
+        if self.zarr.exists():
+            for p in self.zarr.rglob("*.partial"):  # a chunk write Zarr did not finish
+                p.unlink(missing_ok=True)
+
+    # ------------------------------------------------------------------ create / open
+    def initialise(self, plan, time: np.ndarray) -> Manifest:
+        """A fresh store for ``plan``: coordinates written, data variables empty, no shard done."""
+        import dask.array as da
+
+        self.remove()
+        self.dir.mkdir(parents=True)
+        _atomic_write_text(self.dir / SPEC_COPY, plan.spec.text)
+        tpl = _template(plan, time)
+        N = plan.n_columns
+        coords = D._coords(plan.spec, plan.params, 0, N, time, plan.spec.scene.n_prisms)
+        data = {}
+        enc = {}
+        for k in tpl.data_vars:
+            v = tpl[k].variable
+            shape = (N,) + v.shape[1:]
+            chunks = (plan.shard_size,) + v.shape[1:]
+            data[k] = xr.Variable(v.dims, da.zeros(shape, dtype=v.dtype, chunks=chunks), attrs=dict(v.attrs))
+            enc[k] = {"chunks": chunks}
+        ds = xr.Dataset(data, coords=coords, attrs={**D.spec_attrs(plan.spec), "fingerprint": plan.fingerprint,
+                                                     "spec_source": str(plan.spec.source or "none")})
+        for k in ds.coords:
+            if ds[k].dtype.kind == "f":
+                enc[k] = {"_FillValue": None}
+        ds.to_zarr(self.zarr, mode="w", compute=False, encoding=enc, consolidated=False)
+        content = _header(plan, time)
+        content["coords_sha256"] = {k: array_sha256(coords[k].values) for k in coords}
+        content["shards"] = {}
+        self.manifest = Manifest(self.manifest_path, content)
+        self.manifest.save()
+        return self.manifest
+
+    def open(self, plan, time: np.ndarray) -> tuple[Manifest | None, str]:
+        """The manifest if the store belongs to ``plan`` and checks out, else (None, why not)."""
+        content, why = Manifest.read(self.manifest_path)
+        if content is None:
+            return None, why
+        want = _header(plan, time)
+        for k, v in want.items():
+            if k in ("spec_file", "output", "device"):
+                continue
+            if content.get(k) != v:
+                return None, f"store was made with {k} = {content.get(k)!r}, this run has {v!r}"
+        if not self.zarr.exists():
+            return None, "store.zarr is missing"
+        try:
+            import zarr
+
+            g = zarr.open_group(str(self.zarr), mode="r")
+            for k, sha in content.get("coords_sha256", {}).items():
+                if array_sha256(g[k][...]) != sha:
+                    return None, f"coordinate {k} does not match its checksum"
+        except Exception as e:  # truncated or missing metadata/chunks
+            return None, f"store does not open ({type(e).__name__}: {e})"
+        self.manifest = Manifest(self.manifest_path, content)
+        return self.manifest, ""
+
+    # ------------------------------------------------------------------ shards
+    def verify_shard(self, plan, index: int, group=None) -> tuple[str, str]:
+        """('done', '') when shard ``index`` is recorded and its data match the checksums, else
+        ('missing' | 'stale' | 'corrupt', why)."""
+        rec = self.manifest.shards.get(str(index)) if self.manifest else None
+        if rec is None:
+            return "missing", ""
+        a, b = plan.shards[index]
+        if (rec.get("case_start"), rec.get("case_stop")) != (a, b):
+            return "stale", f"covers columns {rec.get('case_start')}:{rec.get('case_stop')}, expected {a}:{b}"
+        if rec.get("attrs", {}).get("warp_version") != D.warp_version():
+            return "stale", f"made with Warp {rec.get('attrs', {}).get('warp_version')}, this is Warp {D.warp_version()}"
+        try:
+            import zarr
+
+            g = group if group is not None else zarr.open_group(str(self.zarr), mode="r")
+            for k, sha in rec["sha256"].items():
+                if array_sha256(g[k][a:b]) != sha:
+                    return "corrupt", f"{k} does not match its checksum"
+        except Exception as e:
+            return "corrupt", f"does not read back ({type(e).__name__}: {e})"
+        return "done", ""
+
+    def write_shard(self, plan, index: int, ds: xr.Dataset, time: np.ndarray) -> dict:
+        """Write shard ``index`` into its region, fsync its chunk files; returns the manifest record
+        (the caller marks it done)."""
+        a, b = plan.shards[index]
+        if ds.sizes.get("case") != b - a:
+            raise StoreError(f"shard {index} has {ds.sizes.get('case')} columns, expected {b - a}")
+        if array_sha256(ds["time"].values) != array_sha256(time):
+            raise StoreError(
+                f"shard {index} has other output times than the store (dt {ds.attrs.get('dt')}); "
+                "every shard of a sweep must step with the same dt"
+            )
+        names = _case_vars(ds)
+        sha = {k: array_sha256(ds[k].values) for k in names}
+        body = ds[names].drop_vars(list(ds.coords))
+        for v in body.variables.values():
+            v.encoding = {}
+        region = {"case": slice(a, b)}
+        fault("write-begin")
+        half = len(names) // 2
+        for part in (names[:half], names[half:]):
+            body[part].to_zarr(self.zarr, region=region, mode="r+", consolidated=False)
+            fault("mid-write")
+        self._fsync_chunks(names, index)
+        attrs = {k: D._attr(v) for k, v in ds.attrs.items()}
+        status = ds["status"].values
+        return {"case_start": a, "case_stop": b, "sha256": sha, "n_failed": int(np.count_nonzero(status)),
+                "attrs": attrs}
+
+    def _fsync_chunks(self, names, index: int) -> None:
+        """fsync the chunk files of shard ``index`` (chunk key c/<index>/... in Zarr v3, or <index>.* in v2)."""
+        for k in names:
+            vdir = self.zarr / k
+            roots = [vdir / "c" / str(index)] + list(vdir.glob(f"{index}.*")) + [vdir / str(index)]
+            for r in roots:
+                if r.is_file():
+                    _fsync_path(r)
+                elif r.is_dir():
+                    for p in r.rglob("*"):
+                        if p.is_file():
+                            _fsync_path(p)
+                    _fsync_path(r)
+            if (vdir / "c").is_dir():
+                _fsync_path(vdir / "c")
+
+    # ------------------------------------------------------------------ reading
+    def dataset(self, plan_or_spec=None, partial: bool = False) -> xr.Dataset:
+        """The sweep's dataset, lazy (dask-backed, one chunk per shard), in the layout of the netCDF
+        export (grid dimensions for a grid spec). Refuses while shards are not done unless
+        ``partial`` (then the case-stacked store as it stands)."""
+        content, why = Manifest.read(self.manifest_path)
+        if content is None:
+            raise StoreError(f"{self.dir}: {why}; run `warp-tensegrity resume {self.out}`")
+        from .spec import load_spec
+
+        spec = getattr(plan_or_spec, "spec", plan_or_spec)
+        if spec is None:
+            spec = load_spec((self.dir / SPEC_COPY).read_text())
+            spec.source = content.get("spec_file")
+        ds = xr.open_zarr(self.zarr, consolidated=False, decode_timedelta=False, chunks={})
+        done = sorted(int(i) for i in content["shards"])
+        if len(done) < content["n_shards"]:
+            if partial:
+                ds.attrs["shards_done"] = json.dumps(done)
+                return ds
+            raise StoreError(
+                f"{content['n_shards'] - len(done)} of {content['n_shards']} shards of {self.out} are not done; "
+                f"run `warp-tensegrity resume {self.out}`"
+            )
+        return assemble(spec, ds, [content["shards"][str(i)]["attrs"] for i in done])
+
+
+def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict]) -> xr.Dataset:
+    """The final dataset (as ``dataset.combine_shards`` made it) from the case-stacked store,
+    lazily: attributes from the spec and the shard records, grid dimensions for a grid spec."""
+    rec = SimpleNamespace(spec=spec, params=spec.column_params())
+    tpl = _template(rec, ds["time"].values)
+    variables = {}
+    for k, v in ds.variables.items():
+        v = v.copy(deep=False)
+        v.encoding = {}
+        if v.dtype.kind in "OUT" and not isinstance(v.dtype, np.dtypes.ObjectDType):  # labels: as _coords made them
+            v = xr.Variable(v.dims, np.asarray(v.values, dtype=object), attrs=v.attrs)
+        if k in tpl.variables:
+            v.attrs = dict(tpl.variables[k].attrs)
+        variables[k] = v
+    coords = D._coords(spec, rec.params, 0, 1, ds["time"].values, spec.scene.n_prisms)
+    for k, c in coords.items():
+        if k in variables:
+            variables[k].attrs = dict(c.attrs)
+    out = xr.Dataset({k: variables[k] for k in ds.data_vars}, coords={k: variables[k] for k in ds.coords})
+    attrs = D.spec_attrs(spec)
+    a0 = shard_attrs[0]
+    for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval"):
+        attrs[k] = a0[k]
+    for k in ("warp_version", "git_commit", "device", "device_name"):
+        attrs[k] = D._joined(a.get(k, "unknown") for a in shard_attrs)
+    attrs["wall_time"] = float(sum(float(a.get("wall_time", 0.0)) for a in shard_attrs))
+    attrs["history"] = (f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} streamed {len(shard_attrs)} shards into a Zarr "
+                        f"store by warp_tensegrity {D.package_version()}")
+    out.attrs = {k: D._attr(v) for k, v in attrs.items()}
+    if spec.kind == "grid":
+        out = _to_grid_lazy(spec, out)
+    return out
+
+
+def _to_grid_lazy(spec, ds: xr.Dataset) -> xr.Dataset:
+    """dataset._to_grid without loading: the case dimension reshaped into the grid axes (C order)."""
+    shape = spec.shape
+    names = tuple(spec.grid)
+    variables = {}
+    for k, v in ds.variables.items():
+        if k == "case" or k in names:
+            continue
+        if "case" in v.dims:
+            i = v.dims.index("case")
+            dims = v.dims[:i] + names + v.dims[i + 1:]
+            variables[k] = xr.Variable(dims, v.data.reshape(v.shape[:i] + shape + v.shape[i + 1:]), attrs=dict(v.attrs))
+        else:
+            variables[k] = v
+    coords = {n: xr.Variable((n,), np.asarray(spec.grid[n], dtype=np.float64), attrs=dict(D.COORD_ATTRS[n]))
+              for n in names}
+    coords.update({k: variables.pop(k) for k in list(variables) if k in ds.coords})
+    return xr.Dataset({k: variables[k] for k in ds.data_vars}, coords=coords, attrs=dict(ds.attrs))
+
+
+# ---------------------------------------------------------------------- export
+def export_netcdf(ds: xr.Dataset, path) -> Path:
+    """Write a lazy dataset to netCDF4 atomically (temporary file, fsync, os.replace), one dask
+    chunk at a time on this thread, so the host holds a few chunks, never the sweep."""
+    import dask
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    enc = D._encoding(ds)
+    for k, v in ds.data_vars.items():
+        if v.chunks and "zlib" in enc.get(k, {}):  # compressed: one netCDF chunk per dask chunk
+            enc[k]["chunksizes"] = tuple(max(c) for c in v.chunks)
+    try:
+        with dask.config.set(scheduler="synchronous"):
+            job = ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=enc, compute=False)
+            fault("mid-export")
+            job.compute()
+        _fsync_path(tmp)
+        fault("before-replace")
+        os.replace(tmp, path)
+        _fsync_path(path.parent)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def open_sweep(path, partial: bool = False) -> xr.Dataset:
+    """A sweep as a lazy, dask-backed dataset. ``path``: the run's output ``OUT.nc`` (its store
+    ``OUT.nc.sweep/`` when there is one, else the netCDF file), the work directory or a netCDF file."""
+    path = Path(path)
+    if path.name == STORE:
+        path = path.parent
+    if path.suffix == ".sweep" and path.is_dir():
+        return SweepStore(path.with_name(path.name[: -len(".sweep")])).dataset(partial=partial)
+    store = SweepStore(path)
+    if store.manifest_path.exists():
+        return store.dataset(partial=partial)
+    return xr.open_dataset(path, engine="netcdf4", decode_timedelta=False, chunks={})
+
+
+# ---------------------------------------------------------------------- memory
+def host_bytes_per_column(plan) -> int:
+    """Host bytes one column needs while its shard steps, is measured and written (engine state too
+    when the engine runs on the CPU)."""
+    est = plan.estimate
+    n_out = int(est.get("n_out", 0))
+    P = plan.spec.scene.n_prisms
+    r = plan.spec.run
+    out = 8 * (10 + P + (2 * n_out if r["record_energy"] else 0) + (n_out * P if r["record_strain"] else 0))
+    engine = int(est.get("bytes_per_column", 0)) if (plan.device or "cpu").startswith("cpu") else 0
+    return HOST_COPIES * out + engine
+
+
+def limit_shard_size(plan, memory_limit: int) -> int:
+    """The largest shard size (at most the plan's) whose IN_FLIGHT shards fit in ``memory_limit`` bytes."""
+    per = host_bytes_per_column(plan)
+    n = int(memory_limit // (IN_FLIGHT * per))
+    if n < 1:
+        raise StoreError(
+            f"memory limit {memory_limit / 1e6:.1f} MB is below the {IN_FLIGHT * per / 1e6:.1f} MB that "
+            f"{IN_FLIGHT} shards of one column need; raise --memory-limit or record less (record_strain)"
+        )
+    return min(plan.shard_size, n)
+
+
+def parse_bytes(text) -> int:
+    """'64MB', '2 GiB', '1e9' -> bytes (dask's parser)."""
+    from dask.utils import parse_bytes as pb
+
+    try:
+        n = int(pb(str(text)))
+    except (ValueError, TypeError):
+        n = 0
+    if n <= 0:
+        raise StoreError(f"memory limit {text!r}: give a size such as 512MB or 4GiB")
+    return n
+
+
+# ---------------------------------------------------------------------- pipelined writer
+class ShardWriter:
+    """A writer thread fed through a bounded hand-off: the caller steps shard k+1 while shard k is
+    copied into the store, and at most IN_FLIGHT shards are alive on the host."""
+
+    def __init__(self, store: SweepStore, plan, time: np.ndarray, on_done=None, in_flight: int = IN_FLIGHT):
+        self.store, self.plan, self.time, self.on_done = store, plan, time, on_done
+        self.slots = threading.BoundedSemaphore(in_flight)
+        self.q: queue.Queue = queue.Queue()
+        self.error: BaseException | None = None
+        self.write_seconds = 0.0
+        self.thread = threading.Thread(target=self._run, name="warp_tensegrity-writer", daemon=True)
+        self.thread.start()
+
+    def acquire(self) -> None:
+        """Wait for a free slot (a shard written); raise the writer's error if it failed."""
+        self.slots.acquire()
+        if self.error is not None:
+            self.slots.release()
+            raise self.error
+
+    def submit(self, index: int, ds: xr.Dataset) -> None:
+        self.q.put((index, ds))
+
+    def _run(self):
+        while True:
+            item = self.q.get()
+            if item is None:
+                return
+            index, ds = item
+            del item
+            try:
+                if self.error is None:
+                    t0 = _time.perf_counter()
+                    rec = self.store.write_shard(self.plan, index, ds, self.time)
+                    fault("before-mark")
+                    self.store.manifest.mark_done(index, rec)
+                    fault("after-mark")
+                    self.write_seconds += _time.perf_counter() - t0
+                    if self.on_done is not None:
+                        self.on_done(index, rec)
+            except BaseException as e:  # noqa: BLE001 - handed to the caller's thread
+                self.error = e
+            finally:
+                del ds
+                self.slots.release()
+
+    def close(self) -> None:
+        self.q.put(None)
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
+
+
+# ---------------------------------------------------------------------- Dask task body
+def compute_and_write(plan, index: int, device: str | None = None) -> dict:
+    """On a Dask worker: compute shard ``index``, write its region of the store, return its record.
+    Only the client writes the manifest."""
+    from .sweep import compute_shard
+
+    store = SweepStore(plan.out)
+    ds = compute_shard(plan, index, device=device)
+    time = xr.open_zarr(store.zarr, consolidated=False, decode_timedelta=False)["time"].values
+    return store.write_shard(plan, index, ds, time)
+
+
+def _log(msg: str, stream=None) -> None:
+    print(f"warp-tensegrity: {msg}", file=stream or sys.stderr)
+
+
+# ---------------------------------------------------------------------- whole sweeps
+def _states(store: SweepStore, plan, verify: bool = True) -> list[tuple[int, str, str]]:
+    """(index, state, reason) per shard: state 'done', 'missing', 'stale' or 'corrupt'."""
+    group = None
+    if verify and store.manifest is not None and store.manifest.shards:
+        import zarr
+
+        try:
+            group = zarr.open_group(str(store.zarr), mode="r")
+        except Exception:
+            group = None
+    out = []
+    for i in range(plan.n_shards):
+        if not verify:
+            out.append((i, "done" if str(i) in (store.manifest.shards if store.manifest else {}) else "missing", ""))
+            continue
+        state, why = store.verify_shard(plan, i, group)
+        out.append((i, state, why))
+    return out
+
+
+def execute(plan, *, resume: bool = False, overwrite: bool = False, progress: bool = True,
+            dask_workers: int | None = None, scheduler: str | None = None, client=None, stream=None,
+            export: bool = True) -> Path | None:
+    """Run (or resume) every shard of ``plan`` that is not done into the store, then export plan.out.
+
+    Holds the output's lock throughout. A run refuses an existing output or store without
+    ``overwrite``; a resume re-reads every recorded shard and recomputes those that do not check out.
+    """
+    from .sweep import ProgressBar, compute_shard, resolve_dt
+
+    if plan.out is None:
+        raise SweepError("no output path")
+    if plan.settings is None:
+        resolve_dt(plan)
+    store = SweepStore(plan.out)
+    with SweepLock(plan.out):
+        time = plan_time(plan)
+        if not resume and (store.exists() or plan.out.exists()):
+            if not overwrite:
+                what = f"{store.dir} already holds a run" if store.exists() else f"{plan.out} exists"
+                raise SweepError(f"{what}; continue it with `warp-tensegrity resume {plan.out}`, give another "
+                                 f"output, or start over with --overwrite")
+            store.remove()
+            plan.out.unlink(missing_ok=True)
+        if store.dir.exists():
+            store.clean_tmp()
+        manifest, why = store.open(plan, time) if resume else (None, "")
+        if manifest is None:
+            if resume and store.exists():
+                _log(f"{store.dir}: {why}; recomputing every shard", stream)
+            manifest = store.initialise(plan, time)
+            states = [(i, "missing", "") for i in range(plan.n_shards)]
+        else:
+            states = _states(store, plan)
+            bad = [(i, s, r) for i, s, r in states if s in ("stale", "corrupt")]
+            for i, s, r in bad:
+                _log(f"shard {i} is {s} ({r}); recomputing it", stream)
+                manifest.shards.pop(str(i), None)
+            if bad:
+                manifest.save()
+        todo = [i for i, s, _ in states if s != "done"]
+        done_cols = sum(b - a for (a, b), (_, s, _) in zip(plan.shards, states) if s == "done")
+        done_failed = sum(int(manifest.shards[str(i)]["n_failed"]) for i, s, _ in states if s == "done")
+        bar = ProgressBar(plan.n_columns, done_cols, done_failed, stream=stream, enabled=progress)
+        tally = {"cols": done_cols, "failed": done_failed}
+        lk = threading.Lock()
+
+        def on_done(i, rec):
+            a, b = plan.shards[i]
+            with lk:
+                tally["cols"] += b - a
+                tally["failed"] += int(rec["n_failed"])
+                bar.update(tally["cols"], tally["failed"], force=True)
+
+        if todo and (dask_workers or scheduler or client is not None):
+            from .scaleout import run_shards_dask
+
+            def on_result(i, rec):
+                manifest.mark_done(i, rec)
+                on_done(i, rec)
+
+            run_shards_dask(plan, todo, n_workers=dask_workers, scheduler=scheduler, client=client,
+                            on_result=on_result)
+        elif todo:
+            writer = ShardWriter(store, plan, time, on_done)
+            try:
+                for i in todo:
+                    writer.acquire()
+                    n = plan.shards[i][1] - plan.shards[i][0]
+
+                    def cb(steps_done, n_steps, n_failed, _n=n):
+                        fault("stepping")
+                        frac = steps_done / n_steps if n_steps else 1.0
+                        with lk:
+                            bar.update(tally["cols"] + _n * frac, tally["failed"] + n_failed)
+
+                    ds = compute_shard(plan, i, progress=cb)
+                    writer.submit(i, ds)
+                    del ds
+            finally:
+                writer.close()
+        bar.close()
+        if not export:
+            return None
+        fault("finalise")
+        export_netcdf(store.dataset(plan), plan.out)
+    return plan.out
+
+
+def export(out, spec=None) -> Path:
+    """(Re-)export a finished store to its netCDF output (the ``combine`` command)."""
+    from .sweep import load_plan_from_manifest, plan_sweep
+
+    store = SweepStore(out)
+    with SweepLock(out):
+        plan = load_plan_from_manifest(out) if spec is None else plan_sweep(spec, out)
+        st = status(plan)
+        bad = st["shards_missing"] + [i for i, _ in st["shards_stale"] + st["shards_corrupt"]]
+        if bad:
+            why = "; ".join(f"shard {i}: {r}" for i, r in (st["shards_stale"] + st["shards_corrupt"])[:4])
+            raise StoreError(f"{len(bad)} of {plan.n_shards} shards of {out} are not done or do not check out"
+                             f"{' (' + why + ')' if why else ''}; run `warp-tensegrity resume {out}`")
+        return export_netcdf(store.dataset(plan), store.out)
+
+
+def status(plan) -> dict:
+    """Columns done, diverged and remaining; shards verified against their checksums."""
+    store = SweepStore(plan.out)
+    manifest = None
+    why = "no store"
+    if store.exists():
+        manifest, why = store.open(plan, plan_time(plan))
+    if manifest is None:
+        states = [(i, "missing", "") for i in range(plan.n_shards)]
+        if store.exists():
+            states = [(i, "corrupt", why) for i in range(plan.n_shards)]
+    else:
+        states = _states(store, plan)
+    done = [i for i, s, _ in states if s == "done"]
+    cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in done)
+    exported = False
+    if plan.out.exists():
+        try:
+            with xr.open_dataset(plan.out, engine="netcdf4") as ds:
+                exported = ds.attrs.get("fingerprint") == plan.fingerprint
+        except Exception:
+            exported = False
+    return {
+        "output": str(plan.out),
+        "store": str(store.dir),
+        "spec": plan.spec.source,
+        "columns": plan.n_columns,
+        "shards": plan.n_shards,
+        "shard_size": plan.shard_size,
+        "shards_done": len(done),
+        "cases_done": cols,
+        "cases_diverged": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done) if manifest else 0,
+        "cases_remaining": plan.n_columns - cols,
+        "shards_missing": [i for i, s, _ in states if s == "missing"],
+        "shards_stale": [(i, r) for i, s, r in states if s == "stale"],
+        "shards_corrupt": [(i, r) for i, s, r in states if s == "corrupt"],
+        "combined": exported and len(done) == plan.n_shards,
+        "fingerprint": plan.fingerprint,
+    }
+
+
+def read_run(out) -> dict:
+    """What ``resume OUT.nc`` needs: the spec text and the manifest header (if it checks out)."""
+    store = SweepStore(out)
+    if not store.dir.is_dir():
+        raise SweepError(f"no run found for {out}: {store.dir}/ does not exist "
+                         f"(start one with `warp-tensegrity run SPEC -o {out}`)")
+    try:
+        text = (store.dir / SPEC_COPY).read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise SweepError(f"{store.dir} has no readable {SPEC_COPY} ({e}); give the spec: resume SPEC -o {out}") from None
+    content, _ = Manifest.read(store.manifest_path)
+    if content is None:  # the manifest is gone or damaged: the spec's path is also in the store's attributes
+        try:
+            src = xr.open_zarr(store.zarr, consolidated=False).attrs.get("spec_source", "none")
+            content = {"spec_file": None if src == "none" else src,
+                       "spec_sha256": hashlib.sha256(text.encode()).hexdigest()}
+        except Exception:
+            content = None
+    content = dict(content or {})
+    if content and content.get("spec_sha256") != hashlib.sha256(text.encode()).hexdigest():
+        content = {}  # the spec copy is not the one the manifest recorded: trust neither header nor shards
+    content["spec_text"] = text
+    return content
