@@ -77,6 +77,8 @@ class SweepPlan:
     settings: RunSettings | None = None
     """Engine settings with dt resolved once for the whole sweep (None until estimated)."""
     estimate: dict = field(default_factory=dict)
+    memory_limit: int | None = None
+    """Host bytes for the sweep's data (apply_memory_limit); None: no limit."""
     prisms_simulated: int | None = None
     """Prisms every shard simulates (settings.truncate: decided once from all the sweep's columns)."""
 
@@ -307,7 +309,8 @@ def apply_memory_limit(plan: SweepPlan, memory_limit) -> SweepPlan:
         return plan
     from .zstore import limit_shard_size, parse_bytes
 
-    n = limit_shard_size(plan, parse_bytes(memory_limit) if isinstance(memory_limit, str) else int(memory_limit))
+    plan.memory_limit = parse_bytes(memory_limit) if isinstance(memory_limit, str) else int(memory_limit)
+    n = limit_shard_size(plan, plan.memory_limit)
     if n != plan.shard_size:
         plan.shard_size = n
         plan.shards = plan.spec.shards(n)

@@ -426,10 +426,11 @@ class SweepStore:
                 f"{content['n_shards'] - len(done)} of {content['n_shards']} shards of {self.out} are not done; "
                 f"run `warp-tensegrity resume {self.out}`"
             )
-        return assemble(spec, ds, [content["shards"][str(i)]["attrs"] for i in done])
+        return assemble(spec, ds, [content["shards"][str(i)]["attrs"] for i in done], self.zarr,
+                        int(content["shard_size"]))
 
 
-def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict]) -> xr.Dataset:
+def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], zarr_path=None, shard_size: int = 0) -> xr.Dataset:
     """The final dataset (as ``dataset.combine_shards`` made it) from the case-stacked store,
     lazily: attributes from the spec and the shard records, grid dimensions for a grid spec."""
     rec = SimpleNamespace(spec=spec, params=spec.column_params())
@@ -459,14 +460,58 @@ def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict]) -> xr.Dataset:
                         f"store by warp_tensegrity {D.package_version()}")
     out.attrs = {k: D._attr(v) for k, v in attrs.items()}
     if spec.kind == "grid":
-        out = _to_grid_lazy(spec, out)
+        out = _to_grid_lazy(spec, out, zarr_path, shard_size)
     return out
 
 
-def _to_grid_lazy(spec, ds: xr.Dataset) -> xr.Dataset:
-    """dataset._to_grid without loading: the case dimension reshaped into the grid axes (C order)."""
+class GridView:
+    """A case-stacked Zarr array seen in grid shape (case -> grid axes, C order), for
+    ``dask.array.from_array``: each block reads one contiguous run of columns (no rechunk pass,
+    so an export holds one block at a time)."""
+
+    def __init__(self, array, grid_shape: tuple):
+        self.array, self.grid = array, tuple(grid_shape)
+        self.shape = self.grid + tuple(array.shape[1:])
+        dt = np.dtype(array.dtype)
+        self.dtype = dt.newbyteorder("=") if dt.byteorder == ("<" if sys.byteorder == "little" else ">") else dt
+        self.ndim = len(self.shape)
+
+    def __getitem__(self, key):
+        key = key if isinstance(key, tuple) else (key,)
+        key = key + (slice(None),) * (self.ndim - len(key))
+        k = len(self.grid)
+        ranges = [np.arange(*sl.indices(n)) for sl, n in zip(key[:k], self.grid)]
+        idx = np.ravel_multi_index(np.meshgrid(*ranges, indexing="ij"), self.grid).ravel()
+        rest = key[k:]
+        if idx.size and np.all(np.diff(idx) == 1):
+            data = self.array[(slice(int(idx[0]), int(idx[-1]) + 1),) + rest]
+        else:
+            data = self.array.oindex[(idx,) + rest]
+        data = np.asarray(data)
+        return data.reshape(tuple(len(r) for r in ranges) + data.shape[1:])
+
+
+def grid_chunks(grid_shape: tuple, shard_size: int) -> tuple:
+    """Blocks of at most shard_size columns, each a contiguous run of columns (C order)."""
+    chunks, left = [], max(int(shard_size), 1)
+    for n in reversed(grid_shape):
+        c = min(n, left)
+        chunks.append(c)
+        left = max(left // n, 1) if c == n else 1
+    return tuple(reversed(chunks))
+
+
+def _to_grid_lazy(spec, ds: xr.Dataset, zarr_path=None, shard_size: int = 0) -> xr.Dataset:
+    """dataset._to_grid without loading: the case dimension split into the grid axes (C order)."""
+    import dask.array as da
+
     shape = spec.shape
     names = tuple(spec.grid)
+    group = None
+    if zarr_path is not None:
+        import zarr
+
+        group = zarr.open_group(str(zarr_path), mode="r")
     variables = {}
     for k, v in ds.variables.items():
         if k == "case" or k in names:
@@ -474,7 +519,15 @@ def _to_grid_lazy(spec, ds: xr.Dataset) -> xr.Dataset:
         if "case" in v.dims:
             i = v.dims.index("case")
             dims = v.dims[:i] + names + v.dims[i + 1:]
-            variables[k] = xr.Variable(dims, v.data.reshape(v.shape[:i] + shape + v.shape[i + 1:]), attrs=dict(v.attrs))
+            if group is not None and i == 0 and k in ds.data_vars:
+                view = GridView(group[k], shape)
+                chunks = grid_chunks(shape, shard_size or v.shape[0]) + tuple(v.shape[1:])
+                token = hashlib.sha256(f"{zarr_path}/{k}/{view.shape}/{chunks}".encode()).hexdigest()[:16]
+                data = da.from_array(view, chunks=chunks, name=f"wt-grid-{k}-{token}", lock=False, asarray=True,
+                                     meta=np.empty((0,) * view.ndim, dtype=view.dtype))
+            else:
+                data = v.data.reshape(v.shape[:i] + shape + v.shape[i + 1:])
+            variables[k] = xr.Variable(dims, data, attrs=dict(v.attrs))
         else:
             variables[k] = v
     coords = {n: xr.Variable((n,), np.asarray(spec.grid[n], dtype=np.float64), attrs=dict(D.COORD_ATTRS[n]))
@@ -495,6 +548,14 @@ def export_netcdf(ds: xr.Dataset, path) -> Path:
     for k, v in ds.data_vars.items():
         if v.chunks and "zlib" in enc.get(k, {}):  # compressed: one netCDF chunk per dask chunk
             enc[k]["chunksizes"] = tuple(max(c) for c in v.chunks)
+    import netCDF4
+
+    # netCDF-C keeps up to 64 MiB of chunks per variable by default: a few chunks are enough here,
+    # since each dask chunk fills whole netCDF chunks
+    cache = netCDF4.get_chunk_cache()
+    biggest = max([v.dtype.itemsize * int(np.prod(enc[k]["chunksizes"])) for k, v in ds.data_vars.items()
+                   if "chunksizes" in enc.get(k, {})] or [0])
+    netCDF4.set_chunk_cache(max(2 * biggest, 2**20), cache[1], cache[2])
     try:
         with dask.config.set(scheduler="synchronous"):
             job = ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=enc, compute=False)
@@ -505,6 +566,7 @@ def export_netcdf(ds: xr.Dataset, path) -> Path:
         os.replace(tmp, path)
         _fsync_path(path.parent)
     finally:
+        netCDF4.set_chunk_cache(*cache)
         tmp.unlink(missing_ok=True)
     return path
 
@@ -536,14 +598,21 @@ def host_bytes_per_column(plan) -> int:
     return HOST_COPIES * out + engine
 
 
+SHARD_SHARE = 0.4
+"""Share of the memory limit for the shards in flight; the rest is headroom for the writer's and the
+export's buffers (Zarr codecs, the netCDF chunk cache, allocator slack), measured at ~10-25 MB."""
+
+
 def limit_shard_size(plan, memory_limit: int) -> int:
-    """The largest shard size (at most the plan's) whose IN_FLIGHT shards fit in ``memory_limit`` bytes."""
+    """The largest shard size (at most the plan's) whose IN_FLIGHT shards fit in SHARD_SHARE of
+    ``memory_limit`` bytes of host memory beyond the process's own (libraries, compiled kernels)."""
     per = host_bytes_per_column(plan)
-    n = int(memory_limit // (IN_FLIGHT * per))
+    n = int(SHARD_SHARE * memory_limit // (IN_FLIGHT * per))
     if n < 1:
         raise StoreError(
-            f"memory limit {memory_limit / 1e6:.1f} MB is below the {IN_FLIGHT * per / 1e6:.1f} MB that "
-            f"{IN_FLIGHT} shards of one column need; raise --memory-limit or record less (record_strain)"
+            f"memory limit {memory_limit / 1e6:.1f} MB is below the {IN_FLIGHT * per / SHARD_SHARE / 1e6:.1f} MB "
+            f"that {IN_FLIGHT} shards of one column need with headroom; raise --memory-limit or record less "
+            f"(run.record_strain = false)"
         )
     return min(plan.shard_size, n)
 
@@ -667,6 +736,12 @@ def execute(plan, *, resume: bool = False, overwrite: bool = False, progress: bo
     if plan.settings is None:
         resolve_dt(plan)
     store = SweepStore(plan.out)
+    if getattr(plan, "memory_limit", None):
+        import zarr
+
+        # Zarr's codec threads each keep a malloc arena (~2 MB apiece measured): one is enough when
+        # memory is tight. Global and fixed once Zarr first writes in this process.
+        zarr.config.set({"threading.max_workers": 1})
     with SweepLock(plan.out):
         time = plan_time(plan)
         if not resume and (store.exists() or plan.out.exists()):
@@ -747,7 +822,10 @@ def export(out, spec=None) -> Path:
 
     store = SweepStore(out)
     with SweepLock(out):
-        plan = load_plan_from_manifest(out) if spec is None else plan_sweep(spec, out)
+        if spec is None:
+            plan = load_plan_from_manifest(out)
+        else:
+            plan = spec if hasattr(spec, "shards") and hasattr(spec, "spec") else plan_sweep(spec, out)
         st = status(plan)
         bad = st["shards_missing"] + [i for i, _ in st["shards_stale"] + st["shards_corrupt"]]
         if bad:
