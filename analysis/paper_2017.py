@@ -365,7 +365,7 @@ print("largest compression anywhere, any time, RB p=0.002 cases:", np.round(rb_m
 import dataclasses
 
 from warp_tensegrity import build_column
-from warp_tensegrity.linear import axial_stiffness_per_prism, count_zero_modes, long_wave_speed
+from warp_tensegrity.checks.linear import axial_stiffness_per_prism, count_zero_modes, long_wave_speed
 
 cfg50 = ColumnConfig()
 

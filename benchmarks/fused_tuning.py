@@ -31,9 +31,9 @@ CASES = {  # sweeps/paper_2017.toml
 
 
 def agreement(device: str) -> list[dict]:
-    from warp_tensegrity.columns import ColumnConfig
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
+    from warp_tensegrity import ColumnConfig
+    from warp_tensegrity import RunSettings
+    from warp_tensegrity import simulate_batch
 
     cfg = ColumnConfig(n_prisms=50)
     rows = []
@@ -64,7 +64,7 @@ def agreement(device: str) -> list[dict]:
 
 
 def shapes(device, batches, blocks, subs, target_s: float) -> list[dict]:
-    from warp_tensegrity import simulate
+    from warp_tensegrity import integrate as simulate
 
     rows = []
     defaults = (simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS)

@@ -238,10 +238,10 @@ def mjwarp_main(a, cfg, topo, doc):
     """--mjwarp-device: batched MuJoCo Warp, pulse (world 0) and world-steps/s against nworld."""
     import warp as wp
 
-    from warp_tensegrity.columns import build_column
+    from warp_tensegrity import build_column
     from warp_tensegrity.measure import measure_pulse
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
+    from warp_tensegrity import RunSettings
+    from warp_tensegrity import simulate_batch
 
     doc["mjwarp"] = []
     for base in a.bases:
@@ -347,10 +347,10 @@ def main(argv=None):
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    from warp_tensegrity.columns import ColumnConfig, build_column, column_topology
+    from warp_tensegrity import ColumnConfig, build_column, column_topology
     from warp_tensegrity.measure import measure_pulse
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
+    from warp_tensegrity import RunSettings
+    from warp_tensegrity import simulate_batch
 
     cfg = ColumnConfig(n_prisms=a.n_prisms)
     topo = column_topology(cfg)

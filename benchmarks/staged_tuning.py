@@ -26,7 +26,7 @@ WINDOWS = {"auto": None, "on": True, "off": False}
 
 
 def shapes(device, batches, blocks, regs, target_s: float, bases, precisions, windows=("auto",)) -> list[dict]:
-    from warp_tensegrity import simulate
+    from warp_tensegrity import integrate as simulate
 
     rows = []
     defaults = (simulate.COLUMN_BLOCK_DIM, simulate.COLUMN_MAX_REGISTERS, simulate.COLUMN_CAP_FROM,

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from warp_tensegrity.columns import ColumnConfig
-from warp_tensegrity.settings import RunSettings, SettingsError
-from warp_tensegrity.simulate import simulate_batch
+from warp_tensegrity import ColumnConfig
+from warp_tensegrity import RunSettings, SettingsError
+from warp_tensegrity import simulate_batch
 
 SMALL = ColumnConfig(n_prisms=6)
 # integrator-property tests use the impulse-projected impact: a gentler start that keeps the

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import simulate
-from warp_tensegrity.columns import ColumnConfig
+from warp_tensegrity import integrate as simulate
+from warp_tensegrity import ColumnConfig
 from warp_tensegrity.fused import SHARED_BYTES_MAX, shared_capacity
-from warp_tensegrity.settings import RunSettings, SettingsError
-from warp_tensegrity.simulate import simulate_batch
-from warp_tensegrity.spec import SpecError, parse_spec
+from warp_tensegrity import RunSettings, SettingsError
+from warp_tensegrity import simulate_batch
+from warp_tensegrity.sweep import SpecError, parse_spec
 
 CASES = {  # FB and RB, slack-cable impacts and a prestressed one
     "prestrain": [0.0, 0.002, 0.0, 0.002],

@@ -10,9 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from warp_tensegrity.columns import ColumnConfig, build_column
-from warp_tensegrity.network import Network
-from warp_tensegrity.reference import (
+from warp_tensegrity import ColumnConfig, build_column
+from warp_tensegrity import Network
+from warp_tensegrity.checks.reference import (
     ClassOneMatrixForm,
     ReferenceSystem,
     integrate_matrix_form,

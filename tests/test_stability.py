@@ -13,11 +13,12 @@
 import numpy as np
 import pytest
 
-from warp_tensegrity.batch import column_batch, omega_max_bound
-from warp_tensegrity.columns import ColumnConfig, build_column
-from warp_tensegrity.linear import omega_max
-from warp_tensegrity.settings import RunSettings
-from warp_tensegrity.simulate import STABILITY, simulate_batch
+from warp_tensegrity.scene.batch import column_batch, omega_max_bound
+from warp_tensegrity import ColumnConfig, build_column
+from warp_tensegrity.checks.linear import omega_max
+from warp_tensegrity import RunSettings
+from warp_tensegrity.types import STABILITY
+from warp_tensegrity import simulate_batch
 
 # the engine's default conventions at the time of writing, pinned so the regimes below hold
 TINY = ColumnConfig(n_prisms=3, impact_admissibility="end_twist", end_base_mass="half")

@@ -124,10 +124,9 @@ def _looks_like_spec(path: str) -> bool:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .network import NetworkError
+    from .scene.network import NetworkError
     from .settings import SettingsError
-    from .spec import SpecError
-    from .sweep import SweepError
+    from .sweep import SpecError, SweepError
 
     try:
         return _dispatch(args)
@@ -142,7 +141,7 @@ def main(argv=None) -> int:
 
 def _dispatch(args) -> int:
     from . import sweep
-    from .spec import load_spec
+    from .sweep import load_spec
 
     if args.command in ("run", "resume"):
         _quiet_warp(args.verbose)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .batch import NetworkBatch
+from .scene.batch import NetworkBatch
 
 REAL = {"fp32": wp.float32, "fp64": wp.float64}
 NP_REAL = {"fp32": np.float32, "fp64": np.float64}

@@ -1,4 +1,7 @@
-"""Integrator orchestration: time step choice, the step as kernel launches, graph capture, outputs.
+"""The Integrator: one batch's model, data and kernels on one Warp device, and the step as
+kernel launches (staged: one kernel per stage; fused: RATTLE as one kernel, a block per column),
+with CUDA graph capture. What to integrate with (method, dt, path) is decided by
+:mod:`warp_tensegrity.engine`.
 
 Methods (one force evaluation = one ``gather_accel`` launch):
 
@@ -13,31 +16,18 @@ Methods (one force evaluation = one ``gather_accel`` launch):
 from __future__ import annotations
 
 import gc
-import math
 import time
-from dataclasses import replace
 
 import numpy as np
 import warp as wp
 
-from .batch import (
-    NetworkBatch,
-    column_batch,
-    column_params,
-    omega_max_bound,
-    reference_elastic_energy,
-    reference_states,
-)
-from .choose import apply_accuracy, reachable_prisms
-from .columns import ColumnConfig
 from .fused import make_fused_kernels, shared_capacity
 from .kernels import make_kernels, make_solver_kernels
-from .model import REAL, Data, Model, build_model, constraint_coupling, make_data, mass_entries
-from .settings import BatchResult, RunSettings, SettingsError
+from .model import REAL, Data, Model, build_model, make_data
+from .scene.batch import NetworkBatch
+from .settings import RunSettings, SettingsError
+from .types import Method, Path, RKStage
 
-# stability limit of omega*dt for each method on an undamped oscillator
-STABILITY = {"rattle": 2.0, "rk4": 2.0 * math.sqrt(2.0), "yoshida4": 1.5734, "symplectic_euler": 2.0}
-FORCE_EVALS = {"rattle": 1, "rk4": 4, "yoshida4": 3, "symplectic_euler": 1}
 _W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 YOSHIDA = (_W1, 1.0 - 2.0 * _W1, _W1)
 COLUMN_BLOCK_DIM = 64  # CUDA threads per block for the one-thread-per-column kernels
@@ -51,9 +41,6 @@ COLUMN_CAP_FROM = 131072
 COLUMN_BAR_WINDOW = None
 FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one warp)
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
-# fused='auto' on a GPU: above this many columns the staged kernels stream faster (H200: the fused
-# step is 1.25-1.55x faster at 16,384 columns, RB fp64 0.87x; 0.5-0.93x at 32,768; benchmarks/README.md)
-FUSED_MAX_COLUMNS = 16384
 FUSED_SHARED_ON_CPU = False  # CPU blocks run alone: the global rows are as fast there (tests may switch it on)
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph by the fused path
 
@@ -71,33 +58,17 @@ def resolve_device(name: str | None) -> wp.context.Device:
         raise SettingsError(f"device = {name!r} is not available ({exc}); use 'cpu' or 'cuda:N'") from None
 
 
-def choose_timestep(settings: RunSettings, omega_max: float):
-    """Returns (dt, dt_limit, n_steps, output_every) with dt dividing the output interval."""
-    limit = STABILITY[settings.method] / omega_max if omega_max > 0 else math.inf
-    interval = settings.output_interval or settings.t_end / 200.0
-    if settings.dt == "auto":
-        target = settings.dt_safety * limit
-        every = max(1, math.ceil(interval / target))
-        dt = interval / every
-        dt = min(dt, settings.t_end)
-    else:
-        dt = float(settings.dt)
-        if dt > limit and not settings.allow_unstable_dt:
-            raise SettingsError(
-                f"dt = {dt:.4g} s exceeds the stability limit {limit:.4g} s of method {settings.method!r} "
-                f"(omega_max = {omega_max:.4g} rad/s with all cables taut); use dt <= {limit:.4g}, dt = 'auto', "
-                "or allow_unstable_dt"
-            )
-        every = max(1, round(interval / dt))
-    n_steps = max(1, math.ceil(settings.t_end / dt - 1e-9))
-    return dt, limit, n_steps, every
-
-
 class Integrator:
     """Holds the model, data and kernels of one batch and advances it on one Warp device."""
 
-    def __init__(self, batch: NetworkBatch, settings: RunSettings, dt: float, output_every: int, n_out: int):
+    def __init__(self, batch: NetworkBatch, settings: RunSettings, dt: float, output_every: int, n_out: int, *,
+                 path: Path):
+        """``path``: staged or fused launches (:func:`warp_tensegrity.engine.choose_path`); the
+        fused path runs RATTLE only."""
+        if path == Path.FUSED and settings.method != Method.RATTLE:
+            raise SettingsError(f"the fused path needs method = 'rattle' (got method = {settings.method!r})")
         self.settings = settings
+        self.path = Path(path)
         self.device = resolve_device(settings.device)
         self.dt = dt
         self.every = output_every
@@ -105,9 +76,7 @@ class Integrator:
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
             self.model: Model = build_model(batch, settings.precision, self.device)
-            self.fused = settings.fused is True or (
-                settings.fused == "auto" and settings.method == "rattle"
-                and (not self.device.is_cuda or batch.n_columns <= FUSED_MAX_COLUMNS))
+            self.fused = self.path == Path.FUSED
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
@@ -235,7 +204,7 @@ class Integrator:
             return
         rk_only = {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in {**vars(self.k), **vars(self.ks)}.items():
-            if isinstance(kern, wp.Kernel) and (self.settings.method == "rk4" or name not in rk_only):
+            if isinstance(kern, wp.Kernel) and (self.settings.method == Method.RK4 or name not in rk_only):
                 kern.module.load(self.device, self._block_dim(kern))
 
     def initialize(self):
@@ -263,19 +232,24 @@ class Integrator:
         self._factor_project_velocities(d.u, d.v)
         self._gather(d.u, d.v, 0.0, d.a, d.v)
 
+    def _yoshida4(self, h):
+        for w in YOSHIDA:
+            self._rattle(w * h)
+
     def _rk4(self, h):
         d, r = self.data, self.data.rk
         wp.copy(r["u0"], d.u)
         wp.copy(r["v0"], d.v)
         # stage inputs (us, vs); the first stage reads the current state
         us, vs = d.u, d.v
-        coefs = ((1.0, 0.5 * h, 1), (2.0, 0.5 * h, 0), (2.0, h, 0), (1.0, h / 6.0, 2))
-        for c_acc, c_next, first in coefs:
+        coefs = ((1.0, 0.5 * h, RKStage.FIRST), (2.0, 0.5 * h, RKStage.MIDDLE), (2.0, h, RKStage.MIDDLE),
+                 (1.0, h / 6.0, RKStage.LAST))
+        for c_acc, c_next, stage in coefs:
             self._gather(us, vs, 0.0, d.a, d.imp)  # imp: unused velocity output
             self._constrained_accel(us, vs, d.a)
-            u_next, v_next = (d.u, d.v) if first == 2 else (r["us"], r["vs"])
+            u_next, v_next = (d.u, d.v) if stage == RKStage.LAST else (r["us"], r["vs"])
             self._launch(self.k.rk_stage, (self.model.n_nodes, self.model.n_columns), [
-                d.status, r["u0"], r["v0"], vs, d.a, self.real(c_acc), self.real(c_next), first,
+                d.status, r["u0"], r["v0"], vs, d.a, self.real(c_acc), self.real(c_next), int(stage),
                 r["acc_u"], r["acc_v"], u_next, v_next])
             us, vs = r["us"], r["vs"]
         # project the new state: positions along G(u_new), then velocities
@@ -293,17 +267,7 @@ class Integrator:
         if self.fused:
             self._fused_steps(1)
             return
-        h = self.dt
-        method = self.settings.method
-        if method == "rattle":
-            self._rattle(h)
-        elif method == "yoshida4":
-            for w in YOSHIDA:
-                self._rattle(w * h)
-        elif method == "rk4":
-            self._rk4(h)
-        elif method == "symplectic_euler":
-            self._symplectic_euler(h)
+        STEPS[Method(self.settings.method)](self, self.dt)
         self._launch(self.k.advance_counter, 1, [self.data.step])
         self._record()
 
@@ -352,200 +316,42 @@ class Integrator:
             self.steps_done += k
             n -= k
 
+    def run(self, n_steps: int, progress=None) -> tuple[float, float]:
+        """Initialize, then advance ``n_steps`` in chunks (on CUDA ~20 per run, whole graphs each),
+        calling ``progress(done, n_steps, n_failed)`` at most twice a second. Returns the seconds
+        spent stepping and initializing (kernel loads included)."""
+        with wp.ScopedDevice(self.device):
+            t_compile = time.perf_counter()
+            self.initialize()
+            wp.synchronize_device(self.device)
+            t_compile = time.perf_counter() - t_compile
+            t0 = last = time.perf_counter()
+            done = 0
+            # advance in chunks (on CUDA ~20 per run, whole graphs each); report at most twice a second
+            chunk = int(self.settings.steps_per_graph)
+            if self.device.is_cuda:
+                chunk *= max(1, n_steps // (chunk * 20))
+            while done < n_steps:
+                n = min(chunk, n_steps - done)
+                self.advance(n)
+                done += n
+                if progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
+                    wp.synchronize_device(self.device)
+                    progress(done, n_steps, self.n_failed())
+                    last = time.perf_counter()
+            wp.synchronize_device(self.device)
+            wall = time.perf_counter() - t0
+        return wall, t_compile
+
     # ------------------------------------------------------------------ results
     def n_failed(self) -> int:
         return int(np.count_nonzero(self.data.status.numpy()))
 
 
-def _to_host(a: wp.array | None):
-    return None if a is None else a.numpy().astype(np.float64)
-
-
-def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> BatchResult:
-    """Integrate a prepared batch; see :func:`simulate_batch` for columns."""
-    omega = float(omega_max_bound(batch).max())
-    dt, limit, n_steps, every = choose_timestep(settings, omega)
-    n_out = n_steps // every + 1
-    integ = Integrator(batch, settings, dt, every, n_out)
-    with wp.ScopedDevice(integ.device):
-        t_compile = time.perf_counter()
-        integ.initialize()
-        wp.synchronize_device(integ.device)
-        t_compile = time.perf_counter() - t_compile
-        t0 = last = time.perf_counter()
-        done = 0
-        # advance in chunks (on CUDA ~20 per run, whole graphs each); report at most twice a second
-        chunk = int(settings.steps_per_graph)
-        if integ.device.is_cuda:
-            chunk *= max(1, n_steps // (chunk * 20))
-        while done < n_steps:
-            n = min(chunk, n_steps - done)
-            integ.advance(n)
-            done += n
-            if progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
-                wp.synchronize_device(integ.device)
-                progress(done, n_steps, integ.n_failed())
-                last = time.perf_counter()
-        wp.synchronize_device(integ.device)
-        wall = time.perf_counter() - t0
-    d = integ.data
-    ke = _to_host(integ.kinetic).T  # (B, n_out)
-    ee = _to_host(integ.elastic).T
-    status = d.status.numpy().astype(np.int32)
-    fail_step = d.fail_step.numpy().astype(np.int64)
-    E = ke + ee
-    # only outputs written before a failure are meaningful
-    valid = np.ones_like(E, dtype=bool)
-    for b in np.flatnonzero(status):
-        last_slot = max(int(fail_step[b]) - 1, 0) // every
-        valid[b, last_slot + 1 :] = False
-        ke[b, last_slot + 1 :] = np.nan
-        ee[b, last_slot + 1 :] = np.nan
-    scale = np.where(ke[:, 0] > 0, ke[:, 0], np.nan)
-    with np.errstate(invalid="ignore"):
-        dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
-        energy_error = dev.max(axis=1) / scale
-    strain = None
-    if integ.strain is not None:
-        strain = _to_host(integ.strain).transpose(2, 0, 1)  # (B, n_out, n_prisms)
-        for b in np.flatnonzero(status):
-            last_slot = max(int(fail_step[b]) - 1, 0) // every
-            strain[b, last_slot + 1 :] = np.nan
-    return BatchResult(
-        params=dict(batch.params),
-        time=np.arange(n_out) * every * dt,
-        strain=strain,
-        kinetic_energy=ke,
-        elastic_energy=ee,
-        energy_error=energy_error,
-        bar_length_error=d.bar_err.numpy().astype(np.float64),
-        status=status,
-        fail_step=fail_step,
-        dt=dt,
-        n_steps=n_steps,
-        method=settings.method,
-        precision=settings.precision,
-        device=str(integ.device),
-        device_name=integ.device.name,
-        wall_time=wall,
-        final_displacement=d.u.numpy().astype(np.float64).transpose(1, 0, 2),
-        final_velocity=d.v.numpy().astype(np.float64).transpose(1, 0, 2),
-        dt_limit=limit,
-        info={
-            "omega_max_bound": omega,
-            "output_every": every,
-            "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
-            "bandwidth": integ.model.bandwidth,
-            "n_constraints": integ.model.n_constraints,
-            "build_time": integ.build_time,
-            "initialize_time": t_compile,
-            "graph_steps": integ.graph_steps,
-            "force_evaluations_per_step": FORCE_EVALS[settings.method],
-            "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
-        },
-    )
-
-
-def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, progress=None) -> BatchResult:
-    """Simulate B T3 columns of one topology, each with its own parameters.
-
-    ``params`` maps names in :data:`~warp_tensegrity.settings.COLUMN_PARAMETERS` to arrays of
-    shape (B,) (or scalars); missing ones take the config's defaults.
-    ``progress(steps_done, n_steps, n_failed)`` is called about twice a second.
-    With ``settings.accuracy`` the method, precision and dt are chosen from it; with
-    ``settings.truncate`` only the prisms a wave can reach within t_end are simulated. Both are
-    reported in ``result.info['choices']``.
-    """
-    n = config.n_prisms
-    n_sim = prisms_to_simulate(config, params, settings)
-    settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
-    sim_config = _far_end(config, n_sim) if n_sim < n else config
-    batch = column_batch(sim_config, params)
-    result = run_batch(batch, settings, progress)
-    if n_sim < n:
-        _pad_to_full_column(result, config, sim_config, params, n, n_sim)
-    choices.update({"prisms_simulated": n_sim, "prisms": n, "method": settings.method,
-                    "precision": settings.precision, "dt": result.dt,
-                    "record_strain": settings.record_strain})
-    result.info["choices"] = choices
-    return result
-
-
-def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings) -> int:
-    """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end."""
-    n = config.n_prisms
-    if not settings.truncate or n <= 4:
-        return n
-    hand = config.prism_handedness()
-    if np.any(hand != hand[0]) and np.any(column_params(config, params)["base_rigidity"] >= 1.0):
-        # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
-        # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
-        return n
-    probe = column_batch(_far_end(config, 4), params)  # the omega bound is a local property
-    return reachable_prisms(float(omega_max_bound(probe).max()), settings.t_end, n)
-
-
-def _far_end(config: ColumnConfig, n_sim: int) -> ColumnConfig:
-    """The last n_sim prisms of the column (the impacted end), as a column of their own."""
-    hand = config.prism_handedness()[-n_sim:]
-    return replace(config, n_prisms=n_sim, handedness="".join("R" if h > 0 else "L" for h in hand))
-
-
-def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int, n_sim: int):
-    """Give a truncated run the shapes and constants of the full column: the far prisms at rest."""
-    cut = n - n_sim  # prisms (and levels) removed at the clamped end
-    if result.strain is not None:
-        B, T, _ = result.strain.shape
-        result.strain = np.concatenate([np.zeros((B, T, cut)), result.strain], axis=2)
-    # the short column starts untwisted: rotate its vectors into the full column's frame
-    theta = -config.twist * float(config.prism_handedness()[:cut].sum())
-    c, sn = np.cos(theta), np.sin(theta)
-    rot = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
-    for name in ("final_displacement", "final_velocity"):
-        a = getattr(result, name)
-        if a is not None:
-            setattr(result, name, np.concatenate([np.zeros((a.shape[0], 3 * cut, 3)), a @ rot.T], axis=1))
-    # the removed prisms keep their prestress energy: add it so energies mean the whole column
-    states, index = reference_states(column_params(config, params))
-    offset = reference_elastic_energy(column_batch(config, states)) - reference_elastic_energy(
-        column_batch(sim_config, states))
-    result.elastic_energy = result.elastic_energy + offset[index][:, None]
-
-
-def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
-    """Time step, stability limit, step count and memory of a batch, without launching kernels."""
-    settings, _ = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
-    batch = column_batch(config, params)
-    omega = float(omega_max_bound(batch).max())
-    dt, limit, n_steps, every = choose_timestep(settings, omega)
-    n_out = n_steps // every + 1
-    r = 4 if settings.precision == "fp32" else 8
-    n, nc, ne, npr = batch.positions.shape[0], len(batch.constraints), len(batch.cables), config.n_prisms
-    partner, *_ = mass_entries(batch)
-    bw = constraint_coupling(batch, partner)[-1]
-    state_vecs = 5 + (6 if settings.method == "rk4" else 0)
-    per_col = r * (3 * n * state_vecs + nc * (bw + 2) + 3 * ne + 2 * n_out + (n_out * npr if settings.record_strain else 0))
-    flops = FORCE_EVALS[settings.method] * (ne * 60 + n * 10) + nc * (bw + 1) ** 2 * (5 if settings.method == "rk4" else 2)
-    # measured (benchmarks/results): the 2-core CPU backend runs ~1 ns per flop serially; on an H200 the
-    # fused step takes >= ~0.1 ms (FB) .. 0.7 ms (RB, 50 prisms) per step (lane 0's serial Cholesky) and
-    # sustains ~6e11 (fp32) / 3e11 (fp64) useful flop/s once the GPU is full
-    device = resolve_device(settings.device)
-    if device.is_cuda:
-        step_latency = 1e-4 * (nc / 150.0) * ((bw + 1) / 4.0) ** 2
-        rate = 6e11 if settings.precision == "fp32" else 3e11
-        seconds = n_steps * max(step_latency, flops * batch.n_columns / rate)
-    else:
-        seconds = n_steps * batch.n_columns * flops * 1e-9
-    return {
-        "dt": dt,
-        "dt_limit": limit,
-        "n_steps": n_steps,
-        "output_every": every,
-        "n_out": n_out,
-        "bytes_per_column": int(per_col),
-        "flops_per_column_step": int(flops),
-        "omega_max_bound": omega,
-        "bandwidth": int(bw),
-        "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
-        "seconds_estimate": seconds,
-    }
+STEPS = {
+    Method.RATTLE: Integrator._rattle,
+    Method.YOSHIDA4: Integrator._yoshida4,
+    Method.RK4: Integrator._rk4,
+    Method.SYMPLECTIC_EULER: Integrator._symplectic_euler,
+}
+"""One staged step of each method: ``STEPS[method](integrator, dt)``."""

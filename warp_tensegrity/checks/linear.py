@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .network import Network
+from ..scene.network import Network
 from .reference import ReferenceSystem
 
 __all__ = [

@@ -16,7 +16,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-_WORKER_DEVICE_KEY = "warp_tensegrity_device"
+from ..io import code_version
+from ..types import ShardState
+from .shard import run_shard
+from .store import check_shard
 
 
 def _gpu_count() -> int:
@@ -42,9 +45,6 @@ def _quiet_warp() -> None:
 
 def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
     """Runs on a worker: compute shard ``index``, write it atomically, return (index, path, n_failed)."""
-    from . import sweep
-    from .spec import code_version
-
     if quiet:
         _quiet_warp()
 
@@ -62,9 +62,9 @@ def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
             device = device_map.get(get_worker().address)
         except Exception:
             device = None
-    path = sweep.run_shard(plan, index, device=device)
-    st = sweep.check_shard(plan, index)
-    if st.state != "done":
+    path = run_shard(plan, index, device=device)
+    st = check_shard(plan, index)
+    if st.state != ShardState.DONE:
         raise RuntimeError(f"shard {index} written to {path} does not check out: {st.reason}")
     return index, str(path), st.n_failed
 
