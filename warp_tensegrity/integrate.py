@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import gc
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -24,9 +25,11 @@ import warp as wp
 from .fused import make_fused_kernels, shared_capacity
 from .kernels import make_kernels, make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
-from .scene.batch import NetworkBatch
 from .settings import RunSettings, SettingsError
 from .types import Method, Path, RKStage
+
+if TYPE_CHECKING:
+    from .scene.batch import NetworkBatch
 
 _W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 YOSHIDA = (_W1, 1.0 - 2.0 * _W1, _W1)

@@ -4,12 +4,13 @@ combined (:mod:`.store`), with a progress bar (:mod:`.progress`); :mod:`.run` dr
 Reading and validating a spec does not import Warp."""
 
 from .dask import local_cluster, run_shards_dask
-from .plan import SweepError, SweepPlan, dry_run, plan_sweep, resolve_dt, shard_dir_for, shard_name
+from .errors import SpecError, SweepError
+from .plan import SweepPlan, dry_run, plan_sweep, resolve_dt
 from .progress import ProgressBar
-from .run import execute, resume_sweep, run_sweep
-from .shard import compute_shard, measure_columns, run_shard
-from .spec import SpecError, SweepSpec, load_spec, parse_spec
-from .store import MANIFEST, SPEC_COPY, ShardCheck, check_shard, combine, load_plan_from_manifest, read_manifest, sweep_status
+from .run import combine, execute, load_plan_from_manifest, resume_sweep, run_sweep, sweep_status
+from .shard import compute_shard, measure_columns, run_and_check, run_shard
+from .spec import SweepSpec, load_spec, parse_spec
+from .store import MANIFEST, SPEC_COPY, ShardCheck, check_shard, read_manifest, shard_dir_for, shard_name
 
 __all__ = [
     "MANIFEST",
@@ -34,6 +35,7 @@ __all__ = [
     "read_manifest",
     "resolve_dt",
     "resume_sweep",
+    "run_and_check",
     "run_shard",
     "run_shards_dask",
     "run_sweep",

@@ -7,26 +7,17 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..engine import estimate_batch
 from ..io import code_version
 from ..settings import RunSettings
 from .progress import fmt_seconds
-from .spec import SpecError, SweepSpec
+from .errors import SpecError
+from .store import shard_dir_for, shard_name
 
-
-class SweepError(RuntimeError):
-    """A sweep cannot run, resume or combine as asked; the message says what to do."""
-
-
-
-def shard_dir_for(out) -> Path:
-    out = Path(out)
-    return out.with_name(out.name + ".shards")
-
-
-def shard_name(index: int) -> str:
-    return f"shard-{index:05d}.nc"
+if TYPE_CHECKING:
+    from .spec import SweepSpec
 
 
 @dataclass
@@ -59,6 +50,10 @@ class SweepPlan:
     @property
     def shard_dir(self) -> Path:
         return shard_dir_for(self.out)
+
+    def resolve(self) -> SweepPlan:
+        """Resolve dt once for the whole sweep (:func:`resolve_dt`)."""
+        return resolve_dt(self)
 
     def shard_path(self, index: int) -> Path:
         return self.shard_dir / shard_name(index)

@@ -6,14 +6,18 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import io as D
 from ..engine import simulate_batch
 from ..measure import measure_pulse
-from ..types import Status
-from .plan import SweepPlan, resolve_dt
+from ..types import ShardState, Status
+from .store import check_shard
+
+if TYPE_CHECKING:
+    from .plan import SweepPlan
 
 
 def measure_columns(result, prism_height: float) -> dict:
@@ -40,7 +44,7 @@ def measure_columns(result, prism_height: float) -> dict:
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
     """Run shard ``index`` and return its case-stacked dataset (not written)."""
     if plan.settings is None:
-        resolve_dt(plan)
+        plan.resolve()
     spec = plan.spec
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
@@ -79,3 +83,12 @@ def run_shard(plan: SweepPlan, index: int, device: str | None = None, progress=N
     """Compute shard ``index`` and write it atomically; returns its path."""
     ds = compute_shard(plan, index, device=device, progress=progress)
     return D.write_netcdf(ds, plan.shard_path(index))
+
+
+def run_and_check(plan: SweepPlan, index: int, device: str | None = None) -> tuple[int, str, int]:
+    """Run shard ``index``, write it and check the file (a Dask task's body): (index, path, n_failed)."""
+    path = run_shard(plan, index, device=device)
+    st = check_shard(plan, index)
+    if st.state != ShardState.DONE:
+        raise RuntimeError(f"shard {index} written to {path} does not check out: {st.reason}")
+    return index, str(path), st.n_failed

@@ -38,6 +38,7 @@ from ..io import code_version, package_version  # noqa: F401  (provenance lives 
 from ..scene.columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
 from ..scene.network import NetworkError
 from ..settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
+from .errors import SpecError
 
 
 TOP_KEYS = ("title", "description", "scene", "sweep", "run")
@@ -81,22 +82,6 @@ PARAM_DEFAULTS = {"prestrain": 0.0, "v0": 0.0, "base_rigidity": 0.0}
 default to the scene's values)."""
 
 _DEVICE_RE = re.compile(r"^(cpu|cuda|cuda:\d+)$")
-
-
-class SpecError(ValueError):
-    """Invalid sweep spec. ``errors`` lists one message per problem, each naming the key path."""
-
-    def __init__(self, errors, source: str | None = None):
-        if isinstance(errors, str):
-            errors = [errors]
-        self.errors = list(errors)
-        self.source = source
-        head = f"invalid sweep spec{f' {source}' if source else ''}"
-        if len(self.errors) == 1:
-            msg = f"{head}: {self.errors[0]}"
-        else:
-            msg = f"{head} ({len(self.errors)} problems):\n" + "\n".join(f"  - {e}" for e in self.errors)
-        super().__init__(msg)
 
 
 # ---------------------------------------------------------------------- helpers

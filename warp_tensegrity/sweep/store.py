@@ -20,14 +20,26 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import io as D
 from ..types import ShardState, Status
-from .plan import SweepError, SweepPlan, plan_sweep, shard_dir_for
-from .spec import SweepSpec, load_spec
+from .errors import SweepError
+
+if TYPE_CHECKING:
+    from .plan import SweepPlan
 
 MANIFEST = "manifest.json"
 SPEC_COPY = "spec.toml"
+
+
+def shard_dir_for(out) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".shards")
+
+
+def shard_name(index: int) -> str:
+    return f"shard-{index:05d}.nc"
 
 
 @dataclass
@@ -110,20 +122,6 @@ def read_manifest(out) -> dict:
     return manifest
 
 
-def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True) -> SweepPlan:
-    m = read_manifest(out)
-    spec = load_spec(m["spec_text"])
-    if m.get("spec_file"):
-        spec.source = m["spec_file"]
-    return plan_sweep(
-        spec,
-        out,
-        device=device if device is not None else m.get("device"),
-        shard_size=shard_size or m.get("shard_size"),
-        estimate=estimate,
-    )
-
-
 def prepare_dir(plan: SweepPlan, overwrite: bool, resume: bool) -> None:
     d = plan.shard_dir
     if d.exists() and not resume:
@@ -146,64 +144,7 @@ def prepare_dir(plan: SweepPlan, overwrite: bool, resume: bool) -> None:
     _write_manifest(plan)
 
 
-def combine(plan_or_out, spec=None) -> Path:
-    """Combine every shard into plan.out (atomically). Refuses while shards are missing or stale."""
-    plan = plan_or_out if isinstance(plan_or_out, SweepPlan) else None
-    if plan is None:
-        if spec is None:
-            plan = load_plan_from_manifest(plan_or_out, estimate=False)
-        else:
-            plan = plan_sweep(spec if isinstance(spec, SweepSpec) else load_spec(spec), plan_or_out, estimate=False)
-    bad = [s for s in (check_shard(plan, i) for i in range(plan.n_shards)) if s.state != ShardState.DONE]
-    if bad:
-        listing = ", ".join(f"{s.index} ({s.state}{': ' + s.reason if s.reason else ''})" for s in bad[:8])
-        more = f" and {len(bad) - 8} more" if len(bad) > 8 else ""
-        raise SweepError(
-            f"{len(bad)} of {plan.n_shards} shards are not done: {listing}{more}; "
-            f"run `warp-tensegrity resume {plan.out}`"
-        )
-    shards = [D.open_sweep(plan.shard_path(i)) for i in range(plan.n_shards)]
-    ds = D.combine_shards(plan.spec, shards)
-    return D.write_netcdf(ds, plan.out)
-
-
-def sweep_status(out, spec=None) -> dict:
-    """Cases done, diverged and remaining, per shard state."""
-    if spec is None and not shard_dir_for(out).exists() and Path(out).exists():
-        return _status_from_output(out)
-    if spec is None:
-        plan = load_plan_from_manifest(out, estimate=False)
-    else:
-        plan = plan_sweep(spec if isinstance(spec, SweepSpec) else load_spec(spec), out, estimate=False)
-    states = [check_shard(plan, i) for i in range(plan.n_shards)]
-    done = [s for s in states if s.state == ShardState.DONE]
-    out = Path(out)
-    combined = False
-    if out.exists():
-        try:
-            with D.open_sweep(out, load=False) as ds:
-                combined = ds.attrs.get("fingerprint") == plan.fingerprint
-        except Exception:
-            combined = False
-    return {
-        "output": str(out),
-        "spec": plan.spec.source,
-        "columns": plan.n_columns,
-        "shards": plan.n_shards,
-        "shard_size": plan.shard_size,
-        "shards_done": len(done),
-        "cases_done": sum(s.n_columns for s in done),
-        "cases_diverged": sum(s.n_failed for s in done),
-        "cases_remaining": plan.n_columns - sum(s.n_columns for s in done),
-        "shards_missing": [s.index for s in states if s.state == ShardState.MISSING],
-        "shards_stale": [(s.index, s.reason) for s in states if s.state == ShardState.STALE],
-        "shards_corrupt": [(s.index, s.reason) for s in states if s.state == ShardState.CORRUPT],
-        "combined": combined,
-        "fingerprint": plan.fingerprint,
-    }
-
-
-def _status_from_output(out) -> dict:
+def status_from_output(out) -> dict:
     """Status of a combined output whose shard directory is gone."""
     try:
         ds = D.open_sweep(out)
