@@ -40,7 +40,6 @@ Model no more than a scene needs: choices taken from the requested accuracy and 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import replace
 
 import numpy as np

@@ -104,6 +104,7 @@ class Integrator:
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)
         }
+        self._group_arguments()
         self.build_time = time.perf_counter() - t0
         self.graph = None
         self.graph_steps = 0
@@ -120,10 +121,23 @@ class Integrator:
     def _launch(self, kernel, dim, inputs):
         wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, block_dim=self._block_dim(kernel))
 
+    def _group_arguments(self):
+        """The Model arguments the kernels take, in named groups (each kernel's signature lists
+        them in this order under ``# Model:``), and the projection settings as typed scalars."""
+        m, s, real = self.model, self.settings, self.real
+        self.bars = [m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active]
+        self.coupling = [m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross, m.cpl_sign]
+        self.gram = [m.con_i, m.con_j, m.con_dref, m.con_active] + self.coupling  # rows of G M^-1 G^T
+        self.node_bars = [m.ncon_start, m.ncon_member]
+        self.minv = [m.partner, m.minv_self, m.minv_cross]
+        self.cables = [m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L]
+        self.node_cables = [m.cab_EA, m.cab_EAc, m.cab_L, m.node_start, m.node_member, m.node_other, m.node_dref]
+        self.masses = [m.partner, m.m_self, m.m_cross]
+        self.projection = [real(s.tolerance), int(s.max_projection_iters), real(s.failure_bar_error)]
+
     def _gather(self, u, v, kick, a, v_out):
         m, d = self.model, self.data
-        self._launch(self.k.gather_accel, (m.mass_blocks.shape[0], m.n_columns), [
-            m.cab_EA, m.cab_EAc, m.cab_L, m.node_start, m.node_member, m.node_other, m.node_dref,
+        self._launch(self.k.gather_accel, (m.mass_blocks.shape[0], m.n_columns), self.node_cables + [
             m.mass_blocks, m.minv_self, m.minv_cross, d.status, u, v, self.real(kick), a, v_out])
 
     def _kick_drift(self, kick, drift):
@@ -132,50 +146,40 @@ class Integrator:
                      [d.status, d.a, self.real(kick), self.real(drift), d.u, d.v, d.u_prev])
 
     def _project_positions(self, ug, inv_dt):
-        m, d, s = self.model, self.data, self.settings
+        m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.project_positions, m.n_columns, [
-            m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.ncon_start, m.ncon_member, m.partner,
-            m.minv_self, m.minv_cross, self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
+        self._launch(self.ks.project_positions, m.n_columns, self.bars + self.node_bars + self.minv + self.projection + [
             self.real(inv_dt), d.band, ug, d.step, d.u, d.v, d.lam, d.imp, d.bar_err, d.iters, d.status, d.fail_step])
-
-    def _cpl(self):
-        m = self.model
-        return [m.con_i, m.con_j, m.con_dref, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross, m.cpl_sign]
 
     def _factor_project_velocities(self, u, v):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.factor_project_velocities, m.n_columns, self._cpl() + [
-            m.ncon_start, m.ncon_member, m.partner, m.minv_self, m.minv_cross, u, d.step, d.band, v, d.lam, d.imp,
-            d.status, d.fail_step])
+        self._launch(self.ks.factor_project_velocities, m.n_columns, self.gram + self.node_bars + self.minv + [
+            u, d.step, d.band, v, d.lam, d.imp, d.status, d.fail_step])
 
     def _factor(self, u):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.factor_only, m.n_columns, self._cpl() + [
+        self._launch(self.ks.factor_only, m.n_columns, self.gram + [
             m.minv_self, m.minv_cross, u, d.step, d.band, d.status, d.fail_step])
 
     def _constrained_accel(self, u, v, a):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.constrained_accel, m.n_columns, self._cpl() + [
-            m.ncon_start, m.ncon_member, m.partner, m.minv_self, m.minv_cross, u, v, d.step, d.band, a, d.lam, d.imp,
-            d.status, d.fail_step])
+        self._launch(self.ks.constrained_accel, m.n_columns, self.gram + self.node_bars + self.minv + [
+            u, v, d.step, d.band, a, d.lam, d.imp, d.status, d.fail_step])
 
     def _fused(self, n_sub: int, init: int = 0):
-        m, d, s, f = self.model, self.data, self.settings, self.data.fused
+        m, d, f = self.model, self.data, self.data.fused
+        inputs = self.bars + self.coupling + self.node_bars + self.cables + [m.node_start, m.node_member] + self.minv \
+            + self.projection + [self.real(self.dt), int(n_sub), int(init), d.step, d.u, d.v, d.a, d.bar_err, d.iters,
+                                 d.status, d.fail_step, f.nodes, f.solve, f.red]
         wp.launch_tiled(self.fk.rattle_columns, dim=[m.n_columns], block_dim=self.fused_block, device=self.device,
-                        inputs=[
-            m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross,
-            m.cpl_sign, m.ncon_start, m.ncon_member, m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L,
-            m.node_start, m.node_member, m.partner, m.minv_self, m.minv_cross, self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
-            self.real(self.dt), int(n_sub), int(init), d.step, d.u, d.v, d.a, d.bar_err, d.iters, d.status,
-            d.fail_step, f.nodes, f.solve, f.red])
+                        inputs=inputs)
 
     def _fused_steps(self, n: int):
         """n RATTLE steps as fused launches of at most FUSED_STEPS, each followed by the counter and
@@ -192,8 +196,7 @@ class Integrator:
         if self.strain is not None:
             self._launch(self.k.record_strain, (m.n_prisms, m.n_columns),
                          [m.level_nodes, m.h0, self.every, d.u, d.step, self.strain])
-        self._launch(self.k.record_energy, m.n_columns, [
-            m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L, m.partner, m.m_self, m.m_cross,
+        self._launch(self.k.record_energy, m.n_columns, self.cables + self.masses + [
             self.every, d.u, d.v, d.step, self.kinetic, self.elastic])
 
     # ------------------------------------------------------------------ steps

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..engine import for_accuracy
-from ..io import code_version, package_version  # noqa: F401  (provenance lives with the datasets)
+from ..io import code_version
 from ..scene.columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
 from ..scene.network import NetworkError
 from ..settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
