@@ -190,8 +190,7 @@ def skip_equilibrium_checks():
 def build_base_batch(n_prisms: int, base_rigidity: float, n_columns: int = BASE_COLUMNS,
                      check_equilibrium: bool = False):
     """column_batch of ``n_columns`` distinct columns (see base_params)."""
-    from warp_tensegrity import column_batch
-    from warp_tensegrity import ColumnConfig
+    from warp_tensegrity import ColumnConfig, column_batch
 
     params = base_params(n_columns, base_rigidity)
     if check_equilibrium:

@@ -31,9 +31,7 @@ CASES = {  # sweeps/paper_2017.toml
 
 
 def agreement(device: str) -> list[dict]:
-    from warp_tensegrity import ColumnConfig
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity import simulate_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
 
     cfg = ColumnConfig(n_prisms=50)
     rows = []

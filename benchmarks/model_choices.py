@@ -219,8 +219,7 @@ def references(device, log) -> dict:
 
 
 def part_fp32(device, refs, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     cfg = ColumnConfig()
     out = {}
@@ -262,8 +261,7 @@ def free_prisms(B: int, bar_mass: float, seed: int = 1, speed: float = 0.002, pr
     """Free class-1 T3 prisms, random admissible velocities. Returns the three networks
     (consistent bar inertia; lumped m/2 per end with massless bars; lumped plus a negligible
     bar mass, which takes the partner-mass path) and the velocities (B, 6, 3)."""
-    from warp_tensegrity import ColumnConfig, build_column
-    from warp_tensegrity import Network
+    from warp_tensegrity import ColumnConfig, Network, build_column
     from warp_tensegrity.checks.reference import ReferenceSystem
 
     net = build_column(ColumnConfig(n_prisms=1), prestrain=prestrain).network
@@ -283,9 +281,7 @@ def free_prisms(B: int, bar_mass: float, seed: int = 1, speed: float = 0.002, pr
 
 
 def part_massless(device, B, repeats, log) -> dict:
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity import network_batch
-    from warp_tensegrity import run_batch
+    from warp_tensegrity import RunSettings, network_batch, run_batch
 
     t_end, dt, bar_mass = 0.1, 2.5e-4, 0.01
     log(f"  massless vs massive bars, free T3 prisms, B={B}")
@@ -319,8 +315,7 @@ def part_massless(device, B, repeats, log) -> dict:
 
 
 def part_strain(device, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     cfg, t_end = ColumnConfig(), 0.5
     log(f"  record_strain True vs False, FB, B={B}")
@@ -349,8 +344,7 @@ def _savings(a: dict, b: dict) -> dict:
 
 
 def part_outputs(device, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     cfg, t_end, dt = ColumnConfig(), 0.5, 0.002
     log(f"  outputs every step vs every 0.01 s, FB, B={B}")
@@ -372,8 +366,7 @@ def part_outputs(device, B, repeats, log) -> dict:
 
 
 def part_truncate(device, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     from .common import skip_equilibrium_checks
 

@@ -238,10 +238,8 @@ def mjwarp_main(a, cfg, topo, doc):
     """--mjwarp-device: batched MuJoCo Warp, pulse (world 0) and world-steps/s against nworld."""
     import warp as wp
 
-    from warp_tensegrity import build_column
+    from warp_tensegrity import RunSettings, build_column, simulate_batch
     from warp_tensegrity.measure import measure_pulse
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity import simulate_batch
 
     doc["mjwarp"] = []
     for base in a.bases:
@@ -347,10 +345,8 @@ def main(argv=None):
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    from warp_tensegrity import ColumnConfig, build_column, column_topology
+    from warp_tensegrity import ColumnConfig, RunSettings, build_column, column_topology, simulate_batch
     from warp_tensegrity.measure import measure_pulse
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity import simulate_batch
 
     cfg = ColumnConfig(n_prisms=a.n_prisms)
     topo = column_topology(cfg)

@@ -81,8 +81,7 @@ def bar_error(net, x):
 
 
 def engine_run(cfg, params, t_end, dt, device="cpu"):
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity import simulate_batch
+    from warp_tensegrity import RunSettings, simulate_batch
 
     s = RunSettings(t_end=t_end, dt=dt, method="rattle", precision="fp64", device=device, record_strain=False,
                     output_interval=t_end)

@@ -46,8 +46,15 @@ def _sweep_arrays(name: str, overrides: dict | None = None) -> dict:
 
 def _holdout_arrays() -> dict:
     """The scenes of tests/test_against_reference.py, with the settings used there."""
-    from warp_tensegrity import ColumnConfig, RunSettings, build_column, network_batch, run_batch, simulate_batch
-    from warp_tensegrity import Network
+    from warp_tensegrity import (
+        ColumnConfig,
+        Network,
+        RunSettings,
+        build_column,
+        network_batch,
+        run_batch,
+        simulate_batch,
+    )
     from warp_tensegrity.checks.reference import ReferenceSystem
 
     out = {}

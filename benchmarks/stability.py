@@ -116,9 +116,8 @@ def run_at_ratio(cfg, cases, omega, r, method, n_steps, device, precision="fp64"
     """Run every case c for n_steps at omega_c dt = r_c * S (one batch, masses scaled).
 
     Returns (stable (B,) bool, BatchResult)."""
-    from warp_tensegrity import RunSettings
+    from warp_tensegrity import RunSettings, simulate_batch
     from warp_tensegrity.types import STABILITY
-    from warp_tensegrity import simulate_batch
 
     m0 = cfg.unit_mass
     S = STABILITY[method]
@@ -166,9 +165,8 @@ def bisect_limits(cfg, cases, omega, method, n_steps, n_bisect, device, r_lo=R_L
 def verify_scaling(cfg, cases, omega, method, r_stable, r_unstable, n_steps, device, idx, criterion="energy"):
     """Unscaled columns (paper mass and v0) at the physical dt = r S / omega_c for
     r = 0.99 r_stable and 1.01 r_unstable: returns (B_idx, 2) stable flags (expected True, False)."""
-    from warp_tensegrity import RunSettings
+    from warp_tensegrity import RunSettings, simulate_batch
     from warp_tensegrity.types import STABILITY
-    from warp_tensegrity import simulate_batch
 
     out = np.zeros((len(idx), 2), dtype=bool)
     for a, c in enumerate(idx):
@@ -187,9 +185,7 @@ def verify_scaling(cfg, cases, omega, method, r_stable, r_unstable, n_steps, dev
 
 def energy_runs(device, t_end):
     """Energy error (E - E0)/KE0 against time for ENERGY_CASES, every run of ENERGY_RUNS at dt='auto'."""
-    from warp_tensegrity import ColumnConfig
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity import simulate_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
 
     cfg = ColumnConfig(n_prisms=N_PRISMS)
     params = {k: np.array([c[i] for c in ENERGY_CASES]) for i, k in

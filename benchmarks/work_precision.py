@@ -89,8 +89,7 @@ def _params(replicas=1):
 
 
 def _run(cfg, setup, method, precision, dt, device, replicas=1):
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity import simulate_batch
+    from warp_tensegrity import RunSettings, simulate_batch
 
     s = RunSettings(t_end=setup["t_end"], dt=dt, method=method, precision=precision,
                     output_interval=setup["output_interval"], device=device, allow_unstable_dt=True)

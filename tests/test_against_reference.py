@@ -5,14 +5,11 @@ import pytest
 import warp as wp
 
 from warp_tensegrity.checks import linear
-from warp_tensegrity import column_batch, network_batch
-from warp_tensegrity.scene.columns import ColumnConfig, build_column, prism_heights
-from warp_tensegrity import Network
+from warp_tensegrity import Network, RunSettings, column_batch, network_batch, run_batch, simulate_batch
 from warp_tensegrity.checks.reference import ClassOneMatrixForm, ReferenceSystem, integrate_matrix_form
-from warp_tensegrity import RunSettings
 from warp_tensegrity.integrate import Integrator
+from warp_tensegrity.scene.columns import ColumnConfig, build_column, prism_heights
 from warp_tensegrity.types import Path
-from warp_tensegrity import run_batch, simulate_batch
 
 
 def free_prism_with_massive_bars(prestrain=0.01, seed=1, speed=0.002):

@@ -4,9 +4,7 @@ import numpy as np
 import pytest
 
 from warp_tensegrity.engine import for_accuracy, reachable_prisms
-from warp_tensegrity import ColumnConfig
-from warp_tensegrity import RunSettings, SettingsError
-from warp_tensegrity import simulate_batch
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
 from warp_tensegrity.sweep import SpecError, load_spec as load_spec_text
 
 CASES = {"prestrain": [0.002, 0.002, 0.0], "v0": [0.1, 0.1, 0.005], "base_rigidity": [0.0, 1.0, 0.0]}

@@ -3,9 +3,8 @@
 import numpy as np
 import pytest
 
-from warp_tensegrity import column_batch, network_batch
+from warp_tensegrity import Network, NetworkError, column_batch, network_batch
 from warp_tensegrity.scene.columns import ColumnConfig, build_column, column_topology, prism_heights
-from warp_tensegrity import Network, NetworkError
 
 
 def test_single_prism_members_are_the_papers():

@@ -6,10 +6,8 @@ import pytest
 import warp as wp
 
 from warp_tensegrity import integrate as simulate
-from warp_tensegrity import ColumnConfig
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
 from warp_tensegrity.fused import SHARED_BYTES_MAX, shared_capacity
-from warp_tensegrity import RunSettings, SettingsError
-from warp_tensegrity import simulate_batch
 from warp_tensegrity.sweep import SpecError, parse_spec
 
 CASES = {  # FB and RB, slack-cable impacts and a prestressed one

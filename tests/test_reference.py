@@ -10,8 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from warp_tensegrity import ColumnConfig, build_column
-from warp_tensegrity import Network
+from warp_tensegrity import ColumnConfig, Network, build_column
 from warp_tensegrity.checks.reference import (
     ClassOneMatrixForm,
     ReferenceSystem,
