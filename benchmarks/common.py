@@ -1,6 +1,6 @@
 """Shared pieces of the benchmark scripts: run metadata, batch preparation, timing, memory.
 
-Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.simulate` is used
+Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.integrate` is used
 as it is, with two harness-side choices (both stated in benchmarks/README.md):
 
 * the batch of B columns is built once at a small size (``BASE_COLUMNS`` distinct columns with

@@ -1,6 +1,6 @@
 """Peer: the same T3 column in MuJoCo (CPU, one column), pulse speed and amplitude first, then cost.
 
-MJCF model (built from :func:`warp_tensegrity.columns.build_column`'s network):
+MJCF model (built from :func:`warp_tensegrity.scene.columns.build_column`'s network):
 
 * each free node: a body at its reference position with three slide joints (x, y, z) and a
   point mass (``inertial`` with the node mass, negligible rotational inertia); clamped nodes are

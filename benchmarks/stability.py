@@ -5,7 +5,7 @@ base rigidity, impact speed), bisect (log scale) the largest stable dt, where st
 status 0 (no non-finite state, every bar within failure_bar_error after its projection) and
 energy_error < 1 (|E - E0| < KE0 at every output) over ``n_steps`` steps. The prediction is
 S / omega_max with S = 2 (rattle, symplectic_euler), 2 sqrt 2 (rk4), 1.5734 (yoshida4) and
-omega_max from :func:`warp_tensegrity.linear.omega_max` on the reference network (all cables
+omega_max from :func:`warp_tensegrity.checks.linear.omega_max` on the reference network (all cables
 taut).
 
 Batch trick (dt is one per batch, the cases are many): the dynamics of a column with masses

@@ -1,4 +1,4 @@
-"""Checks of the linearised analysis (warp_tensegrity.linear).
+"""Checks of the linearised analysis (warp_tensegrity.checks.linear).
 
 Analytic cases first (spring-mass chains, a bar pendulum in tension and in compression, which
 exercise the cable material and geometric terms and the bar geometric term), then T3 columns:

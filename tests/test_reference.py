@@ -1,4 +1,4 @@
-"""Checks of the float64 reference dynamics (warp_tensegrity.reference).
+"""Checks of the float64 reference dynamics (warp_tensegrity.checks.reference).
 
 The class-1 matrix form (paper Eqs. 12-14) and the Lagrange-multiplier form are independent
 derivations; on a free T3 prism with massive bars they must give the same motion. Both must

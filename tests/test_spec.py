@@ -1,4 +1,4 @@
-"""Sweep spec parsing and validation (warp_tensegrity.spec), the shipped specs, and the CLI's
+"""Sweep spec parsing and validation (warp_tensegrity.sweep.spec), the shipped specs, and the CLI's
 lazy imports. Everything but the dt-limit test runs without Warp."""
 
 from __future__ import annotations
