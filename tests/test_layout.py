@@ -143,3 +143,4 @@ def test_reading_a_spec_does_not_import_warp(code):
                        cwd=ROOT, capture_output=True, text=True, env={"PYTHONPATH": str(ROOT), "PATH": ""})
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"
+

@@ -254,7 +254,7 @@ class FusedScratch:
     ``block`` = threads per column block."""
 
     nodes: wp.array  # (B, 5 n) vec3: per node displacement [m], velocity [m s-1], acceleration
-    # [m s-2], displacement at the step start [m], G^T lambda (slots U, V, A, P, I of fused.py)
+    # [m s-2], displacement at the step start [m], G^T lambda (slots types.Slot: U, V, A, P, I)
     solve: wp.array  # (B, nc*(bw+2)): Cholesky factor of G M^-1 G^T by rows (inverse diagonal in
     # slot 0 of each row), then the multipliers
     red: wp.array  # (B, block) per-lane values for block reductions
