@@ -261,9 +261,9 @@ def precompile(device, precisions, max_workers: int | None = None) -> float:
     threads. Returns the seconds taken."""
     import warp as wp
 
-    from warp_tensegrity import integrate as simulate
+    from warp_tensegrity import integrate
 
-    caps = (None, simulate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
+    caps = (None, integrate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
     mods = []
     for p in precisions:
         mods += rattle_modules(p, register_caps=caps)
@@ -435,9 +435,9 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
         spg = int(max(1, min(steps_per_graph, math.floor(seg / 3.0 / max(probe, 1e-9)))))
         if path == "fused":
             # whole fused launches: each launch factors A(u) once, so short launches would over-count it
-            from warp_tensegrity import integrate as simulate
+            from warp_tensegrity import integrate
 
-            spg = max(simulate.FUSED_STEPS, spg - spg % simulate.FUSED_STEPS)
+            spg = max(integrate.FUSED_STEPS, spg - spg % integrate.FUSED_STEPS)
         integ.settings.steps_per_graph = spg
         integ.advance(spg)  # capture + first replay
         wp.synchronize_device(device)
