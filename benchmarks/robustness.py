@@ -77,9 +77,11 @@ def main(argv=None) -> int:
 
     wp.config.quiet = True
     wp.init()
-    from warp_tensegrity.columns import ColumnConfig
-    from warp_tensegrity.settings import STATUS_NAMES, RunSettings
-    from warp_tensegrity.simulate import default_device, prisms_to_simulate, simulate_batch
+    from warp_tensegrity.engine import prisms_to_simulate, simulate_batch
+    from warp_tensegrity.integrate import default_device
+    from warp_tensegrity.scene.columns import ColumnConfig
+    from warp_tensegrity.settings import RunSettings
+    from warp_tensegrity.settings import STATUS_NAMES
 
     device = args.device or default_device()
     cfg = ColumnConfig(n_prisms=args.prisms)

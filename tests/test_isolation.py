@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import simulate
-from warp_tensegrity.columns import ColumnConfig
-from warp_tensegrity.settings import STATUS_NAMES, STATUS_OK, RunSettings
-from warp_tensegrity.simulate import prisms_to_simulate, simulate_batch
+from warp_tensegrity import integrate
+from warp_tensegrity.engine import prisms_to_simulate, simulate_batch
+from warp_tensegrity.scene.columns import ColumnConfig
+from warp_tensegrity.settings import RunSettings
+from warp_tensegrity.settings import STATUS_NAMES
+from warp_tensegrity.types import Status
 
 CFG = ColumnConfig(n_prisms=6)
 GOOD = {
@@ -40,15 +42,15 @@ class _Lanes:
     names = ("FUSED_BLOCK_DIM", "FUSED_SHARED_ON_CPU")
 
     def __enter__(self):
-        self.old = [wp.config.enable_cpu_blocks] + [getattr(simulate, n) for n in self.names]
+        self.old = [wp.config.enable_cpu_blocks] + [getattr(integrate, n) for n in self.names]
         wp.config.enable_cpu_blocks = True
-        simulate.FUSED_BLOCK_DIM = 4
-        simulate.FUSED_SHARED_ON_CPU = True
+        integrate.FUSED_BLOCK_DIM = 4
+        integrate.FUSED_SHARED_ON_CPU = True
 
     def __exit__(self, *exc):
         wp.config.enable_cpu_blocks = self.old[0]
         for n, v in zip(self.names, self.old[1:]):
-            setattr(simulate, n, v)
+            setattr(integrate, n, v)
 
 
 @pytest.mark.parametrize("absurd", ["v0", "stiffness"])
@@ -72,14 +74,14 @@ def test_one_diverging_column_leaves_the_others_bit_identical(path, absurd, devi
 
     # the bad column is flagged with the step and the reason
     status, step = int(with_bad.status[AT]), int(with_bad.fail_step[AT])
-    assert status != STATUS_OK and status in STATUS_NAMES, status
+    assert status != Status.OK and status in STATUS_NAMES, status
     assert 0 <= step <= with_bad.n_steps
     t_fail = step * with_bad.dt
     late = with_bad.time > t_fail + with_bad.dt * 1.0001
     if with_bad.strain is not None and late.any():
         assert np.isnan(with_bad.strain[AT][late]).all()  # nothing after the failure is reported as data
     # every other column: bit-identical to the batch without it
-    assert without.status.tolist() == [STATUS_OK] * 4
+    assert without.status.tolist() == [Status.OK] * 4
     others = [i for i in range(5) if i != AT]
     for f in FIELDS:
         a, b = getattr(with_bad, f), getattr(without, f)

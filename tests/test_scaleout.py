@@ -10,7 +10,7 @@ import pytest
 import xarray as xr
 
 from warp_tensegrity import sweep
-from warp_tensegrity.dataset import drop_run_dependent, open_sweep
+from warp_tensegrity.io import drop_run_dependent, open_sweep
 
 distributed = pytest.importorskip("distributed")
 
@@ -57,8 +57,8 @@ def test_dask_run_equals_single_process(tmp_path, client):
     spec.write_text(SPEC)
     single = sweep.run_sweep(spec, tmp_path / "single.nc", progress=False)
     dask_out = sweep.run_sweep(spec, tmp_path / "dask.nc", progress=False, client=client)
-    shards = sorted((tmp_path / "dask.nc.shards").glob("shard-*.nc"))
-    assert len(shards) == 4
+    st = sweep.sweep_status(dask_out)
+    assert st["shards"] == st["shards_done"] == 4
     a, b = open_sweep(single), open_sweep(dask_out)
     xr.testing.assert_identical(drop_run_dependent(b), drop_run_dependent(a))
     # both workers took part
@@ -67,18 +67,29 @@ def test_dask_run_equals_single_process(tmp_path, client):
 
 
 def test_dask_resume_runs_only_missing_shards(tmp_path, client):
+    """A shard whose manifest record is gone (as after a kill) is recomputed on the workers; the
+    others keep their chunk files untouched; the result is identical."""
+    import json
+
     spec = tmp_path / "spec.toml"
     spec.write_text(SPEC)
     out = sweep.run_sweep(spec, tmp_path / "r.nc", progress=False)
-    d = tmp_path / "r.nc.shards"
-    keep = {p.name: p.stat().st_mtime_ns for p in d.glob("shard-*.nc")}
-    (d / "shard-00002.nc").unlink()
+    d = tmp_path / "r.nc.sweep"
+    chunks = lambda: {p.parts[-3]: p.stat().st_mtime_ns for p in (d / "store.zarr" / "strain" / "c").glob("*/*/*")}  # noqa: E731
+    keep = chunks()
+    m = json.loads((d / "manifest.json").read_text())
+    m.pop("sha256")
+    del m["shards"]["2"]
+    store = sweep.SweepStore(out)
+    from warp_tensegrity.sweep.store import Manifest
+
+    Manifest(store.manifest_path, m).save()
     ref = open_sweep(out)
     out.unlink()
     sweep.resume_sweep(out, progress=False, scheduler=client.scheduler.address)
-    after = {p.name: p.stat().st_mtime_ns for p in d.glob("shard-*.nc")}
-    assert after.keys() == keep.keys()
-    assert all(after[k] == keep[k] for k in keep if k != "shard-00002.nc")
+    after = chunks()
+    assert after.keys() == keep.keys() == {"0", "1", "2", "3"}
+    assert all(after[k] == keep[k] for k in keep if k != "2") and after["2"] != keep["2"]
     xr.testing.assert_identical(drop_run_dependent(open_sweep(out)), drop_run_dependent(ref))
 
 

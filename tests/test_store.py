@@ -20,9 +20,11 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from warp_tensegrity import cli, sweep, zstore
-from warp_tensegrity.dataset import drop_run_dependent
-from warp_tensegrity.dataset import open_sweep as open_nc
+from warp_tensegrity import cli, sweep
+from warp_tensegrity.io import drop_run_dependent
+from warp_tensegrity.io import open_sweep as open_nc
+from warp_tensegrity.sweep import run as sweep_run
+from warp_tensegrity.sweep import store as zstore
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -113,7 +115,7 @@ def test_store_is_chunked_per_shard_and_opens_lazily(tmp_path):
     raw = xr.open_zarr(store.zarr, consolidated=False, decode_timedelta=False)
     assert raw["strain"].encoding["chunks"][0] == 2
     assert (store.zarr / "strain" / "c" / "1").is_dir()
-    lazy = zstore.open_sweep(out)
+    lazy = sweep.open_sweep(out)
     import dask.array as da
 
     assert isinstance(lazy["strain"].data, da.Array) and lazy["strain"].chunks[0] == (2, 1)
@@ -126,8 +128,8 @@ def test_store_is_chunked_per_shard_and_opens_lazily(tmp_path):
         assert (rec["case_start"], rec["case_stop"]) == (a, b)
         assert rec["sha256"]["strain"] == zstore.array_sha256(exported["strain"].values[a:b])
     # open_sweep also takes the work directory, and a bare netCDF file (lazily)
-    assert_bitwise(zstore.open_sweep(store.dir).load(), exported)
-    nc = zstore.open_sweep(tmp_path / "cases.nc.sweep" / ".." / "cases.nc")
+    assert_bitwise(sweep.open_sweep(store.dir).load(), exported)
+    nc = sweep.open_sweep(tmp_path / "cases.nc.sweep" / ".." / "cases.nc")
     assert nc.sizes == exported.sizes
 
 
@@ -135,7 +137,7 @@ def test_netcdf_export_is_written_chunk_by_chunk(tmp_path, monkeypatch):
     """The export never asks the store for more than one shard's chunk of a variable at once."""
     out = tmp_path / "g.nc"
     assert run_cli("run", write(tmp_path, GRID_SPEC), "-o", out) == 0
-    ds = zstore.SweepStore(out).dataset()
+    ds = sweep.open_sweep(out)
     biggest = max(max(int(np.prod(c)) for c in _chunk_shapes(v)) for v in ds.data_vars.values())
     assert biggest <= 3 * 41 * 6  # a shard of strain: shard_size x time x prism
     assert run_cli("combine", out) == 0  # re-export from the store
@@ -167,7 +169,7 @@ def test_stepping_of_the_next_shard_overlaps_the_write(tmp_path, monkeypatch):
     this would deadlock (and fail after the timeout)."""
     started = {}
     overlapped = []
-    real_compute, real_write = sweep.compute_shard, zstore.SweepStore.write_shard
+    real_compute, real_write = sweep_run.compute_shard, zstore.SweepStore.write_shard
 
     def compute(plan, index, device=None, progress=None):
         started.setdefault(index, threading.Event()).set()
@@ -179,7 +181,7 @@ def test_stepping_of_the_next_shard_overlaps_the_write(tmp_path, monkeypatch):
             overlapped.append(ev.wait(timeout=60))
         return real_write(self, plan, index, ds, time)
 
-    monkeypatch.setattr(sweep, "compute_shard", compute)
+    monkeypatch.setattr(sweep_run, "compute_shard", compute)
     monkeypatch.setattr(zstore.SweepStore, "write_shard", write_shard)
     out = tmp_path / "p.nc"
     assert run_cli("run", write(tmp_path, GRID_SPEC), "-o", out) == 0
@@ -303,8 +305,7 @@ def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, referen
         assert all(after[i]["sha256"] == r["sha256"] for i, r in before.items()), log
         if out.exists():
             assert_bitwise(open_nc(out), reference)
-        plan = sweep.load_plan_from_manifest(out)
-        st = zstore.status(plan)
+        st = sweep.sweep_status(out)
         assert st["shards_corrupt"] == [] and st["shards_stale"] == [], (log, st)
         assert st["shards_done"] == len(after), (log, st)
     print("kills:", log)
@@ -314,7 +315,7 @@ def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, referen
     for i, mtime in kept.items():  # shards done before the last kill were reused, not rewritten
         assert (store.zarr / "strain" / "c" / i).stat().st_mtime_ns == mtime, (i, log)
     assert_bitwise(open_nc(out), reference)
-    assert_bitwise(zstore.open_sweep(out).load(), reference)
+    assert_bitwise(sweep.open_sweep(out).load(), reference)
     assert not list(tmp_path.glob(".k.nc.*.tmp")) and not list(store.dir.glob(".*.tmp"))
     assert run_cli("status", out) == 0
 
@@ -353,7 +354,7 @@ def test_corrupt_truncated_chunks_and_manifest_are_detected_and_recomputed(tmp_p
     store.manifest_path.write_text(text[:i] + "1" + text[i + 1:])
     assert sweep.sweep_status(out)["shards_done"] == 0
     with pytest.raises(sweep.SweepError, match="checksum"):
-        zstore.open_sweep(out.with_name("c.nc.sweep"))
+        sweep.open_sweep(out.with_name("c.nc.sweep"))
     assert run_cli("resume", out) == 0
     assert "manifest checksum does not match" in capsys.readouterr().err
     assert_bitwise(open_nc(out), reference)
@@ -369,8 +370,8 @@ RSS_SCRIPT = textwrap.dedent("""
     import json, resource, sys
     import warp as wp
     wp.config.quiet = True
-    from warp_tensegrity import sweep, zstore
-    from warp_tensegrity.spec import load_spec
+    from warp_tensegrity import sweep
+    from warp_tensegrity.sweep import load_spec, store as zstore
     spec_text, out, cap = sys.argv[1], sys.argv[2], int(sys.argv[3])
     rss = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     # warm-up: the same scene, 2 columns, through the whole path (imports, kernels, store, export)
@@ -403,7 +404,7 @@ def test_peak_rss_stays_under_the_memory_limit(tmp_path):
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
-    ds = zstore.open_sweep(out)
+    ds = sweep.open_sweep(out)
     output_bytes = sum(v.nbytes for v in ds.data_vars.values())
     m.update(output_bytes=output_bytes, cap=cap, sweep_rss=m["peak_rss"] - m["baseline_rss"])
     print(json.dumps(m))

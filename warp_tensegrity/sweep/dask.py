@@ -9,13 +9,13 @@ the same dataset.
   (auto) and GPUs present, worker k uses ``cuda:(k % n_gpus)``; with ``device="cpu"`` all
   workers run on the CPU.
 * ``scheduler=ADDRESS``: an existing cluster (e.g. ``dask-scheduler`` plus one
-  ``dask-worker --nthreads 1`` per GPU started with CUDA_VISIBLE_DEVICES set). The shard
-  directory must be on a file system every worker can write to.
+  ``dask-worker --nthreads 1`` per GPU started with CUDA_VISIBLE_DEVICES set). The run's
+  store (``OUT.sweep/``) must be on a file system every worker can write to.
 """
 
 from __future__ import annotations
 
-_WORKER_DEVICE_KEY = "warp_tensegrity_device"
+from ..io import code_version
 
 
 def _gpu_count() -> int:
@@ -39,11 +39,9 @@ def _quiet_warp() -> None:
         pass
 
 
-def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
-    """Runs on a worker: compute shard ``index``, write its region of the store, return (index, record)."""
-    from . import zstore
-    from .spec import code_version
-
+def _shard_task(run_one, plan, index: int, device_map: dict | None, quiet: bool = True):
+    """Runs on a worker: ``run_one(plan, index, device)`` (compute shard ``index``, write its region
+    of the store) on this worker's device; returns what it returns."""
     if quiet:
         _quiet_warp()
 
@@ -61,7 +59,7 @@ def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
             device = device_map.get(get_worker().address)
         except Exception:
             device = None
-    return index, zstore.compute_and_write(plan, index, device=device)
+    return run_one(plan, index, device)
 
 
 def _device_map(client, device: str | None) -> dict:
@@ -84,10 +82,11 @@ def local_cluster(n_workers: int, **kwargs):
     return LocalCluster(**opts)
 
 
-def run_shards_dask(plan, indices, *, n_workers: int | None = None, scheduler: str | None = None, client=None,
+def run_shards_dask(plan, indices, run_one, *, n_workers: int | None = None, scheduler: str | None = None, client=None,
                     on_result=None) -> dict:
-    """Run shards ``indices`` of ``plan`` as Dask tasks; ``on_result(index, record)`` on the client as
-    each finishes (in completion order); returns {index: record}."""
+    """Run shards ``indices`` of ``plan`` as Dask tasks, each ``run_one(plan, index, device)``
+    (:func:`~warp_tensegrity.sweep.store.compute_and_write`, returning the shard's record);
+    ``on_result(index, record)`` runs on the client as each finishes; returns {index: record}."""
     from distributed import Client, as_completed
 
     cluster = None
@@ -109,7 +108,7 @@ def run_shards_dask(plan, indices, *, n_workers: int | None = None, scheduler: s
             dmap = {w: plan.device for w in client.scheduler_info()["workers"]}
         else:
             dmap = None
-        futures = client.map(_shard_task, [plan] * len(indices), list(indices), [dmap] * len(indices),
+        futures = client.map(_shard_task, [run_one] * len(indices), [plan] * len(indices), list(indices), [dmap] * len(indices),
                              pure=False, retries=0)
         records = {}
         for fut in as_completed(futures):

@@ -1,4 +1,5 @@
 """The streaming sweep store: shards write into one chunked Zarr store as they finish; no combine pass.
+(:mod:`.run` drives it; :mod:`.shard` writes one shard from a Dask worker.)
 
 Files for ``OUT.nc``::
 
@@ -33,8 +34,9 @@ from types import SimpleNamespace
 import numpy as np
 import xarray as xr
 
-from . import dataset as D
-from .sweep import SweepError
+from .. import io as D
+from ..types import ShardState
+from .errors import SweepError
 
 STORE = "store.zarr"
 MANIFEST = "manifest.json"
@@ -224,14 +226,6 @@ def _template(plan, time: np.ndarray) -> xr.Dataset:
     return D.shard_dataset(spec, plan.params, 0, 1, result, meas, {})
 
 
-def plan_time(plan) -> np.ndarray:
-    """The output times every shard must produce, from the engine's own estimate (dt fixed by the plan)."""
-    from .sweep import estimate_batch
-
-    est = estimate_batch(plan.spec.scene, plan.params, plan.settings)
-    return np.arange(int(est["n_out"])) * int(est["output_every"]) * float(est["dt"])
-
-
 def _case_vars(ds: xr.Dataset) -> list[str]:
     return [k for k in ds.data_vars if ds[k].dims[:1] == ("case",)]
 
@@ -341,22 +335,22 @@ class SweepStore:
         ('missing' | 'stale' | 'corrupt', why)."""
         rec = self.manifest.shards.get(str(index)) if self.manifest else None
         if rec is None:
-            return "missing", ""
+            return ShardState.MISSING, ""
         a, b = plan.shards[index]
         if (rec.get("case_start"), rec.get("case_stop")) != (a, b):
-            return "stale", f"covers columns {rec.get('case_start')}:{rec.get('case_stop')}, expected {a}:{b}"
+            return ShardState.STALE, f"covers columns {rec.get('case_start')}:{rec.get('case_stop')}, expected {a}:{b}"
         if rec.get("attrs", {}).get("warp_version") != D.warp_version():
-            return "stale", f"made with Warp {rec.get('attrs', {}).get('warp_version')}, this is Warp {D.warp_version()}"
+            return ShardState.STALE, f"made with Warp {rec.get('attrs', {}).get('warp_version')}, this is Warp {D.warp_version()}"
         try:
             import zarr
 
             g = group if group is not None else zarr.open_group(str(self.zarr), mode="r")
             for k, sha in rec["sha256"].items():
                 if array_sha256(g[k][a:b]) != sha:
-                    return "corrupt", f"{k} does not match its checksum"
+                    return ShardState.CORRUPT, f"{k} does not match its checksum"
         except Exception as e:
-            return "corrupt", f"does not read back ({type(e).__name__}: {e})"
-        return "done", ""
+            return ShardState.CORRUPT, f"does not read back ({type(e).__name__}: {e})"
+        return ShardState.DONE, ""
 
     def write_shard(self, plan, index: int, ds: xr.Dataset, time: np.ndarray) -> dict:
         """Write shard ``index`` into its region, fsync its chunk files; returns the manifest record
@@ -403,19 +397,14 @@ class SweepStore:
                 _fsync_path(vdir / "c")
 
     # ------------------------------------------------------------------ reading
-    def dataset(self, plan_or_spec=None, partial: bool = False) -> xr.Dataset:
+    def dataset(self, plan_or_spec, partial: bool = False) -> xr.Dataset:
         """The sweep's dataset, lazy (dask-backed, one chunk per shard), in the layout of the netCDF
         export (grid dimensions for a grid spec). Refuses while shards are not done unless
         ``partial`` (then the case-stacked store as it stands)."""
         content, why = Manifest.read(self.manifest_path)
         if content is None:
             raise StoreError(f"{self.dir}: {why}; run `warp-tensegrity resume {self.out}`")
-        from .spec import load_spec
-
         spec = getattr(plan_or_spec, "spec", plan_or_spec)
-        if spec is None:
-            spec = load_spec((self.dir / SPEC_COPY).read_text())
-            spec.source = content.get("spec_file")
         ds = xr.open_zarr(self.zarr, consolidated=False, decode_timedelta=False, chunks={})
         done = sorted(int(i) for i in content["shards"])
         if len(done) < content["n_shards"]:
@@ -456,8 +445,9 @@ def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], zarr_path=None, shar
     for k in ("warp_version", "git_commit", "device", "device_name"):
         attrs[k] = D._joined(a.get(k, "unknown") for a in shard_attrs)
     attrs["wall_time"] = float(sum(float(a.get("wall_time", 0.0)) for a in shard_attrs))
-    attrs["history"] = (f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} streamed {len(shard_attrs)} shards into a Zarr "
-                        f"store by warp_tensegrity {D.package_version()}")
+    last = max(str(a.get("history", "")).split(" ")[0] for a in shard_attrs)  # when the last shard was made
+    attrs["history"] = (f"{last} streamed {len(shard_attrs)} shards into a Zarr store by warp_tensegrity "
+                        f"{D.package_version()}")
     out.attrs = {k: D._attr(v) for k, v in attrs.items()}
     if spec.kind == "grid":
         out = _to_grid_lazy(spec, out, zarr_path, shard_size)
@@ -571,20 +561,6 @@ def export_netcdf(ds: xr.Dataset, path) -> Path:
     return path
 
 
-def open_sweep(path, partial: bool = False) -> xr.Dataset:
-    """A sweep as a lazy, dask-backed dataset. ``path``: the run's output ``OUT.nc`` (its store
-    ``OUT.nc.sweep/`` when there is one, else the netCDF file), the work directory or a netCDF file."""
-    path = Path(path)
-    if path.name == STORE:
-        path = path.parent
-    if path.suffix == ".sweep" and path.is_dir():
-        return SweepStore(path.with_name(path.name[: -len(".sweep")])).dataset(partial=partial)
-    store = SweepStore(path)
-    if store.manifest_path.exists():
-        return store.dataset(partial=partial)
-    return xr.open_dataset(path, engine="netcdf4", decode_timedelta=False, chunks={})
-
-
 # ---------------------------------------------------------------------- memory
 def host_bytes_per_column(plan) -> int:
     """Host bytes one column needs while its shard steps, is measured and written (engine state too
@@ -684,24 +660,12 @@ class ShardWriter:
             raise self.error
 
 
-# ---------------------------------------------------------------------- Dask task body
-def compute_and_write(plan, index: int, device: str | None = None) -> dict:
-    """On a Dask worker: compute shard ``index``, write its region of the store, return its record.
-    Only the client writes the manifest."""
-    from .sweep import compute_shard
-
-    store = SweepStore(plan.out)
-    ds = compute_shard(plan, index, device=device)
-    time = xr.open_zarr(store.zarr, consolidated=False, decode_timedelta=False)["time"].values
-    return store.write_shard(plan, index, ds, time)
-
-
 def _log(msg: str, stream=None) -> None:
     print(f"warp-tensegrity: {msg}", file=stream or sys.stderr)
 
 
 # ---------------------------------------------------------------------- whole sweeps
-def _states(store: SweepStore, plan, verify: bool = True) -> list[tuple[int, str, str]]:
+def shard_states(store: SweepStore, plan, verify: bool = True) -> list[tuple[int, str, str]]:
     """(index, state, reason) per shard: state 'done', 'missing', 'stale' or 'corrupt'."""
     group = None
     if verify and store.manifest is not None and store.manifest.shards:
@@ -714,141 +678,29 @@ def _states(store: SweepStore, plan, verify: bool = True) -> list[tuple[int, str
     out = []
     for i in range(plan.n_shards):
         if not verify:
-            out.append((i, "done" if str(i) in (store.manifest.shards if store.manifest else {}) else "missing", ""))
+            recorded = str(i) in (store.manifest.shards if store.manifest else {})
+            out.append((i, ShardState.DONE if recorded else ShardState.MISSING, ""))
             continue
         state, why = store.verify_shard(plan, i, group)
         out.append((i, state, why))
     return out
 
 
-def execute(plan, *, resume: bool = False, overwrite: bool = False, progress: bool = True,
-            dask_workers: int | None = None, scheduler: str | None = None, client=None, stream=None,
-            export: bool = True) -> Path | None:
-    """Run (or resume) every shard of ``plan`` that is not done into the store, then export plan.out.
-
-    Holds the output's lock throughout. A run refuses an existing output or store without
-    ``overwrite``; a resume re-reads every recorded shard and recomputes those that do not check out.
-    """
-    from .sweep import ProgressBar, compute_shard, resolve_dt
-
-    if plan.out is None:
-        raise SweepError("no output path")
-    if plan.settings is None:
-        resolve_dt(plan)
-    store = SweepStore(plan.out)
-    if getattr(plan, "memory_limit", None):
-        import zarr
-
-        # Zarr's codec threads each keep a malloc arena (~2 MB apiece measured): one is enough when
-        # memory is tight. Global and fixed once Zarr first writes in this process.
-        zarr.config.set({"threading.max_workers": 1})
-    with SweepLock(plan.out):
-        time = plan_time(plan)
-        if not resume and (store.exists() or plan.out.exists()):
-            if not overwrite:
-                what = f"{store.dir} already holds a run" if store.exists() else f"{plan.out} exists"
-                raise SweepError(f"{what}; continue it with `warp-tensegrity resume {plan.out}`, give another "
-                                 f"output, or start over with --overwrite")
-            store.remove()
-            plan.out.unlink(missing_ok=True)
-        if store.dir.exists():
-            store.clean_tmp()
-        manifest, why = store.open(plan, time) if resume else (None, "")
-        if manifest is None:
-            if resume and store.exists():
-                _log(f"{store.dir}: {why}; recomputing every shard", stream)
-            manifest = store.initialise(plan, time)
-            states = [(i, "missing", "") for i in range(plan.n_shards)]
-        else:
-            states = _states(store, plan)
-            bad = [(i, s, r) for i, s, r in states if s in ("stale", "corrupt")]
-            for i, s, r in bad:
-                _log(f"shard {i} is {s} ({r}); recomputing it", stream)
-                manifest.shards.pop(str(i), None)
-            if bad:
-                manifest.save()
-        todo = [i for i, s, _ in states if s != "done"]
-        done_cols = sum(b - a for (a, b), (_, s, _) in zip(plan.shards, states) if s == "done")
-        done_failed = sum(int(manifest.shards[str(i)]["n_failed"]) for i, s, _ in states if s == "done")
-        bar = ProgressBar(plan.n_columns, done_cols, done_failed, stream=stream, enabled=progress)
-        tally = {"cols": done_cols, "failed": done_failed}
-        lk = threading.Lock()
-
-        def on_done(i, rec):
-            a, b = plan.shards[i]
-            with lk:
-                tally["cols"] += b - a
-                tally["failed"] += int(rec["n_failed"])
-                bar.update(tally["cols"], tally["failed"], force=True)
-
-        if todo and (dask_workers or scheduler or client is not None):
-            from .scaleout import run_shards_dask
-
-            def on_result(i, rec):
-                manifest.mark_done(i, rec)
-                on_done(i, rec)
-
-            run_shards_dask(plan, todo, n_workers=dask_workers, scheduler=scheduler, client=client,
-                            on_result=on_result)
-        elif todo:
-            writer = ShardWriter(store, plan, time, on_done)
-            try:
-                for i in todo:
-                    writer.acquire()
-                    n = plan.shards[i][1] - plan.shards[i][0]
-
-                    def cb(steps_done, n_steps, n_failed, _n=n):
-                        fault("stepping")
-                        frac = steps_done / n_steps if n_steps else 1.0
-                        with lk:
-                            bar.update(tally["cols"] + _n * frac, tally["failed"] + n_failed)
-
-                    ds = compute_shard(plan, i, progress=cb)
-                    writer.submit(i, ds)
-                    del ds
-            finally:
-                writer.close()
-        bar.close()
-        if not export:
-            return None
-        fault("finalise")
-        export_netcdf(store.dataset(plan), plan.out)
-    return plan.out
-
-
-def export(out, spec=None) -> Path:
-    """(Re-)export a finished store to its netCDF output (the ``combine`` command)."""
-    from .sweep import load_plan_from_manifest, plan_sweep
-
-    store = SweepStore(out)
-    with SweepLock(out):
-        if spec is None:
-            plan = load_plan_from_manifest(out)
-        else:
-            plan = spec if hasattr(spec, "shards") and hasattr(spec, "spec") else plan_sweep(spec, out)
-        st = status(plan)
-        bad = st["shards_missing"] + [i for i, _ in st["shards_stale"] + st["shards_corrupt"]]
-        if bad:
-            why = "; ".join(f"shard {i}: {r}" for i, r in (st["shards_stale"] + st["shards_corrupt"])[:4])
-            raise StoreError(f"{len(bad)} of {plan.n_shards} shards of {out} are not done or do not check out"
-                             f"{' (' + why + ')' if why else ''}; run `warp-tensegrity resume {out}`")
-        return export_netcdf(store.dataset(plan), store.out)
-
-
-def status(plan) -> dict:
-    """Columns done, diverged and remaining; shards verified against their checksums."""
+def status(plan, time: np.ndarray) -> dict:
+    """Columns done, diverged and remaining; shards verified against their checksums (``time``:
+    the plan's output times, :func:`~warp_tensegrity.sweep.plan.plan_time`)."""
     store = SweepStore(plan.out)
     manifest = None
     why = "no store"
     if store.exists():
-        manifest, why = store.open(plan, plan_time(plan))
+        manifest, why = store.open(plan, time)
     if manifest is None:
-        states = [(i, "missing", "") for i in range(plan.n_shards)]
+        states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
         if store.exists():
-            states = [(i, "corrupt", why) for i in range(plan.n_shards)]
+            states = [(i, ShardState.CORRUPT, why) for i in range(plan.n_shards)]
     else:
-        states = _states(store, plan)
-    done = [i for i, s, _ in states if s == "done"]
+        states = shard_states(store, plan)
+    done = [i for i, s, _ in states if s == ShardState.DONE]
     cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in done)
     exported = False
     if plan.out.exists():
@@ -868,9 +720,9 @@ def status(plan) -> dict:
         "cases_done": cols,
         "cases_diverged": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done) if manifest else 0,
         "cases_remaining": plan.n_columns - cols,
-        "shards_missing": [i for i, s, _ in states if s == "missing"],
-        "shards_stale": [(i, r) for i, s, r in states if s == "stale"],
-        "shards_corrupt": [(i, r) for i, s, r in states if s == "corrupt"],
+        "shards_missing": [i for i, s, _ in states if s == ShardState.MISSING],
+        "shards_stale": [(i, r) for i, s, r in states if s == ShardState.STALE],
+        "shards_corrupt": [(i, r) for i, s, r in states if s == ShardState.CORRUPT],
         "combined": exported and len(done) == plan.n_shards,
         "fingerprint": plan.fingerprint,
     }
@@ -899,3 +751,8 @@ def read_run(out) -> dict:
         content = {}  # the spec copy is not the one the manifest recorded: trust neither header nor shards
     content["spec_text"] = text
     return content
+
+
+def shard_dir_for(out) -> Path:
+    """The run's work directory (store, manifest, spec copy)."""
+    return work_dir_for(out)

@@ -1,0 +1,46 @@
+"""Parameter sweeps: a TOML spec (:mod:`.spec`), planned into shards (:mod:`.plan`), each shard run
+and measured (:mod:`.shard`) here or on Dask workers (:mod:`.dask`), streamed into one Zarr store and
+exported to netCDF (:mod:`.store`), with a progress bar (:mod:`.progress`); :mod:`.run` drives a
+whole sweep.
+Reading and validating a spec does not import Warp."""
+
+from .dask import local_cluster, run_shards_dask
+from .errors import SpecError, SweepError
+from .plan import SweepPlan, apply_memory_limit, dry_run, plan_sweep, plan_time, resolve_dt
+from .progress import ProgressBar
+from .run import combine, execute, load_plan_from_manifest, open_sweep, resume_sweep, run_sweep, sweep_status
+from .shard import compute_and_write, compute_shard, measure_columns
+from .spec import SweepSpec, load_spec, parse_spec
+from .store import MANIFEST, SPEC_COPY, SweepLock, SweepStore, shard_dir_for
+
+__all__ = [
+    "MANIFEST",
+    "SPEC_COPY",
+    "ProgressBar",
+    "SpecError",
+    "SweepError",
+    "SweepLock",
+    "SweepPlan",
+    "SweepSpec",
+    "SweepStore",
+    "apply_memory_limit",
+    "combine",
+    "compute_and_write",
+    "compute_shard",
+    "dry_run",
+    "execute",
+    "load_plan_from_manifest",
+    "load_spec",
+    "local_cluster",
+    "measure_columns",
+    "open_sweep",
+    "parse_spec",
+    "plan_sweep",
+    "plan_time",
+    "resolve_dt",
+    "resume_sweep",
+    "run_shards_dask",
+    "run_sweep",
+    "shard_dir_for",
+    "sweep_status",
+]

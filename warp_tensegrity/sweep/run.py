@@ -1,0 +1,210 @@
+"""Drive a sweep: plan the shards (or re-plan them from a run's manifest), run each shard that is
+not done (here, pipelined with a writer thread, or on Dask workers) into the sweep's Zarr store,
+export netCDF from it, and report a run's status (:mod:`.store` describes the files)."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import xarray as xr
+
+from ..types import ShardState
+from .dask import run_shards_dask
+from .errors import SweepError
+from .plan import SweepPlan, apply_memory_limit, plan_sweep, plan_time, resolve_dt
+from .progress import ProgressBar
+from .shard import compute_and_write, compute_shard
+from .spec import SweepSpec, load_spec
+from .store import (
+    STORE, ShardWriter, StoreError, SweepLock, SweepStore, export_netcdf, fault, read_run, shard_states,
+    status, _log,
+)
+
+
+def execute(
+    plan: SweepPlan,
+    *,
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+    dask_workers: int | None = None,
+    scheduler: str | None = None,
+    client=None,
+    stream=None,
+    combine_output: bool = True,
+) -> Path | None:
+    """Run (or resume) every shard of ``plan`` that is not done into the store, then export plan.out.
+
+    Holds the output's lock throughout. A run refuses an existing output or store without
+    ``overwrite``; a resume re-reads every recorded shard and recomputes those that do not check out.
+    """
+    if plan.out is None:
+        raise SweepError("no output path")
+    if plan.settings is None:
+        resolve_dt(plan)
+    store = SweepStore(plan.out)
+    if plan.memory_limit:
+        import zarr
+
+        # Zarr's codec threads each keep a malloc arena (~2 MB apiece measured): one is enough when
+        # memory is tight. Global, and fixed once Zarr first writes in this process.
+        zarr.config.set({"threading.max_workers": 1})
+    with SweepLock(plan.out):
+        time = plan_time(plan)
+        if not resume and (store.exists() or plan.out.exists()):
+            if not overwrite:
+                what = f"{store.dir} already holds a run" if store.exists() else f"{plan.out} exists"
+                raise SweepError(f"{what}; continue it with `warp-tensegrity resume {plan.out}`, give another "
+                                 f"output, or start over with --overwrite")
+            store.remove()
+            plan.out.unlink(missing_ok=True)
+        if store.dir.exists():
+            store.clean_tmp()
+        manifest, why = store.open(plan, time) if resume else (None, "")
+        if manifest is None:
+            if resume and store.exists():
+                _log(f"{store.dir}: {why}; recomputing every shard", stream)
+            manifest = store.initialise(plan, time)
+            states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
+        else:
+            states = shard_states(store, plan)
+            bad = [(i, s, r) for i, s, r in states if s in (ShardState.STALE, ShardState.CORRUPT)]
+            for i, s, r in bad:
+                _log(f"shard {i} is {s} ({r}); recomputing it", stream)
+                manifest.shards.pop(str(i), None)
+            if bad:
+                manifest.save()
+        done = [i for i, s, _ in states if s == ShardState.DONE]
+        todo = [i for i, s, _ in states if s != ShardState.DONE]
+        tally = {"cols": sum(plan.shards[i][1] - plan.shards[i][0] for i in done),
+                 "failed": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done)}
+        bar = ProgressBar(plan.n_columns, tally["cols"], tally["failed"], stream=stream, enabled=progress)
+        lk = threading.Lock()
+
+        def on_done(i, rec):
+            a, b = plan.shards[i]
+            with lk:
+                tally["cols"] += b - a
+                tally["failed"] += int(rec["n_failed"])
+                bar.update(tally["cols"], tally["failed"], force=True)
+
+        if todo and (dask_workers or scheduler or client is not None):
+            def on_result(i, rec):
+                manifest.mark_done(i, rec)
+                on_done(i, rec)
+
+            run_shards_dask(plan, todo, compute_and_write, n_workers=dask_workers, scheduler=scheduler,
+                            client=client, on_result=on_result)
+        elif todo:
+            writer = ShardWriter(store, plan, time, on_done)
+            try:
+                for i in todo:
+                    writer.acquire()  # at most IN_FLIGHT shards alive: this one steps while one is written
+                    n = plan.shards[i][1] - plan.shards[i][0]
+
+                    def cb(steps_done, n_steps, n_failed, _n=n):
+                        fault("stepping")
+                        frac = steps_done / n_steps if n_steps else 1.0
+                        with lk:
+                            bar.update(tally["cols"] + _n * frac, tally["failed"] + n_failed)
+
+                    ds = compute_shard(plan, i, progress=cb)
+                    writer.submit(i, ds)
+                    del ds
+            finally:
+                writer.close()
+        bar.close()
+        if not combine_output:
+            return None
+        fault("finalise")
+        export_netcdf(store.dataset(plan), plan.out)
+    return plan.out
+
+
+def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=True,
+              dask_workers=None, scheduler=None, client=None, stream=None, memory_limit=None) -> Path:
+    """Run a spec (SweepSpec, path or TOML text) into ``out`` (netCDF, exported from ``out.sweep/``).
+    ``memory_limit`` (bytes or '512MB') lowers the shard size so the host holds at most that much
+    sweep data (see docs/guarantees.md)."""
+    if not isinstance(spec, SweepSpec):
+        spec = load_spec(spec)
+    plan = apply_memory_limit(plan_sweep(spec, out, device=device, shard_size=shard_size), memory_limit)
+    return execute(plan, resume=resume, overwrite=overwrite, progress=progress, dask_workers=dask_workers,
+                   scheduler=scheduler, client=client, stream=stream)
+
+
+def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=True, dask_workers=None,
+                 scheduler=None, client=None, stream=None) -> Path:
+    """Finish an interrupted run: reuse the shards that check out, recompute the others, export."""
+    if spec is None:
+        plan = load_plan_from_manifest(out, device=device, shard_size=shard_size)
+    else:
+        if not isinstance(spec, SweepSpec):
+            spec = load_spec(spec)
+        plan = plan_sweep(spec, out, device=device, shard_size=shard_size)
+    return execute(plan, resume=True, progress=progress, dask_workers=dask_workers, scheduler=scheduler,
+                   client=client, stream=stream)
+
+
+def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True) -> SweepPlan:
+    """The plan of the run at ``out``, from its spec copy and manifest header."""
+    m = read_run(out)
+    spec = load_spec(m["spec_text"])
+    if m.get("spec_file"):
+        spec.source = m["spec_file"]
+    return plan_sweep(
+        spec,
+        out,
+        device=device if device is not None else m.get("device"),
+        shard_size=shard_size or m.get("shard_size"),
+        estimate=estimate,
+    )
+
+
+def _plan_for(plan_or_out, spec=None) -> SweepPlan:
+    if isinstance(plan_or_out, SweepPlan):
+        return plan_or_out
+    if spec is None:
+        return load_plan_from_manifest(plan_or_out)
+    return plan_sweep(spec if isinstance(spec, SweepSpec) else load_spec(spec), plan_or_out)
+
+
+def combine(plan_or_out, spec=None) -> Path:
+    """(Re-)export a finished run's store to its netCDF output (the ``combine`` command). Every shard
+    is verified against its checksums first: refuses while any is not done or does not check out."""
+    plan = _plan_for(plan_or_out, spec)
+    store = SweepStore(plan.out)
+    with SweepLock(plan.out):
+        st = status(plan, plan_time(plan))
+        bad = st["shards_missing"] + [i for i, _ in st["shards_stale"] + st["shards_corrupt"]]
+        if bad:
+            why = "; ".join(f"shard {i}: {r}" for i, r in (st["shards_stale"] + st["shards_corrupt"])[:4])
+            raise StoreError(f"{len(bad)} of {plan.n_shards} shards of {plan.out} are not done or do not check out"
+                             f"{' (' + why + ')' if why else ''}; run `warp-tensegrity resume {plan.out}`")
+        return export_netcdf(store.dataset(plan), plan.out)
+
+
+def sweep_status(out, spec=None) -> dict:
+    """Cases done, diverged and remaining, per shard state (shards verified against their checksums)."""
+    plan = _plan_for(out, spec)
+    return status(plan, plan_time(plan))
+
+
+def open_sweep(path, partial: bool = False) -> xr.Dataset:
+    """A sweep as a lazy, dask-backed dataset, in the layout of its netCDF export. ``path``: a run's
+    output ``OUT.nc`` (read from its store ``OUT.nc.sweep/`` when there is one), that work
+    directory, or any netCDF file. ``partial``: a store whose shards are not all done, case-stacked."""
+    path = Path(path)
+    if path.name == STORE:
+        path = path.parent
+    if path.suffix == ".sweep" and path.is_dir():
+        path = path.with_name(path.name[: -len(".sweep")])
+    store = SweepStore(path)
+    if store.manifest_path.exists() or store.dir.is_dir():
+        m = read_run(path)
+        spec = load_spec(m["spec_text"])
+        spec.source = m.get("spec_file")
+        return store.dataset(spec, partial=partial)
+    return xr.open_dataset(path, engine="netcdf4", decode_timedelta=False, chunks={})
+
