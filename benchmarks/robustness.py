@@ -61,6 +61,28 @@ def _compare(a, b, rows_a=None, rows_b=None) -> dict:
     return out
 
 
+def _sweep_check(spec: str, device: str, scratch: Path) -> dict:
+    """The whole sweep path (plan, stepping, writer thread, Zarr store, netCDF export) on the device:
+    run to run and across shard sizes, every variable byte for byte."""
+    import shutil
+
+    from warp_tensegrity.sweep import open_sweep, run_sweep
+
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir(parents=True)
+    runs, data = [], []
+    for k, size in enumerate((4, 4, 8)):
+        t0 = time.perf_counter()
+        out = run_sweep(spec, scratch / f"run{k}.nc", device=device, shard_size=size, progress=False)
+        ds = open_sweep(out).load()
+        runs.append({"shard_size": size, "seconds": time.perf_counter() - t0, "device": ds.attrs.get("device")})
+        data.append({k: np.ascontiguousarray(v.values).tobytes() for k, v in ds.data_vars.items()})
+    same = lambda a, b: sorted(k for k in a if a[k] != b[k])  # noqa: E731
+    return {"spec": spec, "runs": runs, "differing_run_to_run": same(data[0], data[1]),
+            "differing_across_shard_sizes": same(data[0], data[2]),
+            "identical": not same(data[0], data[1]) and not same(data[0], data[2])}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--device", default=None)
@@ -71,6 +93,10 @@ def main(argv=None) -> int:
     ap.add_argument("--precisions", default="fp64,fp32")
     ap.add_argument("--paths", default="fused,staged")
     ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--sweep", default=None, metavar="SPEC",
+                    help="also run SPEC through the CLI path three times (shard sizes 4, 4, 8) on the device "
+                         "and compare the stored datasets byte for byte")
+    ap.add_argument("--scratch", default="/tmp/robustness_sweeps")
     args = ap.parse_args(argv)
 
     import warp as wp
@@ -98,7 +124,7 @@ def main(argv=None) -> int:
         bad[kind] = p
     # the good columns: the full batch without the bad one (same order)
     out = Path(args.out) / f"robustness_{device_tag(device)}.json"
-    doc = {"benchmark": "robustness", **run_metadata(device), "device": device, "columns": B, "prisms": args.prisms,
+    doc = {"benchmark": "robustness", **run_metadata(wp.get_device(device)), "device": device, "columns": B, "prisms": args.prisms,
            "t_end_s": args.t_end, "dt_s": args.dt, "bad_columns": bad_at, "records": []}
     try:
         doc["device_name"] = wp.get_device(device).name
@@ -138,6 +164,10 @@ def main(argv=None) -> int:
                   f"subset identical {rec['first_64_alone_vs_in_batch']['all_identical']}, isolation "
                   + ", ".join(f"{k}: {v['all_identical']} (bad status {v['bad_status']} at step {v['bad_fail_step']})"
                               for k, v in rec["isolation"].items()), flush=True)
+    if args.sweep:
+        doc["sweep"] = _sweep_check(args.sweep, device, Path(args.scratch))
+        write_json(out, doc)
+        print("sweep:", {k: v for k, v in doc["sweep"].items() if k != "runs"}, flush=True)
     doc["run_to_run_identical"] = all(r["run_to_run"]["all_identical"] for r in doc["records"])
     doc["isolation_identical"] = all(v["all_identical"] for r in doc["records"] for v in r["isolation"].values())
     doc["composition_identical"] = all(r["first_64_alone_vs_in_batch"]["all_identical"] for r in doc["records"])
