@@ -21,7 +21,6 @@ import hashlib
 import json
 import os
 import subprocess
-import time as _time
 import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -283,62 +282,24 @@ def _joined(values) -> str:
     return ", ".join(seen)
 
 
-def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict | None = None) -> xr.Dataset:
-    """The sweep's dataset from its loaded shard datasets (in shard order, covering every column)."""
-    if not shards:
-        raise ValueError("no shards to combine")
-    shards = sorted(shards, key=lambda d: int(d.attrs["case_start"]))
-    pos = 0
-    for d in shards:
-        if int(d.attrs["case_start"]) != pos:
-            raise ValueError(f"shards do not tile the sweep: expected case_start {pos}, got {d.attrs['case_start']}")
-        pos = int(d.attrs["case_stop"])
-    if pos != spec.n_columns:
-        raise ValueError(f"shards cover {pos} of {spec.n_columns} columns")
-    first = shards[0]
-    for d in shards[1:]:
-        for c in ("time", "prism"):
-            if not np.array_equal(d[c].values, first[c].values):
-                raise ValueError(f"shard {d.attrs['shard_index']} has a different {c} coordinate")
-        for k in ("dt", "n_steps", "fingerprint"):
-            if d.attrs.get(k) != first.attrs.get(k):
-                raise ValueError(
-                    f"shard {d.attrs['shard_index']} has {k} = {d.attrs.get(k)!r}, shard 0 {first.attrs.get(k)!r}"
-                )
-    case_vars = [k for k in first.variables if "case" in first[k].dims]
-    merged = {}
-    for k in case_vars:
-        v = first.variables[k]
-        data = np.concatenate([d.variables[k].values for d in shards], axis=v.dims.index("case"))
-        merged[k] = xr.Variable(v.dims, data, attrs=dict(v.attrs))
-    for k in first.variables:
-        if k not in merged:
-            merged[k] = first.variables[k].copy(deep=True)
-    coord_names = set(first.coords)
-    ds = xr.Dataset(
-        {k: merged[k] for k in first.data_vars},
-        coords={k: merged[k] for k in first.coords},
-    )
-    assert set(ds.coords) == coord_names
-
+def sweep_attrs(spec: SweepSpec, shard_attrs: list[dict], history: str) -> dict:
+    """Global attributes of a sweep's dataset: the spec's, the step settings of its first shard,
+    the devices, versions and commits of all its shards (joined) and their summed wall time."""
     attrs = spec_attrs(spec)
-    a0 = first.attrs
+    a0 = shard_attrs[0]
     for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval"):
         attrs[k] = a0[k]
     for k in ("warp_version", "git_commit", "device", "device_name"):
-        attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)
-    attrs["wall_time"] = float(sum(float(d.attrs.get("wall_time", 0.0)) for d in shards))
-    attrs["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} combined {len(shards)} shards by warp_tensegrity {package_version()}"
-    if extra_attrs:
-        attrs.update(extra_attrs)
-    ds.attrs = {k: _attr(v) for k, v in attrs.items()}
-    if spec.kind == "grid":
-        ds = _to_grid(spec, ds)
-    return ds
+        attrs[k] = _joined(a.get(k, "unknown") for a in shard_attrs)
+    attrs["wall_time"] = float(sum(float(a.get("wall_time", 0.0)) for a in shard_attrs))
+    attrs["history"] = history
+    return {k: _attr(v) for k, v in attrs.items()}
 
 
-def _to_grid(spec: SweepSpec, ds: xr.Dataset) -> xr.Dataset:
-    """Unstack the case dimension into one dimension per grid axis (C order)."""
+def to_grid(spec: SweepSpec, ds: xr.Dataset, split=None) -> xr.Dataset:
+    """Unstack the case dimension into one dimension per grid axis (C order). ``split(name,
+    variable, grid_shape)`` gives the data of a variable whose first dimension is ``case`` in its
+    new shape (default: ``variable.data.reshape``, lazy for dask arrays)."""
     shape = spec.shape
     names = tuple(spec.grid)
     variables = {}
@@ -348,14 +309,16 @@ def _to_grid(spec: SweepSpec, ds: xr.Dataset) -> xr.Dataset:
         if "case" in v.dims:
             i = v.dims.index("case")
             dims = v.dims[:i] + names + v.dims[i + 1 :]
-            data = v.values.reshape(v.shape[:i] + shape + v.shape[i + 1 :])
+            if split is not None and i == 0:
+                data = split(k, v, shape)
+            else:
+                data = v.data.reshape(v.shape[:i] + shape + v.shape[i + 1 :])
             variables[k] = xr.Variable(dims, data, attrs=dict(v.attrs))
         else:
             variables[k] = v
     coords = {n: xr.Variable((n,), np.asarray(spec.grid[n], dtype=np.float64), attrs=dict(COORD_ATTRS[n])) for n in names}
     coords.update({k: variables.pop(k) for k in list(variables) if k in ds.coords})
-    out = xr.Dataset({k: variables[k] for k in ds.data_vars}, coords=coords, attrs=dict(ds.attrs))
-    return out
+    return xr.Dataset({k: variables[k] for k in ds.data_vars}, coords=coords, attrs=dict(ds.attrs))
 
 
 # ---------------------------------------------------------------------- files

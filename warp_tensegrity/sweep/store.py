@@ -420,7 +420,7 @@ class SweepStore:
 
 
 def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], zarr_path=None, shard_size: int = 0) -> xr.Dataset:
-    """The final dataset (as ``dataset.combine_shards`` made it) from the case-stacked store,
+    """The sweep's dataset (the layout of io.shard_dataset, attributes of io.sweep_attrs) from the store,
     lazily: attributes from the spec and the shard records, grid dimensions for a grid spec."""
     rec = SimpleNamespace(spec=spec, params=spec.column_params())
     tpl = _template(rec, ds["time"].values)
@@ -438,17 +438,9 @@ def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], zarr_path=None, shar
         if k in variables:
             variables[k].attrs = dict(c.attrs)
     out = xr.Dataset({k: variables[k] for k in ds.data_vars}, coords={k: variables[k] for k in ds.coords})
-    attrs = D.spec_attrs(spec)
-    a0 = shard_attrs[0]
-    for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval"):
-        attrs[k] = a0[k]
-    for k in ("warp_version", "git_commit", "device", "device_name"):
-        attrs[k] = D._joined(a.get(k, "unknown") for a in shard_attrs)
-    attrs["wall_time"] = float(sum(float(a.get("wall_time", 0.0)) for a in shard_attrs))
     last = max(str(a.get("history", "")).split(" ")[0] for a in shard_attrs)  # when the last shard was made
-    attrs["history"] = (f"{last} streamed {len(shard_attrs)} shards into a Zarr store by warp_tensegrity "
-                        f"{D.package_version()}")
-    out.attrs = {k: D._attr(v) for k, v in attrs.items()}
+    out.attrs = D.sweep_attrs(spec, shard_attrs, f"{last} streamed {len(shard_attrs)} shards into a Zarr store by "
+                                                 f"warp_tensegrity {D.package_version()}")
     if spec.kind == "grid":
         out = _to_grid_lazy(spec, out, zarr_path, shard_size)
     return out
@@ -492,38 +484,24 @@ def grid_chunks(grid_shape: tuple, shard_size: int) -> tuple:
 
 
 def _to_grid_lazy(spec, ds: xr.Dataset, zarr_path=None, shard_size: int = 0) -> xr.Dataset:
-    """dataset._to_grid without loading: the case dimension split into the grid axes (C order)."""
+    """io.to_grid without loading: each data variable read from the store through a GridView."""
+    if zarr_path is None:
+        return D.to_grid(spec, ds)
     import dask.array as da
+    import zarr
 
-    shape = spec.shape
-    names = tuple(spec.grid)
-    group = None
-    if zarr_path is not None:
-        import zarr
+    group = zarr.open_group(str(zarr_path), mode="r")
 
-        group = zarr.open_group(str(zarr_path), mode="r")
-    variables = {}
-    for k, v in ds.variables.items():
-        if k == "case" or k in names:
-            continue
-        if "case" in v.dims:
-            i = v.dims.index("case")
-            dims = v.dims[:i] + names + v.dims[i + 1:]
-            if group is not None and i == 0 and k in ds.data_vars:
-                view = GridView(group[k], shape)
-                chunks = grid_chunks(shape, shard_size or v.shape[0]) + tuple(v.shape[1:])
-                token = hashlib.sha256(f"{zarr_path}/{k}/{view.shape}/{chunks}".encode()).hexdigest()[:16]
-                data = da.from_array(view, chunks=chunks, name=f"wt-grid-{k}-{token}", lock=False, asarray=True,
-                                     meta=np.empty((0,) * view.ndim, dtype=view.dtype))
-            else:
-                data = v.data.reshape(v.shape[:i] + shape + v.shape[i + 1:])
-            variables[k] = xr.Variable(dims, data, attrs=dict(v.attrs))
-        else:
-            variables[k] = v
-    coords = {n: xr.Variable((n,), np.asarray(spec.grid[n], dtype=np.float64), attrs=dict(D.COORD_ATTRS[n]))
-              for n in names}
-    coords.update({k: variables.pop(k) for k in list(variables) if k in ds.coords})
-    return xr.Dataset({k: variables[k] for k in ds.data_vars}, coords=coords, attrs=dict(ds.attrs))
+    def split(name, v, shape):
+        if name not in ds.data_vars:
+            return v.data.reshape(shape + v.shape[1:])
+        view = GridView(group[name], shape)
+        chunks = grid_chunks(shape, shard_size or v.shape[0]) + tuple(v.shape[1:])
+        token = hashlib.sha256(f"{zarr_path}/{name}/{view.shape}/{chunks}".encode()).hexdigest()[:16]
+        return da.from_array(view, chunks=chunks, name=f"wt-grid-{name}-{token}", lock=False, asarray=True,
+                             meta=np.empty((0,) * view.ndim, dtype=view.dtype))
+
+    return D.to_grid(spec, ds, split)
 
 
 # ---------------------------------------------------------------------- export
