@@ -674,8 +674,9 @@ def status(plan, time: np.ndarray) -> dict:
         manifest, why = store.open(plan, time)
     if manifest is None:
         states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
-        if store.exists():
-            states = [(i, ShardState.CORRUPT, why) for i in range(plan.n_shards)]
+        if store.exists():  # a readable manifest of another spec/code/layout: stale; else corrupt
+            kind = ShardState.STALE if Manifest.read(store.manifest_path)[0] is not None else ShardState.CORRUPT
+            states = [(i, kind, why) for i in range(plan.n_shards)]
     else:
         states = shard_states(store, plan)
     done = [i for i, s, _ in states if s == ShardState.DONE]
