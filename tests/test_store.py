@@ -8,6 +8,7 @@ import json
 import os
 import random
 import resource
+import shutil
 import signal
 import subprocess
 import sys
@@ -344,6 +345,9 @@ def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, referen
     assert_bitwise(sweep.open_sweep(out).load(), reference)
     assert not list(tmp_path.glob(".k.nc.*.tmp")) and not list(store.dir.glob(".*.tmp"))
     assert run_cli("status", out) == 0
+    shutil.rmtree(store.dir)  # the export alone still reports its status
+    st = sweep.sweep_status(out)
+    assert st["combined"] and st["cases_done"] == 8 and st["cases_remaining"] == 0
 
 
 def test_corrupt_truncated_chunks_and_manifest_are_detected_and_recomputed(tmp_path, reference, capsys):

@@ -18,7 +18,7 @@ from .shard import compute_and_write, compute_shard
 from .spec import SweepSpec, load_spec
 from .store import (
     STORE, ShardWriter, StoreError, SweepLock, SweepStore, export_netcdf, fault, read_run, shard_states,
-    status, _log,
+    status, status_from_output, _log,
 )
 
 
@@ -187,6 +187,8 @@ def combine(plan_or_out, spec=None) -> Path:
 
 def sweep_status(out, spec=None) -> dict:
     """Cases done, diverged and remaining, per shard state (shards verified against their checksums)."""
+    if spec is None and not isinstance(out, SweepPlan) and not SweepStore(out).dir.exists() and Path(out).exists():
+        return status_from_output(out)
     plan = _plan_for(out, spec)
     return status(plan, plan_time(plan))
 

@@ -35,7 +35,7 @@ import numpy as np
 import xarray as xr
 
 from .. import io as D
-from ..types import ShardState
+from ..types import ShardState, Status
 from .errors import SweepError
 
 STORE = "store.zarr"
@@ -735,3 +735,19 @@ def read_run(out) -> dict:
 def shard_dir_for(out) -> Path:
     """The run's work directory (store, manifest, spec copy)."""
     return work_dir_for(out)
+
+
+def status_from_output(out) -> dict:
+    """Status of an exported netCDF output whose store is gone (deleted after the run)."""
+    try:
+        ds = D.open_sweep(out)
+    except Exception as e:
+        raise SweepError(f"{out} does not open ({type(e).__name__}: {e}) and has no store") from None
+    n = int(ds.attrs.get("n_columns", ds["status"].size))
+    return {
+        "output": str(out), "store": None, "spec": ds.attrs.get("spec_file"), "columns": n, "shards": 0,
+        "shard_size": 0, "shards_done": 0, "cases_done": n,
+        "cases_diverged": int((ds["status"].values != Status.OK).sum()), "cases_remaining": 0,
+        "shards_missing": [], "shards_stale": [], "shards_corrupt": [], "combined": True,
+        "fingerprint": ds.attrs.get("fingerprint"),
+    }
