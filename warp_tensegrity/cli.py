@@ -82,6 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("combine", help="combine the shards of a run into OUT.nc")
     p.add_argument("output", metavar="OUT.nc")
+    from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
+
+    add_lens_parser(sub)
     return parser
 
 
@@ -141,6 +144,11 @@ def main(argv=None) -> int:
 
 
 def _dispatch(args) -> int:
+    if args.command == "lens":
+        from .lens.command import run_lens_command
+
+        _quiet_warp(False)
+        return run_lens_command(args)
     from . import sweep
     from .spec import load_spec
 
