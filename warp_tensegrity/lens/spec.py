@@ -38,7 +38,7 @@ class Column(_Section):
         description="ColumnConfig fields (n_prisms, radius [m], height [m], cable_modulus [N m-2], "
         "cable_radius [m], unit_mass [kg], handedness, ...); unset ones take the paper's values",
     )
-    base_rigidity: float = Field(0.0, ge=0.0, le=1.0, description="base rigidity beta [1] in [0, 1] (0: FB, 1: RB)")
+    base_rigidity: float = Field(1.0, ge=0.0, le=1.0, description="base rigidity beta [1] in [0, 1] (0: FB, 1: RB)")
 
     @field_validator("scene")
     @classmethod
@@ -61,7 +61,7 @@ class Incident(_Section):
     incident wave (d_i = (x_i cos(azimuth) + y_i sin(azimuth)) sin(angle) / speed, shifted to
     start at 0); angle = 0 strikes every column at t = 0."""
 
-    v0: float = Field(0.1, gt=0.0, le=10.0, description="compressive impact speed at the free end [m s-1], in (0, 10]")
+    v0: float = Field(0.02, gt=0.0, le=10.0, description="compressive impact speed at the free end [m s-1], in (0, 10]")
     angle_deg: float = Field(0.0, ge=0.0, lt=90.0, description="incidence angle of the incident plane wave from the column axis [deg], in [0, 90)")
     azimuth_deg: float = Field(0.0, ge=-360.0, le=360.0, description="azimuth of the incidence plane from the x axis [deg]")
     speed: float = Field(math.inf, gt=0.0, description="speed of the incident wave along its direction [m s-1], > 0 (inf: normal incidence)")
@@ -92,7 +92,7 @@ class Array(_Section):
 class Host(_Section):
     """Homogeneous linear host behind the exit faces (coupling model: docs/lens.md)."""
 
-    wave_speed: float = Field(0.5, gt=0.0, le=1e4, description="host wave speed c_h [m s-1], in (0, 1e4]")
+    wave_speed: float = Field(0.1, gt=0.0, le=1e4, description="host wave speed c_h [m s-1], in (0, 1e4]")
     dimension: Literal[2, 3] = Field(2, description="2: cylindrical spreading 1/sqrt(r) (line array of line sources); 3: spherical 1/r")
     name: str = Field("", description="what physical host c_h represents (free text, copied to the output)")
 
@@ -101,7 +101,7 @@ class Calibration(_Section):
     """One batched run over the prestrain: exit time T(p), amplitude A(p), width W(p)."""
 
     prestrain_min: float = Field(0.0, ge=0.0, lt=1.0, description="smallest calibrated cross-cable prestrain p [1], in [0, 1)")
-    prestrain_max: float = Field(0.03, gt=0.0, lt=1.0, description="largest calibrated prestrain [1], > prestrain_min and < 1")
+    prestrain_max: float = Field(0.15, gt=0.0, lt=1.0, description="largest calibrated prestrain [1], > prestrain_min and < 1")
     count: int = Field(1024, ge=8, le=1_048_576, description="calibration columns (prestrain values, evenly spaced) [1], in [8, 2^20]")
 
     @model_validator(mode="after")
