@@ -24,10 +24,10 @@
 #
 # | variable | default | meaning |
 # |---|---|---|
-# | `WT_LENS_NC` | `benchmarks/results/lens_demo_h200.nc` (else any `lens_demo_*.nc` there) | the lens run (relative paths: from the repository root) |
+# | `WT_LENS_NC` | `benchmarks/results/lens_demo_h100.nc` (else any `lens_demo_*.nc` there) | the lens run (relative paths: from the repository root) |
 # | `WT_LENS_FALLBACK_SPEC` | `sweeps/lens_ci.toml` | run on the CPU (seconds) when there is no lens run |
 # | `WT_LENS_FALLBACK_NC` | `<tmp>/warp_tensegrity/lens_ci.nc` | where that fallback run goes |
-# | `WT_FIG_DIR` | `analysis/figures` (fallback data: `<tmp>/warp_tensegrity/figures`) | where the PNGs go |
+# | `WT_FIG_DIR` | `<tmp>/warp_tensegrity/figures` | where the PNGs go (the notebook never writes tracked files by default; `WT_FIG_DIR=analysis/figures` refreshes the README's figures) |
 
 # %%
 import os
@@ -46,15 +46,15 @@ import xarray as xr
 import plotting as P
 
 P.use_style()
-NC = P.input_path("WT_LENS_NC", "benchmarks/results/lens_demo_h200.nc")
+NC = P.input_path("WT_LENS_NC", "benchmarks/results/lens_demo_h100.nc")
 if "WT_LENS_NC" not in os.environ and not NC.exists():
     found = sorted((P.repo_root() / "benchmarks" / "results").glob("lens_demo_*.nc"))
     NC = found[0] if found else NC
 FALLBACK = not NC.exists()
+tmp = Path(tempfile.gettempdir()) / "warp_tensegrity"
+os.environ.setdefault("WT_FIG_DIR", str(tmp / "figures"))  # tracked figures only when asked for
 if FALLBACK:
-    tmp = Path(tempfile.gettempdir()) / "warp_tensegrity"
     NC = P.input_path("WT_LENS_FALLBACK_NC", str(tmp / "lens_ci.nc"))
-    os.environ.setdefault("WT_FIG_DIR", str(tmp / "figures"))  # never overwrite the real figures
     if not NC.exists():
         NC.parent.mkdir(parents=True, exist_ok=True)
         spec = P.input_path("WT_LENS_FALLBACK_SPEC", "sweeps/lens_ci.toml")
@@ -138,12 +138,13 @@ P.save_figure(fig, "lens_pulses")
 # ## Focal map (primary focal point): peak over time of the host field
 
 # %%
-def map_panel(ax, m, k, title):
+def map_panel(ax, m, k, title, peak=True):
     m = m.isel(y=0) if "y" in m.dims else m
     im = ax.pcolormesh(1e3 * ds.x, 1e3 * ds.z, m / float(ds.focal_value[k]), shading="nearest", cmap="magma")
     F, Q = 1e3 * ds.focal_point[k].values, 1e3 * ds.peak_point[k].values
     ax.plot(F[0], F[2], "c+", ms=10, mew=1.5, label="target F")
-    ax.plot(Q[0], Q[2], "wx", ms=7, mew=1.2, label="map maximum")
+    if peak:
+        ax.plot(Q[0], Q[2], "wx", ms=7, mew=1.2, label="map maximum")
     ax.set(xlabel="x [mm]", ylabel="depth z [mm]", title=title, aspect="equal")
     ax.invert_yaxis()
     return im
@@ -151,7 +152,7 @@ def map_panel(ax, m, k, title):
 
 fig, axs = plt.subplots(1, 2, figsize=(8, 3.6))
 im = map_panel(axs[0], ds.focal_map, 0, f"designed: error {1e3 * float(ds.focus_error[0]):.1f} mm")
-map_panel(axs[1], ds.uniform_focal_map[0], 0, f"uniform: gain of the design {float(ds.focal_gain[0]):.2f}")
+map_panel(axs[1], ds.uniform_focal_map[0], 0, f"uniform: gain of the design {float(ds.focal_gain[0]):.2f}", peak=False)
 axs[0].legend(loc="lower right", fontsize=6)
 fig.colorbar(im, ax=axs, label="max$_t\\,\\varphi$ / designed value at F")
 P.save_figure(fig, "lens_focal_map")
