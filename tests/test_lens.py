@@ -259,36 +259,3 @@ def test_lens_command_bad_spec_names_key(tmp_path, capsys):
     assert main(["lens", str(bad), "-o", str(tmp_path / "o.nc")]) == 1
     err = capsys.readouterr().err
     assert "array.spacing = -1.0" in err and "Traceback" not in err
-
-
-# ---------------------------------------------------------------------- the notebook
-def test_lens_notebook_is_paired():
-    import json
-    from pathlib import Path
-
-    jupytext = pytest.importorskip("jupytext")
-    root = Path(__file__).resolve().parents[1] / "analysis"
-    nb = json.loads((root / "lens.ipynb").read_text())
-    assert nb["metadata"]["jupytext"]["formats"] == "ipynb,py:percent"
-    code = lambda cells: ["".join(c["source"]) if isinstance(c["source"], list) else c["source"]  # noqa: E731
-                          for c in cells if c["cell_type"] == "code"]
-    assert code(nb["cells"]) == code(jupytext.read(root / "lens.py").cells), "run jupytext --sync analysis/lens.py"
-
-
-@pytest.mark.slow
-def test_lens_notebook_executes_on_its_fallback(tmp_path, monkeypatch):
-    """With no lens run at hand it runs sweeps/lens_ci.toml itself; nothing tracked is written."""
-    from pathlib import Path
-
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    root = Path(__file__).resolve().parents[1] / "analysis"
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    monkeypatch.setenv("WT_LENS_NC", str(tmp_path / "missing.nc"))
-    monkeypatch.setenv("WT_LENS_FALLBACK_NC", str(tmp_path / "lens_ci.nc"))
-    monkeypatch.setenv("WT_FIG_DIR", str(tmp_path / "figures"))
-    nb = nbformat.read(root / "lens.ipynb", as_version=4)
-    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
-                            resources={"metadata": {"path": str(root)}}).execute()
-    made = {p.stem for p in (tmp_path / "figures").glob("*.png")}
-    assert {"lens_prestrain", "lens_pulses", "lens_focal_map", "lens_focus_moving"} <= made

@@ -17,7 +17,7 @@ def add_lens_parser(sub) -> None:
 
 
 def run_lens_command(args) -> int:
-    from ..network import NetworkError
+    from ..scene.network import NetworkError
     from ..settings import SettingsError
     from .design import CalibrationError
     from .spec import LensSpecError, load_lens_spec

@@ -22,7 +22,7 @@ def _v(dims, data, units, long_name, **extra):
 
 
 def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_ver, axes, foci, wall) -> xr.Dataset:
-    from .. import dataset as D
+    from .. import io as D
 
     x, y, z = axes
     f0 = foci[0]
@@ -135,6 +135,6 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
 
 def write_lens(ds: xr.Dataset, path):
     """Write atomically (netCDF4, compressed)."""
-    from .. import dataset as D
+    from .. import io as D
 
     return D.write_netcdf(ds, path)

@@ -27,7 +27,7 @@ def exit_signals(strain: np.ndarray) -> np.ndarray:
 def measure_exit(result, prism_height: float) -> dict:
     """Exit time [s] and exit amplitude [1] (exit prism's leading peak), and the sweeps' pulse
     measures (amplitude, speed, FWHM width), NaN for failed columns."""
-    from ..measure import measure_pulse, peak_track
+    from ..measure.pulse import measure_pulse, peak_track
 
     with np.errstate(all="ignore"):
         m = measure_pulse(result.strain, result.time, prism_height)
@@ -56,7 +56,7 @@ def _settings(spec: LensSpec, device: str | None, **over):
 
 
 def _simulate(spec: LensSpec, prestrain: np.ndarray, settings, progress=None):
-    from .. import simulate_batch
+    from ..engine import simulate_batch
 
     params = {"prestrain": np.asarray(prestrain, float), "v0": spec.incident.v0,
               "base_rigidity": spec.column.base_rigidity}

@@ -15,8 +15,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from ..columns import ColumnConfig
-from ..network import NetworkError
+from ..scene.columns import ColumnConfig
+from ..scene.network import NetworkError
 from ..settings import METHODS, PRECISIONS
 
 COLUMN_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
