@@ -195,6 +195,8 @@ def _with(path, value):
         ("run.output_interval", 0.4, ["output_interval", "0.4"]),
         ("incident.v0", "fast", ["incident.v0", "fast"]),
         ("host.speed", 1.0, ["host.speed", "unknown"]),
+        ("array.layout", "grid", ["array.count = 4", "[nx, ny]"]),
+        ("array.count", [3, 3], ["array.count = [3, 3]", "line"]),
     ],
 )
 def test_spec_errors_name_key_and_value(path, value, words):
@@ -259,3 +261,40 @@ def test_lens_command_bad_spec_names_key(tmp_path, capsys):
     assert main(["lens", str(bad), "-o", str(tmp_path / "o.nc")]) == 1
     err = capsys.readouterr().err
     assert "array.spacing = -1.0" in err and "Traceback" not in err
+
+
+def test_plane_wave_delays_enter_the_design():
+    """A plane incident wave strikes the columns at d_i; the design still equalises
+    d_i + T_i + |F - x_i| / c_h, and the delays are those of the wave's trace speed."""
+    from warp_tensegrity.lens import plane_wave_delays
+
+    pos = column_positions("line", (12, 1), 0.012)
+    d = plane_wave_delays(pos, angle_deg=30.0, azimuth_deg=0.0, speed=0.5)
+    np.testing.assert_allclose(np.diff(d), 0.012 * np.sin(np.radians(30.0)) / 0.5)
+    assert d.min() == 0.0
+    p_cal = np.linspace(0.0, 0.1, 512)
+    law = fit_exit_law(p_cal, T_exact(p_cal))
+    F = np.array([0.0, 0.0, 0.1])
+    des = design_focus(law, pos, d, F, 0.2)
+    total = d + des.target_exit_time + np.linalg.norm(pos - F, axis=1) / 0.2
+    np.testing.assert_allclose(total, des.arrival_time, rtol=0, atol=1e-12)
+    # the analytic law with the designed prestrains arrives together
+    assert np.ptp(d + T_exact(des.prestrain) + np.linalg.norm(pos - F, axis=1) / 0.2) < 1e-4 * np.ptp(des.target_exit_time)
+
+
+def test_grid_array_focuses_in_3d():
+    """A 6 x 6 grid with 1/r spreading and ideal pulses at the designed exit times focuses within a
+    spacing of F, off axis in both x and y."""
+    dt, c_h = 2e-3, 0.1
+    pos = column_positions("grid", (6, 6), 0.012)
+    assert pos.shape == (36, 3) and np.ptp(pos[:, 1]) > 0
+    p_cal = np.linspace(0.0, 0.15, 256)
+    law = fit_exit_law(p_cal, 0.5 + 1.0 * (1 - p_cal / 0.15))
+    F = [0.01, -0.008, 0.05]
+    d = design_focus(law, pos, np.zeros(36), F, c_h)
+    assert d.reachable.all()
+    s = gaussian_signals(d.target_exit_time, np.ones(36), dt, 900, 0.02)
+    axes = map_grid([F], 0.02, 0.02, 11, True)
+    m = focal_map(s, dt, pos, np.zeros(36), axes, c_h, 3)
+    assert m.shape == (11, 11, 11)
+    assert np.linalg.norm(map_peak(m, axes) - F) < 0.012

@@ -4,6 +4,7 @@
     warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc)
     warp-tensegrity status OUT.nc
     warp-tensegrity combine OUT.nc
+    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N]   (acoustic lens, docs/lens.md)
 
 Warp is imported only when a command needs the engine, so ``--help`` is instant.
 """

@@ -72,12 +72,14 @@ def calibrate(spec: LensSpec, device: str | None = None, progress=None):
     return p, meas, fit_exit_law(p, meas["exit_time"]), result
 
 
-def _maps_spread(spec, positions, delays, axes_list) -> float:
-    """Largest spread over the maps' points of d_i + R_i / c_h [s]."""
+def _maps_spread(spec, positions, delays, axes, chunk: int = 4096) -> float:
+    """Largest spread max_i - min_i of d_i + R_i / c_h over the map's points [s]."""
+    x, y, z = axes
+    Z, Y, X = np.meshgrid(z, y, x, indexing="ij")
+    pts = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
     spread = 0.0
-    for x, y, z in axes_list:
-        corners = np.array([[a, b, c] for a in (x[0], x[-1]) for b in (y[0], y[-1]) for c in (z[0], z[-1])])
-        lag = delays[None, :] + H.distances(corners, positions) / spec.host.wave_speed
+    for a in range(0, len(pts), chunk):
+        lag = delays[None, :] + H.distances(pts[a:a + chunk], positions) / spec.host.wave_speed
         spread = max(spread, float((lag.max(axis=1) - lag.min(axis=1)).max()))
     return spread
 
@@ -108,7 +110,7 @@ def run_lens(spec: LensSpec, device: str | None = None, progress=None, log=print
 
     # 3. verification: designed and uniform arrays of every focal point in one batch
     interval = float(r_cal.time[1] - r_cal.time[0])
-    extra = _maps_spread(spec, positions, delays, [axes]) + max(
+    extra = _maps_spread(spec, positions, delays, axes) + max(
         float(np.ptp(d.target_exit_time)) for d in designs)
     t_end_v = math.ceil((spec.run.t_end + extra) / interval) * interval
     p_ver = np.concatenate([d.prestrain for d in designs] + [np.full(N, u) for u in uniform])

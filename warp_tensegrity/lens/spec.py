@@ -82,6 +82,14 @@ class Array(_Section):
                 raise ValueError("each count must lie in [2, 4096]")
         return v
 
+    @model_validator(mode="after")
+    def _layout(self):
+        if self.layout == "grid" and isinstance(self.count, int):
+            raise ValueError(f"array.count = {self.count!r}: a grid needs [nx, ny]")
+        if self.layout == "line" and not isinstance(self.count, int):
+            raise ValueError(f"array.count = {list(self.count)!r}: a line needs one number")
+        return self
+
     @property
     def shape(self) -> tuple[int, int]:
         if isinstance(self.count, int):
@@ -207,7 +215,7 @@ def _format_error(err: dict, data: dict) -> str:
         return f"{loc}: required key is missing"
     if err["type"] == "extra_forbidden":
         return f"{loc}: unknown key"
-    if not loc:  # model-level check: its message names the keys already
+    if not loc or msg.startswith(loc.split(".")[0] + "."):  # model-level check: its message names the keys
         return msg
     value = err.get("input")
     return f"{loc} = {value!r}: {msg}"
