@@ -7,7 +7,6 @@ import-linter: import-linter has layers and independence contracts but no chain-
 and this reads the same graph for all three checks."""
 
 import ast
-import functools
 import subprocess
 import sys
 from pathlib import Path
@@ -85,13 +84,13 @@ def import_graph() -> dict[str, set[str]]:
 def longest_chain(graph) -> list[str]:
     """Longest import path between importable modules (``__main__``, the ``python -m`` shim that
     nothing imports, is left out; it would add one)."""
-    @functools.lru_cache(None)
-    def longest(m):
+    def longest(m, seen=()):  # simple paths only, so a cycle (its own test fails) cannot recurse forever
         best = [m]
         for d in graph[m]:
-            tail = longest(d)
-            if len(tail) + 1 > len(best):
-                best = [m] + tail
+            if d not in seen:
+                tail = longest(d, seen + (m,))
+                if len(tail) + 1 > len(best):
+                    best = [m] + tail
         return best
 
     return max((longest(m) for m in graph if m != '__main__'), key=len)
