@@ -298,3 +298,17 @@ def test_grid_array_focuses_in_3d():
     m = focal_map(s, dt, pos, np.zeros(36), axes, c_h, 3)
     assert m.shape == (11, 11, 11)
     assert np.linalg.norm(map_peak(m, axes) - F) < 0.012
+
+
+def test_reading_a_lens_spec_and_cli_help_do_not_import_warp():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    code = ("from warp_tensegrity.lens import load_lens_spec; load_lens_spec('sweeps/lens_demo.toml'); "
+            "import warp_tensegrity.cli as c; c.build_parser(); import sys; print('warp' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
+                       env={"PYTHONPATH": str(root), "PATH": ""})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "False"

@@ -8,36 +8,24 @@ verification batches), :mod:`.io` (CF netCDF), :mod:`.command` (``warp-tensegrit
 Warp is imported only when a batch runs.
 """
 
-from .design import CalibrationError, Design, ExitLaw, common_arrival, design_focus, fit_exit_law
-from .host import column_positions, field, focal_map, map_grid, map_peak, peak_over_time, plane_wave_delays, spreading
-from .spec import LensSpec, LensSpecError, load_lens_spec, parse_lens_spec
+_DESIGN = ("CalibrationError", "Design", "ExitLaw", "common_arrival", "design_focus", "fit_exit_law")
+_HOST = ("column_positions", "field", "focal_map", "map_grid", "map_peak", "peak_over_time", "plane_wave_delays",
+         "spreading")
+_SPEC = ("LensSpec", "LensSpecError", "load_lens_spec", "parse_lens_spec")
 
-__all__ = [
-    "CalibrationError",
-    "Design",
-    "ExitLaw",
-    "LensSpec",
-    "LensSpecError",
-    "column_positions",
-    "common_arrival",
-    "design_focus",
-    "field",
-    "fit_exit_law",
-    "focal_map",
-    "load_lens_spec",
-    "map_grid",
-    "map_peak",
-    "parse_lens_spec",
-    "peak_over_time",
-    "plane_wave_delays",
-    "run_lens",
-    "spreading",
-]
+__all__ = sorted(_DESIGN + _HOST + _SPEC + ("run_lens",))
 
 
 def __getattr__(name):
-    if name == "run_lens":
-        from .run import run_lens
-
-        return run_lens
-    raise AttributeError(name)
+    # lazy: the CLI imports lens.command at start-up, and SciPy/pydantic/Warp load only when used
+    if name in _DESIGN:
+        from . import design as mod
+    elif name in _HOST:
+        from . import host as mod
+    elif name in _SPEC:
+        from . import spec as mod
+    elif name == "run_lens":
+        from . import run as mod
+    else:
+        raise AttributeError(name)
+    return getattr(mod, name)
