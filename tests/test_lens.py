@@ -312,3 +312,18 @@ def test_reading_a_lens_spec_and_cli_help_do_not_import_warp():
                        env={"PYTHONPATH": str(root), "PATH": ""})
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"
+
+
+def test_calibration_that_never_exits_is_a_clear_error(tmp_path, capsys):
+    """t_end too short for any pulse to leave the column: an error naming the cause, no traceback."""
+    from pathlib import Path
+
+    from warp_tensegrity.cli import main
+
+    text = (Path(__file__).resolve().parents[1] / "sweeps/lens_ci.toml").read_text()
+    text = text.replace("t_end = 0.9 ", "t_end = 0.1 ")
+    spec = tmp_path / "short.toml"
+    spec.write_text(text.replace("count = 64 ", "count = 8 "))
+    assert main(["lens", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu"]) == 1
+    err = capsys.readouterr().err
+    assert "finite exit time" in err and "t_end" in err and "Traceback" not in err

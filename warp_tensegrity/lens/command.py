@@ -33,5 +33,8 @@ def run_lens_command(args) -> int:
     except (LensSpecError, CalibrationError, SettingsError, NetworkError) as e:
         print(f"warp-tensegrity lens: error: {e}", file=sys.stderr)
         return 1
+    except OSError as e:
+        print(f"warp-tensegrity lens: error: cannot write {args.output!r}: {e}", file=sys.stderr)
+        return 1
     print(f"wrote {path}")
     return 0

@@ -117,6 +117,10 @@ def run_lens(spec: LensSpec, device: str | None = None, progress=None, log=print
     r_ver = _simulate(spec, p_ver, _settings(spec, device, t_end=t_end_v, dt=float(r_cal.dt)), progress)
     m_ver = measure_exit(r_ver, cfg.height)
     sig = exit_signals(r_ver.strain)
+    failed = np.flatnonzero(np.asarray(r_ver.status) != 0)
+    if len(failed):  # a frozen column radiates nothing after its failure: it is left out, and reported
+        log(f"warning: {len(failed)} verification columns failed (status_by_focus); their signals are set to 0")
+        sig[failed] = 0.0
     dt_out = float(r_ver.time[1] - r_ver.time[0])
     log(f"verification: {len(p_ver)} columns, t_end {t_end_v:.3f} s, in {r_ver.wall_time:.1f} s")
 
