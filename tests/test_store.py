@@ -444,3 +444,17 @@ def test_peak_rss_stays_under_the_memory_limit(tmp_path):
     # children's peak as the OS saw it (the whole process, baseline included)
     assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 >= m["peak_rss"]
     np.testing.assert_array_equal(open_nc(out)["status"].values, 0)
+
+
+def test_memory_limit_sets_the_shard_size_and_refuses_nonsense(tmp_path, capsys):
+    spec = write(tmp_path, GRID_SPEC.replace("shard_size = 3", "shard_size = 8"))
+    out = tmp_path / "m.nc"
+    plan = sweep.apply_memory_limit(sweep.plan_sweep(sweep.load_spec(spec), out), "250kB")
+    per = zstore.host_bytes_per_column(plan)
+    assert plan.shard_size == int(zstore.SHARD_SHARE * 250e3 // (zstore.IN_FLIGHT * per)) < 8
+    assert plan.shards == plan.spec.shards(plan.shard_size)
+    for bad, msg in (("lots", "memory limit 'lots'"), ("10kB", "is below the")):
+        assert run_cli("run", spec, "-o", out, "--memory-limit", bad) == 1
+        err = capsys.readouterr().err
+        assert msg in err and "Traceback" not in err, err
+        assert not out.exists() and not zstore.SweepStore(out).dir.exists()

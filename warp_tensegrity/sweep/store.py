@@ -564,7 +564,7 @@ def limit_shard_size(plan, memory_limit: int) -> int:
     n = int(SHARD_SHARE * memory_limit // (IN_FLIGHT * per))
     if n < 1:
         raise StoreError(
-            f"memory limit {memory_limit / 1e6:.1f} MB is below the {IN_FLIGHT * per / SHARD_SHARE / 1e6:.1f} MB "
+            f"memory limit {memory_limit / 1e6:.3g} MB is below the {IN_FLIGHT * per / SHARD_SHARE / 1e6:.3g} MB "
             f"that {IN_FLIGHT} shards of one column need with headroom; raise --memory-limit or record less "
             f"(run.record_strain = false)"
         )
