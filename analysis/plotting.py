@@ -102,7 +102,7 @@ def figure_dir() -> Path:
 def ensure_sweep(path, spec, device: str | None = None) -> Path:
     """Return ``path``; if it does not exist, make it first by running
     ``python -m warp_tensegrity run SPEC -o PATH --device DEVICE`` (device: ``$WT_DEVICE``,
-    default ``cpu``). The shard directory the command leaves next to ``PATH`` is removed."""
+    default ``cpu``). The store the command leaves next to ``PATH`` (``PATH.sweep/``) is removed."""
     path = Path(path)
     if path.exists():
         return path
@@ -119,7 +119,8 @@ def ensure_sweep(path, spec, device: str | None = None) -> Path:
     done = subprocess.run(cmd, cwd=repo_root(), env=env, capture_output=True, text=True)
     if done.returncode != 0 or not path.exists():
         raise RuntimeError(f"making {path} failed (exit {done.returncode}):\n{done.stdout}\n{done.stderr}")
-    shutil.rmtree(Path(str(path) + ".shards"), ignore_errors=True)
+    shutil.rmtree(Path(str(path) + ".sweep"), ignore_errors=True)  # the run's store; the export stays
+    path.with_name(f".{path.name}.lock").unlink(missing_ok=True)
     return path
 
 
