@@ -34,6 +34,13 @@ from .settings import RunSettings, SettingsError
 REACH_MARGIN_PRISMS = 8
 
 
+DEFAULT_ACCURACY = 5e-3
+"""Relative error of the pulse measures targeted when neither dt nor accuracy is given: the
+default run's dt fraction comes from the same error model as ``accuracy`` (measured on the paper's
+FB and RB columns: amplitude and speed within 0.5 %, strain history within 1 %, README)."""
+LEGACY_DT_SAFETY = 0.25
+"""dt fraction for methods without a measured error model (yoshida4, symplectic_euler)."""
+
 ERROR_MODEL = {"rattle": (0.59, 2), "rk4": (8.0, 4)}
 """Measured error constant C and order p: error <= C (dt/dt_limit)^p (n_prisms/50)."""
 REFERENCE_PRISMS = 50
@@ -47,10 +54,9 @@ def for_accuracy(accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> dict:
 
     if not (math.isfinite(accuracy) and 0 < accuracy < 1):
         raise SettingsError(f"accuracy = {accuracy!r} must lie in (0, 1) (relative error of pulse speed/amplitude)")
-    travel = max(int(n_prisms), 1) / REFERENCE_PRISMS
     best = None
-    for method, (C, p) in ERROR_MODEL.items():
-        frac = min(MAX_FRACTION, (accuracy / (C * travel)) ** (1.0 / p))
+    for method in ERROR_MODEL:
+        frac = dt_fraction(method, accuracy, n_prisms)
         cost = FORCE_EVALS[method] / (frac * STABILITY[method])  # evaluations per unit of omega_max * t
         if best is None or cost < best[0]:
             best = (cost, method, frac)
@@ -58,11 +64,32 @@ def for_accuracy(accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> dict:
     return {"method": method, "precision": "fp32" if accuracy >= 1e-4 else "fp64", "dt_safety": frac}
 
 
+def dt_fraction(method: str, accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> float:
+    """The one accuracy -> dt decision: the fraction of the stability limit at which ``method``
+    meets a relative error ``accuracy`` of the pulse measures over ``n_prisms`` prisms
+    (``ERROR_MODEL``), at most ``MAX_FRACTION``."""
+    C, p = ERROR_MODEL[method]
+    travel = max(int(n_prisms), 1) / REFERENCE_PRISMS
+    return min(MAX_FRACTION, (accuracy / (C * travel)) ** (1.0 / p))
+
+
+def default_dt_safety(method: str, n_prisms: int = REFERENCE_PRISMS) -> tuple[float, float | None]:
+    """(dt_safety, accuracy targeted) of a run given neither dt nor accuracy nor dt_safety."""
+    if method in ERROR_MODEL:
+        return dt_fraction(method, DEFAULT_ACCURACY, n_prisms), DEFAULT_ACCURACY
+    return LEGACY_DT_SAFETY, None
+
+
 def apply_accuracy(settings: RunSettings, n_prisms: int = REFERENCE_PRISMS) -> tuple[RunSettings, dict]:
     """Settings with method/precision/dt_safety chosen from ``settings.accuracy`` (if given) for a
-    pulse crossing ``n_prisms`` prisms."""
+    pulse crossing ``n_prisms`` prisms. Without accuracy, dt = 'auto' and no dt_safety, the dt
+    fraction targets :data:`DEFAULT_ACCURACY` with the given method and precision."""
     if settings.accuracy is None:
-        return settings, {}
+        if settings.dt != "auto" or settings.dt_safety is not None:
+            return settings, {}
+        frac, target = default_dt_safety(settings.method, n_prisms)
+        fields = dict(vars(settings), dt_safety=frac)
+        return RunSettings(**fields), {"accuracy": target, "accuracy_source": "default", "dt_safety": frac}
     if settings.dt != "auto":
         raise SettingsError(
             f"accuracy = {settings.accuracy!r} and dt = {settings.dt!r}: give one of them; accuracy chooses dt"
@@ -70,7 +97,7 @@ def apply_accuracy(settings: RunSettings, n_prisms: int = REFERENCE_PRISMS) -> t
     choice = for_accuracy(settings.accuracy, n_prisms)
     fields = {k: v for k, v in vars(settings).items()}
     fields.update(choice)
-    return RunSettings(**fields), {"accuracy": settings.accuracy, **choice}
+    return RunSettings(**fields), {"accuracy": settings.accuracy, "accuracy_source": "run.accuracy", **choice}
 
 
 def reachable_prisms(omega_max: float, t_end: float, n_prisms: int) -> int:

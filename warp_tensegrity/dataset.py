@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .nan_reasons import FLAG_MEANINGS, FLAG_VALUES
 from .settings import COLUMN_PARAMETERS, STATUS_NAMES
 from .spec import SCENE_FIELDS, SweepSpec, package_version
 
@@ -56,7 +57,9 @@ COORD_ATTRS = {
         "long_name": "prism index from the clamped base (0) to the impacted free end (n_prisms - 1)",
         "axis": "X",
     },
-    "time": {"units": "s", "long_name": "time since impact", "axis": "T"},
+    "time": {"units": "s", "long_name": "time since impact (step * dt, rounded to the output interval's decimals)",
+             "axis": "T"},
+    "step": {"units": "1", "long_name": "time step count of each output (time = step * dt)"},
 }
 
 VAR_ATTRS = {
@@ -71,7 +74,13 @@ VAR_ATTRS = {
         "units": "1",
         "long_name": "prisms of the measurement window the leading pulse reached within t_end",
     },
-    "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism"},
+    "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism",
+                     "comment": "NaN at the prisms the pulse had not reached by t_end"},
+    "measurement_flag": {
+        "long_name": "why the pulse measures of the column are NaN (ok: all defined; docs/measurements.md)",
+        "flag_values": FLAG_VALUES,
+        "flag_meanings": FLAG_MEANINGS,
+    },
     "status": {
         "long_name": "column status at the end of the run",
         "flag_values": np.array(sorted(STATUS_NAMES), dtype=np.int8),
@@ -171,12 +180,15 @@ def spec_attrs(spec: SweepSpec) -> dict:
 
 
 # ---------------------------------------------------------------------- building
-def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int) -> dict:
+def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int,
+            steps: np.ndarray | None = None) -> dict:
     coords = {
         "case": ("case", np.arange(start, stop, dtype=np.int64), COORD_ATTRS["case"]),
         "prism": ("prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
         "time": ("time", np.asarray(time, dtype=np.float64), COORD_ATTRS["time"]),
     }
+    if steps is not None:  # exact: time = step * dt, rounded to the output interval's decimals
+        coords["step"] = ("time", np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     swept = spec.swept
     for p in COLUMN_PARAMETERS:
         if p in swept:
@@ -210,6 +222,7 @@ def shard_dataset(
         "width_10": (C, measurements["width_10"]),
         "prisms_measured": (C, measurements["prisms_measured"]),
         "arrival_time": (("case", "prism"), measurements["arrival_time"]),
+        "measurement_flag": (C, np.asarray(measurements["measurement_flag"], dtype=np.int8)),
         "status": (C, np.asarray(result.status, dtype=np.int8)),
         "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),
         "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
@@ -226,7 +239,8 @@ def shard_dataset(
         k: xr.Variable(d, np.asarray(v, dtype=np.float64) if k in MEASUREMENTS else v, attrs=dict(VAR_ATTRS[k]))
         for k, (d, v) in dv.items()
     }
-    ds = xr.Dataset(data_vars, coords=_coords(spec, params, start, stop, result.time, n_prisms))
+    ds = xr.Dataset(data_vars, coords=_coords(spec, params, start, stop, result.time, n_prisms,
+                                              result.info.get("output_step")))
     ds.attrs = {k: _attr(v) for k, v in attrs.items()}
     return ds
 
@@ -280,7 +294,10 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
 
     attrs = spec_attrs(spec)
     a0 = first.attrs
-    for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval"):
+    for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval",
+              "dt_safety_used", "accuracy_target"):
+        if k not in a0:
+            continue
         attrs[k] = a0[k]
     for k in ("warp_version", "git_commit", "device", "device_name"):
         attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)

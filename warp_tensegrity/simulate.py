@@ -28,7 +28,7 @@ from .batch import (
     reference_elastic_energy,
     reference_states,
 )
-from .choose import apply_accuracy, reachable_prisms
+from .choose import apply_accuracy, default_dt_safety, reachable_prisms
 from .columns import ColumnConfig
 from .fused import make_fused_kernels, shared_capacity
 from .kernels import make_kernels, make_solver_kernels
@@ -76,7 +76,10 @@ def choose_timestep(settings: RunSettings, omega_max: float):
     limit = STABILITY[settings.method] / omega_max if omega_max > 0 else math.inf
     interval = settings.output_interval or settings.t_end / 200.0
     if settings.dt == "auto":
-        target = settings.dt_safety * limit
+        safety = settings.dt_safety
+        if safety is None:  # a batch run directly: the default accuracy over the reference column
+            safety = default_dt_safety(settings.method)[0]
+        target = safety * limit
         every = max(1, math.ceil(interval / target))
         dt = interval / every
         dt = min(dt, settings.t_end)
@@ -91,6 +94,21 @@ def choose_timestep(settings: RunSettings, omega_max: float):
         every = max(1, round(interval / dt))
     n_steps = max(1, math.ceil(settings.t_end / dt - 1e-9))
     return dt, limit, n_steps, every
+
+
+def output_times(steps: np.ndarray, dt: float) -> np.ndarray:
+    """Output times [s] = step * dt, rounded to the decimals of the output interval (the step
+    between outputs times dt), so printed times select exactly: 4975 * 0.002 gives 9.95, not
+    9.950000000000001. Intervals with no short decimal form (up to 15 decimals) are not rounded."""
+    steps = np.asarray(steps, dtype=np.int64)
+    t = steps * dt
+    if steps.size < 2:
+        return t
+    interval = float(steps[1] - steps[0]) * dt
+    for d in range(16):
+        if abs(round(interval, d) - interval) <= 1e-9 * interval:
+            return np.round(t, d)
+    return t
 
 
 class Integrator:
@@ -413,7 +431,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
             strain[b, last_slot + 1 :] = np.nan
     return BatchResult(
         params=dict(batch.params),
-        time=np.arange(n_out) * every * dt,
+        time=output_times(np.arange(n_out) * every, dt),
         strain=strain,
         kinetic_energy=ke,
         elastic_energy=ee,
@@ -434,6 +452,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
         info={
             "omega_max_bound": omega,
             "output_every": every,
+            "output_step": np.arange(n_out, dtype=np.int64) * every,
             "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
             "bandwidth": integ.model.bandwidth,
             "n_constraints": integ.model.n_constraints,
@@ -464,7 +483,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     result = run_batch(batch, settings, progress)
     if n_sim < n:
         _pad_to_full_column(result, config, sim_config, params, n, n_sim)
-    choices.update({"prisms_simulated": n_sim, "prisms": n, "method": settings.method,
+    choices.update({"dt_safety": settings.dt_safety, "prisms_simulated": n_sim, "prisms": n, "method": settings.method,
                     "precision": settings.precision, "dt": result.dt,
                     "record_strain": settings.record_strain})
     result.info["choices"] = choices
@@ -514,7 +533,7 @@ def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int,
 
 def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
     """Time step, stability limit, step count and memory of a batch, without launching kernels."""
-    settings, _ = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
+    settings, choices = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
     batch = column_batch(config, params)
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)
@@ -548,4 +567,6 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "bandwidth": int(bw),
         "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
         "seconds_estimate": seconds,
+        "dt_safety": settings.dt_safety,
+        "accuracy_target": choices.get("accuracy"),
     }

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as D
+from .nan_reasons import measurement_flags
 from .settings import RunSettings
 from .spec import SpecError, SweepSpec, code_version, load_spec
 
@@ -173,7 +174,13 @@ def measure_columns(result, prism_height: float) -> dict:
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
         v[bad] = np.nan
+    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)
     return out
+
+
+def _num(x):
+    """A float attribute, or 'none'."""
+    return "none" if x is None else float(x)
 
 
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
@@ -205,6 +212,8 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "dt": float(result.dt),
         "dt_limit": plan.dt_limit,
         "n_steps": int(result.n_steps),
+        "dt_safety_used": _num(plan.estimate.get("dt_safety") if isinstance(spec.run["dt"], str) else None),
+        "accuracy_target": _num(plan.estimate.get("accuracy_target") if isinstance(spec.run["dt"], str) else None),
         "output_interval": float(result.time[1] - result.time[0]) if len(result.time) > 1 else float("nan"),
         "wall_time": float(result.wall_time),
         "history": f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} shard {index} computed by warp_tensegrity",
@@ -579,7 +588,7 @@ def dry_run(plan: SweepPlan) -> str:
     secs = spc * n_steps * n
     dt_txt = f"{plan.dt:.4g} s"
     if isinstance(r["dt"], str):
-        dt_txt += f" (auto: {r['dt_safety']} x limit {plan.dt_limit:.4g} s)"
+        dt_txt += f" (auto: {plan.estimate.get('dt_safety', r['dt_safety']):.4g} x limit {plan.dt_limit:.4g} s)"
     else:
         dt_txt += f" (explicit; limit {plan.dt_limit:.4g} s)"
     lines = [
