@@ -34,7 +34,7 @@ from .settings import RunSettings, SettingsError
 REACH_MARGIN_PRISMS = 8
 
 
-DEFAULT_ACCURACY = 5e-3
+DEFAULT_ACCURACY = 1e-3
 """Relative error of the pulse measures targeted when neither dt nor accuracy is given: the
 default run's dt fraction comes from the same error model as ``accuracy`` (measured on the paper's
 FB and RB columns: amplitude and speed within 0.5 %, strain history within 1 %, README)."""
