@@ -9,7 +9,7 @@ table below, that explains the first NaN of amplitude, speed, widths):
  1  non_finite                          the state became non-finite (status 1) or the record
                                         holds a non-finite sample: every measure NaN
  2  constraint_failure                  a bar constraint failed (status 2): every measure NaN
- 3  no_leading_pulse                    no compression above the threshold anywhere (flat
+ 3  no_leading_pulse                    no compression above 1e-9 anywhere (flat
                                         record), or the front crossed the window but no
                                         pulse formed (no peak after which compression fell to
                                         half): every measure NaN
@@ -52,6 +52,9 @@ FLAG_MEANINGS = " ".join(FLAGS)
 FLAGGED = ("amplitude", "speed", "width", "width_10", "prisms_measured")
 """Per-column measures that are NaN only where measurement_flag is not ok."""
 
+FLAT_STRAIN = 1e-9
+"""A record whose largest compression stays below this strain is flat (round-off of the prestressed
+reference state is ~1e-14)."""
 # prisms beyond the window's far end the front must pass for the last peak to be over
 _PEAK_CLEARANCE = 4
 
@@ -74,7 +77,7 @@ def measurement_flags(status, strain, time, meas: dict) -> np.ndarray:
         finite = np.isfinite(s).all(axis=(1, 2))
         P = s.shape[-1]
         with np.errstate(invalid="ignore"):
-            compressed = np.nanmax(np.where(np.isfinite(s), -s, 0.0), axis=(1, 2)) > 0
+            compressed = np.nanmax(np.where(np.isfinite(s), -s, 0.0), axis=(1, 2)) > FLAT_STRAIN
         lo, hi = measurement_window(P)
         arrived = np.isfinite(np.asarray(meas["arrival_time"])[:, lo:hi]).sum(axis=1)
     need = None if P is None else max(min(5, hi - lo), (hi - lo) // 4)

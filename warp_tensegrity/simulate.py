@@ -99,14 +99,14 @@ def choose_timestep(settings: RunSettings, omega_max: float):
 def output_times(steps: np.ndarray, dt: float) -> np.ndarray:
     """Output times [s] = step * dt, rounded to the decimals of the output interval (the step
     between outputs times dt), so printed times select exactly: 4975 * 0.002 gives 9.95, not
-    9.950000000000001. Intervals with no short decimal form (up to 15 decimals) are not rounded."""
+    9.950000000000001. Intervals with no decimal form of up to 12 decimals are not rounded."""
     steps = np.asarray(steps, dtype=np.int64)
     t = steps * dt
     if steps.size < 2:
         return t
     interval = float(steps[1] - steps[0]) * dt
-    for d in range(16):
-        if abs(round(interval, d) - interval) <= 1e-9 * interval:
+    for d in range(13):
+        if abs(round(interval, d) - interval) <= 1e-14 * interval:  # round-off only
             return np.round(t, d)
     return t
 
