@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .impact import kinematic_lock_strain
 from .nan_reasons import FLAG_MEANINGS, FLAG_VALUES
 from .settings import COLUMN_PARAMETERS, STATUS_NAMES
 from .spec import SCENE_FIELDS, SweepSpec, package_version
@@ -40,7 +41,7 @@ RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created")
 
 SHARD_ATTRS = ("shard_index", "n_shards", "case_start", "case_stop")
 
-MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time")
+MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time", "max_compression")
 
 STATUS_MEANINGS = " ".join(STATUS_NAMES[k].replace(" ", "_").replace("-", "_") for k in sorted(STATUS_NAMES))
 
@@ -73,6 +74,12 @@ VAR_ATTRS = {
     "prisms_measured": {
         "units": "1",
         "long_name": "prisms of the measurement window the leading pulse reached within t_end",
+    },
+    "max_compression": {
+        "units": "1",
+        "long_name": "largest prism compression -strain over the record",
+        "comment": "at or above the rigid-base kinematic lock (attribute kinematic_lock_compression) the limit "
+                   "base_rigidity -> 1 is singular: rigid bases (1) are then not the limit of stiff ones (docs/impact.md)",
     },
     "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism",
                      "comment": "NaN at the prisms the pulse had not reached by t_end"},
@@ -176,6 +183,15 @@ def spec_attrs(spec: SweepSpec) -> dict:
     for f in SCENE_FIELDS:
         a[f"scene_{f}"] = getattr(spec.scene, f)
     a["scene_cable_EA"] = float(spec.scene.cable_EA)
+    sc = spec.scene
+    a["kinematic_lock_compression"] = -kinematic_lock_strain(sc.radius, sc.height, sc.twist)
+    a["base_rigidity_law"] = ("base members: tension EA/(1-beta), compression beta*EA/(1-beta); beta = 1: rigid links; "
+                              "continuous in beta, with the rigid_members impact the same initial state for every beta")
+    a["base_rigidity_continuity"] = (
+        "outputs converge as beta -> 0 (to FB) and, while max_compression stays below kinematic_lock_compression, as "
+        "beta -> 1 (difference ~ 1 - beta); pulses that reach the lock make beta -> 1 singular (stiff base modes "
+        "take energy at the locked prisms), so beta = 1 is a separate model there: compare it with beta < 1 only "
+        "where max_compression < kinematic_lock_compression (docs/impact.md)")
     return {k: _attr(v) for k, v in a.items()}
 
 
@@ -222,12 +238,14 @@ def shard_dataset(
         "width_10": (C, measurements["width_10"]),
         "prisms_measured": (C, measurements["prisms_measured"]),
         "arrival_time": (("case", "prism"), measurements["arrival_time"]),
-        "measurement_flag": (C, np.asarray(measurements["measurement_flag"], dtype=np.int8)),
         "status": (C, np.asarray(result.status, dtype=np.int8)),
         "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),
         "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
         "bar_length_error": (C, np.asarray(result.bar_length_error, dtype=np.float64)),
     }
+    for k, dtype in (("max_compression", np.float64), ("measurement_flag", np.int8)):  # sweep.measure_columns
+        if k in measurements:
+            dv[k] = (C, np.asarray(measurements[k], dtype=dtype))
     if spec.run["record_energy"]:
         dv["kinetic_energy"] = (("case", "time"), np.asarray(result.kinetic_energy, dtype=np.float64))
         dv["elastic_energy"] = (("case", "time"), np.asarray(result.elastic_energy, dtype=np.float64))

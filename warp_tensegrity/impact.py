@@ -75,3 +75,18 @@ def least_energy_impact(
             f"every bar and base member rigid (residual {viol:.2e})"
         )
     return v.reshape(n, 3)
+
+
+def kinematic_lock_strain(radius: float, height: float, twist: float) -> float:
+    """Prism strain (h - h0)/h [1] at which a prism with rigid bars and rigid bases locks: its bases
+    have turned to a relative twist of pi, the three bars meet on the axis, and dh/dphi = 0.
+
+    With bar length l (l^2 = h0^2 + 2 a^2 (1 - cos phi0)), h(phi)^2 = l^2 - 2 a^2 (1 - cos phi) has
+    its minimum h_min^2 = l^2 - 4 a^2 at phi = pi. There the constraint Jacobian of bars and links
+    loses rank: a rigid-base pulse that reaches this strain passes a singular configuration, where
+    the limit of stiff elastic bases (beta -> 1) is not the rigid-base motion (docs/impact.md).
+    The paper's prism: -0.1005.
+    """
+    l2 = height**2 + 2.0 * radius**2 * (1.0 - np.cos(twist))
+    h_min = np.sqrt(l2 - 4.0 * radius**2)
+    return float((h_min - height) / h_min)

@@ -49,7 +49,7 @@ FLAGS = (
 FLAG = {name: i for i, name in enumerate(FLAGS)}
 FLAG_VALUES = np.arange(len(FLAGS), dtype=np.int8)
 FLAG_MEANINGS = " ".join(FLAGS)
-FLAGGED = ("amplitude", "speed", "width", "width_10", "prisms_measured")
+FLAGGED = ("amplitude", "speed", "width", "width_10", "prisms_measured", "max_compression")
 """Per-column measures that are NaN only where measurement_flag is not ok."""
 
 FLAT_STRAIN = 1e-9

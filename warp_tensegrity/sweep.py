@@ -174,6 +174,9 @@ def measure_columns(result, prism_height: float) -> dict:
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
         v[bad] = np.nan
+    with np.errstate(invalid="ignore"):
+        out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
     out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)
     return out
 
