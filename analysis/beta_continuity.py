@@ -25,8 +25,8 @@ import warp as wp  # noqa: E402
 
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch  # noqa: E402
 from warp_tensegrity.measure import measure_pulse  # noqa: E402
-from warp_tensegrity.nan_reasons import FLAGS  # noqa: E402
-from warp_tensegrity.sweep import measure_columns  # noqa: E402
+from warp_tensegrity.measure.nan_reasons import FLAGS  # noqa: E402
+from warp_tensegrity.sweep.shard import measure_columns  # noqa: E402
 
 BETAS = (0.0, 0.5, 0.8, 0.9, 0.95, 0.99, 0.999, 1.0)
 V0 = (0.003, 0.01, 0.03, 0.1)

@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 import warp as wp  # noqa: E402
 
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch  # noqa: E402
-from warp_tensegrity.impact import kinematic_lock_strain  # noqa: E402
+from warp_tensegrity.scene.impact import kinematic_lock_strain  # noqa: E402
 from warp_tensegrity.measure import measure_pulse  # noqa: E402
 
 OUT = ROOT / "analysis" / "data" / "beta_limit.json"

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-from warp_tensegrity.batch import column_batch
-from warp_tensegrity.columns import build_column, column_topology
-from warp_tensegrity.impact import kinematic_lock_strain, least_energy_impact, member_jacobian
+from warp_tensegrity.scene.batch import column_batch
+from warp_tensegrity.scene.columns import build_column, column_topology
+from warp_tensegrity.scene.impact import kinematic_lock_strain, least_energy_impact, member_jacobian
 from warp_tensegrity.measure import measure_pulse
 
 PAPER = ColumnConfig()

@@ -10,9 +10,9 @@ import xarray as xr
 
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
 from warp_tensegrity.cli import main as cli_main
-from warp_tensegrity.dataset import open_sweep
-from warp_tensegrity.nan_reasons import FLAG, FLAGGED, FLAGS, dataset_summary, measurement_flags, t_end_needed
-from warp_tensegrity.sweep import measure_columns
+from warp_tensegrity.io import open_sweep
+from warp_tensegrity.measure.nan_reasons import FLAG, FLAGGED, FLAGS, dataset_summary, measurement_flags, t_end_needed
+from warp_tensegrity.sweep.shard import measure_columns
 
 ROOT = Path(__file__).resolve().parents[1]
 

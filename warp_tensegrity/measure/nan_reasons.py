@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from .measure import measurement_window
+from .pulse import measurement_window
 
 FLAGS = (
     "ok",
@@ -61,7 +61,7 @@ _PEAK_CLEARANCE = 4
 
 def measurement_flags(status, strain, time, meas: dict) -> np.ndarray:
     """(B,) int8 flag per column from the engine status, the strain record (B, T, P) (None if not
-    recorded) and the measures of :func:`warp_tensegrity.sweep.measure_columns`."""
+    recorded) and the measures of :func:`warp_tensegrity.sweep.shard.measure_columns`."""
     status = np.asarray(status)
     B = status.shape[0]
     flags = np.full(B, FLAG["ok"], dtype=np.int8)
