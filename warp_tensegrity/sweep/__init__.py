@@ -6,10 +6,10 @@ Reading and validating a spec does not import Warp."""
 
 from .dask import local_cluster, run_shards_dask
 from .errors import SpecError, SweepError
-from .plan import SweepPlan, apply_memory_limit, dry_run, plan_sweep, plan_time, resolve_dt
+from .plan import SweepPlan, apply_memory_limit, dry_run, plan_sweep, resolve_dt
 from .progress import ProgressBar
 from .run import combine, execute, load_plan_from_manifest, open_sweep, resume_sweep, run_sweep, sweep_status
-from .shard import compute_and_write, compute_shard, measure_columns
+from .shard import compute_and_write, compute_shard, measure_columns, template_dataset
 from .spec import SweepSpec, load_spec, parse_spec
 from .store import MANIFEST, SPEC_COPY, SweepLock, SweepStore, shard_dir_for
 
@@ -36,11 +36,11 @@ __all__ = [
     "open_sweep",
     "parse_spec",
     "plan_sweep",
-    "plan_time",
     "resolve_dt",
     "resume_sweep",
     "run_shards_dask",
     "run_sweep",
     "shard_dir_for",
     "sweep_status",
+    "template_dataset",
 ]

@@ -112,17 +112,6 @@ def resolve_dt(plan: SweepPlan) -> SweepPlan:
     return plan
 
 
-def plan_time(plan: SweepPlan):
-    """The output times [s] every shard must produce, from the engine's own estimate (dt fixed by
-    the plan); the store is laid out with them before any shard runs."""
-    import numpy as np
-
-    if plan.settings is None:
-        resolve_dt(plan)
-    est = estimate_batch(plan.spec.scene, plan.params, plan.settings)
-    return np.arange(int(est["n_out"])) * int(est["output_every"]) * float(est["dt"])
-
-
 def apply_memory_limit(plan: SweepPlan, memory_limit) -> SweepPlan:
     """Shrink the shard size so the shards alive on the host fit in ``memory_limit`` (bytes or
     '64MB'; :func:`~warp_tensegrity.sweep.store.limit_shard_size`)."""
@@ -154,7 +143,7 @@ def dry_run(plan: SweepPlan) -> str:
     secs = spc * n_steps * n
     dt_txt = f"{plan.dt:.4g} s"
     if isinstance(r["dt"], str):
-        dt_txt += f" (auto: {r['dt_safety']} x limit {plan.dt_limit:.4g} s)"
+        dt_txt += f" (auto: {plan.estimate.get('dt_safety', r['dt_safety']):.4g} x limit {plan.dt_limit:.4g} s)"
     else:
         dt_txt += f" (explicit; limit {plan.dt_limit:.4g} s)"
     lines = [

@@ -12,9 +12,9 @@ import xarray as xr
 from ..types import ShardState
 from .dask import run_shards_dask
 from .errors import SweepError
-from .plan import SweepPlan, apply_memory_limit, plan_sweep, plan_time, resolve_dt
+from .plan import SweepPlan, apply_memory_limit, plan_sweep, resolve_dt
 from .progress import ProgressBar
-from .shard import compute_and_write, compute_shard
+from .shard import compute_and_write, compute_shard, template_dataset
 from .spec import SweepSpec, load_spec
 from .store import (
     STORE, ShardWriter, StoreError, SweepLock, SweepStore, export_netcdf, fault, read_run, shard_states,
@@ -51,7 +51,8 @@ def execute(
         # memory is tight. Global, and fixed once Zarr first writes in this process.
         zarr.config.set({"threading.max_workers": 1})
     with SweepLock(plan.out):
-        time = plan_time(plan)
+        tpl = template_dataset(plan)
+        time = tpl["time"].values
         if not resume and (store.exists() or plan.out.exists()):
             if not overwrite:
                 what = f"{store.dir} already holds a run" if store.exists() else f"{plan.out} exists"
@@ -65,7 +66,7 @@ def execute(
         if manifest is None:
             if resume and store.exists():
                 _log(f"{store.dir}: {why}; recomputing every shard", stream)
-            manifest = store.initialise(plan, time)
+            manifest = store.initialise(plan, tpl)
             states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
         else:
             states = shard_states(store, plan)
@@ -118,7 +119,7 @@ def execute(
         if not combine_output:
             return None
         fault("finalise")
-        export_netcdf(store.dataset(plan), plan.out)
+        export_netcdf(store.dataset(plan, tpl), plan.out)
     return plan.out
 
 
@@ -176,13 +177,14 @@ def combine(plan_or_out, spec=None) -> Path:
     plan = _plan_for(plan_or_out, spec)
     store = SweepStore(plan.out)
     with SweepLock(plan.out):
-        st = status(plan, plan_time(plan))
+        tpl = template_dataset(plan)
+        st = status(plan, tpl["time"].values)
         bad = st["shards_missing"] + [i for i, _ in st["shards_stale"] + st["shards_corrupt"]]
         if bad:
             why = "; ".join(f"shard {i}: {r}" for i, r in (st["shards_stale"] + st["shards_corrupt"])[:4])
             raise StoreError(f"{len(bad)} of {plan.n_shards} shards of {plan.out} are not done or do not check out"
                              f"{' (' + why + ')' if why else ''}; run `warp-tensegrity resume {plan.out}`")
-        return export_netcdf(store.dataset(plan), plan.out)
+        return export_netcdf(store.dataset(plan, tpl), plan.out)
 
 
 def sweep_status(out, spec=None) -> dict:
@@ -190,7 +192,7 @@ def sweep_status(out, spec=None) -> dict:
     if spec is None and not isinstance(out, SweepPlan) and not SweepStore(out).dir.exists() and Path(out).exists():
         return status_from_output(out)
     plan = _plan_for(out, spec)
-    return status(plan, plan_time(plan))
+    return status(plan, template_dataset(plan)["time"].values)
 
 
 def open_sweep(path, partial: bool = False) -> xr.Dataset:
@@ -204,9 +206,7 @@ def open_sweep(path, partial: bool = False) -> xr.Dataset:
         path = path.with_name(path.name[: -len(".sweep")])
     store = SweepStore(path)
     if store.manifest_path.exists() or store.dir.is_dir():
-        m = read_run(path)
-        spec = load_spec(m["spec_text"])
-        spec.source = m.get("spec_file")
-        return store.dataset(spec, partial=partial)
+        plan = load_plan_from_manifest(path)
+        return store.dataset(plan, template_dataset(plan), partial=partial)
     return xr.open_dataset(path, engine="netcdf4", decode_timedelta=False, chunks={})
 

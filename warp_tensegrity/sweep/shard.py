@@ -12,6 +12,7 @@ import numpy as np
 from .. import io as D
 from ..engine import simulate_batch
 from ..measure import measure_pulse
+from ..measure.nan_reasons import measurement_flags
 from ..types import Status
 from .store import SweepStore
 
@@ -37,7 +38,16 @@ def measure_columns(result, prism_height: float) -> dict:
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
         v[bad] = np.nan
+    with np.errstate(invalid="ignore"):
+        out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
+    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)
     return out
+
+
+def _num(x):
+    """A float attribute, or 'none'."""
+    return "none" if x is None else float(x)
 
 
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
@@ -69,6 +79,8 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "dt": float(result.dt),
         "dt_limit": plan.dt_limit,
         "n_steps": int(result.n_steps),
+        "dt_safety_used": _num(plan.estimate.get("dt_safety") if isinstance(spec.run["dt"], str) else None),
+        "accuracy_target": _num(plan.estimate.get("accuracy_target") if isinstance(spec.run["dt"], str) else None),
         "output_interval": float(result.time[1] - result.time[0]) if len(result.time) > 1 else float("nan"),
         "wall_time": float(result.wall_time),
         "history": f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} shard {index} computed by warp_tensegrity",
@@ -76,6 +88,31 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     if spec.run["output_interval"] is not None:
         attrs["output_interval"] = float(spec.run["output_interval"])
     return D.shard_dataset(spec, plan.params, start, stop, result, meas, attrs)
+
+
+def template_dataset(plan: SweepPlan):
+    """A one-column shard dataset built by the same code as every shard (engine output times,
+    :func:`measure_columns` on an all-zero column, io.shard_dataset): the store is laid out from it
+    before any shard runs. Nothing is stepped."""
+    from types import SimpleNamespace
+
+    from ..engine import estimate_batch, output_times
+
+    if plan.settings is None:
+        plan.resolve()
+    spec = plan.spec
+    est = estimate_batch(spec.scene, plan.params, plan.settings)
+    steps = np.arange(int(est["n_out"]), dtype=np.int64) * int(est["output_every"])
+    time = output_times(steps, float(est["dt"]))
+    P, T = spec.scene.n_prisms, len(time)
+    z = lambda *shape: np.zeros(shape)  # noqa: E731
+    result = SimpleNamespace(
+        n_columns=1, status=np.zeros(1, np.int8), fail_step=np.full(1, -1, np.int64), energy_error=z(1),
+        bar_length_error=z(1), kinetic_energy=z(1, T), elastic_energy=z(1, T), strain=z(1, T, P), time=time,
+        info={"output_step": steps})
+    with np.errstate(all="ignore"):
+        meas = measure_columns(result, spec.scene.height)
+    return D.shard_dataset(spec, plan.params, 0, 1, result, meas, {})
 
 
 def compute_and_write(plan: SweepPlan, index: int, device: str | None = None) -> tuple[int, dict]:

@@ -29,7 +29,6 @@ import sys
 import threading
 import time as _time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import xarray as xr
@@ -213,19 +212,6 @@ class Manifest:
 
 
 # ---------------------------------------------------------------------- layout
-def _template(plan, time: np.ndarray) -> xr.Dataset:
-    """A one-column shard dataset: the variables, dims, dtypes and attributes every shard has."""
-    spec = plan.spec
-    P, T = spec.scene.n_prisms, len(time)
-    z = lambda *s: np.zeros(s)  # noqa: E731
-    result = SimpleNamespace(
-        n_columns=1, status=np.zeros(1, np.int8), fail_step=np.zeros(1, np.int64), energy_error=z(1),
-        bar_length_error=z(1), kinetic_energy=z(1, T), elastic_energy=z(1, T), strain=z(1, T, P), time=time)
-    meas = {k: z(1) for k in D.MEASUREMENTS}
-    meas["arrival_time"] = z(1, P)
-    return D.shard_dataset(spec, plan.params, 0, 1, result, meas, {})
-
-
 def _case_vars(ds: xr.Dataset) -> list[str]:
     return [k for k in ds.data_vars if ds[k].dims[:1] == ("case",)]
 
@@ -273,16 +259,19 @@ class SweepStore:
                 p.unlink(missing_ok=True)
 
     # ------------------------------------------------------------------ create / open
-    def initialise(self, plan, time: np.ndarray) -> Manifest:
-        """A fresh store for ``plan``: coordinates written, data variables empty, no shard done."""
+    def initialise(self, plan, tpl: xr.Dataset) -> Manifest:
+        """A fresh store for ``plan``: coordinates written, data variables empty, no shard done.
+        ``tpl``: a one-column shard dataset (:func:`~warp_tensegrity.sweep.shard.template_dataset`),
+        whose variables, dims, dtypes and attributes every shard has."""
         import dask.array as da
 
         self.remove()
         self.dir.mkdir(parents=True)
         _atomic_write_text(self.dir / SPEC_COPY, plan.spec.text)
-        tpl = _template(plan, time)
+        time = tpl["time"].values
         N = plan.n_columns
-        coords = D._coords(plan.spec, plan.params, 0, N, time, plan.spec.scene.n_prisms)
+        extra = (tpl["step"].values,) if "step" in tpl.coords else ()
+        coords = D._coords(plan.spec, plan.params, 0, N, time, plan.spec.scene.n_prisms, *extra)
         data = {}
         enc = {}
         for k in tpl.data_vars:
@@ -397,10 +386,10 @@ class SweepStore:
                 _fsync_path(vdir / "c")
 
     # ------------------------------------------------------------------ reading
-    def dataset(self, plan_or_spec, partial: bool = False) -> xr.Dataset:
+    def dataset(self, plan_or_spec, tpl: xr.Dataset, partial: bool = False) -> xr.Dataset:
         """The sweep's dataset, lazy (dask-backed, one chunk per shard), in the layout of the netCDF
         export (grid dimensions for a grid spec). Refuses while shards are not done unless
-        ``partial`` (then the case-stacked store as it stands)."""
+        ``partial`` (then the case-stacked store as it stands). ``tpl``: as for :meth:`initialise`."""
         content, why = Manifest.read(self.manifest_path)
         if content is None:
             raise StoreError(f"{self.dir}: {why}; run `warp-tensegrity resume {self.out}`")
@@ -415,15 +404,15 @@ class SweepStore:
                 f"{content['n_shards'] - len(done)} of {content['n_shards']} shards of {self.out} are not done; "
                 f"run `warp-tensegrity resume {self.out}`"
             )
-        return assemble(spec, ds, [content["shards"][str(i)]["attrs"] for i in done], self.zarr,
+        return assemble(spec, ds, [content["shards"][str(i)]["attrs"] for i in done], tpl, self.zarr,
                         int(content["shard_size"]))
 
 
-def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], zarr_path=None, shard_size: int = 0) -> xr.Dataset:
+def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], tpl: xr.Dataset, zarr_path=None,
+             shard_size: int = 0) -> xr.Dataset:
     """The sweep's dataset (the layout of io.shard_dataset, attributes of io.sweep_attrs) from the store,
-    lazily: attributes from the spec and the shard records, grid dimensions for a grid spec."""
-    rec = SimpleNamespace(spec=spec, params=spec.column_params())
-    tpl = _template(rec, ds["time"].values)
+    lazily: variable attributes from the one-column template ``tpl`` (Zarr keeps them as JSON),
+    global ones from the spec and the shard records, grid dimensions for a grid spec."""
     variables = {}
     for k, v in ds.variables.items():
         v = v.copy(deep=False)
@@ -433,10 +422,6 @@ def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], zarr_path=None, shar
         if k in tpl.variables:
             v.attrs = dict(tpl.variables[k].attrs)
         variables[k] = v
-    coords = D._coords(spec, rec.params, 0, 1, ds["time"].values, spec.scene.n_prisms)
-    for k, c in coords.items():
-        if k in variables:
-            variables[k].attrs = dict(c.attrs)
     out = xr.Dataset({k: variables[k] for k in ds.data_vars}, coords={k: variables[k] for k in ds.coords})
     last = max(str(a.get("history", "")).split(" ")[0] for a in shard_attrs)  # when the last shard was made
     out.attrs = D.sweep_attrs(spec, shard_attrs, f"{last} streamed {len(shard_attrs)} shards into a Zarr store by "
@@ -666,7 +651,7 @@ def shard_states(store: SweepStore, plan, verify: bool = True) -> list[tuple[int
 
 def status(plan, time: np.ndarray) -> dict:
     """Columns done, diverged and remaining; shards verified against their checksums (``time``:
-    the plan's output times, :func:`~warp_tensegrity.sweep.plan.plan_time`)."""
+    the plan's output times, those of :func:`~warp_tensegrity.sweep.shard.template_dataset`)."""
     store = SweepStore(plan.out)
     manifest = None
     why = "no store"
