@@ -17,7 +17,7 @@ from .progress import ProgressBar
 from .shard import compute_and_write, compute_shard, template_dataset
 from .spec import SweepSpec, load_spec
 from .store import (
-    STORE, ShardWriter, StoreError, SweepLock, SweepStore, export_netcdf, fault, read_run, shard_states,
+    STORE, ShardWriter, StoreError, time_coord, SweepLock, SweepStore, export_netcdf, fault, read_run, shard_states,
     status, status_from_output, _log,
 )
 
@@ -52,7 +52,7 @@ def execute(
         zarr.config.set({"threading.max_workers": 1})
     with SweepLock(plan.out):
         tpl = template_dataset(plan)
-        time = tpl["time"].values
+        time = time_coord(tpl)
         if not resume and (store.exists() or plan.out.exists()):
             if not overwrite:
                 what = f"{store.dir} already holds a run" if store.exists() else f"{plan.out} exists"
@@ -178,7 +178,7 @@ def combine(plan_or_out, spec=None) -> Path:
     store = SweepStore(plan.out)
     with SweepLock(plan.out):
         tpl = template_dataset(plan)
-        st = status(plan, tpl["time"].values)
+        st = status(plan, time_coord(tpl))
         bad = st["shards_missing"] + [i for i, _ in st["shards_stale"] + st["shards_corrupt"]]
         if bad:
             why = "; ".join(f"shard {i}: {r}" for i, r in (st["shards_stale"] + st["shards_corrupt"])[:4])
@@ -192,7 +192,7 @@ def sweep_status(out, spec=None) -> dict:
     if spec is None and not isinstance(out, SweepPlan) and not SweepStore(out).dir.exists() and Path(out).exists():
         return status_from_output(out)
     plan = _plan_for(out, spec)
-    return status(plan, template_dataset(plan)["time"].values)
+    return status(plan, time_coord(template_dataset(plan)))
 
 
 def open_sweep(path, partial: bool = False) -> xr.Dataset:

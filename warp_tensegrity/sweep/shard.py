@@ -14,7 +14,7 @@ from ..engine import simulate_batch
 from ..measure import measure_pulse
 from ..measure.nan_reasons import measurement_flags
 from ..types import Status
-from .store import SweepStore
+from .store import SweepStore, time_coord
 
 if TYPE_CHECKING:
     from .plan import SweepPlan
@@ -122,5 +122,5 @@ def compute_and_write(plan: SweepPlan, index: int, device: str | None = None) ->
 
     store = SweepStore(plan.out)
     ds = compute_shard(plan, index, device=device)
-    time = xr.open_zarr(store.zarr, consolidated=False, decode_timedelta=False)["time"].values
+    time = time_coord(xr.open_zarr(store.zarr, consolidated=False, decode_timedelta=False))
     return index, store.write_shard(plan, index, ds, time)

@@ -212,6 +212,13 @@ class Manifest:
 
 
 # ---------------------------------------------------------------------- layout
+def time_coord(ds: xr.Dataset) -> np.ndarray:
+    """The output-time coordinate of a case-stacked shard (or template, or the store): the one
+    dimension that is neither ``case`` nor ``prism``."""
+    (name,) = [d for d in ds.dims if d not in ("case", "prism")]
+    return ds[name].values
+
+
 def _case_vars(ds: xr.Dataset) -> list[str]:
     return [k for k in ds.data_vars if ds[k].dims[:1] == ("case",)]
 
@@ -268,7 +275,7 @@ class SweepStore:
         self.remove()
         self.dir.mkdir(parents=True)
         _atomic_write_text(self.dir / SPEC_COPY, plan.spec.text)
-        time = tpl["time"].values
+        time = time_coord(tpl)
         N = plan.n_columns
         extra = (tpl["step"].values,) if "step" in tpl.coords else ()
         coords = D._coords(plan.spec, plan.params, 0, N, time, plan.spec.scene.n_prisms, *extra)
@@ -347,7 +354,7 @@ class SweepStore:
         a, b = plan.shards[index]
         if ds.sizes.get("case") != b - a:
             raise StoreError(f"shard {index} has {ds.sizes.get('case')} columns, expected {b - a}")
-        if array_sha256(ds["time"].values) != array_sha256(time):
+        if array_sha256(time_coord(ds)) != array_sha256(time):
             raise StoreError(
                 f"shard {index} has other output times than the store (dt {ds.attrs.get('dt')}); "
                 "every shard of a sweep must step with the same dt"
