@@ -127,7 +127,10 @@ class SweepLock:
 
         self.out = Path(out)
         self.path = lock_path_for(out)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({e.filename})") from None
         self._lock = FileLock(str(self.path), timeout=0)
 
     def __enter__(self):
@@ -140,6 +143,8 @@ class SweepLock:
                 f"{self.out} is being written by another run (lock {self.path} is held); wait for that "
                 f"run to finish, or give another output"
             ) from None
+        except OSError as e:  # a directory we may not write (Timeout is an OSError too: caught above)
+            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({self.path})") from None
         return self
 
     def __exit__(self, *exc):
