@@ -30,8 +30,7 @@ from .batch import (
 )
 from .choose import apply_accuracy, reachable_prisms
 from .columns import ColumnConfig
-from .fused import make_fused_kernels, shared_capacity
-from .kernels import make_kernels, make_solver_kernels
+from .kernels import MAX_BANDWIDTH, FusedStep, make_kernels, make_solver_kernels
 from .model import REAL, Data, Model, build_model, constraint_coupling, make_data, mass_entries
 from .settings import BatchResult, RunSettings, SettingsError
 
@@ -51,9 +50,8 @@ COLUMN_CAP_FROM = 131072
 COLUMN_BAR_WINDOW = None
 FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one warp)
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
-# fused='auto' on a GPU: above this many columns the staged kernels stream faster (H200: the fused
-# step is 1.25-1.55x faster at 16,384 columns, RB fp64 0.87x; 0.5-0.93x at 32,768; benchmarks/README.md)
-FUSED_MAX_COLUMNS = 16384
+# fused='auto' on a GPU: the fused step up to this many columns (None: at every batch size)
+FUSED_MAX_COLUMNS = None
 FUSED_SHARED_ON_CPU = False  # CPU blocks run alone: the global rows are as fast there (tests may switch it on)
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph by the fused path
 
@@ -69,6 +67,20 @@ def resolve_device(name: str | None) -> wp.context.Device:
         return wp.get_device(name)
     except Exception as exc:  # warp raises RuntimeError/ValueError for unknown aliases
         raise SettingsError(f"device = {name!r} is not available ({exc}); use 'cpu' or 'cuda:N'") from None
+
+
+def use_fused(settings: RunSettings, device, n_columns: int, bandwidth: int) -> bool:
+    """The fused step (kernels/fused.py) when asked, or for 'auto': RATTLE with a Gram band of at
+    most MAX_BANDWIDTH (T3 columns: 3 FB, 6 RB; wider generic networks take the staged kernels),
+    on the GPU up to FUSED_MAX_COLUMNS columns."""
+    if settings.fused is True:
+        if bandwidth > MAX_BANDWIDTH:
+            raise SettingsError(f"fused = true: the constraint Gram band is {bandwidth} wide, above the fused "
+                                f"step's {MAX_BANDWIDTH}; use fused = 'auto' or false (staged kernels)")
+        return True
+    limit = FUSED_MAX_COLUMNS if device.is_cuda else None
+    return (settings.fused == "auto" and settings.method == "rattle" and bandwidth <= MAX_BANDWIDTH
+            and (limit is None or n_columns <= limit))
 
 
 def choose_timestep(settings: RunSettings, omega_max: float):
@@ -105,16 +117,11 @@ class Integrator:
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
             self.model: Model = build_model(batch, settings.precision, self.device)
-            self.fused = settings.fused is True or (
-                settings.fused == "auto" and settings.method == "rattle"
-                and (not self.device.is_cuda or batch.n_columns <= FUSED_MAX_COLUMNS))
+            self.fused = use_fused(settings, self.device, batch.n_columns, self.model.bandwidth)
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
-            cap = 0  # reals of shared memory for the band and multipliers (0: global rows)
-            if self.fused and (self.device.is_cuda or FUSED_SHARED_ON_CPU):
-                cap = shared_capacity(m.n_constraints, m.bandwidth, 4 if settings.precision == "fp32" else 8)
-            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused_block, cap > 0)
+            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused)
             real = REAL[settings.precision]
             self.real = real
             self.k = make_kernels(real)
@@ -127,7 +134,8 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
-            self.fk = make_fused_kernels(real, cap, m.bandwidth) if self.fused else None
+            self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU) \
+                if self.fused else None
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)
@@ -196,14 +204,7 @@ class Integrator:
             d.status, d.fail_step])
 
     def _fused(self, n_sub: int, init: int = 0):
-        m, d, s, f = self.model, self.data, self.settings, self.data.fused
-        wp.launch_tiled(self.fk.rattle_columns, dim=[m.n_columns], block_dim=self.fused_block, device=self.device,
-                        inputs=[
-            m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross,
-            m.cpl_sign, m.ncon_start, m.ncon_member, m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L,
-            m.node_start, m.node_member, m.partner, m.minv_self, m.minv_cross, self.real(s.tolerance), int(s.max_projection_iters), self.real(s.failure_bar_error),
-            self.real(self.dt), int(n_sub), int(init), d.step, d.u, d.v, d.a, d.bar_err, d.iters, d.status,
-            d.fail_step, f.nodes, f.solve, f.red])
+        self.fk.launch(self.data, self.settings, self.dt, n_sub, init)
 
     def _fused_steps(self, n: int):
         """n RATTLE steps as fused launches of at most FUSED_STEPS, each followed by the counter and
@@ -211,7 +212,7 @@ class Integrator:
         while n > 0:
             k = min(FUSED_STEPS, n)
             self._fused(k)
-            self._launch(self.fk.advance_counter_by, 1, [self.data.step, k])
+            self.fk.advance_counter(self.data, k)
             self._record()
             n -= k
 
@@ -229,8 +230,8 @@ class Integrator:
         """Compile/load the kernels this method uses now, with the block size they launch with,
         so no load happens while stepping or capturing."""
         if self.fused:
-            self.fk.rattle_columns.module.load(self.device, self.fused_block)
-            for kern in (self.fk.advance_counter_by, self.k.record_strain, self.k.record_energy):
+            self.fk.load()
+            for kern in (self.k.record_strain, self.k.record_energy):
                 kern.module.load(self.device, self._block_dim(kern))
             return
         rk_only = {"rk_stage", "constrained_accel", "factor_only"}
@@ -441,6 +442,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
             "initialize_time": t_compile,
             "graph_steps": integ.graph_steps,
             "force_evaluations_per_step": FORCE_EVALS[settings.method],
+            "step_path": integ.fk.description if integ.fused else "staged (one kernel per stage)",
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
         },
     )

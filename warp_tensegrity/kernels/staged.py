@@ -22,54 +22,36 @@ from types import SimpleNamespace
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+from .common import (
+    STATUS_CONSTRAINT,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    U,
+    bar_residual,
+    finite3,
+    make_gram_row,
+    member_vec,
+    node_force,
+    node_impulse,
+    pget,
+    set_failure,
+)
 
-STATUS_OK = wp.constant(0)
-STATUS_NONFINITE = wp.constant(1)
-STATUS_CONSTRAINT = wp.constant(2)
+wp.set_module_options({"enable_backward": False})
 
 
 @functools.cache
 def make_kernels(real):
-    """Kernels for scalar type ``real`` (wp.float32 or wp.float64)."""
+    """Kernels for scalar type ``real`` (wp.float32 or wp.float64): the per-node step kernels
+    and the output records."""
+    return SimpleNamespace(real=real, vec=wp.types.vector(3, real), **vars(_node_kernels(real)),
+                           **vars(_record_kernels(real)))
+
+
+@functools.cache
+def _node_kernels(real):
     vec = wp.types.vector(3, real)
-    opts = {"enable_backward": False}
 
-    @wp.func
-    def pget(p: wp.array2d(dtype=real), k: int, w: int):
-        return p[k, w % p.shape[1]]
-
-    @wp.func
-    def member_vec(dref: wp.array(dtype=vec), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
-                   u: wp.array2d(dtype=vec), k: int, w: int):
-        return dref[k] + u[nj[k], w] - u[ni[k], w]
-
-    @wp.func
-    def cable_force(b: vec, EA: real, EAc: real, L: real):
-        """Force on the member's first node (toward the second) for the bilinear axial law."""
-        s = wp.length(b)
-        stretch = s - L
-        k = EA
-        if stretch < real(0.0):
-            k = EAc
-        return b * (k * stretch / (L * s))  # tension k/L (s - L), along b/s: one division
-
-    @wp.func
-    def node_force(
-        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), node_other: wp.array(dtype=int),
-        node_dref: wp.array(dtype=vec), cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
-        cab_L: wp.array2d(dtype=real), u: wp.array2d(dtype=vec), n: int, w: int, wE: int, wC: int, wL: int,
-    ):
-        """Sum of the cable forces on node n, each along its vector from n to the cable's other end;
-        wE, wC, wL: column w's index into EA, EA_c, L."""
-        un = u[n, w]
-        f = vec()
-        for t in range(node_start[n], node_start[n + 1]):
-            c = node_member[t]
-            f += cable_force(node_dref[t] + u[node_other[t], w] - un, cab_EA[c, wE], cab_EAc[c, wC], cab_L[c, wL])
-        return f
-
-    # ------------------------------------------------------------------ per-node kernels
     @wp.kernel(enable_backward=False, module="unique")
     def gather_accel(
         # Model:
@@ -158,7 +140,13 @@ def make_kernels(real):
             u_next[n, w] = u0[n, w] + du * c_next
             v_next[n, w] = v0[n, w] + dv * c_next
 
-    # ------------------------------------------------------------------ outputs
+    return SimpleNamespace(gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage)
+
+
+@functools.cache
+def _record_kernels(real):
+    vec = wp.types.vector(3, real)
+
     @wp.kernel(enable_backward=False, module="unique")
     def advance_counter(step: wp.array(dtype=int)):
         step[0] = step[0] + 1
@@ -217,7 +205,7 @@ def make_kernels(real):
                 ke += pget(m_cross, n, w) * wp.dot(vn, v[p, w])
         ee = real(0.0)
         for c in range(cab_i.shape[0]):
-            b = member_vec(cab_dref, cab_i, cab_j, u, c, w)
+            b = member_vec(cab_dref, cab_i, cab_j, u, U, c, w)
             L = pget(cab_L, c, w)
             st = wp.length(b) - L
             k = pget(cab_EA, c, w)
@@ -227,40 +215,22 @@ def make_kernels(real):
         kinetic[slot, w] = real(0.5) * ke
         elastic[slot, w] = real(0.5) * ee
 
-    return SimpleNamespace(
-        real=real, vec=vec, gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage,
-        advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
-        pget=pget, member_vec=member_vec, cable_force=cable_force,  # shared with the solvers
-    )
+    return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy)
 
 
 @functools.cache
-def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
-    """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
-    the Gram-matrix half-bandwidth ``bandwidth`` compiled in: lane loops over the band unroll, the
-    row being factored and the last ``bandwidth`` unknowns of a triangular sweep sit in registers,
-    and each sweep loads the next row while it works on the current one. ``max_registers`` caps
-    the registers per CUDA thread (``__maxnreg__``; None: the compiler's choice). ``bar_window``
-    keeps the bar vectors of the last ``bandwidth`` + 1 rows in registers while the Gram matrix is
-    assembled (None: for fp32 only; fp64 spills them at 64 registers).
+def _band_funcs(real, bandwidth: int, bar_window: bool):
+    """The sequential banded Cholesky of the staged solver threads, the bandwidth compiled in:
+    the row being factored and the last ``bandwidth`` unknowns of a sweep sit in registers, and
+    each sweep loads the next row while it works on the current one.
 
     The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
     except the diagonal slot, which holds 1/L[k, k]."""
-    k0 = make_kernels(real)
-    vec, member_vec = k0.vec, k0.member_vec
+    vec = wp.types.vector(3, real)
     BW = int(bandwidth)
     LD = BW + 1
-    rowvec = wp.types.vector(LD, real)
+    gram_row, rowvec = make_gram_row(real, BW)
     winvec = wp.types.vector(max(BW, 1), real)
-    if bar_window is None:
-        bar_window = real == wp.float32
-    kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
-
-    @wp.func
-    def fail(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), step: wp.array(dtype=int), w: int, code: int):
-        if status[w] == STATUS_OK:
-            status[w] = code
-            fail_step[w] = step[0] + 1
 
     @wp.func
     def band_row(band: wp.array3d(dtype=real), k: int, w: int):
@@ -312,30 +282,15 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
         u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
     ):
-        """Assemble each row k of A = G M^-1 G^T at u in registers (bar vectors of the coupled rows
-        reloaded from u), factor it and store it. Returns False on a non-positive pivot."""
-        nc = con_i.shape[0]
+        """Assemble each row k of A = G M^-1 G^T at u in registers (common.gram_row), factor it
+        and store it. Returns False on a non-positive pivot."""
         wa = w % con_active.shape[1]  # column w's index into per-column parameters (hoisted)
         ws = w % minv_self.shape[1]
         wx = w % minv_cross.shape[1]
         ok = bool(True)
-        for k in range(nc):
-            r = rowvec()
-            if con_active[k, wa] > real(0.0):
-                bk = member_vec(con_dref, con_i, con_j, u, k, w)
-                for t in range(cpl_start[k], cpl_start[k + 1]):
-                    l = cpl_l[t]
-                    if con_active[l, wa] > real(0.0):
-                        na = cpl_a[t]
-                        m = minv_self[na, ws]
-                        if cpl_cross[t] != 0:
-                            m = minv_cross[na, wx]
-                        val = cpl_sign[t] * m * wp.dot(bk, member_vec(con_dref, con_i, con_j, u, l, w))
-                        for e in range(LD):
-                            if k - l == e:
-                                r[e] += val
-            else:
-                r[0] = real(1.0)
+        for k in range(con_i.shape[0]):
+            r = gram_row(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                         minv_self, minv_cross, u, U, k, w, wa, ws, wx)
             if not factor_store_row(band, r, k, w):
                 ok = False
         return ok
@@ -349,7 +304,8 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
     ):
         """As assemble_factor_reload, with the bar vectors of rows k-BW..k kept in registers (zero
-        for an inactive row): each is loaded once instead of once per coupling term."""
+        for an inactive row): each is loaded once instead of once per coupling term (possible
+        only because this thread assembles the rows in order)."""
         nc = con_i.shape[0]
         wa = w % con_active.shape[1]
         ws = w % minv_self.shape[1]
@@ -364,9 +320,10 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
                 by[BW - e] = by[BW - 1 - e]
                 bz[BW - e] = bz[BW - 1 - e]
             r = rowvec()
-            bk = vec()
-            if con_active[k, wa] > real(0.0):
-                bk = member_vec(con_dref, con_i, con_j, u, k, w)
+            # zero for an inactive row (no branch: a generic function's vector type must not
+            # replace a variable declared as another vector class inside an if)
+            on = wp.where(con_active[k, wa] > real(0.0), real(1.0), real(0.0))
+            bk = member_vec(con_dref, con_i, con_j, u, U, k, w) * on
             bx[0] = bk[0]
             by[0] = bk[1]
             bz[0] = bk[2]
@@ -386,8 +343,6 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
             if not factor_store_row(band, r, k, w):
                 ok = False
         return ok
-
-    assemble_factor = assemble_factor_window if bar_window else assemble_factor_reload
 
     @wp.func
     def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), w: int):
@@ -427,6 +382,16 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
                 xw[BW - 1 - e] = xw[BW - 2 - e]
             xw[0] = xk
 
+    assemble = assemble_factor_window if bar_window else assemble_factor_reload
+    return SimpleNamespace(assemble_factor=assemble, band_solve=band_solve)
+
+
+@functools.cache
+def _projection_funcs(real, bandwidth: int, bar_window: bool):
+    """Impulse application and the rate projection of one column thread."""
+    vec = wp.types.vector(3, real)
+    band_solve = _band_funcs(real, bandwidth, bar_window).band_solve
+
     @wp.func
     def apply_impulse(
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
@@ -435,22 +400,15 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         ug: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
         scale: real, y: wp.array2d(dtype=vec), scale2: real, y2: wp.array2d(dtype=vec), w: int,
     ):
-        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam. Each node gathers its
-        own members (no read-modify-write chains). A node whose M^-1 row is its own (partner -1)
-        is updated at once; a massive bar's two free nodes go through imp, then M^-1 couples them."""
+        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam. A node whose M^-1
+        row is its own (partner -1) is updated at once; a massive bar's two free nodes go
+        through imp, then M^-1 couples them."""
         nn = imp.shape[0]
         ws = w % minv_self.shape[1]
         wx = w % minv_cross.shape[1]
         n_coupled = int(0)
         for n in range(nn):
-            g = vec()
-            for t in range(ncon_start[n], ncon_start[n + 1]):
-                k = ncon_member[t]
-                gk = member_vec(con_dref, con_i, con_j, ug, k, w) * lam[k, w]
-                if con_j[k] == n:
-                    g += gk
-                else:
-                    g -= gk
+            g = node_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, ug, U, lam, n, w)
             if partner[n] < 0:
                 d = g * minv_self[n, ws]
                 y[n, w] = y[n, w] - d * scale
@@ -484,7 +442,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         for k in range(con_i.shape[0]):
             r = real(0.0)
             if con_active[k, wa] > real(0.0):
-                b = member_vec(con_dref, con_i, con_j, u, k, w)
+                b = member_vec(con_dref, con_i, con_j, u, U, k, w)
                 r = wp.dot(b, y[con_j[k], w] - y[con_i[k], w])
                 if with_bdot != 0:
                     bd = v[con_j[k], w] - v[con_i[k], w]
@@ -493,6 +451,30 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         band_solve(band, lam, w)
         apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, u, lam,
                       imp, real(1.0), y, real(0.0), y, w)
+
+    return SimpleNamespace(apply_impulse=apply_impulse, project_rates=project_rates)
+
+
+@functools.cache
+def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
+    """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
+    the Gram-matrix half-bandwidth ``bandwidth`` compiled in (see :func:`_band_funcs`).
+    ``max_registers`` caps the registers per CUDA thread (``__maxnreg__``; None: the compiler's
+    choice). ``bar_window`` keeps the bar vectors of the last ``bandwidth`` + 1 rows in registers
+    while the Gram matrix is assembled (None: for fp32 only; fp64 spills them at 64 registers)."""
+    if bar_window is None:
+        bar_window = real == wp.float32
+    kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
+    ns = SimpleNamespace(real=real, bandwidth=int(bandwidth))
+    ns.project_positions = _position_kernel(real, bandwidth, bar_window, kopts)
+    ns.__dict__.update(vars(_factor_kernels(real, bandwidth, bar_window, kopts)))
+    return ns
+
+
+def _position_kernel(real, bandwidth, bar_window, kopts):
+    vec = wp.types.vector(3, real)
+    fb = _band_funcs(real, bandwidth, bar_window)
+    band_solve, apply_impulse = fb.band_solve, _projection_funcs(real, bandwidth, bar_window).apply_impulse
 
     @wp.kernel(**kopts)
     def project_positions(
@@ -525,11 +507,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
             for k in range(nc):
                 r = real(0.0)
                 if con_active[k, wa] > real(0.0):
-                    b = member_vec(con_dref, con_i, con_j, u, k, w)
-                    L = con_L[k]
-                    bb = wp.dot(b, b)
-                    r = real(0.5) * (bb - L * L)
-                    e = wp.abs(wp.sqrt(bb) - L) / L
+                    r, e = bar_residual(member_vec(con_dref, con_i, con_j, u, U, k, w), con_L[k])
                     if not (e <= err):  # also catches NaN
                         err = e
                 lam[k, w] = r
@@ -543,11 +521,19 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
             it += 1
         iters[w] = wp.max(iters[w], it)
         if not wp.isfinite(err):
-            fail(status, fail_step, step, w, STATUS_NONFINITE)
+            set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
         elif err > fail_tol:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
         if err > bar_err[w]:
             bar_err[w] = err
+
+    return project_positions
+
+
+def _factor_kernels(real, bandwidth, bar_window, kopts):
+    vec = wp.types.vector(3, real)
+    assemble_factor = _band_funcs(real, bandwidth, bar_window).assemble_factor
+    project_rates = _projection_funcs(real, bandwidth, bar_window).project_rates
 
     @wp.kernel(**kopts)
     def factor_project_velocities(
@@ -570,13 +556,13 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
                              minv_self, minv_cross, u, band, w)
         if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
             return
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 0, band, v, lam, imp, w)
         for n in range(u.shape[0]):
-            if not (wp.isfinite(v[n, w][0]) and wp.isfinite(v[n, w][1]) and wp.isfinite(v[n, w][2])):
-                fail(status, fail_step, step, w, STATUS_NONFINITE)
+            if not finite3(v[n, w]):
+                set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
                 return
 
     @wp.kernel(**kopts)
@@ -597,7 +583,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
                              minv_self, minv_cross, u, band, w)
         if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
 
     @wp.kernel(**kopts)
     def constrained_accel(
@@ -620,13 +606,10 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
                              minv_self, minv_cross, u, band, w)
         if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
             return
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 1, band, a, lam, imp, w)
 
-    return SimpleNamespace(
-        real=real, bandwidth=BW, project_positions=project_positions,
-        factor_project_velocities=factor_project_velocities, factor_only=factor_only,
-        constrained_accel=constrained_accel,
-    )
+    return SimpleNamespace(factor_project_velocities=factor_project_velocities, factor_only=factor_only,
+                           constrained_accel=constrained_accel)
