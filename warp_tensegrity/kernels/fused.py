@@ -47,6 +47,7 @@ from .common import (
 )
 
 SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
+SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
 MAX_BANDWIDTH = 8  # wider Gram bands (generic networks) take the staged path: S x S blocks in registers
 
 
@@ -68,13 +69,15 @@ def solver_reals(n_constraints: int, bandwidth: int, block_dim: int) -> int:
 
 
 def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int, real_bytes: int,
-                budget: int = SHARED_BYTES_MAX) -> tuple[int, int]:
+                budget: int | None = None) -> tuple[int, int]:
     """(solver reals, node vectors) to place in block shared memory: the solver rows first (the
-    CR levels read them most), then the node rows, each only if it fits whole; 0 = global rows."""
+    CR levels read them most), then the node rows, each only if it fits whole; 0 = global rows.
+    ``budget``: bytes (None: SHARED_BYTES_MAX)."""
+    budget = SHARED_BYTES_MAX if budget is None else budget
     xs = solver_reals(n_constraints, bandwidth, block_dim) * real_bytes
     qs = n_nodes * NQ * 3 * real_bytes
     x_cap = solver_reals(n_constraints, bandwidth, block_dim) if xs <= budget else 0
-    q_cap = n_nodes * NQ if x_cap * real_bytes + qs <= budget else 0
+    q_cap = n_nodes * NQ if SHARED_NODES and x_cap * real_bytes + qs <= budget else 0
     return x_cap, q_cap
 
 
