@@ -1,10 +1,11 @@
 """``@wp.func`` bodies shared by the staged and the fused step, each written once.
 
 The functions are generic over precision (``typing.Any``: Warp specialises them for the fp32 or
-fp64 arrays a kernel passes). Node state is read through :func:`node_val`, which is overloaded on
-the layout: the staged kernels pass one ``(n, B)`` array per quantity, the fused kernel passes its
-column's node rows (a 1-D array, entry ``n * NQ + slot``). Multipliers likewise go through
-:func:`mult`: ``lam[k, w]`` (staged, ``(nc, B)``) or ``x[k]`` (fused, the column's own rows).
+fp64 arrays a kernel passes). Node state and multipliers are 2-D arrays read as ``u[n, c]``,
+``lam[k, c]``: the staged kernels pass the batch arrays ``(n, B)`` with c = the column w; the
+fused kernel passes its column's own rows ``(n, NQ)`` with c = the state slot (U, V, ...), and
+its multipliers ``(rows, 1)`` with c = 0. (Overloading one function on the array's ndim instead
+resolved to the wrong overload depending on compile order: do not.)
 """
 
 import functools
@@ -31,34 +32,10 @@ def pget(p: wp.array2d(dtype=Any), k: int, w: int):
 
 
 @wp.func
-def node_val(u: wp.array2d(dtype=Any), n: int, w: int, slot: int):
-    """Staged layout: one ``(n, B)`` array per quantity (``slot`` unused)."""
-    return u[n, w]
-
-
-@wp.func
-def node_val(q: wp.array(dtype=Any), n: int, w: int, slot: int):  # noqa: F811 (Warp overload)
-    """Fused layout: column w's node rows, entry ``n * NQ + slot``."""
-    return q[n * NQ + slot]
-
-
-@wp.func
-def mult(lam: wp.array2d(dtype=Any), k: int, w: int):
-    """Staged multipliers ``(nc, B)``."""
-    return lam[k, w]
-
-
-@wp.func
-def mult(x: wp.array(dtype=Any), k: int, w: int):  # noqa: F811 (Warp overload)
-    """Fused multipliers: the column's own rows."""
-    return x[k]
-
-
-@wp.func
 def member_vec(dref: wp.array(dtype=Any), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
-               u: Any, slot: int, k: int, w: int):
-    """Member k's vector x_j - x_i [m] at the displacement u (slot ``slot`` of fused rows)."""
-    return dref[k] + node_val(u, nj[k], w, slot) - node_val(u, ni[k], w, slot)
+               u: wp.array2d(dtype=Any), k: int, c: int):
+    """Member k's vector x_j - x_i [m] at the displacement ``u[:, c]``."""
+    return dref[k] + u[nj[k], c] - u[ni[k], c]
 
 
 @wp.func
@@ -77,16 +54,15 @@ def cable_force(b: Any, EA: Any, EAc: Any, L: Any):
 def node_force(
     node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), node_other: wp.array(dtype=int),
     node_dref: wp.array(dtype=Any), cab_EA: wp.array2d(dtype=Any), cab_EAc: wp.array2d(dtype=Any),
-    cab_L: wp.array2d(dtype=Any), u: Any, n: int, w: int, wE: int, wC: int, wL: int,
+    cab_L: wp.array2d(dtype=Any), u: wp.array2d(dtype=Any), n: int, c: int, wE: int, wC: int, wL: int,
 ):
-    """Sum of the cable forces [N] on node n, each along its vector from n to the cable's other
-    end; wE, wC, wL: column w's index into EA, EA_c, L."""
-    un = node_val(u, n, w, U)
+    """Sum of the cable forces [N] on node n at the displacement ``u[:, c]``, each along its
+    vector from n to the cable's other end; wE, wC, wL: the column's index into EA, EA_c, L."""
+    un = u[n, c]
     f = type(un)()
     for t in range(node_start[n], node_start[n + 1]):
-        c = node_member[t]
-        f += cable_force(node_dref[t] + node_val(u, node_other[t], w, U) - un, cab_EA[c, wE], cab_EAc[c, wC],
-                         cab_L[c, wL])
+        e = node_member[t]
+        f += cable_force(node_dref[t] + u[node_other[t], c] - un, cab_EA[e, wE], cab_EAc[e, wC], cab_L[e, wL])
     return f
 
 
@@ -101,13 +77,13 @@ def bar_residual(b: Any, L: Any):
 def node_impulse(
     con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=Any),
     ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
-    ug: Any, slot: int, lam: Any, n: int, w: int,
+    ug: wp.array2d(dtype=Any), cu: int, lam: wp.array2d(dtype=Any), cl: int, n: int,
 ):
-    """(G(ug)^T lam)_n: node n gathers its own members (no read-modify-write chains)."""
+    """(G(ug[:, cu])^T lam[:, cl])_n: node n gathers its own members (no read-modify-write chains)."""
     g = type(con_dref[0])()
     for t in range(ncon_start[n], ncon_start[n + 1]):
         k = ncon_member[t]
-        gk = member_vec(con_dref, con_i, con_j, ug, slot, k, w) * mult(lam, k, w)
+        gk = member_vec(con_dref, con_i, con_j, ug, k, cu) * lam[k, cl]
         if con_j[k] == n:
             g += gk
         else:
@@ -142,11 +118,11 @@ def make_gram_row(real, bandwidth: int):
         con_active: wp.array2d(dtype=Any), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
         cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=Any),
         minv_self: wp.array2d(dtype=Any), minv_cross: wp.array2d(dtype=Any),
-        u: Any, slot: int, k: int, w: int, wa: int, ws: int, wx: int,
+        u: wp.array2d(dtype=Any), c: int, k: int, wa: int, ws: int, wx: int,
     ):
         r = rowvec()
         if con_active[k, wa] > real(0.0):
-            bk = member_vec(con_dref, con_i, con_j, u, slot, k, w)
+            bk = member_vec(con_dref, con_i, con_j, u, k, c)
             for t in range(cpl_start[k], cpl_start[k + 1]):
                 l = cpl_l[t]
                 if con_active[l, wa] > real(0.0):
@@ -154,7 +130,7 @@ def make_gram_row(real, bandwidth: int):
                     m = minv_self[na, ws]
                     if cpl_cross[t] != 0:
                         m = minv_cross[na, wx]
-                    val = cpl_sign[t] * m * wp.dot(bk, member_vec(con_dref, con_i, con_j, u, slot, l, w))
+                    val = cpl_sign[t] * m * wp.dot(bk, member_vec(con_dref, con_i, con_j, u, l, c))
                     for e in range(LD):
                         if k - l == e:
                             r[e] += val

@@ -97,7 +97,7 @@ def _shared_snippet(ctype: str, n: int, name: str) -> str:
 @functools.cache
 def make_cr_funcs(real, S: int):
     """Block cyclic reduction of a block-tridiagonal SPD matrix with S x S blocks, lanes of a
-    block in parallel. Layout of the column's solver rows x: x[0 : nb S] right-hand side /
+    block in parallel. Layout of the column's solver rows x: x[0 : nb S, 0] right-hand side /
     solution, then at D, E, WM, WP (each nb S^2, row-major blocks): D_i (D_i^-1 once block i is
     eliminated), E_i (the block coupling row-block i to i - s at the current level), W-_i, W+_i."""
     SS = S * S
@@ -105,30 +105,30 @@ def make_cr_funcs(real, S: int):
     vecS = wp.types.vector(S, real)
 
     @wp.func
-    def mload(x: wp.array(dtype=real), off: int):
+    def mload(x: wp.array2d(dtype=real), off: int):
         m = mat()
         for r in range(S):
             for c in range(S):
-                m[r, c] = x[off + r * S + c]
+                m[r, c] = x[off + r * S + c, 0]
         return m
 
     @wp.func
-    def mstore(x: wp.array(dtype=real), off: int, m: mat):
+    def mstore(x: wp.array2d(dtype=real), off: int, m: mat):
         for r in range(S):
             for c in range(S):
-                x[off + r * S + c] = m[r, c]
+                x[off + r * S + c, 0] = m[r, c]
 
     @wp.func
-    def vload(x: wp.array(dtype=real), off: int):
+    def vload(x: wp.array2d(dtype=real), off: int):
         b = vecS()
         for r in range(S):
-            b[r] = x[off + r]
+            b[r] = x[off + r, 0]
         return b
 
     @wp.func
-    def vstore(x: wp.array(dtype=real), off: int, b: vecS):
+    def vstore(x: wp.array2d(dtype=real), off: int, b: vecS):
         for r in range(S):
-            x[off + r] = b[r]
+            x[off + r, 0] = b[r]
 
     @wp.func
     def spd_inverse(a: mat):
@@ -155,7 +155,7 @@ def make_cr_funcs(real, S: int):
         return a, ok
 
     @wp.func
-    def cr_factor(x: wp.array(dtype=real), nb: int, lane: int, bd: int):
+    def cr_factor(x: wp.array2d(dtype=real), nb: int, lane: int, bd: int):
         """Reduce the assembled D, E in place. Returns this lane's ok flag (0: a pivot <= 0)."""
         D = nb * S
         E = D + nb * SS
@@ -192,8 +192,8 @@ def make_cr_funcs(real, S: int):
         return ok
 
     @wp.func
-    def cr_solve(x: wp.array(dtype=real), nb: int, lane: int, bd: int):
-        """Solve A y = x[0 : nb S] in place with the stored reduction; ends with a barrier."""
+    def cr_solve(x: wp.array2d(dtype=real), nb: int, lane: int, bd: int):
+        """Solve A y = x[0 : nb S, 0] in place with the stored reduction; ends with a barrier."""
         D = nb * S
         WM = D + 2 * nb * SS
         WP = WM + nb * SS
@@ -265,62 +265,61 @@ def make_column_funcs(real, bandwidth: int):
         minv_cross: wp.array2d(dtype=real)
 
     @wp.func
-    def block_max(x: wp.array(dtype=real), red: int, v: real, lane: int, bd: int):
+    def block_max(x: wp.array2d(dtype=real), red: int, v: real, lane: int, bd: int):
         """Max of v over the block's lanes (NaN wins), the same on every lane."""
-        x[red + lane] = v
+        x[red + lane, 0] = v
         block_sync()
-        m = x[red]
+        m = x[red, 0]
         for t in range(1, bd):
-            y = x[red + t]
+            y = x[red + t, 0]
             if wp.isnan(y) or y > m:
                 m = y
         block_sync()
         return m
 
     @wp.func
-    def minv_apply(m: ColumnModel, q: wp.array(dtype=vec), n: int, w: int):
+    def minv_apply(m: ColumnModel, q: wp.array2d(dtype=vec), n: int, w: int):
         """(M^-1 g)_n for the per-node vectors g in slot I."""
-        dn = q[n * NQ + I] * m.minv_self[n, w % m.minv_self.shape[1]]
+        dn = q[n, I] * m.minv_self[n, w % m.minv_self.shape[1]]
         p = m.partner[n]
         if p >= 0:
-            dn = dn + q[p * NQ + I] * m.minv_cross[n, w % m.minv_cross.shape[1]]
+            dn = dn + q[p, I] * m.minv_cross[n, w % m.minv_cross.shape[1]]
         return dn
 
     @wp.func
-    def gather_kick(m: ColumnModel, q: wp.array(dtype=vec), kick: real, w: int, lane: int, bd: int):
+    def gather_kick(m: ColumnModel, q: wp.array2d(dtype=vec), kick: real, w: int, lane: int, bd: int):
         """A = M^-1 f(U); V += kick A. Forces go through slot I first, so each is evaluated once."""
         nn = m.partner.shape[0]
         wE = w % m.cab_EA.shape[1]
         wC = w % m.cab_EAc.shape[1]
         wL = w % m.cab_L.shape[1]
         for n in range(lane, nn, bd):
-            q[n * NQ + I] = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc,
-                                       m.cab_L, q, n, w, wE, wC, wL)
+            q[n, I] = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc,
+                                 m.cab_L, q, n, U, wE, wC, wL)
         block_sync()
         for n in range(lane, nn, bd):
             acc = minv_apply(m, q, n, w)
-            q[n * NQ + A] = acc
-            q[n * NQ + V] = q[n * NQ + V] + acc * kick
+            q[n, A] = acc
+            q[n, V] = q[n, V] + acc * kick
         block_sync()
 
     @wp.func
-    def apply_impulse(m: ColumnModel, q: wp.array(dtype=vec), g_slot: int, x: wp.array(dtype=real),
+    def apply_impulse(m: ColumnModel, q: wp.array2d(dtype=vec), g_slot: int, x: wp.array2d(dtype=real),
                       scale_u: real, scale_v: real, w: int, lane: int, bd: int):
-        """d = M^-1 G(u in g_slot)^T lam (lam = x[0:nc]); U -= scale_u d; V -= scale_v d."""
+        """d = M^-1 G(u in g_slot)^T lam (lam = x[0:nc, 0]); U -= scale_u d; V -= scale_v d."""
         nn = m.partner.shape[0]
         for n in range(lane, nn, bd):
-            q[n * NQ + I] = node_impulse(m.con_i, m.con_j, m.con_dref, m.ncon_start, m.ncon_member, q, g_slot, x,
-                                         n, w)
+            q[n, I] = node_impulse(m.con_i, m.con_j, m.con_dref, m.ncon_start, m.ncon_member, q, g_slot, x, 0, n)
         block_sync()
         for n in range(lane, nn, bd):
             dn = minv_apply(m, q, n, w)
             if scale_u != real(0.0):
-                q[n * NQ + U] = q[n * NQ + U] - dn * scale_u
-            q[n * NQ + V] = q[n * NQ + V] - dn * scale_v
+                q[n, U] = q[n, U] - dn * scale_u
+            q[n, V] = q[n, V] - dn * scale_v
         block_sync()
 
     @wp.func
-    def factor_gram(m: ColumnModel, q: wp.array(dtype=vec), x: wp.array(dtype=real), red: int,
+    def factor_gram(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
                     w: int, lane: int, bd: int):
         """Rows of A(U) into the blocks D_i, E_i (lane per row), then CR. True if A is SPD."""
         nc = m.con_i.shape[0]
@@ -334,26 +333,26 @@ def make_column_funcs(real, bandwidth: int):
             r = rowvec()
             if k < nc:
                 r = gram_row(m.con_i, m.con_j, m.con_dref, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a,
-                             m.cpl_cross, m.cpl_sign, m.minv_self, m.minv_cross, q, U, k, w, wa, ws, wx)
+                             m.cpl_cross, m.cpl_sign, m.minv_self, m.minv_cross, q, U, k, wa, ws, wx)
             else:  # padding row of the last block: identity
                 r[0] = real(1.0)
             i = k / S
             rr = k - i * S
             for c in range(S):
-                x[E + i * SS + rr * S + c] = real(0.0)
+                x[E + i * SS + rr * S + c, 0] = real(0.0)
             for d in range(LD):
                 c = rr - d  # column of A[k, k-d] within block i, or within block i-1 if negative
                 if c >= 0:
-                    x[D + i * SS + rr * S + c] = r[d]
-                    x[D + i * SS + c * S + rr] = r[d]
+                    x[D + i * SS + rr * S + c, 0] = r[d]
+                    x[D + i * SS + c * S + rr, 0] = r[d]
                 elif i > 0:
-                    x[E + i * SS + rr * S + c + S] = r[d]
+                    x[E + i * SS + rr * S + c + S, 0] = r[d]
         block_sync()
         bad = real(1.0) - real(cr.cr_factor(x, nb, lane, bd))
         return block_max(x, red, bad, lane, bd) < real(0.5)
 
     @wp.func
-    def project_velocities(m: ColumnModel, q: wp.array(dtype=vec), x: wp.array(dtype=real), red: int,
+    def project_velocities(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
                            w: int, lane: int, bd: int):
         """V -= M^-1 G^T lam with A lam = G V (x holds the reduction of A(U)). True if V is finite."""
         nc = m.con_i.shape[0]
@@ -363,20 +362,20 @@ def make_column_funcs(real, bandwidth: int):
             r = real(0.0)
             if k < nc:
                 if m.con_active[k, wa] > real(0.0):
-                    r = wp.dot(member_vec(m.con_dref, m.con_i, m.con_j, q, U, k, w),
-                               q[m.con_j[k] * NQ + V] - q[m.con_i[k] * NQ + V])
-            x[k] = r
+                    r = wp.dot(member_vec(m.con_dref, m.con_i, m.con_j, q, k, U),
+                               q[m.con_j[k], V] - q[m.con_i[k], V])
+            x[k, 0] = r
         block_sync()
         cr.cr_solve(x, nb, lane, bd)
         apply_impulse(m, q, U, x, real(0.0), real(1.0), w, lane, bd)
         bad = real(0.0)
         for n in range(lane, m.partner.shape[0], bd):
-            if not finite3(q[n * NQ + V]):
+            if not finite3(q[n, V]):
                 bad = real(1.0)
         return block_max(x, red, bad, lane, bd) < real(0.5)
 
     @wp.func
-    def project_positions(m: ColumnModel, q: wp.array(dtype=vec), x: wp.array(dtype=real), red: int,
+    def project_positions(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
                           tol: real, max_iter: int, h: real, w: int, lane: int, bd: int):
         """Simplified Newton onto |b_k| = L_k along M^-1 G(P)^T (x: reduction of A(P)); V gets
         the RATTLE update. Returns (max relative bar error, iterations)."""
@@ -393,10 +392,10 @@ def make_column_funcs(real, bandwidth: int):
                 r = real(0.0)
                 if k < nc:
                     if m.con_active[k, wa] > real(0.0):
-                        r, e = bar_residual(member_vec(m.con_dref, m.con_i, m.con_j, q, U, k, w), m.con_L[k])
+                        r, e = bar_residual(member_vec(m.con_dref, m.con_i, m.con_j, q, k, U), m.con_L[k])
                         if wp.isnan(e) or e > e_lane:
                             e_lane = e
-                x[k] = r
+                x[k, 0] = r
             err = block_max(x, red, e_lane, lane, bd)
             if err <= tol or it >= max_iter:
                 break
@@ -418,7 +417,7 @@ def make_step_funcs(real, bandwidth: int):
     vec, ColumnModel = f.vec, f.ColumnModel
 
     @wp.func
-    def first_factor(m: ColumnModel, q: wp.array(dtype=vec), x: wp.array(dtype=real), red: int, init: int,
+    def first_factor(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int, init: int,
                      s0: int, status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
         """init = 1: make V admissible and compute A(U), returns 0 steps to take; else factor A(U)
         for the first position projection (shared memory does not outlive a launch: the same
@@ -435,7 +434,7 @@ def make_step_funcs(real, bandwidth: int):
         return True
 
     @wp.func
-    def rattle_steps(m: ColumnModel, q: wp.array(dtype=vec), x: wp.array(dtype=real), red: int,
+    def rattle_steps(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
                      tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, s0: int,
                      status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
         """n_sub RATTLE steps (x holds the reduction of A(U) on entry). Returns (worst bar error,
@@ -447,11 +446,11 @@ def make_step_funcs(real, bandwidth: int):
         most = int(0)
         for sub in range(n_sub):
             for n in range(lane, nn, bd):  # kick and drift
-                vn = q[n * NQ + V] + q[n * NQ + A] * half
-                q[n * NQ + V] = vn
-                un = q[n * NQ + U]
-                q[n * NQ + P] = un
-                q[n * NQ + U] = un + vn * h
+                vn = q[n, V] + q[n, A] * half
+                q[n, V] = vn
+                un = q[n, U]
+                q[n, P] = un
+                q[n, U] = un + vn * h
             block_sync()
             err, it = f.project_positions(m, q, x, red, tol, max_iter, h, w, lane, bd)
             most = wp.max(most, it)
@@ -504,7 +503,7 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
         bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
         status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
         # Scratch, one row per column unless in shared memory:
-        sq: wp.array2d(dtype=vec), sx: wp.array2d(dtype=real),
+        sq: wp.array3d(dtype=vec), sx: wp.array3d(dtype=real),
     ):
         """n_sub RATTLE steps of size h for column w (init = 1: make v admissible and compute a(u)
         instead)."""
@@ -513,19 +512,19 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
             return
         bd = wp.block_dim()
         if wp.static(x_cap > 0):
-            x = wp.array(ptr=xptr(), shape=(x_cap,), dtype=real)
+            x = wp.array(ptr=xptr(), shape=(x_cap, 1), dtype=real)
         else:
             x = sx[w]
         if wp.static(q_cap > 0):
-            q = wp.array(ptr=qptr(), shape=(q_cap,), dtype=vec)
+            q = wp.array(ptr=qptr(), shape=(q_cap // NQ, NQ), dtype=vec)
         else:
             q = sq[w]
         red = x.shape[0] - bd
         nn = u.shape[0]
         for n in range(lane, nn, bd):
-            q[n * NQ + U] = u[n, w]
-            q[n * NQ + V] = v[n, w]
-            q[n * NQ + A] = a[n, w]
+            q[n, U] = u[n, w]
+            q[n, V] = v[n, w]
+            q[n, A] = a[n, w]
         block_sync()
         s0 = step[0]
         if init == 0 and n_sub == 0:
@@ -540,9 +539,9 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
                 if worst > bar_err[w]:
                     bar_err[w] = worst
         for n in range(lane, nn, bd):
-            u[n, w] = q[n * NQ + U]
-            v[n, w] = q[n * NQ + V]
-            a[n, w] = q[n * NQ + A]
+            u[n, w] = q[n, U]
+            v[n, w] = q[n, V]
+            a[n, w] = q[n, A]
         block_sync()  # CPU fibers may start the next block as lanes finish: its loads must wait for our stores
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -572,8 +571,8 @@ class FusedStep:
         self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap)
         k, B, d = self.kernels, m.n_columns, m.device
         nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim)
-        self.sx = wp.zeros((1, 1) if self.x_cap else (B, nx), dtype=real, device=d)
-        self.sq = wp.zeros((1, 1) if self.q_cap else (B, NQ * m.n_nodes), dtype=k.vec, device=d)
+        self.sx = wp.zeros((1, 1, 1) if self.x_cap else (B, nx, 1), dtype=real, device=d)
+        self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
         cm = k.ColumnModel()
         for name in _STRUCT_FIELDS:
             setattr(cm, name, getattr(m, name))

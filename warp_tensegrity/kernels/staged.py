@@ -26,7 +26,6 @@ from .common import (
     STATUS_CONSTRAINT,
     STATUS_NONFINITE,
     STATUS_OK,
-    U,
     bar_residual,
     finite3,
     make_gram_row,
@@ -205,7 +204,7 @@ def _record_kernels(real):
                 ke += pget(m_cross, n, w) * wp.dot(vn, v[p, w])
         ee = real(0.0)
         for c in range(cab_i.shape[0]):
-            b = member_vec(cab_dref, cab_i, cab_j, u, U, c, w)
+            b = member_vec(cab_dref, cab_i, cab_j, u, c, w)
             L = pget(cab_L, c, w)
             st = wp.length(b) - L
             k = pget(cab_EA, c, w)
@@ -290,7 +289,7 @@ def _band_funcs(real, bandwidth: int, bar_window: bool):
         ok = bool(True)
         for k in range(con_i.shape[0]):
             r = gram_row(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                         minv_self, minv_cross, u, U, k, w, wa, ws, wx)
+                         minv_self, minv_cross, u, w, k, wa, ws, wx)
             if not factor_store_row(band, r, k, w):
                 ok = False
         return ok
@@ -323,7 +322,7 @@ def _band_funcs(real, bandwidth: int, bar_window: bool):
             # zero for an inactive row (no branch: a generic function's vector type must not
             # replace a variable declared as another vector class inside an if)
             on = wp.where(con_active[k, wa] > real(0.0), real(1.0), real(0.0))
-            bk = member_vec(con_dref, con_i, con_j, u, U, k, w) * on
+            bk = member_vec(con_dref, con_i, con_j, u, k, w) * on
             bx[0] = bk[0]
             by[0] = bk[1]
             bz[0] = bk[2]
@@ -408,7 +407,7 @@ def _projection_funcs(real, bandwidth: int, bar_window: bool):
         wx = w % minv_cross.shape[1]
         n_coupled = int(0)
         for n in range(nn):
-            g = node_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, ug, U, lam, n, w)
+            g = node_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, ug, w, lam, w, n)
             if partner[n] < 0:
                 d = g * minv_self[n, ws]
                 y[n, w] = y[n, w] - d * scale
@@ -442,7 +441,7 @@ def _projection_funcs(real, bandwidth: int, bar_window: bool):
         for k in range(con_i.shape[0]):
             r = real(0.0)
             if con_active[k, wa] > real(0.0):
-                b = member_vec(con_dref, con_i, con_j, u, U, k, w)
+                b = member_vec(con_dref, con_i, con_j, u, k, w)
                 r = wp.dot(b, y[con_j[k], w] - y[con_i[k], w])
                 if with_bdot != 0:
                     bd = v[con_j[k], w] - v[con_i[k], w]
@@ -507,7 +506,7 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
             for k in range(nc):
                 r = real(0.0)
                 if con_active[k, wa] > real(0.0):
-                    r, e = bar_residual(member_vec(con_dref, con_i, con_j, u, U, k, w), con_L[k])
+                    r, e = bar_residual(member_vec(con_dref, con_i, con_j, u, k, w), con_L[k])
                     if not (e <= err):  # also catches NaN
                         err = e
                 lam[k, w] = r
