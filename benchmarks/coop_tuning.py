@@ -55,8 +55,10 @@ def main(argv=None):
     import warp as wp
 
     import warp_tensegrity.kernels.fused as F
-    from warp_tensegrity import simulate
-    from warp_tensegrity.simulate import Integrator
+    from warp_tensegrity import RunSettings
+    from warp_tensegrity import integrate as simulate
+    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.types import Path as LaunchPath
 
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
@@ -81,8 +83,8 @@ def main(argv=None):
                         p = common.time_batch(batch, base, 50, prec, device, target_s=a.target_s, reps=3,
                                               diag_steps=0, dt=dt, path="fused").as_dict()
                         if res is None:
-                            s = simulate.RunSettings(t_end=dt, dt=dt, precision=prec, device=a.device, fused=True)
-                            integ = Integrator(common.tile_batch(small, 64), s, dt, 1, 2)
+                            s = RunSettings(t_end=dt, dt=dt, precision=prec, device=a.device, fused=True)
+                            integ = Integrator(common.tile_batch(small, 64), s, dt, 1, 2, path=LaunchPath.FUSED)
                             integ.load_kernels()
                             res = kernel_resources(integ) if device.is_cuda else {}
                             res["rows"] = integ.fk.description

@@ -8,11 +8,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import simulate
-from warp_tensegrity.columns import ColumnConfig
+from warp_tensegrity import ColumnConfig, RunSettings, integrate, simulate_batch
 from warp_tensegrity.kernels.fused import block_sync, make_cr_funcs
-from warp_tensegrity.settings import RunSettings
-from warp_tensegrity.simulate import simulate_batch
 
 
 @pytest.fixture
@@ -20,8 +17,8 @@ def lanes(monkeypatch):
     """Emulated lanes on the CPU, with the solver and node rows in the block's shared buffer."""
     def use(n):
         monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-        monkeypatch.setattr(simulate, "FUSED_BLOCK_DIM", n)
-        monkeypatch.setattr(simulate, "FUSED_SHARED_ON_CPU", True)
+        monkeypatch.setattr(integrate, "FUSED_BLOCK_DIM", n)
+        monkeypatch.setattr(integrate, "FUSED_SHARED_ON_CPU", True)
     return use
 
 
@@ -157,3 +154,11 @@ def test_lane_parallel_step_fp32(lanes):
     rel = np.abs(fused.strain - staged.strain).max(axis=(1, 2)) / scale
     assert np.all(rel < 1e-3), rel
     assert np.all(fused.bar_length_error <= 1e-6)
+
+
+def test_fused_node_slots_are_the_types_slots():
+    from warp_tensegrity.kernels import common
+    from warp_tensegrity.types import Slot
+
+    assert common.NQ == len(Slot)
+    assert [int(c) for c in (common.U, common.V, common.A, common.P, common.I)] == [int(s) for s in Slot]

@@ -7,11 +7,14 @@ Batched arrays put the column index last (fastest) - see :mod:`warp_tensegrity.k
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
-from .batch import NetworkBatch
+if TYPE_CHECKING:
+    from .scene.batch import NetworkBatch
+
 
 REAL = {"fp32": wp.float32, "fp64": wp.float64}
 NP_REAL = {"fp32": np.float32, "fp64": np.float64}

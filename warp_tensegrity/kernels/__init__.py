@@ -9,10 +9,10 @@
 """
 
 from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK
-from .fused import MAX_BANDWIDTH, FusedStep, make_fused_kernels, shared_plan, solver_reals
+from .fused import FusedStep, make_fused_kernels, shared_plan, solver_reals
 from .staged import make_kernels, make_solver_kernels
 
 __all__ = [
-    "STATUS_CONSTRAINT", "STATUS_NONFINITE", "STATUS_OK", "MAX_BANDWIDTH", "FusedStep", "make_fused_kernels",
+    "STATUS_CONSTRAINT", "STATUS_NONFINITE", "STATUS_OK", "FusedStep", "make_fused_kernels",
     "shared_plan", "solver_reals", "make_kernels", "make_solver_kernels",
 ]

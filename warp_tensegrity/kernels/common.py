@@ -19,10 +19,10 @@ STATUS_OK = wp.constant(0)
 STATUS_NONFINITE = wp.constant(1)
 STATUS_CONSTRAINT = wp.constant(2)
 
-NQ = 5  # node state slots per node in the fused rows: U, V, A, P, I
+# slots of a node's row in the fused step (the values of types.Slot; not imported, to keep the
+# import chains short: tests/test_layout.py, test_parallel_solve.py checks they agree)
+NQ = 5
 U, V, A, P, I = (wp.constant(i) for i in range(NQ))
-"""Slots: displacement [m], velocity [m s-1], acceleration [m s-2], displacement at the step start
-[m], and a per-node scratch vector (force [N] or G^T lambda)."""
 
 
 @wp.func

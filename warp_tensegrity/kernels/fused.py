@@ -48,7 +48,6 @@ from .common import (
 
 SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
 SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
-MAX_BANDWIDTH = 8  # wider Gram bands (generic networks) take the staged path: S x S blocks in registers
 
 
 @wp.func_native("WP_TILE_SYNC();")
