@@ -62,7 +62,7 @@ def _random_system(rng, nb, S, spd=True):
     b = rng.normal(size=n)
     D = np.stack([A[i * S:(i + 1) * S, i * S:(i + 1) * S] for i in range(nb)])
     E = np.stack([A[i * S:(i + 1) * S, (i - 1) * S:i * S] if i else np.zeros((S, S)) for i in range(nb)])
-    row = np.concatenate([b, D.ravel(), E.ravel(), np.zeros(2 * nb * S * S)])
+    row = np.concatenate([b, D.ravel(), E.ravel(), np.zeros(3 * nb * S * S)])
     return A, b, row
 
 

@@ -60,11 +60,11 @@ def block_size(bandwidth: int) -> int:
 
 
 def solver_reals(n_constraints: int, bandwidth: int, block_dim: int) -> int:
-    """Reals of one column's solver rows: multipliers (nb S), then D^-1, E, W-, W+ (nb S^2 each),
-    then one reduction slot per lane."""
+    """Reals of one column's solver rows: multipliers (nb S), then D^-1, E (two buffers), W-, W+
+    (nb S^2 each), then one reduction slot per lane."""
     S = block_size(bandwidth)
     nb = max(-(-n_constraints // S), 1)
-    return nb * S * (1 + 4 * S) + block_dim
+    return nb * S * (1 + 5 * S) + block_dim
 
 
 def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int, real_bytes: int,
@@ -154,35 +154,82 @@ def make_cr_funcs(real, S: int):
         return a, ok
 
     @wp.func
+    def col(x: wp.array2d(dtype=real), off: int, c: int):
+        """Column c of the block at off."""
+        v = vecS()
+        for r in range(S):
+            v[r] = x[off + r * S + c, 0]
+        return v
+
+    @wp.func
+    def col_store(x: wp.array2d(dtype=real), off: int, c: int, v: vecS):
+        for r in range(S):
+            x[off + r * S + c, 0] = v[r]
+
+    @wp.func
+    def mv(x: wp.array2d(dtype=real), off: int, v: vecS):
+        """(block at off) v, the block streamed from x row by row."""
+        y = vecS()
+        for r in range(S):
+            t = real(0.0)
+            for k in range(S):
+                t += x[off + r * S + k, 0] * v[k]
+            y[r] = t
+        return y
+
+    @wp.func
+    def mtv(x: wp.array2d(dtype=real), off: int, v: vecS):
+        """(block at off)^T v."""
+        y = vecS()
+        for k in range(S):
+            for r in range(S):
+                y[r] += x[off + k * S + r, 0] * v[k]
+        return y
+
+    @wp.func
     def cr_factor(x: wp.array2d(dtype=real), nb: int, lane: int, bd: int):
-        """Reduce the assembled D, E in place. Returns this lane's ok flag (0: a pivot <= 0)."""
+        """Reduce the assembled D, E in place. Returns this lane's ok flag (0: a pivot <= 0).
+        Per level: one lane per eliminated block inverts it; then one lane per (block, column)
+        forms that column of W-, W+ and, for the kept blocks, of the Schur complement and the
+        new coupling (written to the other E buffer: the old one is still being read)."""
         D = nb * S
-        E = D + nb * SS
-        WM = E + nb * SS
+        WM = D + 3 * nb * SS
         WP = WM + nb * SS
+        cur = D + nb * SS
+        nxt = cur + nb * SS
         ok = int(1)
         s = int(1)
         while s < nb:
-            for q in range(lane, (nb + s - 1) // (2 * s), bd):  # eliminated i = s, 3s, ...
+            n_el = (nb + s - 1) / (2 * s)  # eliminated i = s, 3s, ...
+            for q in range(lane, n_el, bd):
                 i = s * (2 * q + 1)
                 dinv, okq = spd_inverse(mload(x, D + i * SS))
                 ok = wp.min(ok, okq)
                 mstore(x, D + i * SS, dinv)
-                mstore(x, WM + i * SS, dinv @ mload(x, E + i * SS))
-                if i + s < nb:
-                    mstore(x, WP + i * SS, dinv @ wp.transpose(mload(x, E + (i + s) * SS)))
             block_sync()
-            for q in range(lane, (nb + 2 * s - 1) // (2 * s), bd):  # kept j = 0, 2s, ...
+            for t in range(lane, n_el * S, bd):
+                q = t / S
+                c = t - q * S
+                i = s * (2 * q + 1)
+                col_store(x, WM + i * SS, c, mv(x, D + i * SS, col(x, cur + i * SS, c)))
+                if i + s < nb:  # W+ column c: D_i^-1 (row c of E_{i+s})
+                    col_store(x, WP + i * SS, c, mv(x, D + i * SS, vload(x, cur + (i + s) * SS + c * S)))
+            block_sync()
+            for t in range(lane, ((nb + 2 * s - 1) / (2 * s)) * S, bd):  # kept j = 0, 2s, ...
+                q = t / S
+                c = t - q * S
                 j = 2 * s * q
-                d = mload(x, D + j * SS)
+                d = col(x, D + j * SS, c)
                 if j > 0:
-                    e = mload(x, E + j * SS)
-                    d = d - e @ mload(x, WP + (j - s) * SS)
-                    mstore(x, E + j * SS, -(e @ mload(x, WM + (j - s) * SS)))
+                    d = d - mv(x, cur + j * SS, col(x, WP + (j - s) * SS, c))
+                    col_store(x, nxt + j * SS, c, -mv(x, cur + j * SS, col(x, WM + (j - s) * SS, c)))
                 if j + s < nb:
-                    d = d - wp.transpose(mload(x, E + (j + s) * SS)) @ mload(x, WM + (j + s) * SS)
-                mstore(x, D + j * SS, d)
+                    d = d - mtv(x, cur + (j + s) * SS, col(x, WM + (j + s) * SS, c))
+                col_store(x, D + j * SS, c, d)
             block_sync()
+            tmp = cur
+            cur = nxt
+            nxt = tmp
             s = s * 2
         if lane == 0:
             dinv, okq = spd_inverse(mload(x, D))
@@ -194,7 +241,7 @@ def make_cr_funcs(real, S: int):
     def cr_solve(x: wp.array2d(dtype=real), nb: int, lane: int, bd: int):
         """Solve A y = x[0 : nb S, 0] in place with the stored reduction; ends with a barrier."""
         D = nb * S
-        WM = D + 2 * nb * SS
+        WM = D + 3 * nb * SS
         WP = WM + nb * SS
         s = int(1)
         while s < nb:  # forward: kept blocks take the eliminated neighbours' right-hand sides
