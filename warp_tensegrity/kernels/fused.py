@@ -324,12 +324,12 @@ def make_column_funcs(real, bandwidth: int):
         return m
 
     @wp.func
-    def minv_apply(m: ColumnModel, q: wp.array2d(dtype=vec), n: int, w: int):
+    def minv_apply(m: ColumnModel, q: wp.array2d(dtype=vec), n: int, ws: int, wx: int):
         """(M^-1 g)_n for the per-node vectors g in slot I."""
-        dn = q[n, I] * m.minv_self[n, w % m.minv_self.shape[1]]
+        dn = q[n, I] * m.minv_self[n, ws]
         p = m.partner[n]
         if p >= 0:
-            dn = dn + q[p, I] * m.minv_cross[n, w % m.minv_cross.shape[1]]
+            dn = dn + q[p, I] * m.minv_cross[n, wx]
         return dn
 
     @wp.func
@@ -339,12 +339,14 @@ def make_column_funcs(real, bandwidth: int):
         wE = w % m.cab_EA.shape[1]
         wC = w % m.cab_EAc.shape[1]
         wL = w % m.cab_L.shape[1]
+        ws = w % m.minv_self.shape[1]
+        wx = w % m.minv_cross.shape[1]
         for n in range(lane, nn, bd):
             q[n, I] = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc,
                                  m.cab_L, q, n, U, wE, wC, wL)
         block_sync()
         for n in range(lane, nn, bd):
-            acc = minv_apply(m, q, n, w)
+            acc = minv_apply(m, q, n, ws, wx)
             q[n, A] = acc
             q[n, V] = q[n, V] + acc * kick
         block_sync()
@@ -354,11 +356,13 @@ def make_column_funcs(real, bandwidth: int):
                       scale_u: real, scale_v: real, w: int, lane: int, bd: int):
         """d = M^-1 G(u in g_slot)^T lam (lam = x[0:nc, 0]); U -= scale_u d; V -= scale_v d."""
         nn = m.partner.shape[0]
+        ws = w % m.minv_self.shape[1]
+        wx = w % m.minv_cross.shape[1]
         for n in range(lane, nn, bd):
             q[n, I] = node_impulse(m.con_i, m.con_j, m.con_dref, m.ncon_start, m.ncon_member, q, g_slot, x, 0, n)
         block_sync()
         for n in range(lane, nn, bd):
-            dn = minv_apply(m, q, n, w)
+            dn = minv_apply(m, q, n, ws, wx)
             if scale_u != real(0.0):
                 q[n, U] = q[n, U] - dn * scale_u
             q[n, V] = q[n, V] - dn * scale_v
