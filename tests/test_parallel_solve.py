@@ -162,3 +162,20 @@ def test_fused_node_slots_are_the_types_slots():
 
     assert common.NQ == len(Slot)
     assert [int(c) for c in (common.U, common.V, common.A, common.P, common.I)] == [int(s) for s in Slot]
+
+
+def test_auto_path_policy_follows_the_measured_crossovers():
+    from warp_tensegrity import SettingsError
+    from warp_tensegrity.engine import FUSED_MAX_BANDWIDTH, FUSED_MAX_COLUMNS, FUSED_MAX_COLUMNS_WIDE, choose_path
+    from warp_tensegrity.types import Path
+
+    auto = RunSettings()
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS, 3) == Path.FUSED
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS + 1, 3) == Path.STAGED
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS_WIDE, 6) == Path.FUSED
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS_WIDE + 1, 6) == Path.STAGED
+    assert choose_path(auto, False, 10**6, 6) == Path.FUSED  # CPU: one lane, no crossover measured
+    assert choose_path(auto, False, 4, FUSED_MAX_BANDWIDTH + 1) == Path.STAGED  # generic wide band
+    assert choose_path(RunSettings(method="rk4"), False, 4, 3) == Path.STAGED
+    with pytest.raises(SettingsError, match="Gram band is 12 wide"):
+        choose_path(RunSettings(fused=True), True, 4, 12)

@@ -56,11 +56,13 @@ from .scene.columns import ColumnConfig
 from .settings import BatchResult, RunSettings, SettingsError
 from .types import FORCE_EVALS, STABILITY, Base, Method, Path
 
-# fused='auto' on a GPU: the fused step (block cyclic reduction) up to this many columns and for Gram
-# bands up to FUSED_AUTO_GPU_BANDWIDTH (3: FB); the staged kernels otherwise (H100 measurements in
-# benchmarks/results/throughput_h100.json and coop_tuning_h100.json; benchmarks/README.md)
+# fused='auto' on a GPU: the fused step (block cyclic reduction) up to FUSED_MAX_COLUMNS columns
+# for Gram bands up to 3 (FB) and FUSED_MAX_COLUMNS_WIDE for wider ones (RB: 6); the staged kernels
+# above. H100, 50 prisms (benchmarks/results/throughput_h100.json): fused/staged = 1.5-8.4x at
+# 1,024-16,384 columns for FB (0.59-0.69x from 65,536), 1.5-6.8x at 1,024-4,096 for RB (0.42-0.67x
+# at 16,384).
 FUSED_MAX_COLUMNS = 16384
-FUSED_AUTO_GPU_BANDWIDTH = 3
+FUSED_MAX_COLUMNS_WIDE = 4096
 # widest Gram band the fused step takes at all (its S x S blocks live in registers); wider generic
 # networks run the staged kernels
 FUSED_MAX_BANDWIDTH = 8
@@ -113,14 +115,16 @@ def reachable_prisms(omega_max: float, t_end: float, n_prisms: int) -> int:
 def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int, bandwidth: int = 0) -> Path:
     """Fused RATTLE (a block per column) or staged kernels: ``settings.fused`` True/False, or
     'auto': fused for RATTLE with a Gram half-bandwidth of at most :data:`FUSED_MAX_BANDWIDTH`,
-    on a GPU only up to :data:`FUSED_MAX_COLUMNS` columns and :data:`FUSED_AUTO_GPU_BANDWIDTH`."""
+    on a GPU only up to :data:`FUSED_MAX_COLUMNS` columns (:data:`FUSED_MAX_COLUMNS_WIDE` for bands
+    wider than 3), where it measured faster than the staged kernels."""
     if settings.fused is True:
         if bandwidth > FUSED_MAX_BANDWIDTH:
             raise SettingsError(f"fused = true: the constraint Gram band is {bandwidth} wide, above the fused "
                                 f"step's {FUSED_MAX_BANDWIDTH}; use fused = 'auto' or false (staged kernels)")
         return Path.FUSED
+    limit = FUSED_MAX_COLUMNS if bandwidth <= 3 else FUSED_MAX_COLUMNS_WIDE
     if settings.fused == "auto" and settings.method == Method.RATTLE and bandwidth <= FUSED_MAX_BANDWIDTH and (
-            not on_gpu or (n_columns <= FUSED_MAX_COLUMNS and bandwidth <= FUSED_AUTO_GPU_BANDWIDTH)):
+            not on_gpu or n_columns <= limit):
         return Path.FUSED
     return Path.STAGED
 
