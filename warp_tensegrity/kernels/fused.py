@@ -94,11 +94,9 @@ def _shared_snippet(ctype: str, n: int, name: str) -> str:
 
 
 @functools.cache
-def make_cr_funcs(real, S: int):
-    """Block cyclic reduction of a block-tridiagonal SPD matrix with S x S blocks, lanes of a
-    block in parallel. Layout of the column's solver rows x: x[0 : nb S, 0] right-hand side /
-    solution, then at D, E, WM, WP (each nb S^2, row-major blocks): D_i (D_i^-1 once block i is
-    eliminated), E_i (the block coupling row-block i to i - s at the current level), W-_i, W+_i."""
+def make_block_funcs(real, S: int):
+    """S x S block helpers over a column's solver rows x (row-major blocks at an offset):
+    loads and stores of blocks, vectors and columns, streamed mat-vecs, the SPD block inverse."""
     SS = S * S
     mat = wp.types.matrix((S, S), real)
     vecS = wp.types.vector(S, real)
@@ -186,6 +184,21 @@ def make_cr_funcs(real, S: int):
                 y[r] += x[off + k * S + r, 0] * v[k]
         return y
 
+    return SimpleNamespace(mat=mat, vec=vecS, mload=mload, mstore=mstore, vload=vload, vstore=vstore,
+                           spd_inverse=spd_inverse, col=col, col_store=col_store, mv=mv, mtv=mtv)
+
+
+@functools.cache
+def make_cr_funcs(real, S: int):
+    """Block cyclic reduction of a block-tridiagonal SPD matrix with S x S blocks, lanes of a
+    block in parallel. Layout of the column's solver rows x: x[0 : nb S, 0] right-hand side /
+    solution, then at D, E, WM, WP (each nb S^2, row-major blocks): D_i (D_i^-1 once block i is
+    eliminated), E_i (the block coupling row-block i to i - s at the current level), W-_i, W+_i."""
+    SS = S * S
+    bf = make_block_funcs(real, S)
+    mload, mstore, vload, vstore, spd_inverse = bf.mload, bf.mstore, bf.vload, bf.vstore, bf.spd_inverse
+    col, col_store, mv, mtv = bf.col, bf.col_store, bf.mv, bf.mtv
+
     @wp.func
     def cr_factor(x: wp.array2d(dtype=real), nb: int, lane: int, bd: int):
         """Reduce the assembled D, E in place. Returns this lane's ok flag (0: a pivot <= 0).
@@ -269,20 +282,14 @@ def make_cr_funcs(real, S: int):
             block_sync()
             s = s / 2
 
-    return SimpleNamespace(cr_factor=cr_factor, cr_solve=cr_solve, mat=mat, vec=vecS)
+    return SimpleNamespace(cr_factor=cr_factor, cr_solve=cr_solve, mat=bf.mat, vec=bf.vec)
 
 
 @functools.cache
-def make_column_funcs(real, bandwidth: int):
-    """Per-lane pieces of the fused step over the model struct ``ColumnModel``: Gram assembly into
-    blocks, node passes and the projections."""
+def make_node_funcs(real):
+    """The model struct and the node passes of the fused step (lanes over nodes), plus the
+    block reduction."""
     vec = wp.types.vector(3, real)
-    BW = int(bandwidth)
-    S = block_size(BW)
-    SS = S * S
-    LD = BW + 1
-    gram_row, rowvec = make_gram_row(real, BW)
-    cr = make_cr_funcs(real, S)
 
     @wp.struct
     class ColumnModel:
@@ -367,6 +374,25 @@ def make_column_funcs(real, bandwidth: int):
                 q[n, U] = q[n, U] - dn * scale_u
             q[n, V] = q[n, V] - dn * scale_v
         block_sync()
+
+    return SimpleNamespace(ColumnModel=ColumnModel, block_max=block_max, gather_kick=gather_kick,
+                           apply_impulse=apply_impulse, vec=vec)
+
+
+@functools.cache
+def make_column_funcs(real, bandwidth: int):
+    """The fused step's constraint pieces over the model struct ``ColumnModel``: Gram assembly into
+    blocks with the CR factor, and the position and velocity projections."""
+    vec = wp.types.vector(3, real)
+    BW = int(bandwidth)
+    S = block_size(BW)
+    SS = S * S
+    LD = BW + 1
+    gram_row, rowvec = make_gram_row(real, BW)
+    cr = make_cr_funcs(real, S)
+
+    nf = make_node_funcs(real)
+    ColumnModel, block_max, apply_impulse = nf.ColumnModel, nf.block_max, nf.apply_impulse
 
     @wp.func
     def factor_gram(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
@@ -456,7 +482,7 @@ def make_column_funcs(real, bandwidth: int):
             it += 1
         return err, it
 
-    return SimpleNamespace(ColumnModel=ColumnModel, gather_kick=gather_kick, factor_gram=factor_gram,
+    return SimpleNamespace(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=factor_gram,
                            project_velocities=project_velocities, project_positions=project_positions, vec=vec)
 
 

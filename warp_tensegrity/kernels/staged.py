@@ -218,17 +218,16 @@ def _record_kernels(real):
 
 
 @functools.cache
-def _band_funcs(real, bandwidth: int, bar_window: bool):
+def _band_funcs(real, bandwidth: int):
     """The sequential banded Cholesky of the staged solver threads, the bandwidth compiled in:
     the row being factored and the last ``bandwidth`` unknowns of a sweep sit in registers, and
     each sweep loads the next row while it works on the current one.
 
     The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
     except the diagonal slot, which holds 1/L[k, k]."""
-    vec = wp.types.vector(3, real)
     BW = int(bandwidth)
     LD = BW + 1
-    gram_row, rowvec = make_gram_row(real, BW)
+    rowvec = make_gram_row(real, BW)[1]
     winvec = wp.types.vector(max(BW, 1), real)
 
     @wp.func
@@ -272,6 +271,57 @@ def _band_funcs(real, bandwidth: int, bar_window: bool):
         for e in range(LD):
             band[k, e, w] = r[e]
         return ok
+
+    @wp.func
+    def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), w: int):
+        """Solve L L^T x = rhs in place (rhs given in x)."""
+        nc = x.shape[0]
+        xw = winvec()  # xw[e] = x[k - 1 - e] (forward), x[k + 1 + e] (backward)
+        nxt = band_row(band, 0, w)
+        nrhs = x[0, w]
+        for k in range(nc):
+            cur = nxt
+            s = nrhs
+            if k + 1 < nc:  # issue the next row's loads before this row's dependent chain
+                nxt = band_row(band, k + 1, w)
+                nrhs = x[k + 1, w]
+            for e in range(BW):
+                s -= cur[e + 1] * xw[e]
+            xk = s * cur[0]
+            x[k, w] = xk
+            for e in range(BW - 1):
+                xw[BW - 1 - e] = xw[BW - 2 - e]
+            xw[0] = xk
+        xw = winvec()
+        nxt = band_col(band, nc - 1, nc, w)
+        nrhs = x[nc - 1, w]
+        for kk in range(nc):
+            k = nc - 1 - kk
+            cur = nxt
+            s = nrhs
+            if k > 0:
+                nxt = band_col(band, k - 1, nc, w)
+                nrhs = x[k - 1, w]
+            for e in range(BW):
+                s -= cur[e + 1] * xw[e]
+            xk = s * cur[0]
+            x[k, w] = xk
+            for e in range(BW - 1):
+                xw[BW - 1 - e] = xw[BW - 2 - e]
+            xw[0] = xk
+
+    return SimpleNamespace(factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)
+
+
+@functools.cache
+def _assemble_funcs(real, bandwidth: int, bar_window: bool):
+    """Gram assembly of one column thread, each row factored as it is assembled: from
+    common.gram_row (reload) or with the last bandwidth + 1 bar vectors in registers (window)."""
+    vec = wp.types.vector(3, real)
+    BW = int(bandwidth)
+    LD = BW + 1
+    gram_row, rowvec = make_gram_row(real, BW)
+    factor_store_row = _band_funcs(real, bandwidth).factor_store_row
 
     @wp.func
     def assemble_factor_reload(
@@ -343,53 +393,14 @@ def _band_funcs(real, bandwidth: int, bar_window: bool):
                 ok = False
         return ok
 
-    @wp.func
-    def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), w: int):
-        """Solve L L^T x = rhs in place (rhs given in x)."""
-        nc = x.shape[0]
-        xw = winvec()  # xw[e] = x[k - 1 - e] (forward), x[k + 1 + e] (backward)
-        nxt = band_row(band, 0, w)
-        nrhs = x[0, w]
-        for k in range(nc):
-            cur = nxt
-            s = nrhs
-            if k + 1 < nc:  # issue the next row's loads before this row's dependent chain
-                nxt = band_row(band, k + 1, w)
-                nrhs = x[k + 1, w]
-            for e in range(BW):
-                s -= cur[e + 1] * xw[e]
-            xk = s * cur[0]
-            x[k, w] = xk
-            for e in range(BW - 1):
-                xw[BW - 1 - e] = xw[BW - 2 - e]
-            xw[0] = xk
-        xw = winvec()
-        nxt = band_col(band, nc - 1, nc, w)
-        nrhs = x[nc - 1, w]
-        for kk in range(nc):
-            k = nc - 1 - kk
-            cur = nxt
-            s = nrhs
-            if k > 0:
-                nxt = band_col(band, k - 1, nc, w)
-                nrhs = x[k - 1, w]
-            for e in range(BW):
-                s -= cur[e + 1] * xw[e]
-            xk = s * cur[0]
-            x[k, w] = xk
-            for e in range(BW - 1):
-                xw[BW - 1 - e] = xw[BW - 2 - e]
-            xw[0] = xk
-
-    assemble = assemble_factor_window if bar_window else assemble_factor_reload
-    return SimpleNamespace(assemble_factor=assemble, band_solve=band_solve)
+    return assemble_factor_window if bar_window else assemble_factor_reload
 
 
 @functools.cache
-def _projection_funcs(real, bandwidth: int, bar_window: bool):
+def _projection_funcs(real, bandwidth: int):
     """Impulse application and the rate projection of one column thread."""
     vec = wp.types.vector(3, real)
-    band_solve = _band_funcs(real, bandwidth, bar_window).band_solve
+    band_solve = _band_funcs(real, bandwidth).band_solve
 
     @wp.func
     def apply_impulse(
@@ -472,8 +483,8 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
 
 def _position_kernel(real, bandwidth, bar_window, kopts):
     vec = wp.types.vector(3, real)
-    fb = _band_funcs(real, bandwidth, bar_window)
-    band_solve, apply_impulse = fb.band_solve, _projection_funcs(real, bandwidth, bar_window).apply_impulse
+    fb = _band_funcs(real, bandwidth)
+    band_solve, apply_impulse = fb.band_solve, _projection_funcs(real, bandwidth).apply_impulse
 
     @wp.kernel(**kopts)
     def project_positions(
@@ -531,8 +542,24 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
 
 def _factor_kernels(real, bandwidth, bar_window, kopts):
     vec = wp.types.vector(3, real)
-    assemble_factor = _band_funcs(real, bandwidth, bar_window).assemble_factor
-    project_rates = _projection_funcs(real, bandwidth, bar_window).project_rates
+    assemble_factor = _assemble_funcs(real, bandwidth, bar_window)
+    project_rates = _projection_funcs(real, bandwidth).project_rates
+
+    @wp.func
+    def factor_or_flag(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real), u: wp.array2d(dtype=vec),
+        step: wp.array(dtype=int), band: wp.array3d(dtype=real), status: wp.array(dtype=int),
+        fail_step: wp.array(dtype=int), w: int,
+    ):
+        """Factor A(u) into the band; False (and column w flagged) if it is not positive definite."""
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, w)
+        if not ok:
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        return ok
 
     @wp.kernel(**kopts)
     def factor_project_velocities(
@@ -552,10 +579,8 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, w)
-        if not ok:
-            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                              minv_self, minv_cross, u, step, band, status, fail_step, w):
             return
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 0, band, v, lam, imp, w)
@@ -579,10 +604,8 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, w)
-        if not ok:
-            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                       minv_self, minv_cross, u, step, band, status, fail_step, w)
 
     @wp.kernel(**kopts)
     def constrained_accel(
@@ -602,10 +625,8 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, w)
-        if not ok:
-            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                              minv_self, minv_cross, u, step, band, status, fail_step, w):
             return
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 1, band, a, lam, imp, w)
