@@ -335,6 +335,7 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "omega_max_bound": omega,
         "bandwidth": int(bw),
         "step_path": str(choose_path(settings, device.is_cuda, batch.n_columns, int(bw)).value),
+        "on_gpu": bool(device.is_cuda),
         "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
         "seconds_estimate": seconds,
     }
