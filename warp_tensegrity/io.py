@@ -324,7 +324,7 @@ def sweep_attrs(spec: SweepSpec, shard_attrs: list[dict], history: str) -> dict:
         if k not in a0:
             continue
         attrs[k] = a0[k]
-    for k in ("warp_version", "git_commit", "device", "device_name"):
+    for k in ("warp_version", "git_commit", "device", "device_name", "step_path"):
         attrs[k] = _joined(a.get(k, "unknown") for a in shard_attrs)
     attrs["wall_time"] = float(sum(float(a.get("wall_time", 0.0)) for a in shard_attrs))
     attrs["history"] = history
