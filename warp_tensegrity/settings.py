@@ -14,6 +14,9 @@ STATUS_NONFINITE = 1
 STATUS_CONSTRAINT = 2
 STATUS_NAMES = {STATUS_OK: "ok", STATUS_NONFINITE: "non-finite state", STATUS_CONSTRAINT: "bar constraint failed"}
 
+TIME = "t"
+"""Name of the simulated-time axis of every dataset [s since impact]; not CF's calendar 'time' (dataset.py)."""
+
 # swept per-column parameters and their units
 COLUMN_PARAMETERS = {
     "prestrain": "1",
@@ -163,3 +166,12 @@ class BatchResult:
     @property
     def n_columns(self) -> int:
         return int(self.status.shape[0])
+
+    def to_xarray(self, config=None, measure: bool = True):
+        """The result as the CF dataset the CLI writes for a case list (``case`` dimension,
+        parameters as coordinates, time axis ``t`` [s]), with the pulse measurements when the
+        strain was kept. ``config``: the ColumnConfig (default: the prism height recorded by
+        :func:`simulate_batch`). Built by :func:`warp_tensegrity.dataset.result_dataset`."""
+        from .dataset import result_dataset
+
+        return result_dataset(self, config=config, measure=measure)

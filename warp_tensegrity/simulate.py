@@ -468,6 +468,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
                     "precision": settings.precision, "dt": result.dt,
                     "record_strain": settings.record_strain})
     result.info["choices"] = choices
+    result.info["prism_height"] = float(config.height)  # for BatchResult.to_xarray's measurements
     return result
 
 

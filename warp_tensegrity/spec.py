@@ -371,20 +371,10 @@ def _plain(x):
 
 # ---------------------------------------------------------------------- code version
 def package_version() -> str:
-    try:
-        from importlib.metadata import PackageNotFoundError, version
+    """The package version from the build (setuptools-scm; :mod:`warp_tensegrity.provenance`)."""
+    from .provenance import package_version as _pv
 
-        try:
-            return version("warp_tensegrity")
-        except PackageNotFoundError:
-            pass
-    except ImportError:  # pragma: no cover
-        pass
-    pyproject = PACKAGE_DIR.parent / "pyproject.toml"
-    try:
-        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
-    except Exception:
-        return "unknown"
+    return _pv()
 
 
 def source_hash() -> str:
@@ -399,8 +389,11 @@ def source_hash() -> str:
 
 
 def code_version() -> str:
-    """Package version + hash of the package's .py sources, e.g. '0.1.0+src.1a2b3c4d5e6f7a8b'."""
-    return f"{package_version()}+src.{source_hash()[:16]}"
+    """Release version + hash of the package's .py sources, e.g. '0.1.dev61+src.1a2b3c4d5e6f7a8b'
+    (the version's local part, commit and dirty date, is left out: the source hash tells code apart)."""
+    from .provenance import release_version
+
+    return f"{release_version()}+src.{source_hash()[:16]}"
 
 
 # ---------------------------------------------------------------------- loading

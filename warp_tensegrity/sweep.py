@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,8 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as D
+from .progress import SweepProgress
+from .provenance import provenance_attrs, warp_facts
 from .settings import RunSettings
 from .spec import SpecError, SweepSpec, code_version, load_spec
+
+log = logging.getLogger(__name__)
 
 MANIFEST = "manifest.json"
 SPEC_COPY = "spec.toml"
@@ -41,6 +45,9 @@ class SweepError(RuntimeError):
 # ---------------------------------------------------------------------- engine entry points
 def simulate_batch(config, params, settings, progress=None):
     """The one place the engine runs (tests monkeypatch this)."""
+    from .runtime import init_warp
+
+    init_warp()  # quiet start-up: no CUDA-driver warning on a CPU-only machine
     from .simulate import simulate_batch as engine
 
     return engine(config, params, settings, progress=progress)
@@ -48,15 +55,15 @@ def simulate_batch(config, params, settings, progress=None):
 
 def estimate_batch(config, params, settings) -> dict:
     """The engine's cost/stability estimate (no kernel launch)."""
+    from .runtime import init_warp
+
+    init_warp()
     from .simulate import estimate_batch as engine_estimate
 
     return engine_estimate(config, params, settings)
 
 
-def measure_pulse(strain, time, prism_height, threshold=None) -> dict:
-    from .measure import measure_pulse as measure
-
-    return measure(strain, time, prism_height, threshold=threshold)
+measure_columns = D.measure_columns  # leading-pulse measures of a BatchResult (dataset.py)
 
 
 # ---------------------------------------------------------------------- planning
@@ -155,27 +162,6 @@ def resolve_dt(plan: SweepPlan) -> SweepPlan:
 
 
 # ---------------------------------------------------------------------- one shard
-def measure_columns(result, prism_height: float) -> dict:
-    """Leading-pulse measurements per column (:func:`warp_tensegrity.measure.measure_pulse`);
-    NaN where undefined and for every column whose status is not ok."""
-    status = np.asarray(result.status)
-    with np.errstate(all="ignore"):
-        m = measure_pulse(result.strain, result.time, prism_height)
-    bad = status != 0
-    out = {
-        "amplitude": m["amplitude"],
-        "speed": m["speed"],
-        "width": m["width_fwhm"],
-        "width_10": m["width_10"],
-        "prisms_measured": m["prisms_measured"],
-        "arrival_time": m["arrival_time"],
-    }
-    out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
-    for v in out.values():
-        v[bad] = np.nan
-    return out
-
-
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
     """Run shard ``index`` and return its case-stacked dataset (not written)."""
     if plan.settings is None:
@@ -190,23 +176,15 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "Conventions": D.CONVENTIONS,
         "fingerprint": plan.fingerprint,
         "code_version": plan.code_version,
-        "package_version": D.package_version(),
-        "warp_version": D.warp_version(),
-        "git_commit": D.git_commit(),
+        **provenance_attrs(),
+        **warp_facts(result.device),
         "spec_sha256": spec.text_sha256,
         "shard_index": index,
         "n_shards": plan.n_shards,
         "case_start": start,
         "case_stop": stop,
-        "device": result.device,
-        "device_name": result.device_name,
-        "method": result.method,
-        "precision": result.precision,
-        "dt": float(result.dt),
+        **D.result_attrs(result),
         "dt_limit": plan.dt_limit,
-        "n_steps": int(result.n_steps),
-        "output_interval": float(result.time[1] - result.time[0]) if len(result.time) > 1 else float("nan"),
-        "wall_time": float(result.wall_time),
         "history": f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} shard {index} computed by warp_tensegrity",
     }
     if spec.run["output_interval"] is not None:
@@ -314,7 +292,6 @@ def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True)
     )
 
 
-# ---------------------------------------------------------------------- progress
 def _fmt_seconds(s: float) -> str:
     if not math.isfinite(s):
         return "?"
@@ -324,62 +301,6 @@ def _fmt_seconds(s: float) -> str:
     if s >= 60:
         return f"{s // 60}m{s % 60:02d}s"
     return f"{s}s"
-
-
-class ProgressBar:
-    """A one-line stderr bar: columns done, columns diverged, ETA."""
-
-    def __init__(self, total: int, done: int = 0, diverged: int = 0, stream=None, enabled: bool = True, width: int = 28):
-        self.total = max(int(total), 1)
-        self.base_done = done
-        self.base_diverged = diverged
-        self.done = float(done)
-        self.diverged = diverged
-        self.stream = stream or sys.stderr
-        self.enabled = enabled
-        self.width = width
-        self.t0 = time.monotonic()
-        self.last = 0.0
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self._len = 0
-        self._printed = None
-
-    def update(self, done: float, diverged: int, force: bool = False):
-        self.done, self.diverged = float(done), int(diverged)
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        state = (int(self.done), self.diverged)
-        if force and state == self._printed and now - self.last < 1.0:
-            return  # nothing new to say
-        if not force and now - self.last < (0.2 if self.tty else 10.0):
-            return
-        self.last = now
-        self._printed = state
-        frac = min(self.done / self.total, 1.0)
-        fill = int(round(frac * self.width))
-        elapsed = now - self.t0
-        new = self.done - self.base_done
-        remaining = self.total - self.done
-        eta = elapsed * remaining / new if new > 0 else float("nan")
-        line = (
-            f"[{'#' * fill}{'.' * (self.width - fill)}] {int(self.done)}/{self.total} columns"
-            f"  {self.diverged} diverged  elapsed {_fmt_seconds(elapsed)}  ETA {_fmt_seconds(eta if remaining > 0 else 0)}"
-        )
-        if self.tty:
-            pad = " " * max(self._len - len(line), 0)
-            self.stream.write("\r" + line + pad)
-            self._len = len(line)
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
-
-    def close(self):
-        if self.enabled:
-            self.update(self.done, self.diverged, force=True)
-            if self.tty:
-                self.stream.write("\n")
-                self.stream.flush()
 
 
 # ---------------------------------------------------------------------- whole sweeps
@@ -410,7 +331,7 @@ def execute(
     *,
     resume: bool = False,
     overwrite: bool = False,
-    progress: bool = True,
+    progress: bool | None = None,
     dask_workers: int | None = None,
     scheduler: str | None = None,
     client=None,
@@ -429,7 +350,9 @@ def execute(
     todo = [s.index for s in states if s.state != "done"]
     done_cols = sum(s.n_columns for s in states if s.state == "done")
     done_failed = sum(s.n_failed for s in states if s.state == "done")
-    bar = ProgressBar(plan.n_columns, done_cols, done_failed, stream=stream, enabled=progress)
+    bar = SweepProgress(plan.n_columns, done_cols, done_failed, stream=stream, enabled=progress,
+                        estimate_s=_estimated_seconds(plan, todo))
+    log.debug("%d of %d shards to run (%d columns done)", len(todo), plan.n_shards, done_cols)
     if todo:
         if dask_workers or scheduler or client is not None:
             from .scaleout import run_shards_dask
@@ -456,7 +379,16 @@ def execute(
     return None
 
 
-def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=True,
+def _estimated_seconds(plan: SweepPlan, todo) -> float | None:
+    """The calibrated cost model's time for the shards still to run (None if unknown)."""
+    spc = float(plan.estimate.get("seconds_per_column_step_estimate", float("nan")))
+    steps = int(plan.estimate.get("n_steps", 0))
+    cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in todo)
+    secs = spc * steps * cols
+    return secs if math.isfinite(secs) and secs > 0 else None
+
+
+def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=None,
               dask_workers=None, scheduler=None, client=None, stream=None) -> Path:
     """Run a spec (SweepSpec, path or TOML text) into ``out`` (netCDF)."""
     if not isinstance(spec, SweepSpec):
@@ -466,7 +398,7 @@ def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrit
                    scheduler=scheduler, client=client, stream=stream)
 
 
-def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=True, dask_workers=None,
+def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=None, dask_workers=None,
                  scheduler=None, client=None, stream=None) -> Path:
     """Finish an interrupted run: reuse the shards that check out, recompute the others, combine."""
     if spec is None:
