@@ -130,15 +130,27 @@ def _report_status(st: dict, as_json: bool) -> str:
     return "\n".join(lines)
 
 
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is at the time (pytest's capture swaps it between calls)."""
+
+    def __init__(self):
+        super().__init__()
+        self.setFormatter(logging.Formatter("warp-tensegrity: %(message)s"))
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):  # logging.StreamHandler.__init__ assigns it
+        pass
+
+
 def setup_logging(verbose: int = 0, quiet: bool = False) -> None:
     """One stderr handler on the package logger: INFO by default, DEBUG with -v, WARNING with -q."""
-    level = logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO
-    log.setLevel(level)
-    if not any(getattr(h, "_warp_tensegrity", False) for h in log.handlers):
-        h = logging.StreamHandler(sys.stderr)
-        h.setFormatter(logging.Formatter("warp-tensegrity: %(message)s"))
-        h._warp_tensegrity = True
-        log.addHandler(h)
+    log.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    if not any(isinstance(h, _StderrHandler) for h in log.handlers):
+        log.addHandler(_StderrHandler())
     log.propagate = False
 
 

@@ -381,7 +381,7 @@ def source_hash() -> str:
     """sha256 over the package's .py sources (relative path and content, sorted by path)."""
     h = hashlib.sha256()
     for p in sorted(PACKAGE_DIR.rglob("*.py")):
-        if "__pycache__" in p.parts:
+        if "__pycache__" in p.parts or p.name == "_version.py":  # build metadata, not code
             continue
         h.update(p.relative_to(PACKAGE_DIR).as_posix().encode() + b"\0")
         h.update(p.read_bytes() + b"\0")
