@@ -91,16 +91,21 @@ def _strain_of_one_column(data, sel: dict | None):
 
 
 # ---------------------------------------------------------------------- figures
-def phase_diagram(ds, var: str = "speed", x: str | None = None, y: str | None = None, ax=None,
-                  sel: dict | None = None, log_y: bool | None = None, colorbar: bool = True, **pcolormesh_kw):
+def phase_diagram(data, var: str = "speed", x: str | None = None, y: str | None = None, ax=None,
+                  sel: dict | None = None, log_y: bool | None = None, colorbar: bool = True,
+                  cbar_label: str | None = None, **pcolormesh_kw):
     """Colour map of the measured variable ``var`` over the swept parameters ``x`` and ``y`` of a
     grid sweep (defaults: the first two grid dimensions), one cell per grid point; columns whose
-    status is not ok are blank. Other grid dimensions must be fixed with ``sel``. ``log_y``
+    status is not ok are blank. ``data``: the dataset, or a DataArray over the grid (e.g. a derived
+    quantity; then ``var`` is ignored). Other grid dimensions must be fixed with ``sel``. ``log_y``
     (default: when y spans more than a decade and is > 0) uses geometric cell edges. Returns the Axes;
-    ``ax.collections[0].get_array()`` is the variable with y as rows."""
-    if var not in ds:
-        raise PlotError(f"no variable {var!r} in the dataset (have: {', '.join(map(str, ds.data_vars))})")
-    da = ds[var].where(ds["status"] == 0) if "status" in ds else ds[var]
+    ``ax.collections[-1].get_array()`` is the variable with y as rows."""
+    if hasattr(data, "data_vars"):
+        if var not in data:
+            raise PlotError(f"no variable {var!r} in the dataset (have: {', '.join(map(str, data.data_vars))})")
+        da = data[var].where(data["status"] == 0) if "status" in data else data[var]
+    else:
+        da, var = data, str(data.name)
     da = _select(da, sel)
     dims = [d for d in da.dims if d not in ("prism", TIME)]
     if "case" in dims:
@@ -124,11 +129,11 @@ def phase_diagram(ds, var: str = "speed", x: str | None = None, y: str | None = 
     mesh = ax.pcolormesh(cell_edges(d[x].values), cell_edges(yv, log=log_y), np.ma.masked_invalid(d.values), **kw)
     if log_y:
         ax.set_yscale("log")
-    ax.set_xlabel(_label(ds[x], x))
-    ax.set_ylabel(_label(ds[y], y))
+    ax.set_xlabel(_label(d[x], x))
+    ax.set_ylabel(_label(d[y], y))
     if colorbar:
         cb = ax.figure.colorbar(mesh, ax=ax, pad=0.01)
-        cb.set_label(_label(ds[var], var))
+        cb.set_label(cbar_label if cbar_label is not None else _label(da, var))
     return ax
 
 
