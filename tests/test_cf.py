@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from warp_tensegrity import sweep
-from warp_tensegrity.spec import load_spec
+from warp_tensegrity.sweep import load_spec
 
 cc_runner = pytest.importorskip("compliance_checker.runner")
 

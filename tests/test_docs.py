@@ -27,7 +27,7 @@ def build(config: Path, site: Path) -> subprocess.CompletedProcess:
 
 def spec_keys() -> list[str]:
     """Every key path a spec may hold, from the parser's own tables."""
-    from warp_tensegrity import spec as S
+    from warp_tensegrity.sweep import spec as S
     from warp_tensegrity.settings import COLUMN_PARAMETERS
 
     keys = list(S.TOP_KEYS)

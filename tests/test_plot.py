@@ -15,7 +15,7 @@ import xarray as xr  # noqa: E402
 
 from warp_tensegrity import cli  # noqa: E402
 from warp_tensegrity import plot as W  # noqa: E402
-from warp_tensegrity.dataset import write_netcdf  # noqa: E402
+from warp_tensegrity.io import write_netcdf  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -15,8 +15,8 @@ import pytest
 import xarray as xr
 
 from warp_tensegrity import cli, sweep
-from warp_tensegrity.dataset import drop_run_dependent, open_sweep
-from warp_tensegrity.spec import SpecError, parse_spec
+from warp_tensegrity.io import drop_run_dependent, open_sweep
+from warp_tensegrity.sweep import SpecError, parse_spec
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -237,9 +237,9 @@ def test_progress_bar(tmp_path):
 
 
 def test_progress_eta_starts_from_the_estimate():
-    from warp_tensegrity.progress import SweepProgress
+    from warp_tensegrity.sweep.progress import ProgressBar
 
-    bar = SweepProgress(100, enabled=False, estimate_s=50.0)
+    bar = ProgressBar(100, enabled=False, estimate_s=50.0)
     assert 49.0 < bar.eta() <= 50.0  # nothing done yet: the calibrated estimate
     bar.t0 -= 10.0  # 10 s on, half done: blend of estimate (25 s left) and rate (10 s left)
     bar.update(50, 0)

@@ -164,18 +164,17 @@ def main(argv=None) -> int:
     setup_logging(args.verbose, args.quiet)
     if args.version:
         from .provenance import version_text
-        from .runtime import init_warp
+        from .runtime import init_warp, warp_facts
 
         init_warp(verbose=bool(args.verbose))
-        print(version_text())
+        print(version_text(warp_facts()))
         return EXIT_OK
     if args.command is None:
         parser.error("give a COMMAND (run, resume, status, combine, plot) or --version")
-    from .network import NetworkError
-    from .settings import SettingsError
-    from .spec import SpecError
-    from .sweep import SweepError
     from .plot import PlotError
+    from .scene.network import NetworkError
+    from .settings import SettingsError
+    from .sweep.errors import SpecError, SweepError
 
     try:
         return _dispatch(args)
@@ -188,8 +187,10 @@ def main(argv=None) -> int:
 
 
 def _dispatch(args) -> int:
-    from . import sweep
-    from .spec import load_spec
+    from .sweep import plan as sweep_plan
+    from .sweep import run as sweep
+    from .sweep.errors import SweepError
+    from .sweep.spec import load_spec
 
     if args.command in ("run", "resume"):
         from .runtime import init_warp
@@ -199,20 +200,20 @@ def _dispatch(args) -> int:
         if args.command == "run":
             spec = load_spec(Path(args.spec))
             out = Path(args.output)
-            plan = sweep.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
+            plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
         else:
             if _looks_like_spec(args.target):
                 if not args.output:
-                    raise sweep.SweepError("resume SPEC needs -o OUT.nc")
+                    raise SweepError("resume SPEC needs -o OUT.nc")
                 out = Path(args.output)
-                plan = sweep.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
+                plan = sweep_plan.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
             else:
                 out = Path(args.target)
                 if args.output and Path(args.output) != out:
-                    raise sweep.SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
+                    raise SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
         if args.dry_run:
-            print(sweep.dry_run(plan))
+            print(sweep_plan.dry_run(plan))
             if args.command == "resume" and plan.shard_dir.exists():
                 st = sweep.sweep_status(out, plan.spec)
                 print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")

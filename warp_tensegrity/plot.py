@@ -221,7 +221,7 @@ def work_precision(ds, measure: str = "speed", case=None, cost: str = "cost_devi
 # ---------------------------------------------------------------------- the CLI's entry
 def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None):
     """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure."""
-    from .dataset import open_sweep
+    from .io import open_sweep
 
     if kind not in KINDS:
         raise PlotError(f"plot kind {kind!r}: give one of {', '.join(sorted(KINDS))}")

@@ -6,7 +6,7 @@ warning: Could not find or load the NVIDIA CUDA driver ...") is printed by the n
 straight to file descriptor 2 and has no switch. So :func:`init_warp` runs ``wp.init()`` with fd 2
 pointed at a temporary file (hand-written: no library offers this for a native library's stderr),
 drops the known driver lines, hands any other line to :mod:`logging` as a warning, and logs one
-line that the CPU will be used.
+line that the CPU will be used. :func:`warp_facts` gives the device facts every output records.
 """
 
 from __future__ import annotations
@@ -57,3 +57,16 @@ def init_warp(verbose: bool = False):
     if not wp.is_cuda_available():
         log.info("no CUDA device: Warp runs on the CPU")
     return wp
+
+
+def warp_facts(device: str | None = None) -> dict:
+    """Warp version, the device (alias and name) and the CUDA driver version ('none' without one)."""
+    wp = init_warp()
+    dev = wp.get_device(device)
+    drv = wp.get_cuda_driver_version() if wp.is_cuda_available() else None
+    return {
+        "warp_version": str(wp.config.version),
+        "device": str(dev.alias),
+        "device_name": str(dev.name),
+        "cuda_driver": f"{drv // 1000}.{(drv % 1000) // 10}" if drv else "none",
+    }

@@ -1,6 +1,6 @@
 """MkDocs hook: the options table of ``docs/options.md``, generated from the spec definitions.
 
-Every key the spec parser accepts (``warp_tensegrity.spec``: TOP_KEYS, SCENE_FIELDS, SCENE_PARAMS,
+Every key the spec parser accepts (``warp_tensegrity.sweep.spec``: TOP_KEYS, SCENE_FIELDS, SCENE_PARAMS,
 SWEEP_KEYS, RANGE_KEYS, CASE_EXTRA_KEYS, RUN_DEFAULTS) gets a row with its default and its meaning,
 read from the one place it is written: the field docstrings of ``ColumnConfig`` and ``RunSettings``
 (via griffe, mkdocstrings' own loader), the coordinate attributes of the per-column parameters
@@ -44,12 +44,12 @@ def _docstrings(path: str) -> dict:
 
 def option_rows() -> list[tuple[str, str, str]]:
     """(key path, default, meaning) for every key a spec may hold."""
-    from warp_tensegrity import spec as S
-    from warp_tensegrity.columns import ColumnConfig
-    from warp_tensegrity.dataset import COORD_ATTRS
+    from warp_tensegrity.sweep import spec as S
+    from warp_tensegrity.scene.columns import ColumnConfig
+    from warp_tensegrity.io import COORD_ATTRS
     from warp_tensegrity.settings import COLUMN_PARAMETERS
 
-    col_doc = _docstrings("warp_tensegrity.columns.ColumnConfig")
+    col_doc = _docstrings("warp_tensegrity.scene.columns.ColumnConfig")
     run_doc = _docstrings("warp_tensegrity.settings.RunSettings")
     col_default = {f.name: f.default for f in dataclasses.fields(ColumnConfig)}
     rows = [(k, "", S.KEY_DOCS[k]) for k in S.TOP_KEYS]

@@ -24,17 +24,24 @@ Shards are always case-stacked (a contiguous block of columns ``case_start:case_
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time as _time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
 
-from .provenance import git_commit, package_version, provenance_attrs, warp_version  # noqa: F401 (re-exported)
-from .settings import COLUMN_PARAMETERS, STATUS_NAMES, TIME
-from .spec import SCENE_FIELDS, SweepSpec
+from .measure.pulse import measure_pulse
+from .types import COLUMN_PARAMETERS, STATUS_MEANINGS, TIME
+
+if TYPE_CHECKING:
+    from .sweep.spec import SweepSpec
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+STATUS_NAMES = {int(k): v for k, v in STATUS_MEANINGS.items()}
 
 CONVENTIONS = "CF-1.10"
 REFERENCES = (
@@ -45,7 +52,6 @@ REFERENCES = (
 RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created", "command_line")
 """Global attributes that differ between two runs of the same spec (drop before comparing)."""
 
-SHARD_ATTRS = ("shard_index", "n_shards", "case_start", "case_stop")
 
 MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time")
 
@@ -130,7 +136,6 @@ def spec_attrs(spec: SweepSpec) -> dict:
     a = {
         "Conventions": CONVENTIONS,
         "title": spec.title or f"warp_tensegrity sweep{f' {Path(spec.source).name}' if spec.source else ''}",
-        "source": f"warp_tensegrity {package_version()} on NVIDIA Warp",
         "references": REFERENCES,
         "spec": spec.text,
         "spec_sha256": spec.text_sha256,
@@ -151,8 +156,8 @@ def spec_attrs(spec: SweepSpec) -> dict:
     }
     if spec.description:
         a["comment"] = spec.description
-    for f in SCENE_FIELDS:
-        a[f"scene_{f}"] = getattr(spec.scene, f)
+    for f in dataclasses.fields(spec.scene):  # the ColumnConfig
+        a[f"scene_{f.name}"] = getattr(spec.scene, f.name)
     a["scene_cable_EA"] = float(spec.scene.cable_EA)
     return {k: _attr(v) for k, v in a.items()}
 
@@ -203,8 +208,6 @@ def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int)
 def measure_columns(result, prism_height: float) -> dict:
     """Leading-pulse measurements per column (:func:`warp_tensegrity.measure.measure_pulse`);
     NaN where undefined and for every column whose status is not ok. ``prism_height`` [m]."""
-    from .measure import measure_pulse
-
     status = np.asarray(result.status)
     with np.errstate(all="ignore"):
         m = measure_pulse(result.strain, result.time, prism_height)
@@ -278,7 +281,8 @@ def result_attrs(result) -> dict:
 def result_dataset(result, config=None, measure: bool = True, attrs: dict | None = None) -> xr.Dataset:
     """:meth:`BatchResult.to_xarray`: the case-stacked layout the CLI writes for a case list.
     ``config`` (the ColumnConfig) gives the prism height for the measurements and the scene
-    attributes; without it the height recorded by :func:`simulate_batch` is used."""
+    attributes; without it the height recorded by :func:`simulate_batch` is used. ``attrs``: the
+    caller's provenance (:func:`warp_tensegrity.provenance.provenance_attrs`) and anything else."""
     n_prisms = int(result.strain.shape[-1]) if result.strain is not None else (
         int(config.n_prisms) if config is not None else 0)
     height = float(config.height) if config is not None else result.info.get("prism_height")
@@ -287,13 +291,15 @@ def result_dataset(result, config=None, measure: bool = True, attrs: dict | None
         if height is None:
             raise ValueError("to_xarray(measure=True) needs the column's config (prism height)")
         meas = measure_columns(result, height)
-    a = {"Conventions": CONVENTIONS, "title": "warp_tensegrity batch", "source": f"warp_tensegrity {package_version()} on NVIDIA Warp",
-         "references": REFERENCES, "n_columns": result.n_columns, **provenance_attrs(), **result_attrs(result)}
+    attrs = dict(attrs or {})
+    a = {"Conventions": CONVENTIONS, "title": "warp_tensegrity batch",
+         "source": f"warp_tensegrity {attrs.get('package_version', 'unknown')} on NVIDIA Warp",
+         "references": REFERENCES, "n_columns": result.n_columns, **result_attrs(result)}
     if config is not None:
-        for f in SCENE_FIELDS:
-            a[f"scene_{f}"] = getattr(config, f)
+        for f in dataclasses.fields(config):
+            a[f"scene_{f.name}"] = getattr(config, f.name)
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
-    a.update(attrs or {})
+    a.update(attrs)
     coords = params_coords(result.params, result.n_columns, result.time, n_prisms)
     return batch_dataset(result, meas, coords, a, record_energy=result.kinetic_energy is not None)
 
@@ -326,7 +332,8 @@ def _joined(values) -> str:
 
 
 def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict | None = None) -> xr.Dataset:
-    """The sweep's dataset from its loaded shard datasets (in shard order, covering every column)."""
+    """The sweep's dataset from its loaded shard datasets (in shard order, covering every column).
+    Provenance comes from the shards; ``extra_attrs`` (e.g. the combining ``command_line``) wins."""
     if not shards:
         raise ValueError("no shards to combine")
     shards = sorted(shards, key=lambda d: int(d.attrs["case_start"]))
@@ -370,9 +377,10 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
     for k in ("warp_version", "git_commit", "device", "device_name", "cuda_driver", "package_version"):
         attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)
     attrs["git_dirty"] = int(any(int(d.attrs.get("git_dirty", 0)) for d in shards))
-    attrs["command_line"] = provenance_attrs()["command_line"]
+    attrs["source"] = f"warp_tensegrity {attrs['package_version']} on NVIDIA Warp"
+    attrs["command_line"] = _joined(d.attrs.get("command_line", "unknown") for d in shards)  # extra_attrs: the combining one
     attrs["wall_time"] = float(sum(float(d.attrs.get("wall_time", 0.0)) for d in shards))
-    attrs["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} combined {len(shards)} shards by warp_tensegrity {package_version()}"
+    attrs["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} combined {len(shards)} shards by warp_tensegrity {attrs['package_version']}"
     if extra_attrs:
         attrs.update(extra_attrs)
     ds.attrs = {k: _attr(v) for k, v in attrs.items()}

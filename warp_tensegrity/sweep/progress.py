@@ -4,7 +4,7 @@ tqdm draws the bar, limits the refresh rate and finds out whether the stream is 
 default (``enabled=None``) the bar shows only on a terminal, so logs and pipes stay clean.
 
 The ETA starts from the engine's calibrated cost estimate (``estimate_s``, from
-:func:`warp_tensegrity.simulate.estimate_batch`) and moves to the measured rate as columns
+:func:`warp_tensegrity.engine.estimate_batch`) and moves to the measured rate as columns
 finish: with a fraction f of the outstanding work done, ETA = (1 - f) * estimate_left + f * rate_left.
 tqdm's own ETA knows only the rate, hence the postfix.
 """
@@ -22,7 +22,19 @@ def _fmt(s: float) -> str:
     return tqdm.format_interval(max(s, 0.0)) if math.isfinite(s) else "?"
 
 
-class SweepProgress:
+def fmt_seconds(s: float) -> str:
+    """A duration for the dry run's summary, e.g. '2m05s' ('?' when unknown)."""
+    if not math.isfinite(s):
+        return "?"
+    s = int(round(s))
+    if s >= 3600:
+        return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+    if s >= 60:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s}s"
+
+
+class ProgressBar:
     """Progress of a sweep in columns. ``update(done, diverged)`` takes totals, not increments."""
 
     def __init__(self, total: int, done: int = 0, diverged: int = 0, stream=None, enabled: bool | None = None,
