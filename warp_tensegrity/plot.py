@@ -44,6 +44,11 @@ def _label(da, name: str) -> str:
     return f"{lab} [{units}]" if units and units != "1" else lab
 
 
+def _short_label(da, name: str) -> str:
+    units = da.attrs.get("units")
+    return f"{name} [{units}]" if units and units != "1" else name
+
+
 def robust_limit(values, q: float = 99.5) -> float:
     """Symmetric colour limit: the q-th percentile of |values| (finite ones), so that one spike at
     the impacted end does not wash out a map; > 0."""
@@ -129,11 +134,14 @@ def phase_diagram(data, var: str = "speed", x: str | None = None, y: str | None 
     mesh = ax.pcolormesh(cell_edges(d[x].values), cell_edges(yv, log=log_y), np.ma.masked_invalid(d.values), **kw)
     if log_y:
         ax.set_yscale("log")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(5))
     ax.set_xlabel(_label(d[x], x))
     ax.set_ylabel(_label(d[y], y))
     if colorbar:
         cb = ax.figure.colorbar(mesh, ax=ax, pad=0.01)
-        cb.set_label(cbar_label if cbar_label is not None else _label(da, var))
+        cb.set_label(cbar_label if cbar_label is not None else _short_label(da, var))
     return ax
 
 
