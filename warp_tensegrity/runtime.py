@@ -51,8 +51,8 @@ def init_warp(verbose: bool = False):
             tmp.seek(0)
             captured = tmp.read().decode("utf-8", "replace")
     for line in captured.splitlines():
-        if line.strip() and not any(s in line for s in _NO_DRIVER):
-            log.warning("%s", line)
+        if line.strip():  # the known no-driver lines only with -v; anything else is a warning
+            log.log(logging.DEBUG if any(s in line for s in _NO_DRIVER) else logging.WARNING, "%s", line)
     _done = True
     if not wp.is_cuda_available():
         log.info("no CUDA device: Warp runs on the CPU")
