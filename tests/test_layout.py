@@ -20,12 +20,12 @@ MAX_CHAIN = 7
 # Lowest layer first; a module may import lower layers and its own layer's modules (acyclic).
 LAYERS = [
     {"types", "scene.network", "kernels", "measure.pulse", "sweep.errors", "sweep.progress",
-     "provenance", "runtime", "_version"},  # leaves
+     "provenance", "runtime", "_version", "lens.host", "lens.design"},  # leaves
     {"settings", "scene.columns", "fused", "model", "measure", "io"},
-    {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot"},
-    {"engine", "sweep.store"},
-    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", ""},
-    {"sweep.run", "sweep"},
+    {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
+    {"engine", "sweep.store", "lens.io"},
+    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "", "lens.run"},
+    {"sweep.run", "sweep", "lens", "lens.command"},
     {"cli", "__main__"},
 ]
 LAYER = {m: i for i, layer in enumerate(LAYERS) for m in layer}

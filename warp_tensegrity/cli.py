@@ -6,6 +6,7 @@
     warp-tensegrity combine OUT.nc
     warp-tensegrity plot OUT.nc KIND [-o FIG.png]      (phase, spacetime, profile, work-precision)
     warp-tensegrity --version
+    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N]   (acoustic lens, docs/lens.md)
 
 Messages go through :mod:`logging` on stderr (``-v``: debug and Warp's own start-up lines,
 ``-q``: warnings only, no progress bar); command results (status, dry run) go to stdout.
@@ -109,6 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sel", action="append", default=[], metavar="NAME=VALUE",
                    help="pick one value of a dimension (nearest), e.g. --sel base_rigidity=1 --sel case=3")
     p.add_argument("--times", default=None, metavar="T1,T2,...", help="profile: output times [s]")
+    from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
+
+    add_lens_parser(sub)
     return parser
 
 
@@ -170,7 +174,7 @@ def main(argv=None) -> int:
         print(version_text(warp_facts()))
         return EXIT_OK
     if args.command is None:
-        parser.error("give a COMMAND (run, resume, status, combine, plot) or --version")
+        parser.error("give a COMMAND (run, resume, status, combine, plot, lens) or --version")
     from .plot import PlotError
     from .scene.network import NetworkError
     from .settings import SettingsError
@@ -187,6 +191,12 @@ def main(argv=None) -> int:
 
 
 def _dispatch(args) -> int:
+    if args.command == "lens":
+        from .lens.command import run_lens_command
+        from .runtime import init_warp
+
+        init_warp(verbose=bool(args.verbose))
+        return run_lens_command(args)
     from .sweep import plan as sweep_plan
     from .sweep import run as sweep
     from .sweep.errors import SweepError
