@@ -84,9 +84,17 @@ def package_version() -> str:
 
 
 def release_version() -> str:
-    """The version without its local part (no commit, no dirty date): stable between the commits of a
-    working tree, so it can enter fingerprints (the source hash tells the code apart)."""
-    return package_version().split("+")[0]
+    """The release the version leads to, without the dev distance and local part (e.g. '0.1.1' for
+    '0.1.1.dev61+g83fdfb6db.d20261124'): stable across the commits between two tags, so it can enter
+    fingerprints (the source hash tells code apart) and a resume after a commit that leaves the
+    package's sources alone reuses its shards."""
+    v = package_version()
+    try:
+        from packaging.version import Version
+
+        return Version(v).base_version
+    except Exception:  # packaging missing or an unparsable version
+        return v.split("+")[0].split(".dev")[0]
 
 
 def git_commit() -> str:
@@ -152,7 +160,7 @@ def source_hash() -> str:
 
 
 def code_version() -> str:
-    """Release version + hash of the package's .py sources, e.g. '0.1.dev61+src.1a2b3c4d5e6f7a8b'
-    (the version's local part, commit and dirty date, is left out: the source hash tells code apart).
-    Part of every shard's fingerprint."""
+    """Release version + hash of the package's .py sources, e.g. '0.1.1+src.1a2b3c4d5e6f7a8b'
+    (:func:`release_version`: no dev distance, commit or dirty date; the source hash tells code
+    apart). Part of every shard's fingerprint."""
     return f"{release_version()}+src.{source_hash()[:16]}"
