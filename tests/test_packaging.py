@@ -62,12 +62,13 @@ def test_non_editable_install_records_the_commit(clone, dist, tmp_path):
     py = env_dir / "bin" / "python"
     site = Path(subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                                capture_output=True, text=True, check=True).stdout.strip())
-    # dependencies from this environment, after the new one's own site-packages (the wheel wins)
-    (site / "_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     wheel = next(dist.glob("*.whl"))
     r = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "--quiet", "--no-deps",
                         "--no-index", str(wheel)], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
+    # then the dependencies from this environment, after the new one's own site-packages (the wheel
+    # wins; written after the install, else pip sees CI's own install of the package and skips)
+    (site / "_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
 
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "GIT_COMMIT")}
     env["PATH"] = "/nonexistent"  # no git at run time: the commit must come from the build
