@@ -237,6 +237,7 @@ def _dispatch(args) -> int:
             scheduler=args.scheduler,
         )
         log.info("wrote %s", path)
+        _log_nan_summary(path)
         return 0
     if args.command == "status":
         st = sweep.sweep_status(args.output)
@@ -275,6 +276,15 @@ def _plot(args) -> int:
     fig.savefig(out)
     log.info("wrote %s", out)
     return 0
+
+
+def _log_nan_summary(path) -> None:
+    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons)."""
+    from .io import open_sweep
+    from .measure.nan_reasons import dataset_summary
+
+    for line in dataset_summary(open_sweep(path)):
+        log.info("%s", line)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -34,7 +34,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import xarray as xr
 
+from .measure.nan_reasons import FLAG_MEANINGS, FLAG_VALUES, measurement_flags
 from .measure.pulse import measure_pulse
+from .scene.impact import kinematic_lock_strain
 from .types import COLUMN_PARAMETERS, STATUS_MEANINGS, TIME
 
 if TYPE_CHECKING:
@@ -53,7 +55,7 @@ RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created", "command_line")
 """Global attributes that differ between two runs of the same spec (drop before comparing)."""
 
 
-MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time")
+MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time", "max_compression")
 
 PROVENANCE_ATTRS = ("package_version", "git_commit", "git_dirty", "warp_version", "device", "device_name",
                     "cuda_driver", "command_line")
@@ -83,7 +85,8 @@ COORD_ATTRS = {
         "units": "1",
         "long_name": "prism index from the clamped base (0) to the impacted free end (n_prisms - 1)",
     },
-    TIME: {"units": "s", "long_name": "simulated time since impact"},
+    TIME: {"units": "s", "long_name": "simulated time since impact (step * dt, rounded to the output interval's decimals)"},
+    "step": {"units": "1", "long_name": "time step count of each output (t = step * dt)"},
 }
 
 VAR_ATTRS = {
@@ -98,7 +101,20 @@ VAR_ATTRS = {
         "units": "1",
         "long_name": "prisms of the measurement window the leading pulse reached within t_end",
     },
-    "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism"},
+    "max_compression": {
+        "units": "1",
+        "long_name": "largest prism compression -strain over the record",
+        "comment": "at or above the rigid-base kinematic lock (attribute kinematic_lock_compression) the limit "
+                   "base_rigidity -> 1 is singular: rigid bases (1) are then not the limit of stiff ones (docs/impact.md)",
+    },
+    "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism",
+                     "comment": "NaN at the prisms the pulse had not reached by t_end"},
+    "measurement_flag": {
+        "standard_name": "status_flag",
+        "long_name": "why the pulse measures of the column are NaN (ok: all defined; docs/measurements.md)",
+        "flag_values": FLAG_VALUES,
+        "flag_meanings": FLAG_MEANINGS,
+    },
     "status": flag_attrs("column status at the end of the run", STATUS_NAMES),
     "fail_step": {"units": "1", "long_name": "time step at which a failed column was frozen (-1: never failed)"},
     "energy_error": {
@@ -159,6 +175,15 @@ def spec_attrs(spec: SweepSpec) -> dict:
     for f in dataclasses.fields(spec.scene):  # the ColumnConfig
         a[f"scene_{f.name}"] = getattr(spec.scene, f.name)
     a["scene_cable_EA"] = float(spec.scene.cable_EA)
+    sc = spec.scene
+    a["kinematic_lock_compression"] = -kinematic_lock_strain(sc.radius, sc.height, sc.twist)
+    a["base_rigidity_law"] = ("base members: tension EA/(1-beta), compression beta*EA/(1-beta); beta = 1: rigid links; "
+                              "continuous in beta, with the rigid_members impact the same initial state for every beta")
+    a["base_rigidity_continuity"] = (
+        "outputs converge as beta -> 0 (to FB) and, while max_compression stays below kinematic_lock_compression, as "
+        "beta -> 1 (difference ~ 1 - beta); pulses that reach the lock make beta -> 1 singular (stiff base modes "
+        "take energy at the locked prisms), so beta = 1 is a separate model there: compare it with beta < 1 only "
+        "where max_compression < kinematic_lock_compression (docs/impact.md)")
     return {k: _attr(v) for k, v in a.items()}
 
 
@@ -167,13 +192,16 @@ def _var(name: str, dims, data, attrs: dict) -> xr.Variable:
     return xr.Variable(dims, data, attrs=dict(attrs))
 
 
-def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int) -> dict:
+def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int,
+            steps: np.ndarray | None = None) -> dict:
     """Coordinates of columns ``start:stop`` of a spec: swept parameters along ``case``, the others scalar."""
     coords = {
         "case": _var("case", "case", np.arange(start, stop, dtype=np.int64), COORD_ATTRS["case"]),
         "prism": _var("prism", "prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
         TIME: _var(TIME, TIME, np.asarray(time, dtype=np.float64), COORD_ATTRS[TIME]),
     }
+    if steps is not None:  # exact: t = step * dt, rounded to the output interval's decimals
+        coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     swept = spec.swept
     for p in COLUMN_PARAMETERS:
         if p in swept:
@@ -186,7 +214,8 @@ def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarr
     return coords
 
 
-def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int) -> dict:
+def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int,
+                  steps: np.ndarray | None = None) -> dict:
     """Coordinates from per-column parameter arrays (a BatchResult's ``params``): a parameter
     that varies lies along ``case``, a constant one is a scalar coordinate (as in a sweep)."""
     coords = {
@@ -194,6 +223,8 @@ def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int)
         "prism": _var("prism", "prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
         TIME: _var(TIME, TIME, np.asarray(time, dtype=np.float64), COORD_ATTRS[TIME]),
     }
+    if steps is not None:
+        coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     for p in COLUMN_PARAMETERS:
         if p not in params:
             continue
@@ -223,6 +254,10 @@ def measure_columns(result, prism_height: float) -> dict:
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
         v[bad] = np.nan
+    with np.errstate(invalid="ignore"):
+        out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
+    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)  # why a measure is NaN
     return out
 
 
@@ -235,8 +270,10 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
     C = ("case",)
     dv = {}
     if measurements is not None:
-        dv.update({k: (C, measurements[k]) for k in MEASUREMENTS if k != "arrival_time"})
+        dv.update({k: (C, measurements[k]) for k in MEASUREMENTS if k != "arrival_time" and k in measurements})
         dv["arrival_time"] = (("case", "prism"), measurements["arrival_time"])
+        if "measurement_flag" in measurements:
+            dv["measurement_flag"] = (C, np.asarray(measurements["measurement_flag"], dtype=np.int8))
     dv.update({
         "status": (C, np.asarray(result.status, dtype=np.int8)),
         "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),
@@ -300,7 +337,7 @@ def result_dataset(result, config=None, measure: bool = True, attrs: dict | None
             a[f"scene_{f.name}"] = getattr(config, f.name)
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
     a.update(attrs)
-    coords = params_coords(result.params, result.n_columns, result.time, n_prisms)
+    coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
     return batch_dataset(result, meas, coords, a, record_energy=result.kinetic_energy is not None)
 
 
@@ -317,7 +354,7 @@ def shard_dataset(
     n = stop - start
     if result.n_columns != n:
         raise ValueError(f"batch has {result.n_columns} columns, shard {start}:{stop} needs {n}")
-    coords = _coords(spec, params, start, stop, result.time, spec.scene.n_prisms)
+    coords = _coords(spec, params, start, stop, result.time, spec.scene.n_prisms, result.info.get("output_step"))
     return batch_dataset(result, measurements, coords, attrs, record_energy=spec.run["record_energy"],
                          record_strain=spec.run["record_strain"])
 
@@ -372,7 +409,10 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
 
     attrs = spec_attrs(spec)
     a0 = first.attrs
-    for k in ("code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval"):
+    for k in ("code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval",
+              "dt_safety_used", "accuracy_target"):
+        if k not in a0:
+            continue
         attrs[k] = a0[k]
     for k in ("warp_version", "git_commit", "device", "device_name", "cuda_driver", "package_version"):
         attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)

@@ -24,6 +24,11 @@ if TYPE_CHECKING:
 measure_columns = D.measure_columns  # leading-pulse measures of a BatchResult (io.py, shared with to_xarray)
 
 
+def _num(x):
+    """A float attribute, or 'none'."""
+    return "none" if x is None else float(x)
+
+
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
     """Run shard ``index`` and return its case-stacked dataset (not written)."""
     if plan.settings is None:
@@ -47,6 +52,8 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "case_stop": stop,
         **D.result_attrs(result),
         "dt_limit": plan.dt_limit,
+        "dt_safety_used": _num(plan.estimate.get("dt_safety") if isinstance(spec.run["dt"], str) else None),
+        "accuracy_target": _num(plan.estimate.get("accuracy_target") if isinstance(spec.run["dt"], str) else None),
         "history": f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} shard {index} computed by warp_tensegrity",
     }
     if spec.run["output_interval"] is not None:
