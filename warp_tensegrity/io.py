@@ -414,7 +414,7 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
         if k not in a0:
             continue
         attrs[k] = a0[k]
-    for k in ("warp_version", "git_commit", "device", "device_name", "cuda_driver", "package_version"):
+    for k in ("warp_version", "git_commit", "device", "device_name", "cuda_driver", "package_version", "step_path"):
         attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)
     attrs["git_dirty"] = int(any(int(d.attrs.get("git_dirty", 0)) for d in shards))
     attrs["source"] = f"warp_tensegrity {attrs['package_version']} on NVIDIA Warp"

@@ -51,6 +51,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "case_start": start,
         "case_stop": stop,
         **D.result_attrs(result),
+        "step_path": result.info.get("step_path", "unknown"),
         "dt_limit": plan.dt_limit,
         "dt_safety_used": _num(plan.estimate.get("dt_safety") if isinstance(spec.run["dt"], str) else None),
         "accuracy_target": _num(plan.estimate.get("accuracy_target") if isinstance(spec.run["dt"], str) else None),
