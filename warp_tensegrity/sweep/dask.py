@@ -15,7 +15,7 @@ the same dataset.
 
 from __future__ import annotations
 
-from ..io import code_version
+from ..provenance import code_version
 
 
 def _gpu_count() -> int:

@@ -4,6 +4,8 @@ export netCDF from it, and report a run's status (:mod:`.store` describes the fi
 
 from __future__ import annotations
 
+import logging
+import math
 import threading
 from pathlib import Path
 
@@ -17,9 +19,11 @@ from .progress import ProgressBar
 from .shard import compute_and_write, compute_shard, template_dataset
 from .spec import SweepSpec, load_spec
 from .store import (
-    STORE, ShardWriter, StoreError, time_coord, SweepLock, SweepStore, export_netcdf, fault, read_run, shard_states,
-    status, status_from_output, _log,
+    STORE, ShardWriter, StoreError, SweepLock, SweepStore, _log, export_netcdf, fault, read_run, shard_states, status,
+    status_from_output, time_coord,
 )
+
+log = logging.getLogger(__name__)
 
 
 def execute(
@@ -27,7 +31,7 @@ def execute(
     *,
     resume: bool = False,
     overwrite: bool = False,
-    progress: bool = True,
+    progress: bool | None = None,
     dask_workers: int | None = None,
     scheduler: str | None = None,
     client=None,
@@ -35,6 +39,7 @@ def execute(
     combine_output: bool = True,
 ) -> Path | None:
     """Run (or resume) every shard of ``plan`` that is not done into the store, then export plan.out.
+    ``progress``: None shows the bar only when ``stream`` (stderr) is a terminal; True always; False never.
 
     Holds the output's lock throughout. A run refuses an existing output or store without
     ``overwrite``; a resume re-reads every recorded shard and recomputes those that do not check out.
@@ -80,7 +85,9 @@ def execute(
         todo = [i for i, s, _ in states if s != ShardState.DONE]
         tally = {"cols": sum(plan.shards[i][1] - plan.shards[i][0] for i in done),
                  "failed": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done)}
-        bar = ProgressBar(plan.n_columns, tally["cols"], tally["failed"], stream=stream, enabled=progress)
+        bar = ProgressBar(plan.n_columns, tally["cols"], tally["failed"], stream=stream, enabled=progress,
+                          estimate_s=_estimated_seconds(plan, todo))
+        log.debug("%d of %d shards to run (%d columns done)", len(todo), plan.n_shards, tally["cols"])
         lk = threading.Lock()
 
         def on_done(i, rec):
@@ -123,7 +130,16 @@ def execute(
     return plan.out
 
 
-def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=True,
+def _estimated_seconds(plan: SweepPlan, todo) -> float | None:
+    """The calibrated cost model's time for the shards still to run (None if unknown)."""
+    spc = float(plan.estimate.get("seconds_per_column_step_estimate", float("nan")))
+    steps = int(plan.estimate.get("n_steps", 0))
+    cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in todo)
+    secs = spc * steps * cols
+    return secs if math.isfinite(secs) and secs > 0 else None
+
+
+def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=None,
               dask_workers=None, scheduler=None, client=None, stream=None, memory_limit=None) -> Path:
     """Run a spec (SweepSpec, path or TOML text) into ``out`` (netCDF, exported from ``out.sweep/``).
     ``memory_limit`` (bytes or '512MB') lowers the shard size so the host holds at most that much
@@ -135,7 +151,7 @@ def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrit
                    scheduler=scheduler, client=client, stream=stream)
 
 
-def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=True, dask_workers=None,
+def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=None, dask_workers=None,
                  scheduler=None, client=None, stream=None) -> Path:
     """Finish an interrupted run: reuse the shards that check out, recompute the others, export."""
     if spec is None:

@@ -34,6 +34,7 @@ import numpy as np
 import xarray as xr
 
 from .. import io as D
+from ..provenance import warp_version
 from ..types import ShardState, Status
 from .errors import SweepError
 
@@ -340,8 +341,8 @@ class SweepStore:
         a, b = plan.shards[index]
         if (rec.get("case_start"), rec.get("case_stop")) != (a, b):
             return ShardState.STALE, f"covers columns {rec.get('case_start')}:{rec.get('case_stop')}, expected {a}:{b}"
-        if rec.get("attrs", {}).get("warp_version") != D.warp_version():
-            return ShardState.STALE, f"made with Warp {rec.get('attrs', {}).get('warp_version')}, this is Warp {D.warp_version()}"
+        if rec.get("attrs", {}).get("warp_version") != warp_version():
+            return ShardState.STALE, f"made with Warp {rec.get('attrs', {}).get('warp_version')}, this is Warp {warp_version()}"
         try:
             import zarr
 
@@ -437,7 +438,7 @@ def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], tpl: xr.Dataset, zar
     out = xr.Dataset({k: variables[k] for k in ds.data_vars}, coords={k: variables[k] for k in ds.coords})
     last = max(str(a.get("history", "")).split(" ")[0] for a in shard_attrs)  # when the last shard was made
     out.attrs = D.sweep_attrs(spec, shard_attrs, f"{last} streamed {len(shard_attrs)} shards into a Zarr store by "
-                                                 f"warp_tensegrity {D.package_version()}")
+                                                 "warp_tensegrity {package_version}")
     if spec.kind == "grid":
         out = _to_grid_lazy(spec, out, zarr_path, shard_size)
     return out
