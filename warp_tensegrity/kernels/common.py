@@ -199,6 +199,20 @@ def make_band_funcs(real, bandwidth: int):
         return ok
 
     @wp.func
+    def sweep_row(cur: rowvec, rhs: real, win: winvec):
+        """One row of a triangular sweep: x_k = (rhs - sum_e cur[e+1] win[e]) cur[0], and the
+        window shifted to take x_k; returns (x_k, new window)."""
+        s = rhs
+        for e in range(BW):
+            s -= cur[e + 1] * win[e]
+        xk = s * cur[0]
+        out = winvec()
+        for e in range(BW - 1):
+            out[BW - 1 - e] = win[BW - 2 - e]
+        out[0] = xk
+        return xk, out
+
+    @wp.func
     def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), nc: int, w: int):
         """Solve L L^T x = rhs in place (rhs given in x[0:nc, w])."""
         xw = winvec()  # xw[e] = x[k - 1 - e] (forward), x[k + 1 + e] (backward)
@@ -210,13 +224,8 @@ def make_band_funcs(real, bandwidth: int):
             if k + 1 < nc:  # issue the next row's loads before this row's dependent chain
                 nxt = band_row(band, k + 1, w)
                 nrhs = x[k + 1, w]
-            for e in range(BW):
-                s -= cur[e + 1] * xw[e]
-            xk = s * cur[0]
+            xk, xw = sweep_row(cur, s, xw)
             x[k, w] = xk
-            for e in range(BW - 1):
-                xw[BW - 1 - e] = xw[BW - 2 - e]
-            xw[0] = xk
         xw = winvec()
         nxt = band_col(band, nc - 1, nc, w)
         nrhs = x[nc - 1, w]
@@ -227,12 +236,7 @@ def make_band_funcs(real, bandwidth: int):
             if k > 0:
                 nxt = band_col(band, k - 1, nc, w)
                 nrhs = x[k - 1, w]
-            for e in range(BW):
-                s -= cur[e + 1] * xw[e]
-            xk = s * cur[0]
+            xk, xw = sweep_row(cur, s, xw)
             x[k, w] = xk
-            for e in range(BW - 1):
-                xw[BW - 1 - e] = xw[BW - 2 - e]
-            xw[0] = xk
 
     return SimpleNamespace(band_row=band_row, factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)
