@@ -174,12 +174,18 @@ def test_auto_path_policy_picks_the_fastest_measured_path():
     from warp_tensegrity.engine import FUSED_MAX_BANDWIDTH, MEASURED_H100, MEASURED_PATHS, choose_path
     from warp_tensegrity.types import Path
 
-    doc = json.loads((FsPath(__file__).parents[1] / "benchmarks/results/throughput_h100_solver.json").read_text())
-    assert "H100" in doc["meta"]["device_name"]
+    res = FsPath(__file__).parents[1] / "benchmarks/results"
+    doc = json.loads((res / "throughput_h100_solver.json").read_text())
+    glob = json.loads((res / "throughput_h100_solver_globalnodes.json").read_text())  # fused-serial, RB: node rows global
+    assert "H100" in doc["meta"]["device_name"] and "H100" in glob["meta"]["device_name"]
+    rb_serial = {pt["B"]: pt for pt in glob["points"] if pt["base"] == "RB" and pt.get("sweep") == "batch"}
     seen = 0
     for pt in doc["points"]:
         if pt.get("sweep") != "batch":
             continue
+        if pt["base"] == "RB" and pt["path"] == "fused-serial" and pt["B"] in rb_serial:
+            pt = next(p for p in glob["points"] if p["base"] == "RB" and p["precision"] == pt["precision"]
+                      and p["B"] == pt["B"] and p.get("sweep") == "batch")
         band = 3 if pt["base"] == "FB" else 6
         rate = MEASURED_H100[band][pt["precision"]][pt["B"]][MEASURED_PATHS.index(Path(pt["path"]))]
         assert rate == pytest.approx(pt["column_steps_per_s"], rel=6e-3), pt

@@ -54,6 +54,10 @@ from .common import (
 
 SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
 SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
+# the serial solver keeps node rows in global rows for bands wider than this: the extra shared memory
+# costs resident blocks, which lane 0's latency-bound chain needs (H100, 50-prism RB, 1,024-16,384
+# columns: 1.1-1.4x faster, results/throughput_h100_solver_globalnodes.json vs _solver.json)
+SERIAL_SHARED_NODES_MAX_BANDWIDTH = 3
 
 
 @wp.func_native("WP_TILE_SYNC();")
@@ -95,7 +99,8 @@ def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int
     xs = solver_reals(n_constraints, bandwidth, block_dim, solver) * real_bytes
     qs = n_nodes * NQ * 3 * real_bytes
     x_cap = solver_reals(n_constraints, bandwidth, block_dim, solver) if xs <= budget else 0
-    q_cap = n_nodes * NQ if SHARED_NODES and x_cap * real_bytes + qs <= budget else 0
+    nodes = SHARED_NODES and not (solver == "serial" and bandwidth > SERIAL_SHARED_NODES_MAX_BANDWIDTH)
+    q_cap = n_nodes * NQ if nodes and x_cap * real_bytes + qs <= budget else 0
     return x_cap, q_cap
 
 
