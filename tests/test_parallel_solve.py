@@ -268,3 +268,18 @@ def test_lane_parallel_step_with_massive_bars(lanes):
     np.testing.assert_allclose(b.final_displacement, a.final_displacement, rtol=0,
                                atol=1e-10 * np.abs(a.final_displacement).max())
     assert np.all(b.bar_length_error <= 1e-12)
+
+
+def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
+    """estimate_batch (the dry run) reports the path the policy picks on a GPU: RB fp32 at 4,096
+    columns is fused-serial, FB fp32 at 65,536 staged (a stand-in device: CI has no GPU)."""
+    from types import SimpleNamespace
+
+    from warp_tensegrity.engine import estimate_batch
+
+    monkeypatch.setattr(integrate, "resolve_device", lambda name: SimpleNamespace(is_cuda=True))
+    cfg = ColumnConfig(n_prisms=3)
+    s = RunSettings(t_end=0.01, precision="fp32", truncate=False)
+    assert estimate_batch(cfg, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "fused-serial"
+    assert estimate_batch(cfg, {"base_rigidity": np.zeros(65536)}, s)["step_path"] == "staged"
+    assert estimate_batch(cfg, {"base_rigidity": np.zeros(1024)}, s)["step_path"] == "fused"
