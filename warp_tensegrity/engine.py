@@ -63,17 +63,18 @@ from .types import FORCE_EVALS, STABILITY, Base, Method, Path
 # and the staged kernels, per (band, precision, columns). H100, 50 prisms, RATTLE, column-steps/s
 # (benchmarks/results/throughput_h100_solver.json; tests/test_parallel_solve.py checks this table
 # against it): {band: {precision: {B: (fused, fused-serial, staged)}}}; band 3 = FB, 6 = RB. RB's
-# fused-serial figures up to 16,384 columns are from throughput_h100_solver_globalnodes.json: node
-# rows in global rows, as that variant runs for bands > 3 (kernels.fused.SERIAL_SHARED_NODES_MAX_BANDWIDTH).
+# fused-serial figures are from runs with its node rows in global rows, as it runs for bands > 3
+# (kernels.fused.SERIAL_SHARED_NODES_MAX_BANDWIDTH): throughput_h100_solver_globalnodes.json up to
+# 16,384 columns, throughput_h100_solver_head.json at 65,536.
 MEASURED_H100 = {
     3: {"fp32": {1024: (6.56e6, 5.40e6, 9.83e5), 4096: (7.71e6, 8.43e6, 3.27e6),
                  16384: (1.18e7, 1.10e7, 8.04e6), 65536: (1.16e7, 1.11e7, 2.08e7)},
         "fp64": {1024: (2.96e6, 3.62e6, 4.82e5), 4096: (5.61e6, 5.23e6, 1.25e6),
                  16384: (6.03e6, 5.83e6, 3.86e6), 65536: (6.14e6, 6.00e6, 8.92e6)}},
     6: {"fp32": {1024: (2.56e6, 2.74e6, 3.95e5), 4096: (2.65e6, 4.15e6, 1.13e6),
-                 16384: (2.38e6, 4.33e6, 3.67e6), 65536: (2.26e6, 4.17e6, 1.01e7)},
+                 16384: (2.38e6, 4.33e6, 3.67e6), 65536: (2.26e6, 4.39e6, 1.01e7)},
         "fp64": {1024: (7.02e5, 1.25e6, 1.85e5), 4096: (7.99e5, 1.57e6, 5.27e5),
-                 16384: (7.79e5, 1.70e6, 1.83e6), 65536: (7.26e5, 1.22e6, 4.14e6)}},
+                 16384: (7.79e5, 1.70e6, 1.83e6), 65536: (7.26e5, 1.75e6, 4.14e6)}},
 }
 MEASURED_PATHS = (Path.FUSED, Path.FUSED_SERIAL, Path.STAGED)
 # widest Gram band the fused step takes at all (its S x S blocks live in registers); wider generic
