@@ -701,3 +701,24 @@ def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact
     out = measure_record(wp.array(rec, dtype=dtype, device=dev), t, h, threshold=thr, skip_impact=skip_impact,
                          skip_clamp=skip_clamp, end_fraction=end_fraction)
     return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
+
+
+def load_kernels(device) -> None:
+    """Load (compile on first use) the measurement kernels on ``device``, so that their compile time
+    is not counted as measurement."""
+    wp.load_module(module=__name__, device=wp.get_device(device))
+
+
+def measure_host(result, prism_height, keep_strain: bool = True) -> None:
+    """The fallback (RunSettings.measure = 'host'): NumPy reference on the host copy of the record;
+    sets ``result.measurements`` and the ``measurement`` stage seconds; drops the strain unless kept."""
+    from .measure import measure_pulse
+
+    t0 = _time.perf_counter()
+    if result.strain is not None:
+        with np.errstate(all="ignore"):
+            result.measurements = measure_pulse(result.strain, result.time, prism_height)
+    stages = result.info.setdefault("stages", {})
+    stages["measurement"] = stages.get("measurement", 0.0) + _time.perf_counter() - t0
+    if not keep_strain:
+        result.strain = None

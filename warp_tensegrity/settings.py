@@ -74,6 +74,9 @@ class RunSettings:
     """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
     column there; results are padded back to the full column (the far prisms stay at rest).
     Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.choose`)."""
+    measure: str = "device"
+    """Pulse measures (``BatchResult.measurements``): 'device' (Warp kernels on the device record;
+    only the measures cross to the host), 'host' (NumPy reference on the host copy) or 'none'."""
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -108,6 +111,8 @@ class RunSettings:
             raise SettingsError(f"fused = {self.fused!r}; choose true, false or 'auto'")
         if self.fused is True and self.method != "rattle":
             raise SettingsError(f"fused = true needs method = 'rattle' (got method = {self.method!r})")
+        if self.measure not in ("device", "host", "none"):
+            raise SettingsError(f"measure = {self.measure!r}; choose 'device', 'host' or 'none'")
         if int(self.steps_per_graph) < 1:
             raise SettingsError(f"steps_per_graph = {self.steps_per_graph!r} must be >= 1")
 
@@ -158,7 +163,10 @@ class BatchResult:
     dt_limit: float = float("nan")
     """Predicted stability limit of the method for the stiffest column [s]."""
     info: dict = field(default_factory=dict)
-    """Extra facts: projection iterations, compile time, steps per graph, etc."""
+    """Extra facts: projection iterations, compile time, steps per graph, stage seconds, etc."""
+    measurements: dict | None = None
+    """Pulse measures of every column (:func:`warp_tensegrity.measure.measure_pulse`'s dict), when
+    ``RunSettings.measure`` is not 'none'."""
 
     @property
     def n_columns(self) -> int:

@@ -123,7 +123,7 @@ class Integrator:
             m = self.model
             B = m.n_columns
             self.strain = None
-            if settings.record_strain and m.n_prisms > 0:
+            if (settings.record_strain or settings.measure != "none") and m.n_prisms > 0:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
@@ -361,8 +361,10 @@ def _to_host(a: wp.array | None):
     return None if a is None else a.numpy().astype(np.float64)
 
 
-def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> BatchResult:
-    """Integrate a prepared batch; see :func:`simulate_batch` for columns."""
+def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: dict | None = None) -> BatchResult:
+    """Integrate a prepared batch; see :func:`simulate_batch` for columns. ``pulse``: keywords of
+    :func:`~warp_tensegrity.measure_device.measure_record` (prism_height, n_prisms, cut) to measure
+    the record on the device (settings.measure = 'device')."""
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     n_out = n_steps // every + 1
@@ -370,6 +372,10 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
     with wp.ScopedDevice(integ.device):
         t_compile = time.perf_counter()
         integ.initialize()
+        if pulse is not None and settings.measure == "device":
+            from .measure_device import load_kernels
+
+            load_kernels(integ.device)
         wp.synchronize_device(integ.device)
         t_compile = time.perf_counter() - t_compile
         t0 = last = time.perf_counter()
@@ -405,13 +411,24 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
     with np.errstate(invalid="ignore"):
         dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
         energy_error = dev.max(axis=1) / scale
+    stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
+    t_host = time.perf_counter()
+    measurements = None
+    if pulse is not None and integ.strain is not None and settings.measure == "device":
+        from .measure_device import measure_record
+
+        n_valid = np.where(status != 0, np.maximum(fail_step - 1, 0) // every + 1, n_out)
+        measurements = measure_record(integ.strain, np.arange(n_out) * every * dt, n_valid=n_valid, timings=stages,
+                                      **pulse)
     strain = None
-    if integ.strain is not None:
+    if integ.strain is not None and (settings.record_strain or settings.measure == "host"):
         strain = _to_host(integ.strain).transpose(2, 0, 1)  # (B, n_out, n_prisms)
         for b in np.flatnonzero(status):
             last_slot = max(int(fail_step[b]) - 1, 0) // every
             strain[b, last_slot + 1 :] = np.nan
+    stages["transfer"] = stages.get("transfer", 0.0) + time.perf_counter() - t_host - stages.get("measurement", 0.0)
     return BatchResult(
+        measurements=measurements,
         params=dict(batch.params),
         time=np.arange(n_out) * every * dt,
         strain=strain,
@@ -442,6 +459,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
             "graph_steps": integ.graph_steps,
             "force_evaluations_per_step": FORCE_EVALS[settings.method],
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
+            "stages": stages,
         },
     )
 
@@ -460,10 +478,18 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     n_sim = prisms_to_simulate(config, params, settings)
     settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
     sim_config = _far_end(config, n_sim) if n_sim < n else config
+    t_build = time.perf_counter()
     batch = column_batch(sim_config, params)
-    result = run_batch(batch, settings, progress)
+    t_build = time.perf_counter() - t_build
+    pulse = {"prism_height": config.height, "n_prisms": n, "cut": n - n_sim}
+    result = run_batch(batch, settings, progress, pulse=pulse)
+    result.info["stages"]["build"] += t_build
     if n_sim < n:
         _pad_to_full_column(result, config, sim_config, params, n, n_sim)
+    if settings.measure == "host":
+        from .measure_device import measure_host
+
+        measure_host(result, config.height, keep_strain=settings.record_strain)
     choices.update({"prisms_simulated": n_sim, "prisms": n, "method": settings.method,
                     "precision": settings.precision, "dt": result.dt,
                     "record_strain": settings.record_strain})
