@@ -73,6 +73,9 @@ def adversarial_records():
     R.append(-base)  # tension pulse only
     s = base + 0.5 * np.roll(base, 200, axis=0); R.append(s)  # a second, weaker pulse behind
     R.append(base + 1.2 * np.roll(base, 93, axis=0))  # a stronger one behind a dip to 45-50 %: ends the pulse at f = 0.5 only
+    s = base.copy()  # a brief strong bump at prism 17 as the pulse passes mid-window (j_mid = 14.5):
+    s[:, 17] -= 2e-3 * np.exp(-(((t - 20.5 / 60.0) / 0.004) ** 2))  # the width search must centre on rint(14.5) = 14
+    R.append(s)
     return np.stack(R), t
 
 
