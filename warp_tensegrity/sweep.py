@@ -565,7 +565,10 @@ def _status_from_output(out) -> dict:
 
 def dry_run(plan: SweepPlan) -> str:
     """What a run would do: columns, shards, dt, steps, memory and time estimates."""
+    from .calibrate import estimate_plan
+
     spec, est = plan.spec, plan.estimate
+    cal = estimate_plan(plan)  # probe on the target device (cached per device, method, precision, path)
     r = spec.run
     n = plan.n_columns
     n_steps = int(est.get("n_steps", 0))
@@ -575,10 +578,6 @@ def dry_run(plan: SweepPlan) -> str:
     per_col_out = 8 * (5 + 2 + P) + (8 * 2 * n_out if r["record_energy"] else 0)
     per_col_strain = 8 * n_out * P
     out_bytes = n * (per_col_out + (per_col_strain if r["record_strain"] else 0))
-    dev_bytes = int(est.get("bytes_per_column", 0)) * max(b - a for a, b in plan.shards)
-    host_shard = (per_col_out + per_col_strain) * max(b - a for a, b in plan.shards)
-    spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
-    secs = spc * n_steps * n
     dt_txt = f"{plan.dt:.4g} s"
     if isinstance(r["dt"], str):
         dt_txt += f" (auto: {r['dt_safety']} x limit {plan.dt_limit:.4g} s)"
@@ -590,11 +589,15 @@ def dry_run(plan: SweepPlan) -> str:
         f"shards:      {plan.n_shards} of up to {plan.shard_size} columns -> {plan.shard_dir}/",
         f"method:      {r['method']} {r['precision']}, dt = {dt_txt}",
         f"steps:       {n_steps} to t_end = {r['t_end']} s, {n_out} outputs",
-        f"device:      {plan.device or 'auto (the GPU if there is one, else the CPU)'}",
-        f"memory:      {_fmt_bytes(dev_bytes)} device memory per shard, {_fmt_bytes(host_shard)} host memory per shard",
+        f"device:      {cal['device']}" + ("" if plan.device else " (auto: the GPU if there is one, else the CPU)"),
+        f"memory:      {_fmt_bytes(cal['device_bytes_per_shard'])} device memory per shard, "
+        f"{_fmt_bytes(cal['host_peak_bytes'])} peak host memory (calibrated)",
         f"output:      {_fmt_bytes(out_bytes)} uncompressed"
         + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"),
-        f"time:        ~{_fmt_seconds(secs)} ({n} columns x {n_steps} steps x {spc:.3g} s per column-step)",
+        f"time:        ~{_fmt_seconds(cal['seconds'])} wall ("
+        + ", ".join(f"{k} {v:.3g} s" for k, v in cal["stages_s"].items()) + ")",
+        f"calibration: {cal['probe']['probe_columns']} columns x {cal['probe']['probe_steps']} steps on this device "
+        f"({cal['probe']['column_step_seconds']:.3g} s per column-step; cached {cal['probe']['created']})",
     ]
     return "\n".join(lines)
 
