@@ -538,8 +538,11 @@ def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int,
     result.elastic_energy = result.elastic_energy + offset[index][:, None]
 
 
-def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
-    """Time step, stability limit, step count and memory of a batch, without launching kernels."""
+def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings, calibrated: bool = True) -> dict:
+    """Time step, stability limit, step count, memory and time of a batch. With ``calibrated``
+    (default) time and device memory come from a short probe of a few of its columns on the
+    target device (:mod:`warp_tensegrity.calibrate`, cached); without, no kernel is launched and
+    the time is a rough flop count."""
     settings, _ = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
     batch = column_batch(config, params)
     omega = float(omega_max_bound(batch).max())
@@ -562,7 +565,17 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         seconds = n_steps * max(step_latency, flops * batch.n_columns / rate)
     else:
         seconds = n_steps * batch.n_columns * flops * 1e-9
-    return {
+    out = {}
+    if calibrated:
+        from .calibrate import predict, probe
+
+        cal = probe(config, params, replace(settings, dt=dt), batch.n_columns)
+        pred = predict(cal, batch.n_columns, [batch.n_columns], n_steps, n_out, npr, settings.record_strain)
+        st = pred["stages_s"]
+        seconds = sum(st[k] for k in ("build", "stepping", "measurement", "transfer"))  # in-process, kernels loaded
+        out = {"stages_estimate": st, "device_bytes_estimate": pred["device_bytes_per_shard"],
+               "device_label": cal["device_label"]}
+    return out | {
         "dt": dt,
         "dt_limit": limit,
         "n_steps": n_steps,

@@ -47,10 +47,10 @@ def simulate_batch(config, params, settings, progress=None):
 
 
 def estimate_batch(config, params, settings) -> dict:
-    """The engine's cost/stability estimate (no kernel launch)."""
+    """The engine's stability estimate (no kernel launch; the dry-run calibrates time separately)."""
     from .simulate import estimate_batch as engine_estimate
 
-    return engine_estimate(config, params, settings)
+    return engine_estimate(config, params, settings, calibrated=False)
 
 
 def measure_pulse(strain, time, prism_height, threshold=None) -> dict:
