@@ -35,10 +35,9 @@ STAGES = ("import", "build", "compile", "stepping", "measurement", "transfer", "
 
 def _child(spec: str, device: str, out: str, record: str) -> None:
     """Run one spec through cli.main and write its stage record (the run process)."""
-    import psutil
+    from warp_tensegrity.calibrate import process_age
 
-    t_start = psutil.Process().create_time()
-    t_ref = time.perf_counter() - (time.time() - t_start)  # process creation on the perf_counter clock
+    t_ref = time.perf_counter() - process_age()  # process creation on the perf_counter clock
     import warp as wp
 
     wp.config.quiet = True
@@ -148,6 +147,8 @@ def main(argv=None) -> int:
     meta = run_metadata(wp.get_device(a.device))
     commit = git_commit()
     records = []
+    out_path = Path(a.out) if a.out else REPO / "benchmarks" / "results" / f"end_to_end_{a.device.replace(':', '')}.json"
+    out_path.parent.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
     with tempfile.TemporaryDirectory(prefix="e2e_") as tmp:
@@ -192,13 +193,11 @@ def main(argv=None) -> int:
                 record["tail_s"] = tail
                 record["tail_over_stepping"] = tail / st["stepping"] if st["stepping"] else None
                 records.append(record)
+                out_path.write_text(json.dumps(records, indent=1, default=str) + "\n")  # after every run
                 print(f"{spec}: wall {rec['wall_s']:.2f} s (estimate {est['seconds']:.2f} s, "
                       f"{100 * record['estimate_error']:+.0f} %); " + ", ".join(f"{k} {v:.3g}" for k, v in st.items())
                       + f"; other {rec['other_s']:.3g}; peak RSS {rec['peak_rss_bytes'] / 1e6:.0f} MB", flush=True)
-    out = Path(a.out) if a.out else REPO / "benchmarks" / "results" / f"end_to_end_{a.device.replace(':', '')}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(records, indent=1, default=str) + "\n")
-    print(out)
+    print(out_path)
     return 0
 
 

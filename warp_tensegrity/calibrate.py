@@ -43,9 +43,28 @@ def cache_dir() -> Path:
     env = os.environ.get("WARP_TENSEGRITY_CACHE")
     if env:
         return Path(env) / "calibration"
-    import platformdirs
+    try:
+        import platformdirs
 
-    return Path(platformdirs.user_cache_dir("warp_tensegrity")) / "calibration"
+        root = Path(platformdirs.user_cache_dir("warp_tensegrity"))
+    except ImportError:  # platformdirs is optional: the XDG default
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "warp_tensegrity"
+    return root / "calibration"
+
+
+def process_age() -> float:
+    """Seconds since this process was created (interpreter start included). Linux: /proc (10 ms
+    ticks; psutil's create_time rounds the boot time to whole seconds); elsewhere psutil."""
+    try:
+        with open("/proc/self/stat") as f:
+            start = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            up = float(f.read().split()[0])
+        return up - start / os.sysconf("SC_CLK_TCK")
+    except OSError:
+        import psutil
+
+        return time.time() - psutil.Process().create_time()
 
 
 def _device(name):
@@ -121,7 +140,7 @@ def _fresh_process_costs(device: str, config, params, settings) -> dict:
     """Import and warm kernel-load seconds of a fresh process (what every run pays once), with
     the probe's columns (so the kernels are the ones the probe compiled)."""
     code = (
-        "import time, json, sys, psutil; t0 = psutil.Process().create_time(); t0 = time.perf_counter() - (time.time() - t0)\n"
+        "import time, json, sys; from warp_tensegrity.calibrate import process_age; t0 = time.perf_counter() - process_age()\n"
         "import warp as wp; wp.config.quiet = True\n"
         "from warp_tensegrity import cli, sweep, dataset, simulate, measure_device\n"
         "wp.init(); wp.get_device(sys.argv[1])\n"
