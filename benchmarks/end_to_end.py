@@ -41,8 +41,10 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
     import warp as wp
 
     wp.config.quiet = True
-    from warp_tensegrity import cli, dataset as D, sweep  # noqa: F401 - the modules a run imports
-    from warp_tensegrity import simulate  # noqa: F401
+    from warp_tensegrity import cli, engine, integrate  # noqa: F401 - the modules a run imports
+    from warp_tensegrity import io as D
+    from warp_tensegrity.measure import device  # noqa: F401
+    from warp_tensegrity.sweep import plan as sweep_plan, run as sweep_run, shard as sweep_shard
 
     wp.init()
     wp.get_device(device)
@@ -67,7 +69,7 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
         setattr(owner, name, wrapper)
         return orig
 
-    orig_sim = sweep.simulate_batch
+    orig_sim = sweep_shard.simulate_batch
 
     def sim(*a, **k):
         t0 = time.perf_counter()
@@ -85,13 +87,13 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
         info["device_name"] = r.device_name
         return r
 
-    sweep.simulate_batch = sim
-    timed(sweep, "plan_sweep", "build")
-    timed(sweep, "measure_columns", "measurement")
+    sweep_shard.simulate_batch = sim
+    timed(sweep_plan, "plan_sweep", "build")
+    timed(sweep_shard, "measure_columns", "measurement")
     timed(D, "shard_dataset", "write")
     timed(D, "write_netcdf", lambda: None if phase["finalise"] else "write")
-    timed(sweep, "check_shard", lambda: None if phase["finalise"] else "finalise")
-    orig_combine = sweep.combine
+    timed(sweep_run, "check_shard", lambda: None if phase["finalise"] else "finalise")
+    orig_combine = sweep_run.combine
 
     def combine(*a, **k):
         phase["finalise"] = True
@@ -102,7 +104,7 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
             st["finalise"] += time.perf_counter() - t0
             phase["finalise"] = False
 
-    sweep.combine = combine
+    sweep_run.combine = combine
     rc = cli.main(["run", spec, "-o", out, "--device", device, "--overwrite", "--no-progress"])
     wall = time.perf_counter() - t_ref
     if rc != 0:
@@ -116,8 +118,8 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
 
 def _estimate(spec: str, device: str, out: str) -> dict:
     from warp_tensegrity.calibrate import estimate_plan
-    from warp_tensegrity.spec import load_spec
-    from warp_tensegrity.sweep import plan_sweep
+    from warp_tensegrity.sweep.plan import plan_sweep
+    from warp_tensegrity.sweep.spec import load_spec
 
     t0 = time.perf_counter()
     plan = plan_sweep(load_spec(Path(spec)), out, device=device)

@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 
 from warp_tensegrity import calibrate as C
-from warp_tensegrity import sweep
-from warp_tensegrity.spec import load_spec
+from warp_tensegrity.sweep import plan as sweep
+from warp_tensegrity.sweep.progress import fmt_seconds
+from warp_tensegrity.sweep.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,9 +41,9 @@ def test_probe_is_cached_and_feeds_the_dry_run(cache, tmp_path, monkeypatch):
 
     monkeypatch.setattr(C, "_fresh_process_costs", no_probe)
     assert C.estimate_plan(plan)["stages_s"] == est["stages_s"]
-    text = sweep.dry_run(plan)
+    text = sweep.dry_run(plan, C.estimate_plan(plan))
     assert "device:      cpu (" in text and "calibration: 4 columns x" in text
-    assert f"~{sweep._fmt_seconds(est['seconds'])} wall" in text
+    assert f"~{fmt_seconds(est['seconds'])} wall" in text
 
 
 def test_cache_key_separates_precision_method_and_path():

@@ -1,5 +1,5 @@
-"""Pulse measurement on the Warp device (warp_tensegrity.measure_device) against the NumPy
-reference (warp_tensegrity.measure): equal to <= 1e-12 relative (fp64), NaN in exactly the same
+"""Pulse measurement on the Warp device (warp_tensegrity.measure.device) against the NumPy
+reference (warp_tensegrity.measure.pulse): equal to <= 1e-12 relative (fp64), NaN in exactly the same
 places, on engine records (the 12 paper cases, ci_small) and on adversarial synthetic records."""
 
 from pathlib import Path
@@ -9,11 +9,11 @@ import pytest
 import warp as wp
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from warp_tensegrity import measure as M
-from warp_tensegrity.measure_device import measure_pulse_device, measure_record
+from warp_tensegrity.measure import pulse as M
+from warp_tensegrity.engine import simulate_batch
+from warp_tensegrity.measure.device import measure_pulse_device, measure_record
 from warp_tensegrity.settings import RunSettings, SettingsError
-from warp_tensegrity.simulate import simulate_batch
-from warp_tensegrity.spec import load_spec
+from warp_tensegrity.sweep.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 H = 6.2e-3

@@ -1,4 +1,4 @@
-"""Sweep spec parsing and validation (warp_tensegrity.spec), the shipped specs, and the CLI's
+"""Sweep spec parsing and validation (warp_tensegrity.sweep.spec), the shipped specs, and the CLI's
 lazy imports. Everything but the dt-limit test runs without Warp."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warp_tensegrity.spec import SpecError, load_spec, parse_spec
+from warp_tensegrity import estimate_batch
+from warp_tensegrity.sweep import SpecError, load_spec, parse_spec
 
 REPO = Path(__file__).resolve().parents[1]
 SWEEPS = REPO / "sweeps"
@@ -223,7 +224,7 @@ def test_dt_above_stability_limit_refused_with_the_limit():
     with pytest.raises(SpecError) as info:
         sweep.plan_sweep(spec, device="cpu")
     msg = str(info.value)
-    est = sweep.estimate_batch(spec.scene, spec.column_params(), spec.run_settings(device="cpu", dt="auto"))
+    est = estimate_batch(spec.scene, spec.column_params(), spec.run_settings(device="cpu", dt="auto"))
     assert "run.dt = 0.05" in msg and "stability limit" in msg
     assert f"{est['dt_limit']:.6g}" in msg
     assert "allow_unstable_dt" in msg

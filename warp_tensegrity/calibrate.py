@@ -69,7 +69,7 @@ def process_age() -> float:
 
 
 def _device(name):
-    from .simulate import resolve_device
+    from .integrate import resolve_device
 
     return resolve_device(name)
 
@@ -92,11 +92,11 @@ def _probe_columns(n_columns: int, shard: int, is_cuda: bool) -> np.ndarray:
 
 
 def _key(config, params, settings, shard, device) -> tuple[str, dict]:
-    from .simulate import FUSED_MAX_COLUMNS
-    from .spec import code_version
+    from .engine import choose_path
+    from .io import code_version
+    from .types import Path as StepPath
 
-    fused = settings.fused is True or (settings.fused == "auto" and settings.method == "rattle"
-                                       and (not device.is_cuda or shard <= FUSED_MAX_COLUMNS))
+    fused = choose_path(settings, device.is_cuda, shard) == StepPath.FUSED
     cols = _probe_columns(len(next(iter(params.values()))) if params else 1, shard, device.is_cuda)
     desc = {
         "device": device_label(device.alias), "method": settings.method, "precision": settings.precision,
@@ -156,12 +156,13 @@ def _fresh_process_costs(device: str, config, params, settings) -> dict:
     code = (
         "import time, json, sys; from warp_tensegrity.calibrate import process_age; t0 = time.perf_counter() - process_age()\n"
         "import warp as wp; wp.config.quiet = True\n"
-        "from warp_tensegrity import cli, sweep, dataset, simulate, measure_device\n"
+        "from warp_tensegrity import cli, io, engine, integrate, sweep\n"
+        "from warp_tensegrity.measure import device\n"
         "wp.init(); wp.get_device(sys.argv[1])\n"
         "t1 = time.perf_counter()\n"
         "import pickle, base64\n"
         "cfg, params, s = pickle.loads(base64.b64decode(sys.argv[2]))\n"
-        "r = simulate.simulate_batch(cfg, params, s)\n"
+        "r = engine.simulate_batch(cfg, params, s)\n"
         "st = r.info['stages']\n"
         "print(json.dumps({'import': t1 - t0, 'compile': st['compile'], 'rss': __import__('resource').getrusage(0).ru_maxrss * 1024}))\n"
     )
@@ -188,7 +189,7 @@ def _io_rates(tmp: Path) -> dict:
     """netCDF write and read seconds per byte (and per file) on this host, from a few-MB file."""
     import xarray as xr
 
-    from . import dataset as D
+    from . import io as D
 
     rng = np.random.default_rng(0)
     out = {}
@@ -211,11 +212,11 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     ``settings`` must carry the resolved dt (seconds). Returns the measured rates (dict)."""
     import warp as wp
 
-    from .batch import column_batch
-    from .choose import apply_accuracy
-    from .measure_device import load_kernels, measure_record
-    from .simulate import Integrator, _far_end, choose_timestep, prisms_to_simulate
-    from .batch import omega_max_bound
+    from .engine import _far_end, apply_accuracy, choose_path, choose_timestep, prisms_to_simulate
+    from .integrate import Integrator
+    from .measure.device import load_kernels, measure_record
+    from .scene.batch import column_batch, omega_max_bound
+    from .types import Path as StepPath
 
     device = _device(settings.device)
     key, desc = _key(config, params, settings, shard_size, device)
@@ -245,12 +246,13 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     dt, _, _, every = choose_timestep(s, omega)
     # whole graph periods (as a run replays them): the fused path captures output periods
     spg = int(s.steps_per_graph)
-    period = every * max(1, -(-spg // every)) if s.method == "rattle" and s.fused is not False else spg
+    fused = choose_path(s, device.is_cuda, len(cols)) == StepPath.FUSED
+    period = every * max(1, -(-spg // every)) if fused else spg
     seg_steps = max(period, (PROBE_STEPS // 3) // period * period)
     warm_steps = period * max(1, -(-PROBE_WARM_STEPS // period))
     n_out = (warm_steps + 3 * seg_steps) // every + 1
     t0 = time.perf_counter()
-    integ = Integrator(batch, s, dt, every, n_out)
+    integ = Integrator(batch, s, dt, every, n_out, path=choose_path(s, device.is_cuda, len(cols)))
     t_integ = time.perf_counter() - t0
     B = batch.n_columns
     with wp.ScopedDevice(integ.device):
@@ -348,16 +350,32 @@ def predict(cal: dict, n_columns: int, shard_sizes: list[int], n_steps: int, n_o
 
 
 def estimate_plan(plan, use_cache: bool = True) -> dict:
-    """Calibrated prediction of a sweep plan (sweep.SweepPlan with settings resolved)."""
-    from .sweep import resolve_dt
-
+    """Calibrated prediction of a sweep plan (``sweep.plan.SweepPlan``, planned with its estimate,
+    so dt is resolved): stage seconds, memory, the probe used."""
     if plan.settings is None:
-        resolve_dt(plan)
+        raise ValueError("the plan has no resolved settings: plan it with estimate=True")
     spec = plan.spec
     shard = max(b - a for a, b in plan.shards)
     cal = probe(spec.scene, plan.params, plan.settings, shard, use_cache=use_cache)
     est = plan.estimate
-    n_steps = int(est["n_steps"])
-    n_out = int(est["n_out"])
-    return predict(cal, plan.n_columns, [b - a for a, b in plan.shards], n_steps, n_out, spec.scene.n_prisms,
-                   bool(spec.run["record_strain"]), bool(spec.run["record_energy"])) | {"probe": cal}
+    return predict(cal, plan.n_columns, [b - a for a, b in plan.shards], int(est["n_steps"]), int(est["n_out"]),
+                   spec.scene.n_prisms, bool(spec.run["record_strain"]), bool(spec.run["record_energy"])) | {"probe": cal}
+
+
+def estimate_batch(config, params: dict, settings) -> dict:
+    """:func:`warp_tensegrity.engine.estimate_batch` (dt, stability limit, steps) with time and
+    device memory from the probe (in-process: no import, kernels taken as loaded):
+    ``seconds_estimate``, ``stages_estimate``, ``device_bytes_estimate``, ``device_label``."""
+    from dataclasses import replace
+
+    from .engine import estimate_batch as engine_estimate
+
+    out = dict(engine_estimate(config, params, settings))
+    n_col = len(next(iter(params.values()))) if params else 1
+    cal = probe(config, params, replace(settings, dt=out["dt"]), n_col)
+    pred = predict(cal, n_col, [n_col], out["n_steps"], out["n_out"], config.n_prisms, settings.record_strain)
+    st = pred["stages_s"]
+    seconds = sum(st[k] for k in ("build", "stepping", "measurement", "transfer"))
+    return out | {"seconds_estimate": seconds, "seconds_per_column_step_estimate": cal["column_step_seconds"],
+                  "stages_estimate": st, "device_bytes_estimate": pred["device_bytes_per_shard"],
+                  "device_label": cal["device_label"]}

@@ -124,10 +124,9 @@ def _looks_like_spec(path: str) -> bool:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .network import NetworkError
+    from .scene.network import NetworkError
     from .settings import SettingsError
-    from .spec import SpecError
-    from .sweep import SweepError
+    from .sweep.errors import SpecError, SweepError
 
     try:
         return _dispatch(args)
@@ -141,8 +140,10 @@ def main(argv=None) -> int:
 
 
 def _dispatch(args) -> int:
-    from . import sweep
-    from .spec import load_spec
+    from .sweep import plan as sweep_plan
+    from .sweep import run as sweep
+    from .sweep.errors import SweepError
+    from .sweep.spec import load_spec
 
     if args.command in ("run", "resume"):
         _quiet_warp(args.verbose)
@@ -150,20 +151,22 @@ def _dispatch(args) -> int:
         if args.command == "run":
             spec = load_spec(Path(args.spec))
             out = Path(args.output)
-            plan = sweep.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
+            plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
         else:
             if _looks_like_spec(args.target):
                 if not args.output:
-                    raise sweep.SweepError("resume SPEC needs -o OUT.nc")
+                    raise SweepError("resume SPEC needs -o OUT.nc")
                 out = Path(args.output)
-                plan = sweep.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
+                plan = sweep_plan.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
             else:
                 out = Path(args.target)
                 if args.output and Path(args.output) != out:
-                    raise sweep.SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
+                    raise SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
         if args.dry_run:
-            print(sweep.dry_run(plan))
+            from .calibrate import estimate_plan  # a probe on the target device, cached
+
+            print(sweep_plan.dry_run(plan, estimate_plan(plan)))
             if args.command == "resume" and plan.shard_dir.exists():
                 st = sweep.sweep_status(out, plan.spec)
                 print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")

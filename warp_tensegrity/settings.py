@@ -6,13 +6,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-METHODS = ("rattle", "rk4", "yoshida4", "symplectic_euler")
-PRECISIONS = ("fp32", "fp64")
+from .types import STATUS_MEANINGS, Method, Precision
 
-STATUS_OK = 0
-STATUS_NONFINITE = 1
-STATUS_CONSTRAINT = 2
-STATUS_NAMES = {STATUS_OK: "ok", STATUS_NONFINITE: "non-finite state", STATUS_CONSTRAINT: "bar constraint failed"}
+METHODS = tuple(m.value for m in Method)
+PRECISIONS = tuple(p.value for p in Precision)
+STATUS_NAMES = {int(k): v for k, v in STATUS_MEANINGS.items()}
 
 # swept per-column parameters and their units
 COLUMN_PARAMETERS = {
@@ -64,16 +62,16 @@ class RunSettings:
     """RATTLE as one fused kernel, a thread block per column and several steps per launch
     (:mod:`warp_tensegrity.fused`); False: one kernel per stage (the only path of the other
     methods). 'auto': fused for RATTLE, except on a GPU above
-    :data:`~warp_tensegrity.simulate.FUSED_MAX_COLUMNS` columns, where the staged kernels stream
+    :data:`~warp_tensegrity.engine.FUSED_MAX_COLUMNS` columns, where the staged kernels stream
     faster. Both paths give the same numbers to round-off."""
     accuracy: float | None = None
     """Target relative error of the pulse measures (speed, amplitude). When given, the engine
     chooses method, precision and dt from the measured work-precision curves
-    (:mod:`warp_tensegrity.choose`) and says what it chose in ``BatchResult.info['choices']``."""
+    (:mod:`warp_tensegrity.engine`) and says what it chose in ``BatchResult.info['choices']``."""
     truncate: bool = True
     """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
     column there; results are padded back to the full column (the far prisms stay at rest).
-    Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.choose`)."""
+    Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.engine`)."""
     measure: str = "device"
     """Pulse measures (``BatchResult.measurements``): 'device' (Warp kernels on the device record;
     only the measures cross to the host), 'host' (NumPy reference on the host copy) or 'none'."""
@@ -142,7 +140,7 @@ class BatchResult:
     bar_length_error: np.ndarray
     """(B,) max over all steps and bars of |l - L| / L after projection [1]."""
     status: np.ndarray
-    """(B,) 0 ok, 1 non-finite state, 2 bar constraint failed (see STATUS_NAMES)."""
+    """(B,) :class:`~warp_tensegrity.types.Status`: 0 ok, 1 non-finite state, 2 bar constraint failed."""
     fail_step: np.ndarray
     """(B,) step at which the column was frozen, -1 if it never failed."""
     dt: float

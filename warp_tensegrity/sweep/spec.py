@@ -33,12 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
-from .network import NetworkError
-from .choose import for_accuracy
-from .settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
+from ..engine import for_accuracy
+from ..io import code_version
+from ..scene.columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
+from ..scene.network import NetworkError
+from ..settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
+from .errors import SpecError
 
-PACKAGE_DIR = Path(__file__).resolve().parent
 
 TOP_KEYS = ("title", "description", "scene", "sweep", "run")
 SWEEP_KEYS = ("grid", "cases", "fixed")
@@ -81,22 +82,6 @@ PARAM_DEFAULTS = {"prestrain": 0.0, "v0": 0.0, "base_rigidity": 0.0}
 default to the scene's values)."""
 
 _DEVICE_RE = re.compile(r"^(cpu|cuda|cuda:\d+)$")
-
-
-class SpecError(ValueError):
-    """Invalid sweep spec. ``errors`` lists one message per problem, each naming the key path."""
-
-    def __init__(self, errors, source: str | None = None):
-        if isinstance(errors, str):
-            errors = [errors]
-        self.errors = list(errors)
-        self.source = source
-        head = f"invalid sweep spec{f' {source}' if source else ''}"
-        if len(self.errors) == 1:
-            msg = f"{head}: {self.errors[0]}"
-        else:
-            msg = f"{head} ({len(self.errors)} problems):\n" + "\n".join(f"  - {e}" for e in self.errors)
-        super().__init__(msg)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -367,40 +352,6 @@ def _plain(x):
     if isinstance(x, np.generic):
         return x.item()
     return x
-
-
-# ---------------------------------------------------------------------- code version
-def package_version() -> str:
-    try:
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            return version("warp_tensegrity")
-        except PackageNotFoundError:
-            pass
-    except ImportError:  # pragma: no cover
-        pass
-    pyproject = PACKAGE_DIR.parent / "pyproject.toml"
-    try:
-        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
-    except Exception:
-        return "unknown"
-
-
-def source_hash() -> str:
-    """sha256 over the package's .py sources (relative path and content, sorted by path)."""
-    h = hashlib.sha256()
-    for p in sorted(PACKAGE_DIR.rglob("*.py")):
-        if "__pycache__" in p.parts:
-            continue
-        h.update(p.relative_to(PACKAGE_DIR).as_posix().encode() + b"\0")
-        h.update(p.read_bytes() + b"\0")
-    return h.hexdigest()
-
-
-def code_version() -> str:
-    """Package version + hash of the package's .py sources, e.g. '0.1.0+src.1a2b3c4d5e6f7a8b'."""
-    return f"{package_version()}+src.{source_hash()[:16]}"
 
 
 # ---------------------------------------------------------------------- loading

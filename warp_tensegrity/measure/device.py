@@ -1,4 +1,4 @@
-"""Pulse measurement on the Warp device: every output of :func:`warp_tensegrity.measure.measure_pulse`
+"""Pulse measurement on the Warp device: every output of :func:`warp_tensegrity.measure.pulse.measure_pulse`
 computed from the strain record where the engine keeps it, so only the per-column measures cross
 to the host.
 
@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .measure import (
+from .pulse import (
     DEFAULT_END_FRACTION,
     DEFAULT_THRESHOLD_FRACTION,
     REFINED_THRESHOLD_FRACTION,
@@ -712,7 +712,7 @@ def load_kernels(device) -> None:
 def measure_host(result, prism_height, keep_strain: bool = True) -> None:
     """The fallback (RunSettings.measure = 'host'): NumPy reference on the host copy of the record;
     sets ``result.measurements`` and the ``measurement`` stage seconds; drops the strain unless kept."""
-    from .measure import measure_pulse
+    from .pulse import measure_pulse
 
     t0 = _time.perf_counter()
     if result.strain is not None:

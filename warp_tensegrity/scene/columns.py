@@ -22,7 +22,7 @@ that stiffen continuously toward RB.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -418,7 +418,3 @@ def prism_heights(topo: ColumnTopology, positions: np.ndarray) -> np.ndarray:
     ``positions`` has shape (..., n_nodes, 3)."""
     zl = positions[..., topo.level_nodes, 2].mean(axis=-1)
     return zl[..., 1:] - zl[..., :-1]
-
-
-def with_config(config: ColumnConfig, **changes) -> ColumnConfig:
-    return replace(config, **changes)
