@@ -43,7 +43,7 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
     wp.config.quiet = True
     from warp_tensegrity import cli, engine, integrate  # noqa: F401 - the modules a run imports
     from warp_tensegrity import io as D
-    from warp_tensegrity.measure import device  # noqa: F401
+    from warp_tensegrity.measure import device as _measure_device  # noqa: F401
     from warp_tensegrity.sweep import plan as sweep_plan, run as sweep_run, shard as sweep_shard
 
     wp.init()

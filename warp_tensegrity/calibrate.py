@@ -248,7 +248,7 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     spg = int(s.steps_per_graph)
     fused = choose_path(s, device.is_cuda, len(cols)) == StepPath.FUSED
     period = every * max(1, -(-spg // every)) if fused else spg
-    seg_steps = max(period, (PROBE_STEPS // 3) // period * period)
+    seg_steps = period * max(1, -(-(PROBE_STEPS // 3) // period))
     warm_steps = period * max(1, -(-PROBE_WARM_STEPS // period))
     n_out = (warm_steps + 3 * seg_steps) // every + 1
     t0 = time.perf_counter()
