@@ -66,20 +66,27 @@ def _cal(is_cuda):
             "column_step_seconds": 2.5e-4 if not is_cuda else 1e-3 / 512, "measure_seconds": 0.04,
             "measure_samples": 1001, "transfer_per_byte": 1e-9, "io_write_fixed": 0.05, "io_write_per_byte": 1e-9,
             "io_read_fixed": 0.01, "io_read_per_byte": 1e-9, "device_bytes_fixed": 1000,
-            "device_bytes_per_column": 5000, "strain_bytes_per_sample": 400, "base_rss": 3e8, "device_label": "x"}
+            "device_bytes_per_column": 5000, "strain_bytes_per_sample": 400, "base_rss": 3e8, "device_label": "x",
+            "load_avg": 0.0}
 
 
 def test_cost_model_scaling():
     """CPU: stepping and measurement proportional to columns; GPU: flat up to the probed width
     (latency), proportional beyond; fixed costs once per run, per-shard costs per shard."""
-    cpu = C.predict(_cal(False), 8, [4, 4], 1000, 1001, 50, False)["stages_s"]
+    cpu = C.predict(_cal(False), 8, [4, 4], 1000, 1001, 50, False, load=0.0)["stages_s"]
     assert cpu["stepping"] == pytest.approx(1000 * 2.5e-4 * 8)
     assert cpu["measurement"] == pytest.approx(0.04 * 2)
     assert cpu["import"] == 1.0 and cpu["compile"] == 0.5
     assert cpu["build"] == pytest.approx(0.1 + 0.01 * 8 + 2 * (0.1 + 0.01 * 4 + 0.2))
-    gpu = C.predict(_cal(True), 1536, [512, 512, 512], 1000, 1001, 50, False)
+    gpu = C.predict(_cal(True), 1536, [512, 512, 512], 1000, 1001, 50, False, load=0.0)
     assert gpu["stages_s"]["stepping"] == pytest.approx(3 * 1000 * 1e-3)
-    big = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, False)
+    big = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, False, load=0.0)
     assert big["stages_s"]["stepping"] == pytest.approx(2 * 1000 * 1e-3)
-    with_strain = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, True)
+    with_strain = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, True, load=0.0)
+    # a host twice as loaded (per core) as at probe time: host stages double, GPU stepping does not
+    cores = __import__("os").cpu_count()
+    busy = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, False, load=2.0 * cores)["stages_s"]
+    assert busy["stepping"] == big["stages_s"]["stepping"] and busy["write"] == pytest.approx(2 * big["stages_s"]["write"])
+    cpu_busy = C.predict(_cal(False), 8, [4, 4], 1000, 1001, 50, False, load=2.0 * cores)["stages_s"]
+    assert cpu_busy["stepping"] == pytest.approx(2 * cpu["stepping"])
     assert with_strain["output_bytes"] - big["output_bytes"] == 8 * 1024 * 1001 * 50

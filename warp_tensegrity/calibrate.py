@@ -310,9 +310,21 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     return res
 
 
+def host_share(load: float | None = None) -> float:
+    """Slow-down of host-bound work on a shared host: max(1, 1-minute load average / cores)."""
+    load = os.getloadavg()[0] if load is None else load
+    return max(1.0, float(load) / max(os.cpu_count() or 1, 1))
+
+
+HOST_STAGES = ("import", "build", "compile", "transfer", "write", "finalise")
+"""Stages bound by the host CPU wherever the step runs (on the CPU device: every stage)."""
+
+
 def predict(cal: dict, n_columns: int, shard_sizes: list[int], n_steps: int, n_out: int, n_prisms: int,
-            record_strain: bool, record_energy: bool = True) -> dict:
-    """Stage seconds and memory of a run of ``shard_sizes`` columns from a probe ``cal``."""
+            record_strain: bool, record_energy: bool = True, load: float | None = None) -> dict:
+    """Stage seconds and memory of a run of ``shard_sizes`` columns from a probe ``cal``. Host-bound
+    stages are rescaled from the host load at probe time to ``load`` (default: now; a shared
+    host's load average, see :func:`host_share`)."""
     P = n_prisms
     st = dict.fromkeys(("import", "build", "compile", "stepping", "measurement", "transfer", "write", "finalise"), 0.0)
     st["import"] = cal["import"]
@@ -345,7 +357,12 @@ def predict(cal: dict, n_columns: int, shard_sizes: list[int], n_steps: int, n_o
                                                     + cal["strain_bytes_per_sample"] * n_out
                                                     + 8 * (12 * P + 3 * n_out + 12))
     host_peak = cal["base_rss"] + 8 * bmax * n_out * P + 2 * out_bytes_total
-    return {"stages_s": st, "seconds": float(sum(st.values())), "device_bytes_per_shard": int(dev_bytes),
+    ratio = host_share(load) / host_share(cal.get("load_avg", 0.0))
+    for k in st:
+        if k in HOST_STAGES or not cal["is_cuda"]:
+            st[k] *= ratio
+    return {"stages_s": st, "seconds": float(sum(st.values())), "host_load_ratio": ratio,
+            "device_bytes_per_shard": int(dev_bytes),
             "host_peak_bytes": int(host_peak), "output_bytes": int(out_bytes_total), "device": cal["device_label"]}
 
 
