@@ -356,7 +356,8 @@ def predict(cal: dict, n_columns: int, shard_sizes: list[int], n_steps: int, n_o
     dev_bytes = cal["device_bytes_fixed"] + bmax * (cal["device_bytes_per_column"]
                                                     + cal["strain_bytes_per_sample"] * n_out
                                                     + 8 * (12 * P + 3 * n_out + 12))
-    host_peak = cal["base_rss"] + 8 * bmax * n_out * P + 2 * out_bytes_total
+    # imports and kernels, a shard's strain copy when it crosses, and the combine (every shard + the result)
+    host_peak = cal["base_rss"] + (8 * bmax * n_out * P if record_strain else 0) + 2 * out_bytes_total
     ratio = host_share(load) / host_share(cal.get("load_avg", 0.0))
     for k in st:
         if k in HOST_STAGES or not cal["is_cuda"]:
