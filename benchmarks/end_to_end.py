@@ -134,6 +134,7 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", default=None, help="JSON output (default benchmarks/results/end_to_end_<device>.json)")
     p.add_argument("--repeat", type=int, default=1, help="runs per spec (each a record)")
+    p.add_argument("--append", action="store_true", help="keep the records already in the output file")
     p.add_argument("--child", nargs=3, metavar=("SPEC", "OUT_NC", "RECORD"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.child:
@@ -148,9 +149,9 @@ def main(argv=None) -> int:
 
     meta = run_metadata(wp.get_device(a.device))
     commit = git_commit()
-    records = []
     out_path = Path(a.out) if a.out else REPO / "benchmarks" / "results" / f"end_to_end_{a.device.replace(':', '')}.json"
     out_path.parent.mkdir(parents=True, exist_ok=True)
+    records = json.loads(out_path.read_text()) if a.append and out_path.exists() else []
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
     with tempfile.TemporaryDirectory(prefix="e2e_") as tmp:
