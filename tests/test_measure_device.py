@@ -30,10 +30,19 @@ def assert_same(ref: dict, dev: dict, rtol: float = RTOL):
         np.testing.assert_allclose(b[ok], a[ok], rtol=rtol, atol=0.0, err_msg=k)
 
 
+DEVICE = "cpu"  # set from pytest --device by the autouse fixture below
+
+
+@pytest.fixture(autouse=True)
+def _device(device):
+    global DEVICE
+    DEVICE = device
+
+
 def both(s, t, h=H, **kw):
     with np.errstate(all="ignore"):
         ref = M.measure_pulse(s, t, h, **kw)
-    return ref, measure_pulse_device(s, t, h, device="cpu", **kw)
+    return ref, measure_pulse_device(s, t, h, device=DEVICE, **kw)
 
 
 # ---------------------------------------------------------------------- synthetic records
@@ -155,7 +164,7 @@ def test_nonuniform_time_and_batch_dims():
 def test_empty_window_is_nan(adversarial):
     """docs/measurements.md: NaN if the window is empty (the NumPy reference raises there instead)."""
     s, t = adversarial
-    dev = measure_pulse_device(s, t, H, device="cpu", skip_impact=20, skip_clamp=20)
+    dev = measure_pulse_device(s, t, H, device=DEVICE, skip_impact=20, skip_clamp=20)
     for k in ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "prisms_measured"):
         assert np.isnan(dev[k]).all(), k
     assert np.isfinite(dev["peak_time"]).any()  # the per-prism track needs no window
@@ -167,7 +176,7 @@ def test_fp32_record(adversarial):
     s32 = s.astype(np.float32).astype(np.float64)
     with np.errstate(all="ignore"):
         ref = M.measure_pulse(s32, t, H)
-    assert_same(ref, measure_pulse_device(s, t, H, device="cpu", precision="fp32"))
+    assert_same(ref, measure_pulse_device(s, t, H, device=DEVICE, precision="fp32"))
 
 
 def test_failed_columns_and_truncated_columns(adversarial):
@@ -184,7 +193,7 @@ def test_failed_columns_and_truncated_columns(adversarial):
         host[b, n_valid[b]:] = np.nan
     with np.errstate(all="ignore"):
         ref = M.measure_pulse(host, t, H)
-    rec = wp.array(np.ascontiguousarray(s[:, :, cut:].transpose(1, 2, 0)), dtype=wp.float64, device="cpu")
+    rec = wp.array(np.ascontiguousarray(s[:, :, cut:].transpose(1, 2, 0)), dtype=wp.float64, device=DEVICE)
     dev = measure_record(rec, t, H, n_prisms=P, cut=cut, n_valid=n_valid)
     assert_same(ref, dev)
     assert np.isfinite(ref["threshold"][[0, 1]]).all() and np.isnan(ref["amplitude"][[0, 1]]).all()
@@ -227,13 +236,15 @@ def test_bad_inputs_raise():
 # ---------------------------------------------------------------------- engine records
 def _engine(spec_name: str, **over):
     spec = load_spec(ROOT / "sweeps" / spec_name)
-    settings = spec.run_settings(device="cpu")
+    settings = spec.run_settings(device=DEVICE)
     settings = RunSettings(**{**settings.__dict__, "record_strain": True, **over})
     return spec, simulate_batch(spec.scene, spec.column_params(), settings)
 
 
 @pytest.fixture(scope="module")
-def paper_cases():
+def paper_cases(device):
+    global DEVICE
+    DEVICE = device
     return _engine("paper_2017.toml")
 
 
@@ -262,7 +273,7 @@ def test_engine_truncated_run_and_host_fallback():
     spec = load_spec(ROOT / "sweeps" / "ci_small.toml")
     cfg = spec.scene.__class__(**{**spec.scene.__dict__, "n_prisms": 30})
     params = {k: v[[4, 6, 1]] for k, v in spec.column_params().items()}
-    base = RunSettings(t_end=0.05, output_interval=0.0005, device="cpu", truncate=True)
+    base = RunSettings(t_end=0.05, output_interval=0.0005, device=DEVICE, truncate=True)
     dev = simulate_batch(cfg, params, base)
     assert dev.info["choices"]["prisms_simulated"] < 30
     assert np.isfinite(dev.measurements["peak_time"]).any()
