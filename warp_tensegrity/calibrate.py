@@ -232,6 +232,8 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     n = config.n_prisms
     n_sim = prisms_to_simulate(config, params, settings)
     s, _ = apply_accuracy(settings, n_sim)
+    # as the engine runs it: the record is kept on the device for the measures
+    s = dataclasses.replace(s, record_strain=s.record_strain or s.measure != "none")
     sim_cfg = _far_end(config, n_sim) if n_sim < n else config
     # batch assembly (reference states, equilibrium checks), taken as proportional to the columns:
     # the median of three builds of the probe's columns (a shared 2-core host is noisy)

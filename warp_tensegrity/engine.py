@@ -151,7 +151,9 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: 
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     n_out = n_steps // every + 1
     path = choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns)
-    integ = Integrator(batch, settings, dt, every, n_out, path=path)
+    # the measures need the record on the device, whether or not it crosses to the host
+    record = settings.record_strain or settings.measure == "host" or (pulse is not None and settings.measure == "device")
+    integ = Integrator(batch, replace(settings, record_strain=record), dt, every, n_out, path=path)
     wall, t_compile = integ.run(n_steps, progress)
     stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
     measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"

@@ -95,7 +95,7 @@ class Integrator:
             m = self.model
             B = m.n_columns
             self.strain = None
-            if (settings.record_strain or settings.measure != "none") and m.n_prisms > 0:  # measured on the device
+            if settings.record_strain and m.n_prisms > 0:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)

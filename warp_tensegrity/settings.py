@@ -73,8 +73,10 @@ class RunSettings:
     column there; results are padded back to the full column (the far prisms stay at rest).
     Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.engine`)."""
     measure: str = "device"
-    """Pulse measures (``BatchResult.measurements``): 'device' (Warp kernels on the device record;
-    only the measures cross to the host), 'host' (NumPy reference on the host copy) or 'none'."""
+    """Pulse measures (``BatchResult.measurements``) of :func:`~warp_tensegrity.engine.simulate_batch`:
+    'device' (Warp kernels on the device record; only the measures cross to the host), 'host'
+    (NumPy reference on a host copy) or 'none'. Except with 'none', the strain record is kept on
+    the device (n_out x n_prisms per column) even when record_strain is False."""
 
     def __post_init__(self):
         if self.method not in METHODS:
