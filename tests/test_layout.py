@@ -19,9 +19,9 @@ MAX_CHAIN = 7
 
 # Lowest layer first; a module may import lower layers and its own layer's modules (acyclic).
 LAYERS = [
-    {"types", "scene.network", "kernels", "measure.pulse", "sweep.errors", "sweep.progress",
+    {"types", "scene.network", "scene.impact", "kernels", "measure.pulse", "sweep.errors", "sweep.progress",
      "lens.host", "lens.design"},  # leaves
-    {"settings", "scene.columns", "fused", "model", "measure", "measure.device"},
+    {"settings", "scene.columns", "fused", "model", "measure", "measure.nan_reasons", "measure.device"},
     {"scene.batch", "scene", "integrate", "io", "checks", "checks.reference", "checks.linear", "lens.spec"},
     {"engine", "sweep.store", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},

@@ -45,8 +45,10 @@ class RunSettings:
     """Keep the prism strain history (n_out x n_prisms per column)."""
     device: str | None = None
     """Warp device ('cpu', 'cuda:0'); None: the GPU if there is one, else the CPU."""
-    dt_safety: float = 0.25
-    """Fraction of the predicted stability limit used when dt = 'auto' (at most 0.5)."""
+    dt_safety: float | None = None
+    """Fraction of the predicted stability limit used when dt = 'auto' (at most 0.5); None: the
+    fraction that meets :data:`~warp_tensegrity.engine.DEFAULT_ACCURACY` (1e-3) on the pulse
+    measures (:func:`~warp_tensegrity.engine.default_dt_safety`)."""
     allow_unstable_dt: bool = False
     """Accept an explicit dt above the stability limit (for stability studies)."""
     projection_tol: float | None = None
@@ -94,7 +96,7 @@ class RunSettings:
             np.isfinite(self.output_interval) and self.output_interval > 0
         ):
             raise SettingsError(f"output_interval = {self.output_interval!r} s must be finite and > 0")
-        if not (0 < self.dt_safety <= 0.5):
+        if self.dt_safety is not None and not (0 < self.dt_safety <= 0.5):
             # measured (analysis/work_precision.md): strong impacts stiffen the prisms and lower the
             # real limit to ~0.45 of 2/omega_max; the default 0.25 keeps a margin of >= 2.5x
             raise SettingsError(

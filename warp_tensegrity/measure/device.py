@@ -604,7 +604,10 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
     (default: the record's), ``cut`` prisms at the clamp that read as zero strain; ``n_valid``
     (B,) samples recorded before a column failed (default: all). ``threshold``, skips and
     ``end_fraction`` as :func:`warp_tensegrity.measure.measure_pulse`. Returns the same dict of
-    float64 NumPy arrays, (B,) and (B, n_prisms); only these cross to the host.
+    float64 NumPy arrays, (B,) and (B, n_prisms), plus three per-record statistics that let the
+    record stay on the device: ``max_compression`` (largest -strain, NaN unless every sample is
+    finite), ``max_compression_finite`` (non-finite samples as 0) and ``record_finite`` (bool).
+    Only these cross to the host.
     ``timings`` (optional dict) receives ``measurement`` (device work) and ``transfer`` seconds.
     """
     _check_fraction("end_fraction", end_fraction)
@@ -668,12 +671,19 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
         if B and P and T:
             out = {k: v.numpy() for k, v in scal.items()}
             out["threshold"] = trial.numpy()
+            # per-record statistics the NaN reasons need, so the record itself need not cross
+            whole_h = whole.numpy().astype(bool)
+            qmax_h = qmax.numpy().max(axis=0)
+            out["max_compression"] = np.where(whole_h, qmax_h, np.nan)
+            out["max_compression_finite"] = qmax_h
+            out["record_finite"] = whole_h
             out["arrival_time"] = arrival.numpy().T.copy()
             out["peak_time"] = tp_time.numpy().T.copy()
             out["peak_value"] = tp_value.numpy().T.copy()
         else:
             nan_b = np.full(B, np.nan)
-            out = {k: nan_b.copy() for k in list(scal) + ["threshold"]}
+            out = {k: nan_b.copy() for k in list(scal) + ["threshold", "max_compression", "max_compression_finite"]}
+            out["record_finite"] = np.ones(B, dtype=bool)
             out.update({k: np.full((B, P), np.nan) for k in ("arrival_time", "peak_time", "peak_value")})
     if timings is not None:
         timings["measurement"] = timings.get("measurement", 0.0) + (t1 - t0)
@@ -716,8 +726,15 @@ def measure_host(result, prism_height, keep_strain: bool = True) -> None:
 
     t0 = _time.perf_counter()
     if result.strain is not None:
+        s = np.asarray(result.strain, dtype=np.float64)
         with np.errstate(all="ignore"):
-            result.measurements = measure_pulse(result.strain, result.time, prism_height)
+            m = measure_pulse(s, result.time, prism_height)
+            ok = np.isfinite(s).all(axis=(1, 2))
+            q = np.where(np.isfinite(s), -s, 0.0)
+            m["max_compression_finite"] = q.max(axis=(1, 2)) if s.size else np.full(s.shape[0], np.nan)
+            m["max_compression"] = np.where(ok, m["max_compression_finite"], np.nan)
+            m["record_finite"] = ok
+        result.measurements = m
     stages = result.info.setdefault("stages", {})
     stages["measurement"] = stages.get("measurement", 0.0) + _time.perf_counter() - t0
     if not keep_strain:

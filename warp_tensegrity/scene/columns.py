@@ -27,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .impact import least_energy_impact
 from .network import Network, NetworkError
 
 PAPER_CABLE_MODULUS = 5.48e6  # N m-2
@@ -38,7 +39,8 @@ PAPER_N_PRISMS = 50
 MINIMAL_TWIST = 5.0 * np.pi / 6.0  # rad
 
 END_BASE_MASS = ("full", "half")
-IMPACT_ADMISSIBILITY = ("project", "end_twist")
+IMPACT_ADMISSIBILITY = ("rigid_members", "end_twist", "project")
+PAPER_IMPACT = "end_twist"  # the convention of the paper reproduction (analysis/paper_2017.md)
 
 
 @dataclass(frozen=True)
@@ -66,9 +68,14 @@ class ColumnConfig:
     end bases carry half a unit) or 'full' (every base carries a whole unit)."""
     bar_mass: float = 0.0
     """Mass of each bar [kg]; the paper's columns carry their mass on the bases (0)."""
-    impact_admissibility: str = "end_twist"
-    """How the axial impact velocity is made compatible with the rigid bars (default 'end_twist',
-    the best fit to the paper's Section 4, see analysis/paper_2017.md):
+    impact_admissibility: str = "rigid_members"
+    """How the axial impact velocity is made compatible with the members (docs/impact.md):
+    'rigid_members' (default) - the least-kinetic-energy velocity with v_z = -v0 on the free-end
+    nodes that keeps every bar and every base member rigid at the instant of impact, whatever the
+    base rigidity: the same initial state for every beta, so outputs are continuous in beta;
+    the paper's conventions, which treat only the members rigid in the dynamics as rigid at
+    impact (their initial velocity jumps at beta = 1; 'end_twist' is the best fit to the
+    paper's Section 4, see analysis/paper_2017.md):
     'project' - the impulse view: the axial velocity -v0 on the free-end nodes is projected onto
     the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
     'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
@@ -344,7 +351,11 @@ def build_column(
         cable_names=names,
     ).validate()
     residual = equilibrium_residual(net)
-    vel = impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
+    if config.impact_admissibility == "rigid_members":
+        vel = least_energy_impact(X, net.mass_matrix(), topo.fixed, np.concatenate([topo.bars, topo.base]),
+                                  topo.level_nodes[-1], v0)
+    else:
+        vel = impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
     return ColumnScene(topo, net, vel, float(prestrain), float(v0), float(base_rigidity), T, residual)
 
 
