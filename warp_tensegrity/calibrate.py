@@ -235,15 +235,21 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     # as the engine runs it: the record is kept on the device for the measures
     s = dataclasses.replace(s, record_strain=s.record_strain or s.measure != "none")
     sim_cfg = _far_end(config, n_sim) if n_sim < n else config
-    # batch assembly (reference states, equilibrium checks), taken as proportional to the columns:
-    # the median of three builds of the probe's columns (a shared 2-core host is noisy)
-    t_cb = []
-    for _ in range(3):
-        t0 = time.perf_counter()
-        batch = column_batch(sim_cfg, pp)
-        t_cb.append(time.perf_counter() - t0)
-    b_col = float(np.median(t_cb)) / len(cols)
-    a_batch = 0.0
+    # batch assembly (reference states, equilibrium checks) as a + b x columns: medians of three
+    # builds at two widths (the probe's and a quarter of it), as a shared 2-core host is noisy
+    def build_time(p):
+        times = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            out = column_batch(sim_cfg, p)
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times)), out
+
+    n_small = max(1, len(cols) // 4)
+    t_small, _ = build_time({k: v[:n_small] for k, v in pp.items()})
+    t_full, batch = build_time(pp)
+    b_col = max(t_full - t_small, 0.0) / (len(cols) - n_small) if len(cols) > n_small else 0.0
+    a_batch = max(t_full - b_col * len(cols), 0.0)
     omega = float(omega_max_bound(batch).max())
     dt, _, _, every = choose_timestep(s, omega)
     # whole graph periods (as a run replays them): the fused path captures output periods
