@@ -29,7 +29,7 @@ def test_probe_is_cached_and_feeds_the_dry_run(cache, tmp_path, monkeypatch):
     files = list(cache.glob("*.json"))
     assert len(files) == 1
     cal = json.loads(files[0].read_text())
-    assert cal["describe"]["device"].startswith("cpu (") and cal["describe"]["path"] == "fused"
+    assert cal["describe"]["device"].startswith("cpu (") and cal["step_path"] == "fused"
     assert cal["probe_columns"] == 4 and cal["column_step_seconds"] > 0 and cal["import"] > 0
     assert set(est["stages_s"]) == {"import", "build", "compile", "stepping", "measurement", "transfer", "write",
                                     "finalise"}

@@ -92,15 +92,12 @@ def _probe_columns(n_columns: int, shard: int, is_cuda: bool) -> np.ndarray:
 
 
 def _key(config, params, settings, shard, device) -> tuple[str, dict]:
-    from .engine import choose_path
     from .io import code_version
-    from .types import Path as StepPath
 
-    fused = choose_path(settings, device.is_cuda, shard) == StepPath.FUSED
     cols = _probe_columns(len(next(iter(params.values()))) if params else 1, shard, device.is_cuda)
     desc = {
         "device": device_label(device.alias), "method": settings.method, "precision": settings.precision,
-        "path": "fused" if fused else "staged", "scene": repr(config), "dt": repr(settings.dt),
+        "path": f"fused={settings.fused}", "shard": int(shard), "scene": repr(config), "dt": repr(settings.dt),
         "output_interval": repr(settings.output_interval), "probe_columns": len(cols),
         "params": {k: np.asarray(v, dtype=np.float64)[cols].tolist() for k, v in sorted(params.items())},
         "truncate": settings.truncate, "code": code_version(), "version": CACHE_VERSION,
@@ -212,7 +209,7 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     ``settings`` must carry the resolved dt (seconds). Returns the measured rates (dict)."""
     import warp as wp
 
-    from .engine import _far_end, apply_accuracy, choose_path, choose_timestep, prisms_to_simulate
+    from .engine import _far_end, apply_accuracy, choose_path, choose_timestep, gram_bandwidth, prisms_to_simulate
     from .integrate import Integrator
     from .measure.device import load_kernels, measure_record
     from .scene.batch import column_batch, omega_max_bound
@@ -254,13 +251,15 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     dt, _, _, every = choose_timestep(s, omega)
     # whole graph periods (as a run replays them): the fused path captures output periods
     spg = int(s.steps_per_graph)
-    fused = choose_path(s, device.is_cuda, len(cols)) == StepPath.FUSED
+    # the path a shard of the sweep takes (the key holds settings.fused, the shard width and the scene)
+    step_path = choose_path(s, device.is_cuda, shard_size, gram_bandwidth(batch))
+    fused = step_path == StepPath.FUSED
     period = every * max(1, -(-spg // every)) if fused else spg
     seg_steps = period * max(1, -(-(PROBE_STEPS // 3) // period))
     warm_steps = period * max(1, -(-PROBE_WARM_STEPS // period))
     n_out = (warm_steps + 3 * seg_steps) // every + 1
     t0 = time.perf_counter()
-    integ = Integrator(batch, s, dt, every, n_out, path=choose_path(s, device.is_cuda, len(cols)))
+    integ = Integrator(batch, s, dt, every, n_out, path=step_path)
     t_integ = time.perf_counter() - t0
     B = batch.n_columns
     with wp.ScopedDevice(integ.device):
@@ -300,7 +299,8 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     fresh = _fresh_process_costs(integ.device.alias, config, pp, settings)
     res = {
         "key": key, "describe": desc, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "device_label": desc["device"], "is_cuda": bool(device.is_cuda), "probe_columns": int(B), "probe_steps": 3 * seg_steps,
+        "device_label": desc["device"], "is_cuda": bool(device.is_cuda), "step_path": str(step_path.value),
+        "probe_columns": int(B), "probe_steps": 3 * seg_steps,
         "prisms_simulated": int(n_sim), "dt": float(dt), "output_every": int(every),
         "batch_fixed": a_batch, "batch_per_column": b_col, "integrator_build": t_integ, "initialize": t_init,
         "step_seconds": t_step, "column_step_seconds": t_step / B,

@@ -62,10 +62,11 @@ class RunSettings:
     """Steps captured in one CUDA graph."""
     fused: bool | str = "auto"
     """RATTLE as one fused kernel, a thread block per column and several steps per launch
-    (:mod:`warp_tensegrity.fused`); False: one kernel per stage (the only path of the other
+    (:mod:`warp_tensegrity.kernels.fused`); False: one kernel per stage (the only path of the other
     methods). 'auto': fused for RATTLE, except on a GPU above
-    :data:`~warp_tensegrity.engine.FUSED_MAX_COLUMNS` columns, where the staged kernels stream
-    faster. Both paths give the same numbers to round-off."""
+    :data:`~warp_tensegrity.engine.FUSED_MAX_COLUMNS` columns (FB; ``FUSED_MAX_COLUMNS_WIDE`` for
+    wider Gram bands, RB) where the staged kernels stream faster, and for Gram bands wider than
+    ``FUSED_MAX_BANDWIDTH`` (generic networks). Both paths give the same numbers to round-off."""
     accuracy: float | None = None
     """Target relative error of the pulse measures (speed, amplitude). When given, the engine
     chooses method, precision and dt from the measured work-precision curves

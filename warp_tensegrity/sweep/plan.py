@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..engine import estimate_batch
+from ..engine import choose_path, estimate_batch
 from ..io import code_version
 from ..settings import RunSettings
 from .progress import fmt_seconds
@@ -136,16 +136,18 @@ def dry_run(plan: SweepPlan, costs: dict | None = None) -> str:
         f"steps:       {n_steps} to t_end = {r['t_end']} s, {n_out} outputs",
     ]
     auto = "" if plan.device else " (auto: the GPU if there is one, else the CPU)"
+    step_path = f"step path:   {_step_path(plan)} (per shard of {max(b - a for a, b in plan.shards)} columns)"
     if costs is not None:
         p = costs["probe"]
         lines += [
             f"device:      {costs['device']}{auto}",
+            step_path,
             f"memory:      {_fmt_bytes(costs['device_bytes_per_shard'])} device memory per shard, "
             f"{_fmt_bytes(costs['host_peak_bytes'])} peak host memory",
         ]
     else:
         dev_bytes = int(est.get("bytes_per_column", 0)) * max(b - a for a, b in plan.shards)
-        lines += [f"device:      {plan.device or 'auto'}{auto}",
+        lines += [f"device:      {plan.device or 'auto'}{auto}", step_path,
                   f"memory:      {_fmt_bytes(dev_bytes)} device memory per shard (uncalibrated)"]
     lines.append(f"output:      {_fmt_bytes(out_bytes)} uncompressed"
                  + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"))
@@ -160,6 +162,13 @@ def dry_run(plan: SweepPlan, costs: dict | None = None) -> str:
         spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
         lines.append(f"time:        ~{fmt_seconds(spc * n_steps * n)} stepping (uncalibrated flop count)")
     return "\n".join(lines)
+
+
+def _step_path(plan: SweepPlan) -> str:
+    """The launch path (engine.choose_path) a shard takes: 'fused' or 'staged'."""
+    est = plan.estimate
+    shard = max(b - a for a, b in plan.shards)
+    return str(choose_path(plan.settings, bool(est.get("on_gpu")), shard, int(est.get("bandwidth", 0))).value)
 
 
 def _fmt_bytes(b: float) -> str:
