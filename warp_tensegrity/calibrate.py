@@ -92,7 +92,7 @@ def _probe_columns(n_columns: int, shard: int, is_cuda: bool) -> np.ndarray:
 
 
 def _key(config, params, settings, shard, device) -> tuple[str, dict]:
-    from .io import code_version
+    from .provenance import code_version
 
     cols = _probe_columns(len(next(iter(params.values()))) if params else 1, shard, device.is_cuda)
     desc = {

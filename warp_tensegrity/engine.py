@@ -54,7 +54,9 @@ from .scene.batch import (
     reference_states,
 )
 from .scene.columns import ColumnConfig
-from .settings import BatchResult, RunSettings, SettingsError
+from .runtime import init_warp
+from .result import BatchResult
+from .settings import RunSettings, SettingsError
 from .types import FORCE_EVALS, STABILITY, Base, Method, Path
 
 # fused='auto' on a GPU: the fused step (block cyclic reduction) up to FUSED_MAX_COLUMNS columns
@@ -213,6 +215,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: 
     """Integrate a prepared batch; see :func:`simulate_batch` for columns. ``pulse``: keywords of
     :func:`~warp_tensegrity.measure.device.measure_record` (prism_height, n_prisms, cut) to measure
     the record on the device (settings.measure = 'device')."""
+    init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
 
     omega = float(omega_max_bound(batch).max())
@@ -330,6 +333,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
                     "precision": settings.precision, "dt": result.dt,
                     "record_strain": settings.record_strain})
     result.info["choices"] = choices
+    result.info["prism_height"] = float(config.height)  # for BatchResult.to_xarray's measurements
     return result
 
 
@@ -378,6 +382,7 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     """Time step, stability limit, step count and memory of a batch, without launching kernels
     (its seconds are a rough flop count; :func:`warp_tensegrity.calibrate.estimate_batch`, the
     public ``warp_tensegrity.estimate_batch``, adds time and memory from a probe on the device)."""
+    init_warp()
     from .integrate import resolve_device
     from .model import constraint_coupling, mass_entries
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from . import columns as col
 from .network import Network, NetworkError
-from ..settings import COLUMN_PARAMETERS
+from ..types import COLUMN_PARAMETERS
 
 
 @dataclass

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..engine import for_accuracy
-from ..io import code_version
+from ..provenance import code_version
 from ..scene.columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
 from ..scene.network import NetworkError
 from ..settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
@@ -73,6 +73,28 @@ RUN_DEFAULTS = {
     "fused": _RUN_DEFAULTS["fused"],
 }
 """Every [run] key and its default (None: engine's choice)."""
+
+KEY_DOCS = {
+    "title": "dataset `title` attribute (default: from the file name)",
+    "description": "dataset `comment` attribute",
+    "scene": "table: the fixed scene, the same for every column",
+    "sweep": "table: the swept per-column parameters",
+    "run": "table: run settings",
+    "sweep.grid": "a full grid, one axis per per-column parameter, in the order written (C order: the first varies slowest); "
+                  "each axis a list of distinct values or a range table",
+    "sweep.cases": "an explicit list of tables, one column each, setting any per-column parameters (and `label`)",
+    "sweep.fixed": "non-swept per-column parameters (a parameter is either swept or fixed)",
+    "sweep.grid.<param>.start": "first value of a range axis (included)",
+    "sweep.grid.<param>.stop": "last value of a range axis (included)",
+    "sweep.grid.<param>.num": "number of values of a range axis (integer >= 1)",
+    "sweep.grid.<param>.spacing": '`"linear"` (default) or `"log"` (geometric; start, stop > 0)',
+    "sweep.cases[i].label": "case label, stored as the `case_label` coordinate",
+    "run.shard_size": "columns per shard: one engine batch, one file (integer >= 1)",
+    "run.record_energy": "store the kinetic and elastic energy histories of each column",
+    "run.record_strain": "store the strain history (t x prism) of each column (the measures always use it)",
+}
+"""What each spec key that is not a ColumnConfig / RunSettings field means (the docs' options table
+reads these and the fields' docstrings: ``docs/hooks/options.py``)."""
 
 EXECUTION_KEYS = ("device", "shard_size", "fused")
 """[run] keys that say where/how a sweep runs, not what it computes: left out of the fingerprint."""
