@@ -253,7 +253,7 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     spg = int(s.steps_per_graph)
     # the path a shard of the sweep takes (the key holds settings.fused, the shard width and the scene)
     step_path = choose_path(s, device.is_cuda, shard_size, gram_bandwidth(batch))
-    fused = step_path == StepPath.FUSED
+    fused = step_path in (StepPath.FUSED, StepPath.FUSED_SERIAL)
     period = every * max(1, -(-spg // every)) if fused else spg
     seg_steps = period * max(1, -(-(PROBE_STEPS // 3) // period))
     warm_steps = period * max(1, -(-PROBE_WARM_STEPS // period))
