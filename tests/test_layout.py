@@ -22,10 +22,10 @@ LAYERS = [
     {"types", "scene.network", "scene.impact", "measure.pulse", "sweep.errors", "sweep.progress",
      "provenance", "runtime", "_version", "lens.host", "lens.design"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.staged", "kernels.fused", "kernels", "model", "measure",
-     "measure.nan_reasons", "io"},
+     "measure.nan_reasons", "io", "measure.device"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "lens.io"},
-    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "", "lens.run"},
+    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},
     {"sweep.run", "sweep", "lens", "lens.command"},
     {"cli", "__main__"},
 ]

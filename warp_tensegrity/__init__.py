@@ -7,7 +7,8 @@ Importing the package (and reading a spec) does not import Warp; the first run d
 Figures: :mod:`.plot`. ``__version__`` is the build's version (setuptools-scm; :mod:`.provenance`).
 """
 
-from .engine import estimate_batch, run_batch, simulate_batch
+from .calibrate import estimate_batch  # time and memory from a probe on the device
+from .engine import run_batch, simulate_batch
 from .measure import measure_pulse
 from .scene import (
     ColumnConfig,

@@ -227,7 +227,9 @@ def _dispatch(args) -> int:
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
         plan = sweep_plan.apply_memory_limit(plan, args.memory_limit)
         if args.dry_run:
-            print(sweep_plan.dry_run(plan))
+            from .calibrate import estimate_plan  # a probe on the target device, cached
+
+            print(sweep_plan.dry_run(plan, estimate_plan(plan)))
             if args.command == "resume" and plan.shard_dir.exists():
                 st = sweep.sweep_status(out, plan.spec)
                 print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")

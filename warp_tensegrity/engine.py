@@ -40,6 +40,7 @@ Model no more than a scene needs: choices taken from the requested accuracy and 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -236,8 +237,10 @@ def _to_host(a):
     return None if a is None else a.numpy().astype(np.float64)
 
 
-def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> BatchResult:
-    """Integrate a prepared batch; see :func:`simulate_batch` for columns."""
+def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: dict | None = None) -> BatchResult:
+    """Integrate a prepared batch; see :func:`simulate_batch` for columns. ``pulse``: keywords of
+    :func:`~warp_tensegrity.measure.device.measure_record` (prism_height, n_prisms, cut) to measure
+    the record on the device (settings.measure = 'device')."""
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
 
@@ -245,8 +248,19 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     n_out = n_steps // every + 1
     path = choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns, gram_bandwidth(batch))
-    integ = Integrator(batch, settings, dt, every, n_out, path=path)
+    # the measures need the record on the device, whether or not it crosses to the host
+    record = settings.record_strain or settings.measure == "host" or (pulse is not None and settings.measure == "device")
+    integ = Integrator(batch, replace(settings, record_strain=record), dt, every, n_out, path=path)
     wall, t_compile = integ.run(n_steps, progress)
+    stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
+    measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"
+    if measure_here:
+        from .measure.device import load_kernels, measure_record
+
+        t0 = time.perf_counter()
+        load_kernels(integ.device)
+        stages["compile"] += time.perf_counter() - t0
+    t_host = time.perf_counter()
     d = integ.data
     ke = _to_host(integ.kinetic).T  # (B, n_out)
     ee = _to_host(integ.elastic).T
@@ -264,13 +278,20 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
     with np.errstate(invalid="ignore"):
         dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
         energy_error = dev.max(axis=1) / scale
+    measurements = None
+    if measure_here:
+        n_valid = np.where(status != 0, np.maximum(fail_step - 1, 0) // every + 1, n_out)
+        measurements = measure_record(integ.strain, output_times(np.arange(n_out) * every, dt), n_valid=n_valid, timings=stages,
+                                      **pulse)
     strain = None
-    if integ.strain is not None:
+    if integ.strain is not None and (settings.record_strain or settings.measure == "host"):
         strain = _to_host(integ.strain).transpose(2, 0, 1)  # (B, n_out, n_prisms)
         for b in np.flatnonzero(status):
             last_slot = max(int(fail_step[b]) - 1, 0) // every
             strain[b, last_slot + 1 :] = np.nan
+    stages["transfer"] = stages.get("transfer", 0.0) + time.perf_counter() - t_host - stages.get("measurement", 0.0)
     return BatchResult(
+        measurements=measurements,
         params=dict(batch.params),
         time=output_times(np.arange(n_out) * every, dt),
         strain=strain,
@@ -303,6 +324,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
             "force_evaluations_per_step": FORCE_EVALS[settings.method],
             "step_path": integ.fk.description if integ.fused else "staged (one kernel per stage)",
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
+            "stages": stages,
         },
     )
 
@@ -323,10 +345,18 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     n_sim = prisms_to_simulate(config, params, settings) if prisms_simulated is None else int(prisms_simulated)
     settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
     sim_config = _far_end(config, n_sim) if n_sim < n else config
+    t_build = time.perf_counter()
     batch = column_batch(sim_config, params)
-    result = run_batch(batch, settings, progress)
+    t_build = time.perf_counter() - t_build
+    pulse = {"prism_height": config.height, "n_prisms": n, "cut": n - n_sim}
+    result = run_batch(batch, settings, progress, pulse=pulse)
+    result.info["stages"]["build"] += t_build
     if n_sim < n:
         _pad_to_full_column(result, config, sim_config, params, n, n_sim)
+    if settings.measure == "host":
+        from .measure.device import measure_host
+
+        measure_host(result, config.height, keep_strain=settings.record_strain)
     choices.update({"dt_safety": settings.dt_safety, "prisms_simulated": n_sim, "prisms": n, "method": settings.method,
                     "precision": settings.precision, "dt": result.dt,
                     "record_strain": settings.record_strain})
@@ -377,7 +407,9 @@ def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int,
 
 
 def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
-    """Time step, stability limit, step count and memory of a batch, without launching kernels."""
+    """Time step, stability limit, step count and memory of a batch, without launching kernels
+    (its seconds are a rough flop count; :func:`warp_tensegrity.calibrate.estimate_batch`, the
+    public ``warp_tensegrity.estimate_batch``, adds time and memory from a probe on the device)."""
     init_warp()
     from .integrate import resolve_device
     from .model import constraint_coupling, mass_entries

@@ -240,8 +240,10 @@ def measure_columns(result, prism_height: float) -> dict:
     """Leading-pulse measurements per column (:func:`warp_tensegrity.measure.measure_pulse`);
     NaN where undefined and for every column whose status is not ok. ``prism_height`` [m]."""
     status = np.asarray(result.status)
-    with np.errstate(all="ignore"):
-        m = measure_pulse(result.strain, result.time, prism_height)
+    m = getattr(result, "measurements", None)  # taken by the engine (on the device by default)
+    if m is None:
+        with np.errstate(all="ignore"):
+            m = measure_pulse(result.strain, result.time, prism_height)
     bad = status != 0
     out = {
         "amplitude": m["amplitude"],
@@ -254,10 +256,15 @@ def measure_columns(result, prism_height: float) -> dict:
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
         v[bad] = np.nan
-    with np.errstate(invalid="ignore"):
-        out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    stats = None
+    if result.strain is not None:
+        with np.errstate(invalid="ignore"):
+            out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    else:  # the record stayed on the device: its statistics came with the measures
+        out["max_compression"] = np.array(m["max_compression"], dtype=np.float64, copy=True)
+        stats = {k: m[k] for k in ("record_finite", "max_compression_finite")}
     out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
-    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)  # why a measure is NaN
+    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out, stats)  # why a measure is NaN
     return out
 
 
@@ -324,7 +331,7 @@ def result_dataset(result, config=None, measure: bool = True, attrs: dict | None
         int(config.n_prisms) if config is not None else 0)
     height = float(config.height) if config is not None else result.info.get("prism_height")
     meas = None
-    if measure and result.strain is not None:
+    if measure and (result.strain is not None or getattr(result, "measurements", None) is not None):
         if height is None:
             raise ValueError("to_xarray(measure=True) needs the column's config (prism height)")
         meas = measure_columns(result, height)

@@ -51,7 +51,11 @@ class BatchResult:
     dt_limit: float = float("nan")
     """Predicted stability limit of the method for the stiffest column [s]."""
     info: dict = field(default_factory=dict)
-    """Extra facts: projection iterations, compile time, steps per graph, etc."""
+    """Extra facts: projection iterations, compile time, steps per graph, stage seconds, etc."""
+    measurements: dict | None = None
+    """Pulse measures of every column (:func:`warp_tensegrity.measure.measure_pulse`'s dict and the
+    record statistics of :func:`warp_tensegrity.measure.device.measure_record`), when
+    ``RunSettings.measure`` is not 'none'."""
 
     @property
     def n_columns(self) -> int:

@@ -68,6 +68,11 @@ class RunSettings:
     """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
     column there; results are padded back to the full column (the far prisms stay at rest).
     Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.engine`)."""
+    measure: str = "device"
+    """Pulse measures (``BatchResult.measurements``) of :func:`~warp_tensegrity.engine.simulate_batch`:
+    'device' (Warp kernels on the device record; only the measures cross to the host), 'host'
+    (NumPy reference on a host copy) or 'none'. Except with 'none', the strain record is kept on
+    the device (n_out x n_prisms per column) even when record_strain is False."""
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -102,6 +107,8 @@ class RunSettings:
             raise SettingsError(f"fused = {self.fused!r}; choose true, false or 'auto'")
         if self.fused is True and self.method != "rattle":
             raise SettingsError(f"fused = true needs method = 'rattle' (got method = {self.method!r})")
+        if self.measure not in ("device", "host", "none"):
+            raise SettingsError(f"measure = {self.measure!r}; choose 'device', 'host' or 'none'")
         if int(self.steps_per_graph) < 1:
             raise SettingsError(f"steps_per_graph = {self.steps_per_graph!r} must be >= 1")
 

@@ -60,15 +60,23 @@ reference state is ~1e-14)."""
 _PEAK_CLEARANCE = 4
 
 
-def measurement_flags(status, strain, time, meas: dict) -> np.ndarray:
+def measurement_flags(status, strain, time, meas: dict, record_stats: dict | None = None) -> np.ndarray:
     """(B,) int8 flag per column from the engine status, the strain record (B, T, P) (None if not
-    recorded) and the measures of :func:`warp_tensegrity.sweep.shard.measure_columns`."""
+    recorded) and the measures of :func:`warp_tensegrity.sweep.shard.measure_columns`.
+    ``record_stats``: when the record stayed on the device, its ``record_finite`` (B,) and
+    ``max_compression_finite`` (B,) (:func:`warp_tensegrity.measure.device.measure_record`)."""
     status = np.asarray(status)
     B = status.shape[0]
     flags = np.full(B, FLAG["ok"], dtype=np.int8)
     amp, speed = np.asarray(meas["amplitude"]), np.asarray(meas["speed"])
     widths = np.isnan(np.asarray(meas["width"])) | np.isnan(np.asarray(meas["width_10"]))
-    if strain is None:
+    if strain is None and record_stats is not None:
+        finite = np.asarray(record_stats["record_finite"], dtype=bool)
+        compressed = np.asarray(record_stats["max_compression_finite"]) > FLAT_STRAIN
+        P = np.asarray(meas["arrival_time"]).shape[-1]
+        lo, hi = measurement_window(P)
+        arrived = np.isfinite(np.asarray(meas["arrival_time"])[:, lo:hi]).sum(axis=1)
+    elif strain is None:
         finite = np.ones(B, dtype=bool)
         compressed = np.zeros(B, dtype=bool)
         arrived = np.zeros(B)

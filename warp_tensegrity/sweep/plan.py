@@ -125,8 +125,10 @@ def apply_memory_limit(plan: SweepPlan, memory_limit) -> SweepPlan:
     return plan
 
 
-def dry_run(plan: SweepPlan) -> str:
-    """What a run would do: columns, shards, dt, steps, memory and time estimates."""
+def dry_run(plan: SweepPlan, costs: dict | None = None) -> str:
+    """What a run would do: columns, shards, dt, steps, memory and time estimates. ``costs``: the
+    calibrated prediction (:func:`warp_tensegrity.calibrate.estimate_plan`, which the CLI passes);
+    without it, memory and time are the engine's uncalibrated figures."""
     spec, est = plan.spec, plan.estimate
     r = spec.run
     n = plan.n_columns
@@ -137,10 +139,6 @@ def dry_run(plan: SweepPlan) -> str:
     per_col_out = 8 * (5 + 2 + P) + (8 * 2 * n_out if r["record_energy"] else 0)
     per_col_strain = 8 * n_out * P
     out_bytes = n * (per_col_out + (per_col_strain if r["record_strain"] else 0))
-    dev_bytes = int(est.get("bytes_per_column", 0)) * max(b - a for a, b in plan.shards)
-    host_shard = (per_col_out + per_col_strain) * max(b - a for a, b in plan.shards)
-    spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
-    secs = spc * n_steps * n
     dt_txt = f"{plan.dt:.4g} s"
     if isinstance(r["dt"], str):
         dt_txt += f" (auto: {plan.estimate.get('dt_safety', r['dt_safety']):.4g} x limit {plan.dt_limit:.4g} s)"
@@ -152,13 +150,33 @@ def dry_run(plan: SweepPlan) -> str:
         f"shards:      {plan.n_shards} of up to {plan.shard_size} columns -> {plan.shard_dir}/ (Zarr store)",
         f"method:      {r['method']} {r['precision']}, dt = {dt_txt}",
         f"steps:       {n_steps} to t_end = {r['t_end']} s, {n_out} outputs",
-        f"device:      {plan.device or 'auto (the GPU if there is one, else the CPU)'}",
-        f"step path:   {_step_path(plan)} (per shard of {max(b - a for a, b in plan.shards)} columns)",
-        f"memory:      {_fmt_bytes(dev_bytes)} device memory per shard, {_fmt_bytes(host_shard)} host memory per shard",
-        f"output:      {_fmt_bytes(out_bytes)} uncompressed"
-        + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"),
-        f"time:        ~{fmt_seconds(secs)} ({n} columns x {n_steps} steps x {spc:.3g} s per column-step)",
     ]
+    auto = "" if plan.device else " (auto: the GPU if there is one, else the CPU)"
+    step_path = f"step path:   {_step_path(plan)} (per shard of {max(b - a for a, b in plan.shards)} columns)"
+    if costs is not None:
+        p = costs["probe"]
+        lines += [
+            f"device:      {costs['device']}{auto}",
+            step_path,
+            f"memory:      {_fmt_bytes(costs['device_bytes_per_shard'])} device memory per shard, "
+            f"{_fmt_bytes(costs['host_peak_bytes'])} peak host memory",
+        ]
+    else:
+        dev_bytes = int(est.get("bytes_per_column", 0)) * max(b - a for a, b in plan.shards)
+        lines += [f"device:      {plan.device or 'auto'}{auto}", step_path,
+                  f"memory:      {_fmt_bytes(dev_bytes)} device memory per shard (uncalibrated)"]
+    lines.append(f"output:      {_fmt_bytes(out_bytes)} uncompressed"
+                 + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"))
+    if costs is not None:
+        lines += [
+            f"time:        ~{fmt_seconds(costs['seconds'])} wall ("
+            + ", ".join(f"{k} {v:.3g} s" for k, v in costs["stages_s"].items()) + ")",
+            f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
+            f"({p['column_step_seconds']:.3g} s per column-step; cached {p['created']})",
+        ]
+    else:
+        spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
+        lines.append(f"time:        ~{fmt_seconds(spc * n_steps * n)} stepping (uncalibrated flop count)")
     return "\n".join(lines)
 
 

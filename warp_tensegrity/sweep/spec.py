@@ -293,8 +293,8 @@ class SweepSpec:
 
     # ------------------------------------------------------------------ settings
     def run_settings(self, device: str | None = None, dt: float | str | None = None) -> RunSettings:
-        """RunSettings for the engine. The engine always records strain (the measurements need
-        it); record_strain only decides whether it is stored."""
+        """RunSettings for the engine. The engine always keeps the strain record on the device (the
+        measurements are taken there); record_strain decides whether it crosses to the host and is stored."""
         r = self.run
         dev = device if device is not None else r["device"]
         if dev in ("auto", None):
@@ -305,7 +305,7 @@ class SweepSpec:
             method=r["method"],
             precision=r["precision"],
             output_interval=r["output_interval"],
-            record_strain=True,
+            record_strain=r["record_strain"],
             device=dev,
             dt_safety=r["dt_safety"],
             allow_unstable_dt=r["allow_unstable_dt"],

@@ -1,0 +1,208 @@
+"""End-to-end cost of a sweep through the CLI's code path, by stage, beside the dry-run estimate.
+
+    python benchmarks/end_to_end.py sweeps/ci_small.toml sweeps/paper_2017.toml --device cpu \
+        --out benchmarks/results/end_to_end_cpu.json
+
+For every spec: the dry-run's calibrated prediction is taken first
+(:func:`warp_tensegrity.calibrate.estimate_plan`, the function ``--dry-run`` prints; its probe
+also warms the kernel cache), then a fresh Python process runs ``warp-tensegrity run SPEC -o OUT
+--device D --overwrite --no-progress`` through :func:`warp_tensegrity.cli.main`, timed from
+process creation to the closed output file. Stages are read off the engine
+(``BatchResult.info['stages']``: build, compile, stepping, measurement, transfer) and from thin
+timing wrappers around the sweep's own functions (planning -> build, shard dataset and netCDF
+write -> write, shard checks and the combine -> finalise); imports are everything before the
+CLI is entered (interpreter start, warp_tensegrity, Warp, xarray, ``wp.init``). Seconds not in any
+stage are reported as ``other_s``. Peak host RSS is the run process's ``ru_maxrss``.
+
+Writes a JSON list of records (one per run) with keys ``spec``, ``device_name``, ``git_commit``,
+``wall_s``, ``stages_s``, ``estimate_s``, ``peak_rss_bytes`` and some context.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+STAGES = ("import", "build", "compile", "stepping", "measurement", "transfer", "write", "finalise")
+
+
+def _child(spec: str, device: str, out: str, record: str) -> None:
+    """Run one spec through cli.main and write its stage record (the run process)."""
+    from warp_tensegrity.calibrate import process_age
+
+    t_ref = time.perf_counter() - process_age()  # process creation on the perf_counter clock
+    import warp as wp
+
+    wp.config.quiet = True
+    from warp_tensegrity import cli, engine, integrate  # noqa: F401 - the modules a run imports
+    from warp_tensegrity import io as D
+    from warp_tensegrity.measure import device as _measure_device  # noqa: F401
+    from warp_tensegrity.sweep import plan as sweep_plan, run as sweep_run, shard as sweep_shard
+
+    wp.init()
+    wp.get_device(device)
+    st = dict.fromkeys(STAGES, 0.0)
+    st["import"] = time.perf_counter() - t_ref
+    info = {"shards": 0}
+    phase = {"finalise": False}
+
+    def timed(owner, name, stage, fn=None):
+        orig = getattr(owner, name)
+
+        def wrapper(*a, **k):
+            t0 = time.perf_counter()
+            try:
+                return (fn or orig)(*a, **k)
+            finally:
+                dt = time.perf_counter() - t0
+                s = stage() if callable(stage) else stage
+                if s:
+                    st[s] += dt
+
+        setattr(owner, name, wrapper)
+        return orig
+
+    orig_sim = sweep_shard.simulate_batch
+
+    def sim(*a, **k):
+        t0 = time.perf_counter()
+        r = orig_sim(*a, **k)
+        total = time.perf_counter() - t0
+        es = r.info.get("stages", {})
+        for key in ("build", "compile", "stepping", "measurement", "transfer"):
+            st[key] += float(es.get(key, 0.0))
+        # host-side preparation around the engine's own stages (batch assembly, padding)
+        st["build"] += max(0.0, total - sum(float(es.get(key, 0.0)) for key in
+                                            ("build", "compile", "stepping", "measurement", "transfer")))
+        info["shards"] += 1
+        info["n_steps"] = int(r.n_steps)
+        info["device"] = r.device
+        info["device_name"] = r.device_name
+        return r
+
+    sweep_shard.simulate_batch = sim
+    timed(sweep_plan, "plan_sweep", "build")
+    timed(sweep_shard, "measure_columns", "measurement")
+    timed(D, "shard_dataset", "write")
+    timed(D, "write_netcdf", lambda: None if phase["finalise"] else "write")
+    timed(sweep_run, "check_shard", lambda: None if phase["finalise"] else "finalise")
+    orig_combine = sweep_run.combine
+
+    def combine(*a, **k):
+        phase["finalise"] = True
+        t0 = time.perf_counter()
+        try:
+            return orig_combine(*a, **k)
+        finally:
+            st["finalise"] += time.perf_counter() - t0
+            phase["finalise"] = False
+
+    sweep_run.combine = combine
+    rc = cli.main(["run", spec, "-o", out, "--device", device, "--overwrite", "--no-progress"])
+    wall = time.perf_counter() - t_ref
+    if rc != 0:
+        raise SystemExit(f"run of {spec} failed with exit code {rc}")
+    import resource
+
+    rec = {"wall_s": wall, "stages_s": st, "other_s": wall - sum(st.values()),
+           "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, **info}
+    Path(record).write_text(json.dumps(rec))
+
+
+def _estimate(spec: str, device: str, out: str) -> dict:
+    from warp_tensegrity.calibrate import estimate_plan
+    from warp_tensegrity.sweep.plan import plan_sweep
+    from warp_tensegrity.sweep.spec import load_spec
+
+    t0 = time.perf_counter()
+    plan = plan_sweep(load_spec(Path(spec)), out, device=device)
+    est = estimate_plan(plan)
+    est["dry_run_s"] = time.perf_counter() - t0
+    return est
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("specs", nargs="*", help="sweep specs (TOML)")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", default=None, help="JSON output (default benchmarks/results/end_to_end_<device>.json)")
+    p.add_argument("--repeat", type=int, default=1, help="runs per spec (each a record)")
+    p.add_argument("--append", action="store_true", help="keep the records already in the output file")
+    p.add_argument("--child", nargs=3, metavar=("SPEC", "OUT_NC", "RECORD"), help=argparse.SUPPRESS)
+    a = p.parse_args(argv)
+    if a.child:
+        _child(a.child[0], a.device, a.child[1], a.child[2])
+        return 0
+    sys.path.insert(0, str(REPO))
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import warp as wp
+
+    wp.config.quiet = True
+    from common import git_commit, run_metadata
+
+    meta = run_metadata(wp.get_device(a.device))
+    commit = git_commit()
+    out_path = Path(a.out) if a.out else REPO / "benchmarks" / "results" / f"end_to_end_{a.device.replace(':', '')}.json"
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    records = json.loads(out_path.read_text()) if a.append and out_path.exists() else []
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
+    with tempfile.TemporaryDirectory(prefix="e2e_") as tmp:
+        for spec in a.specs:
+            out = str(Path(tmp) / (Path(spec).stem + ".nc"))
+            est = _estimate(spec, a.device, out)
+            for r in range(a.repeat):
+                rec_path = Path(tmp) / "record.json"
+                cmd = [sys.executable, str(Path(__file__).resolve()), "--device", a.device, "--child", spec, out,
+                       str(rec_path)]
+                load0 = os.getloadavg()[0]
+                subprocess.run(cmd, check=True, env=env)
+                rec = json.loads(rec_path.read_text())
+                record = {
+                    "spec": spec,
+                    "device_name": rec.get("device_name", meta.get("device_name")),
+                    "device": rec.get("device", a.device),
+                    "git_commit": commit,
+                    "wall_s": rec["wall_s"],
+                    "stages_s": rec["stages_s"],
+                    "other_s": rec["other_s"],
+                    "estimate_s": est["seconds"],
+                    "estimate_stages_s": est["stages_s"],
+                    "estimate_error": est["seconds"] / rec["wall_s"] - 1.0,
+                    "dry_run_s": est["dry_run_s"],
+                    "estimate_device_bytes_per_shard": est["device_bytes_per_shard"],
+                    "estimate_host_peak_bytes": est["host_peak_bytes"],
+                    "peak_rss_bytes": rec["peak_rss_bytes"],
+                    "shards": rec["shards"],
+                    "n_steps": rec.get("n_steps"),
+                    "repeat": r,
+                    "load_avg_1min": [load0, os.getloadavg()[0]],
+                    "probe_load_avg_1min": est["probe"].get("load_avg"),
+                    "kernel_cache": "warm (the estimate's probe compiled what the run loads)",
+                    "measurement_on": "device",
+                    "host": {k: meta.get(k) for k in ("host", "cpu", "cpu_count", "driver", "sm_count")},
+                    "warp_version": wp.config.version,
+                    "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                }
+                st = rec["stages_s"]
+                tail = st["measurement"] + st["transfer"] + st["write"] + st["finalise"]
+                record["tail_s"] = tail
+                record["tail_over_stepping"] = tail / st["stepping"] if st["stepping"] else None
+                records.append(record)
+                out_path.write_text(json.dumps(records, indent=1, default=str) + "\n")  # after every run
+                print(f"{spec}: wall {rec['wall_s']:.2f} s (estimate {est['seconds']:.2f} s, "
+                      f"{100 * record['estimate_error']:+.0f} %); " + ", ".join(f"{k} {v:.3g}" for k, v in st.items())
+                      + f"; other {rec['other_s']:.3g}; peak RSS {rec['peak_rss_bytes'] / 1e6:.0f} MB", flush=True)
+    print(out_path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
