@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("spec", metavar="SPEC", help="sweep spec (TOML)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="combined netCDF output")
     p.add_argument("--overwrite", action="store_true", help="discard an earlier run's shards and output")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="overrides",
+                   help="override one spec option, typed and checked like the file (e.g. --set run.t_end=2.0, "
+                        "--set scene.n_prisms=8); repeatable; every option: docs/sweeps.md")
     _add_exec_options(p)
 
     p = sub.add_parser("resume", help="finish an interrupted run",
@@ -124,14 +127,12 @@ def _looks_like_spec(path: str) -> bool:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .network import NetworkError
-    from .settings import SettingsError
-    from .spec import SpecError
+    from .options import OptionError
     from .sweep import SweepError
 
     try:
         return _dispatch(args)
-    except (SpecError, SweepError, SettingsError, NetworkError) as e:
+    except (OptionError, SweepError) as e:
         print(f"warp-tensegrity: error: {e}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
@@ -148,7 +149,9 @@ def _dispatch(args) -> int:
         _quiet_warp(args.verbose)
         device = None if args.device == "auto" else args.device
         if args.command == "run":
-            spec = load_spec(Path(args.spec))
+            from .options import parse_set
+
+            spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
             plan = sweep.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
         else:

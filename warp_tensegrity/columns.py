@@ -29,94 +29,20 @@ import numpy as np
 
 from .network import Network, NetworkError
 
-PAPER_CABLE_MODULUS = 5.48e6  # N m-2
-PAPER_CABLE_RADIUS = 0.14e-3  # m
-PAPER_RADIUS = 5.0e-3  # m
-PAPER_HEIGHT = 6.2e-3  # m
-PAPER_UNIT_MASS = 0.0249  # kg
-PAPER_N_PRISMS = 50
-MINIMAL_TWIST = 5.0 * np.pi / 6.0  # rad
-
-END_BASE_MASS = ("full", "half")
-IMPACT_ADMISSIBILITY = ("project", "end_twist")
-
-
-@dataclass(frozen=True)
-class ColumnConfig:
-    """The fixed scene: geometry, material, masses, boundary and impact conventions (SI units)."""
-
-    n_prisms: int = PAPER_N_PRISMS
-    """Number of stacked T3 prisms."""
-    handedness: str = "right"
-    """'right', 'left', 'alternating', or one letter R/L per prism (e.g. 'RRL...')."""
-    radius: float = PAPER_RADIUS
-    """Radius a of the circle through each base triangle's vertices [m]."""
-    height: float = PAPER_HEIGHT
-    """Reference prism height h0 [m]."""
-    twist: float = MINIMAL_TWIST
-    """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
-    cable_modulus: float = PAPER_CABLE_MODULUS
-    """Young modulus of the cables E_s [N m-2]."""
-    cable_radius: float = PAPER_CABLE_RADIUS
-    """Cable cross-section radius r_s [m]."""
-    unit_mass: float = PAPER_UNIT_MASS
-    """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
-    end_base_mass: str = "half"
-    """Mass on the end bases: 'half' (default: each unit's mass split between its two bases, so the
-    end bases carry half a unit) or 'full' (every base carries a whole unit)."""
-    bar_mass: float = 0.0
-    """Mass of each bar [kg]; the paper's columns carry their mass on the bases (0)."""
-    impact_admissibility: str = "end_twist"
-    """How the axial impact velocity is made compatible with the rigid bars (default 'end_twist',
-    the best fit to the paper's Section 4, see analysis/paper_2017.md):
-    'project' - the impulse view: the axial velocity -v0 on the free-end nodes is projected onto
-    the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
-    'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
-    (twisting) velocity that satisfies the bars; no other node moves."""
-
-    def __post_init__(self):
-        _check_positive("n_prisms", self.n_prisms, integer=True)
-        for name in ("radius", "height", "cable_modulus", "cable_radius", "unit_mass"):
-            _check_positive(name, getattr(self, name))
-        if not (np.isfinite(self.bar_mass) and self.bar_mass >= 0):
-            raise NetworkError(f"bar_mass = {self.bar_mass} kg must be finite and >= 0")
-        if not (np.pi / 3 < self.twist < np.pi):
-            raise NetworkError(f"twist = {self.twist} rad must lie in (pi/3, pi)")
-        if self.end_base_mass not in END_BASE_MASS:
-            raise NetworkError(f"end_base_mass = {self.end_base_mass!r}; choose one of {END_BASE_MASS}")
-        if self.impact_admissibility not in IMPACT_ADMISSIBILITY:
-            raise NetworkError(
-                f"impact_admissibility = {self.impact_admissibility!r}; choose one of {IMPACT_ADMISSIBILITY}"
-            )
-        self.prism_handedness()  # validates
-
-    @property
-    def cable_EA(self) -> float:
-        """E_s * pi * r_s^2 [N]."""
-        return self.cable_modulus * np.pi * self.cable_radius**2
-
-    def prism_handedness(self) -> np.ndarray:
-        """+1 (right) or -1 (left) per prism."""
-        h = self.handedness
-        n = self.n_prisms
-        if h == "right":
-            return np.ones(n, dtype=np.int64)
-        if h == "left":
-            return -np.ones(n, dtype=np.int64)
-        if h == "alternating":
-            return np.where(np.arange(n) % 2 == 0, 1, -1).astype(np.int64)
-        if isinstance(h, str) and len(h) == n and set(h.upper()) <= {"R", "L"}:
-            return np.array([1 if c == "R" else -1 for c in h.upper()], dtype=np.int64)
-        raise NetworkError(
-            f"handedness = {h!r}: use 'right', 'left', 'alternating' or {n} letters R/L"
-        )
-
-
-def _check_positive(name, value, integer=False):
-    ok = np.isfinite(value) and value > 0 and (not integer or float(value).is_integer())
-    if not ok:
-        kind = "a positive integer" if integer else "finite and > 0"
-        raise NetworkError(f"{name} = {value} must be {kind}")
+# the scene's options (ColumnConfig) are declared once, in options.py
+from .options import (  # noqa: E402,F401
+    END_BASE_MASS,
+    IMPACT_ADMISSIBILITY,
+    MINIMAL_TWIST,
+    PAPER_CABLE_MODULUS,
+    PAPER_CABLE_RADIUS,
+    PAPER_HEIGHT,
+    PAPER_N_PRISMS,
+    PAPER_RADIUS,
+    PAPER_UNIT_MASS,
+    ColumnConfig,
+    check_column_param,
+)
 
 
 # ---------------------------------------------------------------------- topology
@@ -238,20 +164,9 @@ def base_member_law(EA: np.ndarray, base_rigidity: np.ndarray) -> tuple[np.ndarr
 
 def check_column_params(prestrain, v0, base_rigidity, cable_EA, unit_mass) -> None:
     """Raise NetworkError naming the parameter and value for any physically impossible input."""
-    checks = (
-        ("prestrain", prestrain, lambda x: (x >= 0) & (x < 1), "must lie in [0, 1)"),
-        ("v0", v0, lambda x: np.isfinite(x), "must be finite [m s-1]"),
-        ("base_rigidity", base_rigidity, lambda x: (x >= 0) & (x <= 1), "must lie in [0, 1]"),
-        ("cable_EA", cable_EA, lambda x: x > 0, "must be > 0 [N]"),
-        ("unit_mass", unit_mass, lambda x: x > 0, "must be > 0 [kg]"),
-    )
-    for name, val, ok, msg in checks:
-        arr = np.atleast_1d(np.asarray(val, dtype=np.float64))
-        good = np.isfinite(arr) & ok(arr)
-        if not good.all():
-            i = int(np.argmin(good))
-            where = f"[{i}]" if arr.size > 1 else ""
-            raise NetworkError(f"{name}{where} = {arr[i]} {msg}")
+    for name, val in zip(("prestrain", "v0", "base_rigidity", "cable_EA", "unit_mass"),
+                         (prestrain, v0, base_rigidity, cable_EA, unit_mass)):
+        check_column_param(name, val)  # bounds declared once, in options.ColumnParameters
 
 
 def node_masses(topo: ColumnTopology, unit_mass: float) -> np.ndarray:

@@ -18,8 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-class NetworkError(ValueError):
-    """Invalid network input. The message names the member or node and the bad value."""
+from .options import NetworkError  # noqa: E402,F401  (the one error class of scene and network input)
 
 
 @dataclass
