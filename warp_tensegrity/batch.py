@@ -106,6 +106,8 @@ def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarra
     # defaults declared in options.ColumnParameters; None there means "the scene's value"
     defaults = {f.name: getattr(config, f.name) if f.default is None else f.default
                 for f in dataclasses.fields(ColumnParameters)}
+    for k in params:
+        col.check_column_param(k, params[k])  # type and bounds, before any conversion
     arrays = {k: np.atleast_1d(np.asarray(params.get(k, d), dtype=np.float64)) for k, d in defaults.items()}
     B = max(a.size for a in arrays.values())
     for k, a in arrays.items():

@@ -36,6 +36,18 @@ def _positive_int(value: str) -> int:
     return n
 
 
+def _positive_float(value: str) -> float:
+    import math
+
+    try:
+        x = float(value)
+    except ValueError:
+        x = -1.0
+    if not (math.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"{value!r} is not a positive number of seconds")
+    return x
+
+
 def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
     p.add_argument("--device", type=_device, default=None,
                    help="Warp device: cpu, cuda:N or auto (default: the spec's run.device, else the GPU if there is one, else the CPU)")
@@ -49,6 +61,10 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
     if dry_run:
         p.add_argument("--dry-run", action="store_true",
                        help="print the number of columns and shards and the estimated memory and time; run nothing")
+    p.add_argument("--time-limit", type=_positive_float, default=None, metavar="SECONDS",
+                   help="refuse a run estimated to take longer (default: 7 days)")
+    p.add_argument("--ignore-estimate", action="store_true",
+                   help="run even when the estimate says the run exceeds this machine's memory, disk or time limit")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--verbose", action="store_true", help="let Warp print its start-up and module-load messages")
 
@@ -127,12 +143,13 @@ def _looks_like_spec(path: str) -> bool:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from .budget import BudgetError
     from .options import OptionError
     from .sweep import SweepError
 
     try:
         return _dispatch(args)
-    except (OptionError, SweepError) as e:
+    except (OptionError, SweepError, BudgetError) as e:
         print(f"warp-tensegrity: error: {e}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
@@ -165,12 +182,18 @@ def _dispatch(args) -> int:
                 if args.output and Path(args.output) != out:
                     raise sweep.SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
+        from . import budget
+
+        limits = {"time_limit": args.time_limit or budget.DEFAULT_TIME_LIMIT}
         if args.dry_run:
             print(sweep.dry_run(plan))
+            found = budget.hard_problems(plan) + budget.problems(plan, **limits)
+            print("fits:        " + ("yes (memory, disk, time limit)" if not found else "NO: " + "; ".join(found)))
             if args.command == "resume" and plan.shard_dir.exists():
                 st = sweep.sweep_status(out, plan.spec)
                 print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")
             return 0
+        budget.check_run(plan, ignore=args.ignore_estimate, **limits)
         path = sweep.execute(
             plan,
             resume=args.command == "resume",

@@ -47,6 +47,17 @@ PAPER_N_PRISMS = 50
 MINIMAL_TWIST = 5.0 * np.pi / 6.0  # rad
 
 
+# Physical ranges of the scene (SI). Wide enough for any laboratory or built tensegrity column
+# (micro-fabricated to building scale), narrow enough that every derived quantity (cable_EA,
+# squared lengths, omega_max) stays a normal float64: values outside them are refused, not run.
+LENGTH = (1e-6, 1e3)  # m: prism radius and height
+CABLE_RADIUS = (1e-9, 1.0)  # m
+MODULUS = (1.0, 1e13)  # N m-2: soft gels (~1e3) .. above diamond (1.2e12)
+MASS = (1e-15, 1e6)  # kg: unit and bar masses
+MAX_EA = 1e20  # N
+ASPECT = (1e-3, 1e3)  # prism height / radius
+
+
 # ---------------------------------------------------------------------- errors
 class OptionError(ValueError):
     """An option outside its type or bounds. ``errors`` lists one message per problem, each
@@ -215,7 +226,13 @@ class Opt:
     def check_array(self, name: str, values) -> None:
         """Vectorised bounds check of a real option over many columns (NetworkError names the
         first bad entry, ``prestrain[3] = -0.1``)."""
-        arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+        try:
+            arr = np.asarray(values)
+        except (TypeError, ValueError):  # ragged nesting
+            arr = np.asarray(None)
+        if arr.dtype.kind not in "iuf":  # strings, bools, None, ragged lists
+            raise NetworkError(f"{name} = {fmt(values)}: must be a number or an array of numbers [{self.unit}]")
+        arr = arr.astype(np.float64).ravel()
         good = np.isfinite(arr)
         for bound, op in ((self.gt, np.greater), (self.ge, np.greater_equal), (self.lt, np.less), (self.le, np.less_equal)):
             if bound is not None:
@@ -300,24 +317,25 @@ class ColumnConfig:
     """Number of stacked T3 prisms."""
     handedness: Annotated[str, Opt("str", rule_text="'right', 'left', 'alternating' or one letter R/L per prism")] = "right"
     """'right', 'left', 'alternating', or one letter R/L per prism (e.g. 'RRL...')."""
-    radius: Annotated[float, Opt("real", "m", gt=0)] = PAPER_RADIUS
+    radius: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_RADIUS
     """Radius a of the circle through each base triangle's vertices [m]."""
-    height: Annotated[float, Opt("real", "m", gt=0)] = PAPER_HEIGHT
+    height: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_HEIGHT
     """Reference prism height h0 [m] (also the length unit of pulse speed)."""
     twist: Annotated[float, Opt("real", "rad", gt=math.pi / 3, lt=math.pi, rule_text="in (pi/3, pi)",
                                 why="5*pi/6 is the prestressable twist", default_text="5*pi/6")] = MINIMAL_TWIST
     """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
-    cable_modulus: Annotated[float, Opt("real", "N m-2", gt=0)] = PAPER_CABLE_MODULUS
+    cable_modulus: Annotated[float, Opt("real", "N m-2", ge=MODULUS[0], le=MODULUS[1])] = PAPER_CABLE_MODULUS
     """Young modulus of the cables E_s [N m-2]."""
-    cable_radius: Annotated[float, Opt("real", "m", gt=0)] = PAPER_CABLE_RADIUS
+    cable_radius: Annotated[float, Opt("real", "m", ge=CABLE_RADIUS[0], le=CABLE_RADIUS[1])] = PAPER_CABLE_RADIUS
     """Cable cross-section radius r_s [m] (cable_EA = E_s pi r_s^2)."""
-    unit_mass: Annotated[float, Opt("real", "kg", gt=0)] = PAPER_UNIT_MASS
+    unit_mass: Annotated[float, Opt("real", "kg", ge=MASS[0], le=MASS[1])] = PAPER_UNIT_MASS
     """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
     end_base_mass: Annotated[str, Opt("choice", choices=END_BASE_MASS)] = "half"
     """Mass on the end bases: 'half' (default: each unit's mass split between its two bases, so the
     end bases carry half a unit) or 'full' (every base carries a whole unit)."""
-    bar_mass: Annotated[float, Opt("real", "kg", ge=0)] = 0.0
-    """Mass of each bar [kg]; the paper's columns carry their mass on the bases (0)."""
+    bar_mass: Annotated[float, Opt("real", "kg", ge=0, le=MASS[1])] = 0.0
+    """Mass of each bar [kg], > 0 only for a single prism; the paper's columns carry their mass on
+    the bases (0)."""
     impact_admissibility: Annotated[str, Opt("choice", choices=IMPACT_ADMISSIBILITY)] = "end_twist"
     """How the axial impact velocity is made compatible with the rigid bars (default 'end_twist',
     the best fit to the paper's Section 4, see analysis/paper_2017.md):
@@ -328,6 +346,16 @@ class ColumnConfig:
 
     def __post_init__(self):
         self.prism_handedness()  # validates
+        if not ASPECT[0] <= self.height / self.radius <= ASPECT[1]:
+            raise NetworkError(f"height = {self.height!r}, radius = {self.radius!r}: the prism aspect ratio height/radius "
+                               f"= {self.height / self.radius:.3g} must lie in [{ASPECT[0]:g}, {ASPECT[1]:g}]")
+        if self.cable_radius > self.radius:
+            raise NetworkError(f"cable_radius = {self.cable_radius!r}: must be <= radius = {self.radius!r} m "
+                               "(a cable thicker than the prism)")
+        if self.bar_mass > 0 and self.n_prisms > 1:
+            # the consistent bar inertia needs class-1 networks; a column's inner nodes carry two bars
+            raise NetworkError(f"bar_mass = {self.bar_mass!r}: massive bars need n_prisms = 1 (the inner nodes of a "
+                               f"column carry two bars; n_prisms = {self.n_prisms}): put the mass in unit_mass")
 
     @property
     def cable_EA(self) -> float:
@@ -360,9 +388,11 @@ class ColumnParameters:
     """Compressive impact speed of the free end [m s-1]."""
     base_rigidity: Annotated[float, Opt("real", "1", ge=0, le=1, why="0 flexible bases (FB), 1 rigid bases (RB)")] = 0.0
     """Base rigidity beta [1]: 0 flexible bases (FB), 1 rigid bases (RB), elastic in between."""
-    cable_EA: Annotated[float | None, Opt("real", "N", gt=0, optional=True, default_text="scene's E_s pi r_s^2")] = None
+    cable_EA: Annotated[float | None, Opt("real", "N", gt=0, le=MAX_EA, optional=True,
+                                          default_text="scene's E_s pi r_s^2")] = None
     """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2."""
-    unit_mass: Annotated[float | None, Opt("real", "kg", gt=0, optional=True, default_text="scene's unit_mass")] = None
+    unit_mass: Annotated[float | None, Opt("real", "kg", ge=MASS[0], le=MASS[1], optional=True,
+                                           default_text="scene's unit_mass")] = None
     """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
 
 

@@ -357,9 +357,15 @@ def load_spec(source, overrides: dict | None = None) -> SweepSpec:
     if is_path:
         path = Path(source)
         try:
-            text = path.read_text()
+            raw = path.read_bytes()
         except OSError as e:
             raise SpecError(f"cannot read spec: {e}", str(path)) from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as e:  # TOML is UTF-8
+            line = raw[: e.start].count(b"\n") + 1
+            raise SpecError(f"not UTF-8 text (TOML must be): byte {raw[e.start:e.start + 1]!r} at line {line}, "
+                            f"byte offset {e.start}", str(path)) from None
     else:
         text = str(source)
     return parse_spec(text, source=str(path) if path else None, overrides=overrides)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset as D
+from .budget import check_plan
 from .settings import RunSettings
 from .spec import SpecError, SweepSpec, code_version, load_spec
 
@@ -126,6 +127,7 @@ def plan_sweep(
     size = int(shard_size or spec.run["shard_size"])
     if size < 1:
         raise SpecError(f"shard_size = {size!r} must be a positive integer")
+    check_plan(spec)  # refuse, with the figures, a sweep whose planning would not fit in memory
     dev = device if device is not None else spec.run["device"]
     plan = SweepPlan(
         spec=spec,
