@@ -351,7 +351,7 @@ print("largest compression anywhere, any time, RB p=0.002 cases:", np.round(rb_m
       "; paper amplitudes:", [c.amplitude for c in P.PAPER_2017[9:]])
 
 # %% [markdown]
-# ### E. Linearised stiffness and long-wave speeds (`warp_tensegrity.linear`)
+# ### E. Linearised stiffness and long-wave speeds (`warp_tensegrity.checks.linear`)
 #
 # (A stored study: the six 50-prism eigenproblems take ~45 s. `plotting.branch_speeds` computes the same
 # branch speeds on short columns and is what the phase diagrams and the tests use.)
@@ -365,7 +365,7 @@ print("largest compression anywhere, any time, RB p=0.002 cases:", np.round(rb_m
 import dataclasses
 
 from warp_tensegrity import build_column
-from warp_tensegrity.linear import axial_stiffness_per_prism, count_zero_modes, long_wave_speed
+from warp_tensegrity.checks.linear import axial_stiffness_per_prism, count_zero_modes, long_wave_speed
 
 cfg50 = ColumnConfig()
 

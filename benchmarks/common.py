@@ -1,6 +1,6 @@
 """Shared pieces of the benchmark scripts: run metadata, batch preparation, timing, memory.
 
-Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.simulate` is used
+Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.integrate` is used
 as it is, with two harness-side choices (both stated in benchmarks/README.md):
 
 * the batch of B columns is built once at a small size (``BASE_COLUMNS`` distinct columns with
@@ -175,8 +175,8 @@ def skip_equilibrium_checks():
     reported, never used by the engine): each is a dense least-squares solve of the (3n x nc)
     equilibrium matrix, ~97% of column_batch's host time at 200+ prisms (e.g. 31 s of 32 s for
     200 RB prisms on the 2-core dev machine)."""
-    from warp_tensegrity import batch as _batch
-    from warp_tensegrity import columns as _col
+    from warp_tensegrity.scene import batch as _batch
+    from warp_tensegrity.scene import columns as _col
 
     saved = (_col.equilibrium_residual, _batch.equilibrium_residuals)
     _col.equilibrium_residual = lambda net: float("nan")
@@ -190,8 +190,7 @@ def skip_equilibrium_checks():
 def build_base_batch(n_prisms: int, base_rigidity: float, n_columns: int = BASE_COLUMNS,
                      check_equilibrium: bool = False):
     """column_batch of ``n_columns`` distinct columns (see base_params)."""
-    from warp_tensegrity.batch import column_batch
-    from warp_tensegrity.columns import ColumnConfig
+    from warp_tensegrity import ColumnConfig, column_batch
 
     params = base_params(n_columns, base_rigidity)
     if check_equilibrium:
@@ -230,8 +229,8 @@ def tile_batch(batch, B: int):
 def rattle_dt(batch, safety: float = 0.25) -> float:
     """The step RunSettings(dt='auto') would choose before rounding to the output interval:
     dt_safety * 2 / omega_max (RATTLE's stability limit on the Gershgorin bound)."""
-    from warp_tensegrity.batch import omega_max_bound
-    from warp_tensegrity.simulate import STABILITY
+    from warp_tensegrity.scene.batch import omega_max_bound
+    from warp_tensegrity.types import STABILITY
 
     omega = float(omega_max_bound(batch).max())
     return safety * STABILITY["rattle"] / omega
@@ -262,9 +261,9 @@ def precompile(device, precisions, max_workers: int | None = None) -> float:
     threads. Returns the seconds taken."""
     import warp as wp
 
-    from warp_tensegrity import simulate
+    from warp_tensegrity import integrate
 
-    caps = (None, simulate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
+    caps = (None, integrate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
     mods = []
     for p in precisions:
         mods += rattle_modules(p, register_caps=caps)
@@ -393,8 +392,9 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     """
     import warp as wp
 
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import Integrator
+    from warp_tensegrity import RunSettings
+    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.types import Path as LaunchPath
 
     B = batch.n_columns
     dt = rattle_dt(batch) if dt is None else dt
@@ -407,7 +407,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     settings = RunSettings(t_end=dt * output_every * 64, dt=dt, method="rattle", precision=precision,
                            device=str(device), record_strain=False, steps_per_graph=steps_per_graph,
                            fused=path == "fused")
-    integ = Integrator(batch, settings, dt, output_every, 64)
+    integ = Integrator(batch, settings, dt, output_every, 64, path=LaunchPath.FUSED if path == "fused" else LaunchPath.STAGED)
     if path != "fused":
         # the needed kernels were force-loaded with the launch block size; Integrator.load_kernels
         # would also compile the RK4-only kernels (and, on the CPU, a second block-size variant)
@@ -435,9 +435,9 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
         spg = int(max(1, min(steps_per_graph, math.floor(seg / 3.0 / max(probe, 1e-9)))))
         if path == "fused":
             # whole fused launches: each launch factors A(u) once, so short launches would over-count it
-            from warp_tensegrity import simulate
+            from warp_tensegrity import integrate
 
-            spg = max(simulate.FUSED_STEPS, spg - spg % simulate.FUSED_STEPS)
+            spg = max(integrate.FUSED_STEPS, spg - spg % integrate.FUSED_STEPS)
         integ.settings.steps_per_graph = spg
         integ.advance(spg)  # capture + first replay
         wp.synchronize_device(device)

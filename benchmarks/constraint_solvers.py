@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from warp_tensegrity.columns import ColumnConfig, build_column
-from warp_tensegrity.reference import ReferenceSystem
+from warp_tensegrity import ColumnConfig, build_column
+from warp_tensegrity.checks.reference import ReferenceSystem
 
 TOL = 1e-12
 MAX_SWEEPS = 3000

@@ -31,9 +31,7 @@ CASES = {  # sweeps/paper_2017.toml
 
 
 def agreement(device: str) -> list[dict]:
-    from warp_tensegrity.columns import ColumnConfig
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
 
     cfg = ColumnConfig(n_prisms=50)
     rows = []
@@ -64,10 +62,10 @@ def agreement(device: str) -> list[dict]:
 
 
 def shapes(device, batches, blocks, subs, target_s: float) -> list[dict]:
-    from warp_tensegrity import simulate
+    from warp_tensegrity import integrate
 
     rows = []
-    defaults = (simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS)
+    defaults = (integrate.FUSED_BLOCK_DIM, integrate.FUSED_STEPS)
     for base, beta in (("FB", 0.0), ("RB", 1.0)):
         small = common.build_base_batch(50, beta, common.BASE_COLUMNS)
         dt = common.rattle_dt(small)
@@ -76,7 +74,7 @@ def shapes(device, batches, blocks, subs, target_s: float) -> list[dict]:
                 batch = common.tile_batch(small, B)
                 combos = [(bd, 16) for bd in blocks] + [(blocks[0], k) for k in subs if k != 16]
                 for bd, k in combos:
-                    simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS = bd, k
+                    integrate.FUSED_BLOCK_DIM, integrate.FUSED_STEPS = bd, k
                     try:
                         p = common.time_batch(batch, base, 50, prec, device, target_s=target_s, reps=3,
                                               diag_steps=0, dt=dt, path="fused").as_dict()
@@ -88,7 +86,7 @@ def shapes(device, batches, blocks, subs, target_s: float) -> list[dict]:
                              "error": repr(exc)}
                         print(f"[shape] ERROR {p}", flush=True)
                     rows.append(p)
-    simulate.FUSED_BLOCK_DIM, simulate.FUSED_STEPS = defaults
+    integrate.FUSED_BLOCK_DIM, integrate.FUSED_STEPS = defaults
     return rows
 
 

@@ -78,14 +78,15 @@ def device_bytes(batch, settings) -> dict:
     """Bytes of every Warp array the Integrator allocates for this batch and these settings."""
     import warp as wp
 
-    from warp_tensegrity.batch import omega_max_bound
-    from warp_tensegrity.choose import apply_accuracy
-    from warp_tensegrity.simulate import Integrator, choose_timestep
+    from warp_tensegrity.scene.batch import omega_max_bound
+    from warp_tensegrity.engine import apply_accuracy, choose_path, choose_timestep
+    from warp_tensegrity.integrate import Integrator, resolve_device
 
     settings, _ = apply_accuracy(settings)
     omega = float(omega_max_bound(batch).max())
     dt, _, n_steps, every = choose_timestep(settings, omega)
-    integ = Integrator(batch, settings, dt, every, n_steps // every + 1)
+    integ = Integrator(batch, settings, dt, every, n_steps // every + 1,
+                       path=choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns))
 
     def size(v):
         if isinstance(v, wp.array):
@@ -218,8 +219,7 @@ def references(device, log) -> dict:
 
 
 def part_fp32(device, refs, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity.batch import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     cfg = ColumnConfig()
     out = {}
@@ -261,9 +261,8 @@ def free_prisms(B: int, bar_mass: float, seed: int = 1, speed: float = 0.002, pr
     """Free class-1 T3 prisms, random admissible velocities. Returns the three networks
     (consistent bar inertia; lumped m/2 per end with massless bars; lumped plus a negligible
     bar mass, which takes the partner-mass path) and the velocities (B, 6, 3)."""
-    from warp_tensegrity.columns import ColumnConfig, build_column
-    from warp_tensegrity.network import Network
-    from warp_tensegrity.reference import ReferenceSystem
+    from warp_tensegrity import ColumnConfig, Network, build_column
+    from warp_tensegrity.checks.reference import ReferenceSystem
 
     net = build_column(ColumnConfig(n_prisms=1), prestrain=prestrain).network
 
@@ -282,9 +281,7 @@ def free_prisms(B: int, bar_mass: float, seed: int = 1, speed: float = 0.002, pr
 
 
 def part_massless(device, B, repeats, log) -> dict:
-    from warp_tensegrity import RunSettings
-    from warp_tensegrity.batch import network_batch
-    from warp_tensegrity.simulate import run_batch
+    from warp_tensegrity import RunSettings, network_batch, run_batch
 
     t_end, dt, bar_mass = 0.1, 2.5e-4, 0.01
     log(f"  massless vs massive bars, free T3 prisms, B={B}")
@@ -318,8 +315,7 @@ def part_massless(device, B, repeats, log) -> dict:
 
 
 def part_strain(device, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity.batch import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     cfg, t_end = ColumnConfig(), 0.5
     log(f"  record_strain True vs False, FB, B={B}")
@@ -348,8 +344,7 @@ def _savings(a: dict, b: dict) -> dict:
 
 
 def part_outputs(device, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity.batch import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     cfg, t_end, dt = ColumnConfig(), 0.5, 0.002
     log(f"  outputs every step vs every 0.01 s, FB, B={B}")
@@ -371,8 +366,7 @@ def part_outputs(device, B, repeats, log) -> dict:
 
 
 def part_truncate(device, B, repeats, log) -> dict:
-    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-    from warp_tensegrity.batch import column_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, column_batch, simulate_batch
 
     from .common import skip_equilibrium_checks
 
@@ -632,7 +626,7 @@ def main(argv=None):
 
     wp.config.quiet = True
     wp.init()
-    from warp_tensegrity.simulate import resolve_device
+    from warp_tensegrity.integrate import resolve_device
 
     from .common import run_metadata, write_json
 

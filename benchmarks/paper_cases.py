@@ -35,10 +35,8 @@ def git_commit() -> str:
 def run(device, precision, method, t_end, out):
     import warp as wp
 
-    from warp_tensegrity.columns import ColumnConfig
+    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
     from warp_tensegrity.measure import measure_pulse
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
 
     cfg = ColumnConfig()
     s = RunSettings(t_end=t_end, output_interval=0.01, device=device, precision=precision, method=method)

@@ -1,6 +1,6 @@
 """Peer: the same T3 column in MuJoCo (CPU, one column), pulse speed and amplitude first, then cost.
 
-MJCF model (built from :func:`warp_tensegrity.columns.build_column`'s network):
+MJCF model (built from :func:`warp_tensegrity.scene.columns.build_column`'s network):
 
 * each free node: a body at its reference position with three slide joints (x, y, z) and a
   point mass (``inertial`` with the node mass, negligible rotational inertia); clamped nodes are
@@ -238,10 +238,8 @@ def mjwarp_main(a, cfg, topo, doc):
     """--mjwarp-device: batched MuJoCo Warp, pulse (world 0) and world-steps/s against nworld."""
     import warp as wp
 
-    from warp_tensegrity.columns import build_column
+    from warp_tensegrity import RunSettings, build_column, simulate_batch
     from warp_tensegrity.measure import measure_pulse
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
 
     doc["mjwarp"] = []
     for base in a.bases:
@@ -347,10 +345,8 @@ def main(argv=None):
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    from warp_tensegrity.columns import ColumnConfig, build_column, column_topology
+    from warp_tensegrity import ColumnConfig, RunSettings, build_column, column_topology, simulate_batch
     from warp_tensegrity.measure import measure_pulse
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
 
     cfg = ColumnConfig(n_prisms=a.n_prisms)
     topo = column_topology(cfg)

@@ -3,7 +3,7 @@
 One column at a time on the CPU: ``scipy.integrate.solve_ivp(method="DOP853")`` on the index-1
 DAE  M a = f(x) - G^T lam,  G M^-1 G^T lam = G M^-1 f + |b'|^2  (the bar multipliers solved at
 every right-hand-side evaluation with ``numpy.linalg.solve`` on the dense Gram matrix; the
-right-hand side is :meth:`warp_tensegrity.reference.ReferenceSystem.accel`, dense float64).
+right-hand side is :meth:`warp_tensegrity.checks.reference.ReferenceSystem.accel`, dense float64).
 
 Accuracy matching: the error of a run is the largest final-state position error over the
 nodes, relative to the largest displacement of the tight reference (DOP853 at rtol 1e-11);
@@ -81,8 +81,7 @@ def bar_error(net, x):
 
 
 def engine_run(cfg, params, t_end, dt, device="cpu"):
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
+    from warp_tensegrity import RunSettings, simulate_batch
 
     s = RunSettings(t_end=t_end, dt=dt, method="rattle", precision="fp64", device=device, record_strain=False,
                     output_interval=t_end)
@@ -109,8 +108,8 @@ def main(argv=None):
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    from warp_tensegrity.columns import ColumnConfig, build_column
-    from warp_tensegrity.reference import ReferenceSystem
+    from warp_tensegrity import ColumnConfig, build_column
+    from warp_tensegrity.checks.reference import ReferenceSystem
 
     t_start = time.perf_counter()
     cfg = ColumnConfig(n_prisms=a.n_prisms)
@@ -118,7 +117,7 @@ def main(argv=None):
     scene = build_column(cfg, prestrain=a.prestrain, v0=a.v0, base_rigidity=beta)
     ref = ReferenceSystem(scene.network)
     params = {"prestrain": [a.prestrain], "v0": [a.v0], "base_rigidity": [beta]}
-    from warp_tensegrity.batch import column_batch
+    from warp_tensegrity import column_batch
 
     dt_default = common.rattle_dt(column_batch(cfg, params))
     n_steps = math.ceil(a.t_end / dt_default - 1e-9)

@@ -75,7 +75,7 @@ def base_label(base) -> str:
 @functools.lru_cache(maxsize=64)
 def column_counts(n_prisms: int, base) -> dict:
     """n, ne, nc, bw, ncpl of the engine's column model (same constraint order as column_batch)."""
-    from warp_tensegrity import columns as col
+    from warp_tensegrity.scene import columns as col
     from warp_tensegrity.model import constraint_coupling
 
     lab = base_label(base)

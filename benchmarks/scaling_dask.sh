@@ -10,7 +10,7 @@ t0=$(date +%s.%N); python3 -m warp_tensegrity run "$REPO/sweeps/scaling_2gpu.tom
 python3 -m warp_tensegrity run "$REPO/sweeps/scaling_2gpu.toml" -o /tmp/sN.nc --dask "$N" --no-progress --overwrite 2>&1 | tail -2; t2=$(date +%s.%N)
 python3 - "$OUT" "$t0" "$t1" "$t2" "$N" <<'PY'
 import json, sys, xarray as xr
-from warp_tensegrity.dataset import drop_run_dependent
+from warp_tensegrity.io import drop_run_dependent
 out, t0, t1, t2, n = sys.argv[1], *map(float, sys.argv[2:5]), int(sys.argv[5])
 a, b = xr.open_dataset("/tmp/s1.nc"), xr.open_dataset("/tmp/sN.nc")
 try:

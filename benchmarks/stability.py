@@ -5,7 +5,7 @@ base rigidity, impact speed), bisect (log scale) the largest stable dt, where st
 status 0 (no non-finite state, every bar within failure_bar_error after its projection) and
 energy_error < 1 (|E - E0| < KE0 at every output) over ``n_steps`` steps. The prediction is
 S / omega_max with S = 2 (rattle, symplectic_euler), 2 sqrt 2 (rk4), 1.5734 (yoshida4) and
-omega_max from :func:`warp_tensegrity.linear.omega_max` on the reference network (all cables
+omega_max from :func:`warp_tensegrity.checks.linear.omega_max` on the reference network (all cables
 taut).
 
 Batch trick (dt is one per batch, the cases are many): the dynamics of a column with masses
@@ -88,15 +88,15 @@ def stability_cases():
 
 def omega_exact(cfg, cases) -> np.ndarray:
     """omega_max [rad/s] of each case's reference network (all cables taut), by modal analysis."""
-    from warp_tensegrity.columns import build_column
-    from warp_tensegrity.linear import omega_max
+    from warp_tensegrity import build_column
+    from warp_tensegrity.checks.linear import omega_max
 
     return np.array([omega_max(build_column(cfg, p, v, b).network)
                      for p, v, b in zip(cases["prestrain"], cases["v0"], cases["base_rigidity"])])
 
 
 def omega_bound(cfg, cases) -> np.ndarray:
-    from warp_tensegrity.batch import column_batch, omega_max_bound
+    from warp_tensegrity.scene.batch import column_batch, omega_max_bound
 
     return omega_max_bound(column_batch(cfg, cases))
 
@@ -116,8 +116,8 @@ def run_at_ratio(cfg, cases, omega, r, method, n_steps, device, precision="fp64"
     """Run every case c for n_steps at omega_c dt = r_c * S (one batch, masses scaled).
 
     Returns (stable (B,) bool, BatchResult)."""
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import STABILITY, simulate_batch
+    from warp_tensegrity import RunSettings, simulate_batch
+    from warp_tensegrity.types import STABILITY
 
     m0 = cfg.unit_mass
     S = STABILITY[method]
@@ -165,8 +165,8 @@ def bisect_limits(cfg, cases, omega, method, n_steps, n_bisect, device, r_lo=R_L
 def verify_scaling(cfg, cases, omega, method, r_stable, r_unstable, n_steps, device, idx, criterion="energy"):
     """Unscaled columns (paper mass and v0) at the physical dt = r S / omega_c for
     r = 0.99 r_stable and 1.01 r_unstable: returns (B_idx, 2) stable flags (expected True, False)."""
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import STABILITY, simulate_batch
+    from warp_tensegrity import RunSettings, simulate_batch
+    from warp_tensegrity.types import STABILITY
 
     out = np.zeros((len(idx), 2), dtype=bool)
     for a, c in enumerate(idx):
@@ -185,9 +185,7 @@ def verify_scaling(cfg, cases, omega, method, r_stable, r_unstable, n_steps, dev
 
 def energy_runs(device, t_end):
     """Energy error (E - E0)/KE0 against time for ENERGY_CASES, every run of ENERGY_RUNS at dt='auto'."""
-    from warp_tensegrity.columns import ColumnConfig
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
+    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
 
     cfg = ColumnConfig(n_prisms=N_PRISMS)
     params = {k: np.array([c[i] for c in ENERGY_CASES]) for i, k in
@@ -216,8 +214,8 @@ def energy_runs(device, t_end):
 def slack_history(t_end, dt=1e-3, stride=5):
     """Slack cross/base cables of ENERGY_CASES[0] (6 prisms) over time, by the NumPy reference (RK4 +
     projection, fp64): (time, n_slack, n_cables, transitions)."""
-    from warp_tensegrity.columns import ColumnConfig, build_column
-    from warp_tensegrity.reference import ReferenceSystem
+    from warp_tensegrity import ColumnConfig, build_column
+    from warp_tensegrity.checks.reference import ReferenceSystem
 
     _, p, v0, b = ENERGY_CASES[0]
     scene = build_column(ColumnConfig(n_prisms=N_PRISMS), p, v0, b)
@@ -233,8 +231,8 @@ def run_benchmark(device: str, quick: bool):
     import warp as wp
     import xarray as xr
 
-    from warp_tensegrity.columns import ColumnConfig
-    from warp_tensegrity.simulate import STABILITY
+    from warp_tensegrity import ColumnConfig
+    from warp_tensegrity.types import STABILITY
 
     wp.config.quiet = True
     wp.init()

@@ -4,7 +4,7 @@ Column-steps/s of the staged RATTLE step for 50-prism columns (FB and RB, fp32 a
 the batch size, for CUDA threads per block of the column-solver kernels and a cap on their
 registers per thread (``__maxnreg__``; fewer registers let more columns run at once, at the price
 of spills), and with or without the bar vectors of the last bw + 1 rows in registers during the
-Gram-matrix assembly. The engine's choice: ``simulate.COLUMN_BLOCK_DIM`` threads per block,
+Gram-matrix assembly. The engine's choice: ``integrate.COLUMN_BLOCK_DIM`` threads per block,
 ``COLUMN_MAX_REGISTERS`` registers from ``COLUMN_CAP_FROM`` columns up, and
 ``COLUMN_BAR_WINDOW`` (None: the window for fp32 only).
 
@@ -26,12 +26,12 @@ WINDOWS = {"auto": None, "on": True, "off": False}
 
 
 def shapes(device, batches, blocks, regs, target_s: float, bases, precisions, windows=("auto",)) -> list[dict]:
-    from warp_tensegrity import simulate
+    from warp_tensegrity import integrate
 
     rows = []
-    defaults = (simulate.COLUMN_BLOCK_DIM, simulate.COLUMN_MAX_REGISTERS, simulate.COLUMN_CAP_FROM,
-                simulate.COLUMN_BAR_WINDOW)
-    simulate.COLUMN_CAP_FROM = 0  # the cap (or none) at every batch size
+    defaults = (integrate.COLUMN_BLOCK_DIM, integrate.COLUMN_MAX_REGISTERS, integrate.COLUMN_CAP_FROM,
+                integrate.COLUMN_BAR_WINDOW)
+    integrate.COLUMN_CAP_FROM = 0  # the cap (or none) at every batch size
     for base in bases:
         small = common.build_base_batch(50, 1.0 if base == "RB" else 0.0, common.BASE_COLUMNS)
         dt = common.rattle_dt(small)
@@ -39,8 +39,8 @@ def shapes(device, batches, blocks, regs, target_s: float, bases, precisions, wi
             for B in batches:
                 batch = common.tile_batch(small, B)
                 for bd, r, win in ((bd, r, win) for bd in blocks for r in regs for win in windows):
-                    simulate.COLUMN_BLOCK_DIM, simulate.COLUMN_MAX_REGISTERS = bd, r
-                    simulate.COLUMN_BAR_WINDOW = WINDOWS[win]
+                    integrate.COLUMN_BLOCK_DIM, integrate.COLUMN_MAX_REGISTERS = bd, r
+                    integrate.COLUMN_BAR_WINDOW = WINDOWS[win]
                     try:
                         p = common.time_batch(batch, base, 50, prec, device, target_s=target_s, reps=3,
                                               diag_steps=0, dt=dt, path="staged").as_dict()
@@ -53,8 +53,8 @@ def shapes(device, batches, blocks, regs, target_s: float, bases, precisions, wi
                         print(f"[staged] ERROR {p}", flush=True)
                     rows.append(p)
                 del batch
-    (simulate.COLUMN_BLOCK_DIM, simulate.COLUMN_MAX_REGISTERS, simulate.COLUMN_CAP_FROM,
-     simulate.COLUMN_BAR_WINDOW) = defaults
+    (integrate.COLUMN_BLOCK_DIM, integrate.COLUMN_MAX_REGISTERS, integrate.COLUMN_CAP_FROM,
+     integrate.COLUMN_BAR_WINDOW) = defaults
     return rows
 
 

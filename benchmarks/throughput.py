@@ -205,15 +205,16 @@ def ncu_mode(args):
     npr = args.ncu_prisms
     B = args.ncu_batch
     common.precompile(device, [prec])
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import Integrator
+    from warp_tensegrity import RunSettings
+    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.types import Path as LaunchPath
 
     batch = common.tile_batch(common.build_base_batch(npr, BASES[base], min(common.BASE_COLUMNS, B)), B)
     dt = common.rattle_dt(batch)
     fused = args.paths[0] == "fused"
     s = RunSettings(t_end=dt * 1000, dt=dt, precision=prec, device=str(device), record_strain=False,
                     steps_per_graph=1 << 30, fused=fused)
-    integ = Integrator(batch, s, dt, 100, 16)
+    integ = Integrator(batch, s, dt, 100, 16, path=LaunchPath.FUSED if fused else LaunchPath.STAGED)
     if not fused:
         integ.load_kernels = lambda: None
     integ.initialize()

@@ -89,8 +89,7 @@ def _params(replicas=1):
 
 
 def _run(cfg, setup, method, precision, dt, device, replicas=1):
-    from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.simulate import simulate_batch
+    from warp_tensegrity import RunSettings, simulate_batch
 
     s = RunSettings(t_end=setup["t_end"], dt=dt, method=method, precision=precision,
                     output_interval=setup["output_interval"], device=device, allow_unstable_dt=True)
@@ -173,7 +172,7 @@ def _setup_attrs(setup):
 def compute_reference(setup, device):
     """float64 RK4 and yoshida4 at dt = output_interval / k_ref: (ref, chk), objects with the
     BatchResult fields the measures use."""
-    from warp_tensegrity.columns import ColumnConfig
+    from warp_tensegrity import ColumnConfig
 
     cfg = ColumnConfig(n_prisms=setup["n_prisms"])
     dt = setup["output_interval"] / setup["k_ref"]
@@ -236,8 +235,8 @@ def run_benchmark(device: str, quick: bool, replicas: int = 1, ref_device: str =
     import warp as wp
     import xarray as xr
 
-    from warp_tensegrity.columns import ColumnConfig
-    from warp_tensegrity.simulate import FORCE_EVALS, STABILITY
+    from warp_tensegrity import ColumnConfig
+    from warp_tensegrity.types import FORCE_EVALS, STABILITY
 
     wp.config.quiet = True
     wp.init()

@@ -4,13 +4,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import linear
-from warp_tensegrity.batch import column_batch, network_batch
-from warp_tensegrity.columns import ColumnConfig, build_column, prism_heights
-from warp_tensegrity.network import Network
-from warp_tensegrity.reference import ClassOneMatrixForm, ReferenceSystem, integrate_matrix_form
-from warp_tensegrity.settings import RunSettings
-from warp_tensegrity.simulate import Integrator, run_batch, simulate_batch
+from warp_tensegrity.checks import linear
+from warp_tensegrity import Network, RunSettings, column_batch, network_batch, run_batch, simulate_batch
+from warp_tensegrity.checks.reference import ClassOneMatrixForm, ReferenceSystem, integrate_matrix_form
+from warp_tensegrity.integrate import Integrator
+from warp_tensegrity.scene.columns import ColumnConfig, build_column, prism_heights
+from warp_tensegrity.types import Path
 
 
 def free_prism_with_massive_bars(prestrain=0.01, seed=1, speed=0.002):
@@ -126,7 +125,7 @@ def test_gathered_acceleration_is_minv_f(precision, rtol, device):
     random displaced state."""
     rng = np.random.default_rng(3)
     for batch, nets in displaced_batches():
-        integ = Integrator(batch, RunSettings(device=device, precision=precision, fused=False), 1e-4, 1, 1)
+        integ = Integrator(batch, RunSettings(device=device, precision=precision, fused=False), 1e-4, 1, 1, path=Path.STAGED)
         dx = rng.normal(scale=2e-3, size=(len(nets), batch.positions.shape[0], 3))
         dx[:, batch.fixed] = 0.0
         d = integ.data

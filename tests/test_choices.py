@@ -3,11 +3,9 @@
 import numpy as np
 import pytest
 
-from warp_tensegrity.choose import for_accuracy, reachable_prisms
-from warp_tensegrity.columns import ColumnConfig
-from warp_tensegrity.settings import RunSettings, SettingsError
-from warp_tensegrity.simulate import simulate_batch
-from warp_tensegrity.spec import SpecError, load_spec as load_spec_text
+from warp_tensegrity.engine import for_accuracy, reachable_prisms
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
+from warp_tensegrity.sweep import SpecError, load_spec as load_spec_text
 
 CASES = {"prestrain": [0.002, 0.002, 0.0], "v0": [0.1, 0.1, 0.005], "base_rigidity": [0.0, 1.0, 0.0]}
 
@@ -25,7 +23,7 @@ def test_accuracy_table(acc, method, precision):
 def test_tighter_accuracy_never_costs_less():
     """Force evaluations per simulated second (in units of omega_max) grow as the accuracy tightens.
     (RK4 may take a larger step than RATTLE: it is the cheaper route below ~1e-3, as measured.)"""
-    from warp_tensegrity.simulate import FORCE_EVALS, STABILITY
+    from warp_tensegrity.types import FORCE_EVALS, STABILITY
 
     accs = np.logspace(-1.5, -7, 40)
     cost = []

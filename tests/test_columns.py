@@ -3,9 +3,8 @@
 import numpy as np
 import pytest
 
-from warp_tensegrity.batch import column_batch, network_batch
-from warp_tensegrity.columns import ColumnConfig, build_column, column_topology, prism_heights
-from warp_tensegrity.network import Network, NetworkError
+from warp_tensegrity import Network, NetworkError, column_batch, network_batch
+from warp_tensegrity.scene.columns import ColumnConfig, build_column, column_topology, prism_heights
 
 
 def test_single_prism_members_are_the_papers():
@@ -60,7 +59,7 @@ def test_unbalanced_state_is_detected():
     s = build_column(ColumnConfig(n_prisms=3), prestrain=0.01)
     net = s.network
     net.cable_rest_length[-1] *= 0.99
-    from warp_tensegrity.columns import equilibrium_residual
+    from warp_tensegrity.scene.columns import equilibrium_residual
 
     assert equilibrium_residual(net) / s.cross_tension > 1e-3
 

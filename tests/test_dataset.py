@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from warp_tensegrity import dataset as D
+from warp_tensegrity import io as D
 from warp_tensegrity import sweep
 from warp_tensegrity.settings import BatchResult, STATUS_NAMES
-from warp_tensegrity.spec import parse_spec
+from warp_tensegrity.sweep import parse_spec
 
 CASES = """
 title = "dataset test"

@@ -34,7 +34,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from warp_tensegrity import cli
-from warp_tensegrity.options import ColumnConfig, OptionError, RunSettings, check_column_param
+from warp_tensegrity.options import OptionError, RunSettings, check_column_param
+from warp_tensegrity.scene import ColumnConfig, NetworkError
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -566,7 +567,7 @@ def _python_api(cls, kw):
         pass
     try:
         obj = cls(**kw)
-    except OptionError as e:
+    except (OptionError, NetworkError) as e:
         msg = str(e)
         bad = [k for k in kw if k not in API_KEYS[cls]] or [p.split(".")[-1] for p in physics_problems(data)]
         assert bad, (kw, msg)  # refused although the oracle finds nothing wrong
@@ -645,10 +646,10 @@ def test_tiny_real_runs(tmp_path, overrides):
 
 
 def test_budget_names_every_shortfall_with_figures(tmp_path):
-    from warp_tensegrity import budget, sweep
-    from warp_tensegrity.spec import parse_spec
+    from warp_tensegrity.sweep import budget, plan_sweep
+    from warp_tensegrity.sweep.spec import parse_spec
 
-    plan = sweep.plan_sweep(parse_spec(tomli_w.dumps(BASE)), tmp_path / "o.nc", device="cpu")
+    plan = plan_sweep(parse_spec(tomli_w.dumps(BASE)), tmp_path / "o.nc", device="cpu")
     need = budget.needs(plan)
     assert budget.problems(plan) == [] and budget.hard_problems(plan) == []
     found = budget.problems(plan, device_bytes=need["device_bytes_per_column"] - 1, host_bytes=need["host_bytes_per_shard"] - 1,

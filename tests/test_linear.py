@@ -1,4 +1,4 @@
-"""Checks of the linearised analysis (warp_tensegrity.linear).
+"""Checks of the linearised analysis (warp_tensegrity.checks.linear).
 
 Analytic cases first (spring-mass chains, a bar pendulum in tension and in compression, which
 exercise the cable material and geometric terms and the bar geometric term), then T3 columns:
@@ -9,8 +9,8 @@ linear modes against the nonlinear reference dynamics at small amplitude.
 import numpy as np
 import pytest
 
-from warp_tensegrity.columns import ColumnConfig, build_column
-from warp_tensegrity.linear import (
+from warp_tensegrity import ColumnConfig, build_column
+from warp_tensegrity.checks.linear import (
     axial_stiffness_per_prism,
     column_cell_compliance,
     count_zero_modes,
@@ -21,8 +21,8 @@ from warp_tensegrity.linear import (
     omega_max,
     tangent_stiffness,
 )
-from warp_tensegrity.network import Network
-from warp_tensegrity.reference import ReferenceSystem
+from warp_tensegrity import Network
+from warp_tensegrity.checks.reference import ReferenceSystem
 
 EA, L, P, MASS = 2.0, 0.1, 0.01, 0.05  # N, m, -, kg
 

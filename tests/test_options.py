@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import options as O
-from warp_tensegrity import spec as S
+from warp_tensegrity.sweep import spec as S
+from warp_tensegrity.scene import ColumnConfig, NetworkError
 from warp_tensegrity.settings import RunSettings
+from warp_tensegrity.types import Method, Precision
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs" / "sweeps.md"
@@ -34,17 +36,24 @@ def test_each_run_option_defined_once_and_everywhere_the_same():
     spec_keys = list(S.RUN_KEYS)
     table_rows = [r["key"] for r in O.options_table("run")]
     doc_rows = _doc_keys("run")
-    set_keys = list(O.SET_SECTIONS["run"])
+    set_keys = list(O.set_keys()["run"])
     for keys in (settings_fields, model_fields, spec_keys, table_rows, doc_rows, set_keys):
         assert len(keys) == len(set(keys))  # nothing listed twice
         assert set(keys) == set(settings_fields)
     # the spec's parsed [run] holds exactly these keys
     assert set(S.parse_spec(_SPEC).run) == set(settings_fields)
     assert RunSettings is O.RunSettings  # settings.RunSettings is the model, not a copy
+    assert O.sections() == {"scene": ColumnConfig, "sweep": O.ColumnParameters, "run": RunSettings}
+
+
+def test_choices_are_the_enums():
+    """options is a leaf of the import graph, so it spells the choices; they must be the enums'."""
+    assert O.METHODS == tuple(m.value for m in Method) and O.PRECISIONS == tuple(p.value for p in Precision)
+    assert O.opt_of(RunSettings, "method").choices == O.METHODS
 
 
 def test_scene_and_parameter_options_same_set_in_model_spec_and_docs():
-    scene = [f.name for f in dataclasses.fields(O.ColumnConfig)]
+    scene = [f.name for f in dataclasses.fields(ColumnConfig)]
     assert set(S.SCENE_FIELDS) == set(scene) == set(_doc_keys("scene")) == {r["key"] for r in O.options_table("scene")}
     params = [f.name for f in dataclasses.fields(O.ColumnParameters)]
     assert set(O.COLUMN_PARAMETERS) == set(params) == set(_doc_keys("sweep"))
@@ -64,7 +73,7 @@ def test_defaults_unchanged():
     assert dataclasses.asdict(RunSettings()) == want
     # the spec and the API agree (record_strain used to default to false in specs only)
     assert S.parse_spec(_SPEC.replace("record_strain = true\n", "")).run["record_strain"] is True
-    c = O.ColumnConfig()
+    c = ColumnConfig()
     assert (c.n_prisms, c.radius, c.height, c.twist, c.cable_modulus, c.cable_radius, c.unit_mass) == (
         50, 5.0e-3, 6.2e-3, 5.0 * np.pi / 6.0, 5.48e6, 0.14e-3, 0.0249)
     assert (c.handedness, c.end_base_mass, c.bar_mass, c.impact_admissibility) == ("right", "half", 0.0, "end_twist")
@@ -80,8 +89,8 @@ def test_public_constructor_and_replace_validate():
         dataclasses.replace(s, t_end=-2.0)
     with pytest.raises(O.SettingsError, match="did you mean 't_end'"):
         RunSettings(t_ned=1.0)
-    with pytest.raises(O.NetworkError, match=r"n_prisms = True: must be an integer"):
-        O.ColumnConfig(n_prisms=True)
+    with pytest.raises(NetworkError, match=r"n_prisms = True: must be an integer"):
+        ColumnConfig(n_prisms=True)
 
 
 @pytest.mark.parametrize("kw, fragment", [

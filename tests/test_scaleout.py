@@ -10,7 +10,7 @@ import pytest
 import xarray as xr
 
 from warp_tensegrity import sweep
-from warp_tensegrity.dataset import drop_run_dependent, open_sweep
+from warp_tensegrity.io import drop_run_dependent, open_sweep
 
 distributed = pytest.importorskip("distributed")
 

@@ -1,4 +1,4 @@
-"""Sweep spec parsing and validation (warp_tensegrity.spec), the shipped specs, and the CLI's
+"""Sweep spec parsing and validation (warp_tensegrity.sweep.spec), the shipped specs, and the CLI's
 lazy imports. Everything but the dt-limit test runs without Warp."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warp_tensegrity.spec import SpecError, load_spec, parse_spec
+from warp_tensegrity import estimate_batch
+from warp_tensegrity.sweep import SpecError, load_spec, parse_spec
 
 REPO = Path(__file__).resolve().parents[1]
 SWEEPS = REPO / "sweeps"
@@ -161,15 +162,15 @@ def test_scene_field_cannot_be_swept():
         (spec_text(sweep="grid = { base_rigidity = [0.0, 1.5] }"), ["sweep.grid.base_rigidity[1]", "1.5", "[0, 1]"]),
         (spec_text(sweep="grid = { v0 = [0.001, \"fast\"] }"), ["sweep.grid.v0[1]", "'fast'", "number"]),
         (spec_text(sweep="cases = [{ v0 = 0.001 }, { v0 = -2.0 }]"), ["sweep.cases[1].v0", "-2.0"]),
-        (spec_text(sweep="grid = { v0 = [0.001] }\nfixed = { unit_mass = 0.0 }"), ["sweep.fixed.unit_mass", "0.0", "> 0"]),
+        (spec_text(sweep="grid = { v0 = [0.001] }\nfixed = { unit_mass = 0.0 }"), ["sweep.fixed.unit_mass", "0.0", "[1e-15, 1e+06] [kg]"]),
         (spec_text(sweep="grid = { cable_EA = [0.3, -1.0] }"), ["sweep.grid.cable_EA[1]", "-1.0"]),
         (spec_text(sweep="grid.v0 = { start = 0.0, stop = 0.1, num = 4, spacing = \"log\" }"), ["sweep.grid.v0.start", "log"]),
         (spec_text(sweep="grid.v0 = { start = 0.001, stop = 0.1 }"), ["sweep.grid.v0", "num"]),
         (spec_text(sweep="grid = { v0 = [0.001, 0.001] }"), ["sweep.grid.v0", "distinct"]),
         (spec_text(scene="n_prisms = 0"), ["scene.n_prisms", "0", "positive integer"]),
         (spec_text(scene="n_prisms = 2.5"), ["scene.n_prisms", "2.5", "integer"]),
-        (spec_text(scene="n_prisms = 6\nradius = -5e-3"), ["scene.radius", "-0.005", "> 0"]),
-        (spec_text(scene="n_prisms = 6\nunit_mass = 0"), ["scene.unit_mass", "> 0"]),
+        (spec_text(scene="n_prisms = 6\nradius = -5e-3"), ["scene.radius", "-0.005", "[1e-06, 1000] [m]"]),
+        (spec_text(scene="n_prisms = 6\nunit_mass = 0"), ["scene.unit_mass", "[1e-15, 1e+06] [kg]"]),
         (spec_text(scene="n_prisms = 6\ntwist = 0.5"), ["scene.twist", "0.5", "pi/3"]),
         (spec_text(scene="n_prisms = 6\nbar_mass = -1.0"), ["scene.bar_mass", "-1.0"]),
         (spec_text(scene='n_prisms = 6\nhandedness = "RRL"'), ["scene.handedness", "RRL"]),
@@ -223,7 +224,7 @@ def test_dt_above_stability_limit_refused_with_the_limit():
     with pytest.raises(SpecError) as info:
         sweep.plan_sweep(spec, device="cpu")
     msg = str(info.value)
-    est = sweep.estimate_batch(spec.scene, spec.column_params(), spec.run_settings(device="cpu", dt="auto"))
+    est = estimate_batch(spec.scene, spec.column_params(), spec.run_settings(device="cpu", dt="auto"))
     assert "run.dt = 0.05" in msg and "stability limit" in msg
     assert f"{est['dt_limit']:.6g}" in msg
     assert "allow_unstable_dt" in msg

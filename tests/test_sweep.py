@@ -15,8 +15,8 @@ import pytest
 import xarray as xr
 
 from warp_tensegrity import cli, sweep
-from warp_tensegrity.dataset import drop_run_dependent, open_sweep
-from warp_tensegrity.spec import SpecError, parse_spec
+from warp_tensegrity.io import drop_run_dependent, open_sweep
+from warp_tensegrity.sweep import SpecError, parse_spec
 
 REPO = Path(__file__).resolve().parents[1]
 

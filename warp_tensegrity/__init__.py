@@ -1,17 +1,28 @@
 """warp_tensegrity: batched wave dynamics of tensegrity lattices on NVIDIA Warp.
 
-Data path: scene builder (:mod:`columns`, :mod:`network`) -> batch of per-column parameters
-(:mod:`batch`) -> device model arrays (:mod:`model`) -> integrator step (:mod:`kernels`,
-:mod:`simulate`) -> measurement (:mod:`measure`) -> sweep (:mod:`spec`, :mod:`sweep`) ->
-xarray/netCDF (:mod:`dataset`) -> analysis (``analysis/``).
+Data path (``docs/architecture.md``): scene (:mod:`.scene`: network, columns, batch) -> device
+model (:mod:`.model`) -> kernels -> :mod:`.integrate` (the step) -> :mod:`.engine` (policy and
+entry points) -> :mod:`.measure` -> :mod:`.io` (CF datasets) -> :mod:`.sweep` -> :mod:`.cli`.
+Importing the package (and reading a spec) does not import Warp; the first run does.
 """
 
 __version__ = "0.1.0"
 
-from .batch import NetworkBatch, column_batch, network_batch
-from .columns import ColumnConfig, ColumnScene, build_column, column_topology
-from .network import Network, NetworkError
+from .engine import estimate_batch, run_batch, simulate_batch
+from .measure import measure_pulse
+from .scene import (
+    ColumnConfig,
+    ColumnScene,
+    Network,
+    NetworkBatch,
+    NetworkError,
+    build_column,
+    column_batch,
+    column_topology,
+    network_batch,
+)
 from .settings import COLUMN_PARAMETERS, BatchResult, RunSettings, SettingsError
+from .types import Method, Status
 
 __all__ = [
     "__version__",
@@ -19,24 +30,19 @@ __all__ = [
     "COLUMN_PARAMETERS",
     "ColumnConfig",
     "ColumnScene",
+    "Method",
     "Network",
     "NetworkBatch",
     "NetworkError",
     "RunSettings",
     "SettingsError",
+    "Status",
     "build_column",
     "column_batch",
     "column_topology",
+    "estimate_batch",
+    "measure_pulse",
     "network_batch",
     "run_batch",
     "simulate_batch",
 ]
-
-
-def __getattr__(name):
-    # the Warp-backed entry points load lazily so `import warp_tensegrity` stays instant
-    if name in ("simulate_batch", "run_batch", "estimate_batch"):
-        from . import simulate
-
-        return getattr(simulate, name)
-    raise AttributeError(name)

@@ -143,13 +143,13 @@ def _looks_like_spec(path: str) -> bool:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .budget import BudgetError
     from .options import OptionError
-    from .sweep import SweepError
+    from .scene.network import NetworkError
+    from .sweep.errors import SweepError
 
     try:
         return _dispatch(args)
-    except (OptionError, SweepError, BudgetError) as e:
+    except (OptionError, NetworkError, SweepError) as e:  # BudgetError is a SweepError
         print(f"warp-tensegrity: error: {e}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
@@ -159,8 +159,10 @@ def main(argv=None) -> int:
 
 
 def _dispatch(args) -> int:
-    from . import sweep
-    from .spec import load_spec
+    from .sweep import plan as sweep_plan
+    from .sweep import run as sweep
+    from .sweep.errors import SweepError
+    from .sweep.spec import load_spec
 
     if args.command in ("run", "resume"):
         _quiet_warp(args.verbose)
@@ -170,23 +172,23 @@ def _dispatch(args) -> int:
 
             spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
-            plan = sweep.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
+            plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
         else:
             if _looks_like_spec(args.target):
                 if not args.output:
-                    raise sweep.SweepError("resume SPEC needs -o OUT.nc")
+                    raise SweepError("resume SPEC needs -o OUT.nc")
                 out = Path(args.output)
-                plan = sweep.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
+                plan = sweep_plan.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
             else:
                 out = Path(args.target)
                 if args.output and Path(args.output) != out:
-                    raise sweep.SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
+                    raise SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
-        from . import budget
+        from .sweep import budget
 
         limits = {"time_limit": args.time_limit or budget.DEFAULT_TIME_LIMIT}
         if args.dry_run:
-            print(sweep.dry_run(plan))
+            print(sweep_plan.dry_run(plan))
             found = budget.hard_problems(plan) + budget.problems(plan, **limits)
             print("fits:        " + ("yes (memory, disk, time limit)" if not found else "NO: " + "; ".join(found)))
             if args.command == "resume" and plan.shard_dir.exists():

@@ -7,11 +7,14 @@ Batched arrays put the column index last (fastest) - see :mod:`warp_tensegrity.k
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
-from .batch import NetworkBatch
+if TYPE_CHECKING:
+    from .scene.batch import NetworkBatch
+
 
 REAL = {"fp32": wp.float32, "fp64": wp.float64}
 NP_REAL = {"fp32": np.float32, "fp64": np.float64}
@@ -251,7 +254,7 @@ class FusedScratch:
     ``block`` = threads per column block."""
 
     nodes: wp.array  # (B, 5 n) vec3: per node displacement [m], velocity [m s-1], acceleration
-    # [m s-2], displacement at the step start [m], G^T lambda (slots U, V, A, P, I of fused.py)
+    # [m s-2], displacement at the step start [m], G^T lambda (slots types.Slot: U, V, A, P, I)
     solve: wp.array  # (B, nc*(bw+2)): Cholesky factor of G M^-1 G^T by rows (inverse diagonal in
     # slot 0 of each row), then the multipliers
     red: wp.array  # (B, block) per-lane values for block reductions

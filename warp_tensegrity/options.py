@@ -2,18 +2,19 @@
 
 Three pydantic (v2) dataclasses hold them; everything else is generated from them:
 
-* :class:`ColumnConfig` - ``[scene]``: the fixed scene (geometry, material, masses, conventions);
+* :class:`~warp_tensegrity.scene.columns.ColumnConfig` - ``[scene]``: the fixed scene (geometry,
+  material, masses, conventions), declared in the scene package with the :class:`Opt` below;
 * :class:`ColumnParameters` - the per-column parameters a sweep varies (``[sweep]``);
 * :class:`RunSettings` - ``[run]``: how a batch or a sweep is integrated and stored.
 
 Each field is ``name: Annotated[type, Opt(...)] = default`` followed by its docstring: the
 :class:`Opt` carries the unit, the bounds and the accepted special strings, and validates.
-The sweep spec parser (:mod:`warp_tensegrity.spec`), the command line's ``--set
+The sweep spec parser (:mod:`warp_tensegrity.sweep.spec`), the command line's ``--set
 section.key=value`` (:func:`parse_set`), the Python constructors and the docs tables
 (:func:`options_table`) all read these declarations; there is no other list of options.
 
 Errors name the key, the value and what was expected (``t_end = -1.0: must be > 0 [s]``),
-with a did-you-mean for unknown keys. Nothing here imports Warp.
+with a did-you-mean for unknown keys. Nothing here imports Warp, nor any module of the package (a leaf of the import graph).
 """
 
 from __future__ import annotations
@@ -34,28 +35,13 @@ from pydantic.dataclasses import dataclass as _pydantic_dataclass
 from pydantic_core import PydanticCustomError, core_schema
 
 METHODS = ("rattle", "rk4", "yoshida4", "symplectic_euler")
+"""The values of :class:`warp_tensegrity.types.Method` (a leaf cannot import it; a test checks)."""
 PRECISIONS = ("fp32", "fp64")
-END_BASE_MASS = ("full", "half")
-IMPACT_ADMISSIBILITY = ("project", "end_twist")
-
-PAPER_CABLE_MODULUS = 5.48e6  # N m-2
-PAPER_CABLE_RADIUS = 0.14e-3  # m
-PAPER_RADIUS = 5.0e-3  # m
-PAPER_HEIGHT = 6.2e-3  # m
-PAPER_UNIT_MASS = 0.0249  # kg
-PAPER_N_PRISMS = 50
-MINIMAL_TWIST = 5.0 * np.pi / 6.0  # rad
-
-
-# Physical ranges of the scene (SI). Wide enough for any laboratory or built tensegrity column
-# (micro-fabricated to building scale), narrow enough that every derived quantity (cable_EA,
-# squared lengths, omega_max) stays a normal float64: values outside them are refused, not run.
-LENGTH = (1e-6, 1e3)  # m: prism radius and height
-CABLE_RADIUS = (1e-9, 1.0)  # m
-MODULUS = (1.0, 1e13)  # N m-2: soft gels (~1e3) .. above diamond (1.2e12)
+"""The values of :class:`warp_tensegrity.types.Precision`."""
+# Physical ranges of the per-column parameters (the scene's are in scene.columns): wide enough for
+# any laboratory or built tensegrity column, narrow enough that derived quantities stay normal floats.
 MASS = (1e-15, 1e6)  # kg: unit and bar masses
 MAX_EA = 1e20  # N
-ASPECT = (1e-3, 1e3)  # prism height / radius
 
 
 # ---------------------------------------------------------------------- errors
@@ -70,10 +56,6 @@ class OptionError(ValueError):
 
 class SettingsError(OptionError):
     """Invalid run setting; the message names the field and the value."""
-
-
-class NetworkError(OptionError):
-    """Invalid scene or network: the message names the member/field and the value."""
 
 
 def fmt(value) -> str:
@@ -223,15 +205,15 @@ class Opt:
         except PydanticCustomError as e:
             return None, e.message()
 
-    def check_array(self, name: str, values) -> None:
-        """Vectorised bounds check of a real option over many columns (NetworkError names the
-        first bad entry, ``prestrain[3] = -0.1``)."""
+    def check_array(self, name: str, values, error: type[ValueError] = OptionError) -> None:
+        """Vectorised bounds check of a real option over many columns; ``error`` names the first
+        bad entry (``prestrain[3] = -0.1: ...``)."""
         try:
             arr = np.asarray(values)
         except (TypeError, ValueError):  # ragged nesting
             arr = np.asarray(None)
         if arr.dtype.kind not in "iuf":  # strings, bools, None, ragged lists
-            raise NetworkError(f"{name} = {fmt(values)}: must be a number or an array of numbers [{self.unit}]")
+            raise error(f"{name} = {fmt(values)}: must be a number or an array of numbers [{self.unit}]")
         arr = arr.astype(np.float64).ravel()
         good = np.isfinite(arr)
         for bound, op in ((self.gt, np.greater), (self.ge, np.greater_equal), (self.lt, np.less), (self.le, np.less_equal)):
@@ -241,7 +223,7 @@ class Opt:
             i = int(np.argmin(good))
             where = f"[{i}]" if arr.size > 1 else ""
             why = "must be finite" if not np.isfinite(arr[i]) else self._expected()
-            raise NetworkError(f"{name}{where} = {float(arr[i])!r}: {why}")
+            raise error(f"{name}{where} = {float(arr[i])!r}: {why}")
 
     def __get_pydantic_core_schema__(self, source, handler):
         return core_schema.no_info_plain_validator_function(self.check)
@@ -270,15 +252,24 @@ def messages(exc: ValidationError, cls, prefix: str = "") -> list[str]:
             out.append(unknown_key(f"{prefix}{key}", key, fields))
         elif e["type"] == "unexpected_positional_argument":
             out.append(f"{prefix}{key}: too many positional arguments (fields: {', '.join(fields)})")
-        elif e["type"] == "value_error" and isinstance(e.get("ctx", {}).get("error"), OptionError):
-            out += [f"{prefix}{m}" for m in e["ctx"]["error"].errors]
+        elif e["type"] == "value_error" and isinstance(e.get("ctx", {}).get("error"), ValueError):
+            err = e["ctx"]["error"]  # a cross-field check of __post_init__
+            out += [f"{prefix}{m}" for m in getattr(err, "errors", [str(err)])]
         else:  # pragma: no cover - every field is an Opt; kept so nothing is ever swallowed
             out.append(f"{prefix}{key or cls.__name__}: {e['msg']}")
     return out
 
 
-def options_class(error: type[OptionError], *, frozen: bool = False):
-    """A pydantic dataclass whose constructor raises ``error`` with :func:`messages`."""
+SECTIONS: dict = {}
+"""The options classes by the spec table their options live in ('scene', 'sweep', 'run'); each
+class registers itself here when it is defined (:func:`options_class`), so this leaf module
+imports nothing of the package and the docs and --set still see every option."""
+SECTION_ORDER = ("scene", "sweep", "run")
+
+
+def options_class(error: type[ValueError], *, frozen: bool = False, section: str | None = None):
+    """A pydantic dataclass whose constructor raises ``error`` (which takes a list of messages)
+    with :func:`messages`; registered in :data:`SECTIONS` under ``section``."""
 
     def wrap(cls):
         cls = _pydantic_dataclass(
@@ -294,6 +285,8 @@ def options_class(error: type[OptionError], *, frozen: bool = False):
                 raise error(messages(exc, cls)) from None
 
         cls.__init__ = __init__
+        if section is not None:
+            SECTIONS[section] = cls
         return cls
 
     return wrap
@@ -304,81 +297,14 @@ def build(cls, values: dict, prefix: str = ""):
     ``"run."``). Every problem of the table is reported."""
     try:
         return cls(**values)
-    except OptionError as e:
+    except ValueError as e:
+        if not hasattr(e, "errors"):
+            raise
         raise OptionError([f"{prefix}{m}" for m in e.errors]) from None
 
 
-# ---------------------------------------------------------------------- [scene]
-@options_class(NetworkError, frozen=True)
-class ColumnConfig:
-    """The fixed scene: geometry, material, masses, boundary and impact conventions (SI units)."""
-
-    n_prisms: Annotated[int, Opt("int", "1", ge=1)] = PAPER_N_PRISMS
-    """Number of stacked T3 prisms."""
-    handedness: Annotated[str, Opt("str", rule_text="'right', 'left', 'alternating' or one letter R/L per prism")] = "right"
-    """'right', 'left', 'alternating', or one letter R/L per prism (e.g. 'RRL...')."""
-    radius: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_RADIUS
-    """Radius a of the circle through each base triangle's vertices [m]."""
-    height: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_HEIGHT
-    """Reference prism height h0 [m] (also the length unit of pulse speed)."""
-    twist: Annotated[float, Opt("real", "rad", gt=math.pi / 3, lt=math.pi, rule_text="in (pi/3, pi)",
-                                why="5*pi/6 is the prestressable twist", default_text="5*pi/6")] = MINIMAL_TWIST
-    """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
-    cable_modulus: Annotated[float, Opt("real", "N m-2", ge=MODULUS[0], le=MODULUS[1])] = PAPER_CABLE_MODULUS
-    """Young modulus of the cables E_s [N m-2]."""
-    cable_radius: Annotated[float, Opt("real", "m", ge=CABLE_RADIUS[0], le=CABLE_RADIUS[1])] = PAPER_CABLE_RADIUS
-    """Cable cross-section radius r_s [m] (cable_EA = E_s pi r_s^2)."""
-    unit_mass: Annotated[float, Opt("real", "kg", ge=MASS[0], le=MASS[1])] = PAPER_UNIT_MASS
-    """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
-    end_base_mass: Annotated[str, Opt("choice", choices=END_BASE_MASS)] = "half"
-    """Mass on the end bases: 'half' (default: each unit's mass split between its two bases, so the
-    end bases carry half a unit) or 'full' (every base carries a whole unit)."""
-    bar_mass: Annotated[float, Opt("real", "kg", ge=0, le=MASS[1])] = 0.0
-    """Mass of each bar [kg], > 0 only for a single prism; the paper's columns carry their mass on
-    the bases (0)."""
-    impact_admissibility: Annotated[str, Opt("choice", choices=IMPACT_ADMISSIBILITY)] = "end_twist"
-    """How the axial impact velocity is made compatible with the rigid bars (default 'end_twist',
-    the best fit to the paper's Section 4, see analysis/paper_2017.md):
-    'project' - the impulse view: the axial velocity -v0 on the free-end nodes is projected onto
-    the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
-    'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
-    (twisting) velocity that satisfies the bars; no other node moves."""
-
-    def __post_init__(self):
-        self.prism_handedness()  # validates
-        if not ASPECT[0] <= self.height / self.radius <= ASPECT[1]:
-            raise NetworkError(f"height = {self.height!r}, radius = {self.radius!r}: the prism aspect ratio height/radius "
-                               f"= {self.height / self.radius:.3g} must lie in [{ASPECT[0]:g}, {ASPECT[1]:g}]")
-        if self.cable_radius > self.radius:
-            raise NetworkError(f"cable_radius = {self.cable_radius!r}: must be <= radius = {self.radius!r} m "
-                               "(a cable thicker than the prism)")
-        if self.bar_mass > 0 and self.n_prisms > 1:
-            # the consistent bar inertia needs class-1 networks; a column's inner nodes carry two bars
-            raise NetworkError(f"bar_mass = {self.bar_mass!r}: massive bars need n_prisms = 1 (the inner nodes of a "
-                               f"column carry two bars; n_prisms = {self.n_prisms}): put the mass in unit_mass")
-
-    @property
-    def cable_EA(self) -> float:
-        """E_s * pi * r_s^2 [N]."""
-        return self.cable_modulus * np.pi * self.cable_radius**2
-
-    def prism_handedness(self) -> np.ndarray:
-        """+1 (right) or -1 (left) per prism."""
-        h = self.handedness
-        n = self.n_prisms
-        if h == "right":
-            return np.ones(n, dtype=np.int64)
-        if h == "left":
-            return -np.ones(n, dtype=np.int64)
-        if h == "alternating":
-            return np.where(np.arange(n) % 2 == 0, 1, -1).astype(np.int64)
-        if isinstance(h, str) and len(h) == n and set(h.upper()) <= {"R", "L"}:
-            return np.array([1 if c == "R" else -1 for c in h.upper()], dtype=np.int64)
-        raise NetworkError(f"handedness = {h!r}: use 'right', 'left', 'alternating' or {n} letters R/L")
-
-
 # ---------------------------------------------------------------------- per-column parameters
-@options_class(NetworkError, frozen=True)
+@options_class(OptionError, frozen=True, section="sweep")
 class ColumnParameters:
     """The per-column parameters of a batch or a sweep (each column may have its own)."""
 
@@ -400,13 +326,13 @@ COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in Colum
 """Swept per-column parameters and their units."""
 
 
-def check_column_param(name: str, values) -> None:
-    """NetworkError naming the first entry of ``values`` outside the bounds of parameter ``name``."""
-    opt_of(ColumnParameters, name).check_array(name, values)
+def check_column_param(name: str, values, error: type[ValueError] = OptionError) -> None:
+    """``error`` naming the first entry of ``values`` outside the bounds of parameter ``name``."""
+    opt_of(ColumnParameters, name).check_array(name, values, error)
 
 
 # ---------------------------------------------------------------------- [run]
-@options_class(SettingsError)
+@options_class(SettingsError, section="run")
 class RunSettings:
     """How to integrate a batch, and (sweeps) how to store it (SI units)."""
 
@@ -453,17 +379,17 @@ class RunSettings:
     """RATTLE as one fused kernel, a thread block per column and several steps per launch
     (:mod:`warp_tensegrity.fused`); False: one kernel per stage (the only path of the other
     methods). 'auto': fused for RATTLE, except on a GPU above
-    :data:`~warp_tensegrity.simulate.FUSED_MAX_COLUMNS` (16,384) columns, where the staged kernels
+    :data:`~warp_tensegrity.engine.FUSED_MAX_COLUMNS` (16,384) columns, where the staged kernels
     stream faster. Both paths give the same numbers to round-off (not part of the fingerprint)."""
     accuracy: Annotated[float | None, Opt("real", "1", gt=0, lt=1, optional=True,
                                           why="the relative error wanted on pulse speed and amplitude")] = None
     """Target relative error of the pulse measures (speed, amplitude). When given, the engine
     chooses method, precision and dt from the measured work-precision curves
-    (:mod:`warp_tensegrity.choose`) and says what it chose in ``BatchResult.info['choices']``."""
+    (:mod:`warp_tensegrity.engine`) and says what it chose in ``BatchResult.info['choices']``."""
     truncate: Annotated[bool, Opt("bool")] = True
     """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
     column there; results are padded back to the full column (the far prisms stay at rest).
-    Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.choose`)."""
+    Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.engine`)."""
 
     def __post_init__(self):
         errors = []
@@ -486,9 +412,6 @@ class RunSettings:
 EXECUTION_KEYS = ("device", "shard_size", "fused")
 """[run] keys that say where/how a sweep runs, not what it computes: left out of the fingerprint."""
 
-SECTIONS = {"scene": ColumnConfig, "sweep": ColumnParameters, "run": RunSettings}
-"""The options classes by the spec table their options live in."""
-
 
 # ---------------------------------------------------------------------- command-line overrides
 def parse_value(text: str) -> Any:
@@ -500,8 +423,22 @@ def parse_value(text: str) -> Any:
         return text
 
 
-SET_SECTIONS = {"scene": tuple(ColumnConfig.__pydantic_fields__) + ("prestrain", "v0", "base_rigidity", "cable_EA"),
-                "run": tuple(RunSettings.__pydantic_fields__)}
+def sections() -> dict:
+    """{'scene': ColumnConfig, 'sweep': ColumnParameters, 'run': RunSettings}, in that order
+    (ColumnConfig registers when :mod:`warp_tensegrity.scene.columns` is imported, which importing
+    the package does)."""
+    missing = [s for s in SECTION_ORDER if s not in SECTIONS]
+    if missing:
+        raise RuntimeError(f"options sections {missing} not registered: import warp_tensegrity first")
+    return {s: SECTIONS[s] for s in SECTION_ORDER}
+
+
+def set_keys() -> dict:
+    """The keys ``--set`` accepts, by section: [scene] fields and per-column scalars, [run] fields."""
+    sec = sections()
+    scene = tuple(sec["scene"].__pydantic_fields__)
+    return {"scene": scene + tuple(k for k in sec["sweep"].__pydantic_fields__ if k not in scene),
+            "run": tuple(sec["run"].__pydantic_fields__)}
 
 
 def parse_set(items) -> dict:
@@ -511,6 +448,7 @@ def parse_set(items) -> dict:
     rest of the spec, so an override is held to the same rules as the file."""
     out: dict = {}
     errors = []
+    SET_SECTIONS = set_keys()
     for item in items or ():
         key, eq, value = str(item).partition("=")
         key = key.strip()
@@ -553,7 +491,7 @@ def options_table(section: str | None = None) -> list[dict]:
     """One row per option (of one section, or all): section, key, type, unit, default, rule, doc.
     The docs tables (:func:`options_markdown`) are these rows."""
     rows = []
-    for sec, cls in SECTIONS.items():
+    for sec, cls in sections().items():
         if section is not None and sec != section:
             continue
         for f in dataclasses.fields(cls):
@@ -582,7 +520,7 @@ DOCS_END = "<!-- options:{} end -->"
 
 def render_docs(text: str) -> str:
     """``text`` with every generated options table between its markers replaced by the current one."""
-    for sec in SECTIONS:
+    for sec in SECTION_ORDER:
         begin, end = DOCS_BEGIN.format(sec), DOCS_END.format(sec)
         i, j = text.find(begin), text.find(end)
         if i >= 0 and j > i:

@@ -7,13 +7,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .types import STATUS_MEANINGS
+
 # every run option is declared once, in options.py (re-exported here for the existing imports)
 from .options import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError  # noqa: F401
 
-STATUS_OK = 0
-STATUS_NONFINITE = 1
-STATUS_CONSTRAINT = 2
-STATUS_NAMES = {STATUS_OK: "ok", STATUS_NONFINITE: "non-finite state", STATUS_CONSTRAINT: "bar constraint failed"}
+STATUS_NAMES = {int(k): v for k, v in STATUS_MEANINGS.items()}
 
 
 @dataclass
@@ -35,7 +34,7 @@ class BatchResult:
     bar_length_error: np.ndarray
     """(B,) max over all steps and bars of |l - L| / L after projection [1]."""
     status: np.ndarray
-    """(B,) 0 ok, 1 non-finite state, 2 bar constraint failed (see STATUS_NAMES)."""
+    """(B,) :class:`~warp_tensegrity.types.Status`: 0 ok, 1 non-finite state, 2 bar constraint failed."""
     fail_step: np.ndarray
     """(B,) step at which the column was frozen, -1 if it never failed."""
     dt: float

@@ -18,7 +18,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-from .options import NetworkError  # noqa: E402,F401  (the one error class of scene and network input)
+class NetworkError(ValueError):
+    """Invalid network or scene input. The message names the member, node or field and the bad
+    value; ``errors`` lists one message per problem."""
+
+    def __init__(self, errors):
+        self.errors = [errors] if isinstance(errors, str) else list(errors)
+        super().__init__(self.errors[0] if len(self.errors) == 1 else "; ".join(self.errors))
 
 
 @dataclass

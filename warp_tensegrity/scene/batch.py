@@ -15,7 +15,7 @@ import numpy as np
 
 from . import columns as col
 from .network import Network, NetworkError
-from .options import COLUMN_PARAMETERS, ColumnParameters
+from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 
 
 @dataclass
@@ -107,7 +107,7 @@ def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarra
     defaults = {f.name: getattr(config, f.name) if f.default is None else f.default
                 for f in dataclasses.fields(ColumnParameters)}
     for k in params:
-        col.check_column_param(k, params[k])  # type and bounds, before any conversion
+        check_column_param(k, params[k], NetworkError)  # type and bounds, before any conversion
     arrays = {k: np.atleast_1d(np.asarray(params.get(k, d), dtype=np.float64)) for k, d in defaults.items()}
     B = max(a.size for a in arrays.values())
     for k, a in arrays.items():

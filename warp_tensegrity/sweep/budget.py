@@ -2,7 +2,7 @@
 
 Two checks, both before any kernel runs:
 
-* :func:`check_plan` (hard; :func:`warp_tensegrity.sweep.plan_sweep` calls it): the host memory
+* :func:`check_plan` (hard; :func:`warp_tensegrity.sweep.plan.plan_sweep` calls it): the host memory
   that planning itself needs (the per-column parameters and the engine's estimate, which builds
   every column of the sweep once) against the memory available.
 * :func:`check_run` (the CLI calls it before a run; ``--ignore-estimate`` skips it): the
@@ -18,6 +18,8 @@ import os
 import shutil
 from pathlib import Path
 
+from .errors import SweepError
+
 MAX_STEPS = 2**31 - 1
 """The device's step counter is a Warp ``int`` (int32)."""
 DEFAULT_TIME_LIMIT = 7 * 86400.0
@@ -29,7 +31,7 @@ PARAM_BYTES = 8 * 5
 """Five float64 per-column parameters."""
 
 
-class BudgetError(RuntimeError):
+class BudgetError(SweepError):
     """The estimate says the sweep does not fit the machine; the message gives the figures."""
 
 

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .network import Network
+from ..scene.network import Network
 
 __all__ = [
     "ClassOneMatrixForm",

@@ -15,18 +15,28 @@ Shards are always case-stacked (a contiguous block of columns ``case_start:case_
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
 import json
 import os
 import subprocess
 import time as _time
+import tomllib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
 
+from .scene.columns import ColumnConfig
 from .settings import COLUMN_PARAMETERS, STATUS_NAMES
-from .spec import SCENE_FIELDS, SweepSpec, package_version
+
+if TYPE_CHECKING:
+    from .sweep.spec import SweepSpec
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+SCENE_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
 
 CONVENTIONS = "CF-1.10"
 REFERENCES = (
@@ -37,7 +47,6 @@ REFERENCES = (
 RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created")
 """Global attributes that differ between two runs of the same spec (drop before comparing)."""
 
-SHARD_ATTRS = ("shard_index", "n_shards", "case_start", "case_stop")
 
 MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time")
 
@@ -96,6 +105,40 @@ _COMPRESS = {"zlib": True, "complevel": 1, "shuffle": True}
 
 # ---------------------------------------------------------------------- provenance
 @functools.lru_cache(maxsize=1)
+def package_version() -> str:
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            return version("warp_tensegrity")
+        except PackageNotFoundError:
+            pass
+    except ImportError:  # pragma: no cover
+        pass
+    pyproject = PACKAGE_DIR.parent / "pyproject.toml"
+    try:
+        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
+    except Exception:
+        return "unknown"
+
+
+def source_hash() -> str:
+    """sha256 over the package's .py sources (relative path and content, sorted by path)."""
+    h = hashlib.sha256()
+    for p in sorted(PACKAGE_DIR.rglob("*.py")):
+        if "__pycache__" in p.parts:
+            continue
+        h.update(p.relative_to(PACKAGE_DIR).as_posix().encode() + b"\0")
+        h.update(p.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def code_version() -> str:
+    """Package version + hash of the package's .py sources, e.g. '0.1.0+src.1a2b3c4d5e6f7a8b'."""
+    return f"{package_version()}+src.{source_hash()[:16]}"
+
+
+
 def git_commit() -> str:
     """The checkout's commit, or $GIT_COMMIT where there is no usable .git (copied trees)."""
     env = os.environ.get("GIT_COMMIT")

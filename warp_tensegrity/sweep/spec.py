@@ -33,19 +33,20 @@ from pathlib import Path
 
 import numpy as np
 
-from . import options as O
-from .choose import for_accuracy
-from .options import (
+from .. import options as O
+from ..engine import for_accuracy
+from ..io import code_version
+from ..options import (
     COLUMN_PARAMETERS,
     EXECUTION_KEYS,
-    ColumnConfig,
     ColumnParameters,
     OptionError,
     RunSettings,
     suggest,
 )
+from ..scene.columns import ColumnConfig
+from .errors import SpecError
 
-PACKAGE_DIR = Path(__file__).resolve().parent
 
 TOP_KEYS = ("title", "description", "scene", "sweep", "run")
 SWEEP_KEYS = ("grid", "cases", "fixed")
@@ -63,21 +64,6 @@ PARAM_DEFAULTS = {f.name: f.default for f in dataclasses.fields(ColumnParameters
 """Defaults of the per-column parameters that are not scene-derived (cable_EA and unit_mass
 default to the scene's values)."""
 
-
-class SpecError(OptionError):
-    """Invalid sweep spec. ``errors`` lists one message per problem, each naming the key path."""
-
-    def __init__(self, errors, source: str | None = None):
-        if isinstance(errors, str):
-            errors = [errors]
-        self.errors = list(errors)
-        self.source = source
-        head = f"invalid sweep spec{f' {source}' if source else ''}"
-        if len(self.errors) == 1:
-            msg = f"{head}: {self.errors[0]}"
-        else:
-            msg = f"{head} ({len(self.errors)} problems):\n" + "\n".join(f"  - {e}" for e in self.errors)
-        ValueError.__init__(self, msg)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -307,40 +293,6 @@ def _plain(x):
     if isinstance(x, np.generic):
         return x.item()
     return x
-
-
-# ---------------------------------------------------------------------- code version
-def package_version() -> str:
-    try:
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            return version("warp_tensegrity")
-        except PackageNotFoundError:
-            pass
-    except ImportError:  # pragma: no cover
-        pass
-    pyproject = PACKAGE_DIR.parent / "pyproject.toml"
-    try:
-        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
-    except Exception:
-        return "unknown"
-
-
-def source_hash() -> str:
-    """sha256 over the package's .py sources (relative path and content, sorted by path)."""
-    h = hashlib.sha256()
-    for p in sorted(PACKAGE_DIR.rglob("*.py")):
-        if "__pycache__" in p.parts:
-            continue
-        h.update(p.relative_to(PACKAGE_DIR).as_posix().encode() + b"\0")
-        h.update(p.read_bytes() + b"\0")
-    return h.hexdigest()
-
-
-def code_version() -> str:
-    """Package version + hash of the package's .py sources, e.g. '0.1.0+src.1a2b3c4d5e6f7a8b'."""
-    return f"{package_version()}+src.{source_hash()[:16]}"
 
 
 # ---------------------------------------------------------------------- loading

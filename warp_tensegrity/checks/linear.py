@@ -3,7 +3,7 @@
 Job: natural frequencies and mode shapes of the constrained system (rigid bars), the largest
 frequency (explicit step limits), zero-stiffness mechanisms, the axial stiffness of the prisms
 of a column and the long-wave sound speeds of a column. Float64 NumPy on the host; the bar
-kinematics and mass matrix come from :class:`warp_tensegrity.reference.ReferenceSystem`.
+kinematics and mass matrix come from :class:`warp_tensegrity.checks.reference.ReferenceSystem`.
 SI units: omega [rad s-1], stiffness [N m-1], torsional stiffness [N m rad-1], speeds [m s-1].
 
 Theory. With bar constraints ``g_k = (|b_k|^2 - L_k^2)/2`` and multipliers ``lam_k`` (force
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .network import Network
+from ..scene.network import Network
 from .reference import ReferenceSystem
 
 __all__ = [

@@ -22,27 +22,103 @@ that stiffen continuously toward RB.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import Sequence
+import math
+from dataclasses import dataclass, field
+from typing import Annotated, Sequence
 
 import numpy as np
 
+from ..options import MASS, Opt, check_column_param, options_class
 from .network import Network, NetworkError
 
-# the scene's options (ColumnConfig) are declared once, in options.py
-from .options import (  # noqa: E402,F401
-    END_BASE_MASS,
-    IMPACT_ADMISSIBILITY,
-    MINIMAL_TWIST,
-    PAPER_CABLE_MODULUS,
-    PAPER_CABLE_RADIUS,
-    PAPER_HEIGHT,
-    PAPER_N_PRISMS,
-    PAPER_RADIUS,
-    PAPER_UNIT_MASS,
-    ColumnConfig,
-    check_column_param,
-)
+PAPER_CABLE_MODULUS = 5.48e6  # N m-2
+PAPER_CABLE_RADIUS = 0.14e-3  # m
+PAPER_RADIUS = 5.0e-3  # m
+PAPER_HEIGHT = 6.2e-3  # m
+PAPER_UNIT_MASS = 0.0249  # kg
+PAPER_N_PRISMS = 50
+MINIMAL_TWIST = 5.0 * np.pi / 6.0  # rad
+
+END_BASE_MASS = ("full", "half")
+IMPACT_ADMISSIBILITY = ("project", "end_twist")
+
+# Physical ranges of the scene (SI). Wide enough for any laboratory or built tensegrity column
+# (micro-fabricated to building scale), narrow enough that every derived quantity (cable_EA,
+# squared lengths, omega_max) stays a normal float64: values outside them are refused, not run.
+LENGTH = (1e-6, 1e3)  # m: prism radius and height
+CABLE_RADIUS = (1e-9, 1.0)  # m
+MODULUS = (1.0, 1e13)  # N m-2: soft gels (~1e3) .. above diamond (1.2e12)
+ASPECT = (1e-3, 1e3)  # prism height / radius
+
+
+# ---------------------------------------------------------------------- the scene's options
+@options_class(NetworkError, frozen=True, section="scene")
+class ColumnConfig:
+    """The fixed scene: geometry, material, masses, boundary and impact conventions (SI units)."""
+
+    n_prisms: Annotated[int, Opt("int", "1", ge=1)] = PAPER_N_PRISMS
+    """Number of stacked T3 prisms."""
+    handedness: Annotated[str, Opt("str", rule_text="'right', 'left', 'alternating' or one letter R/L per prism")] = "right"
+    """'right', 'left', 'alternating', or one letter R/L per prism (e.g. 'RRL...')."""
+    radius: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_RADIUS
+    """Radius a of the circle through each base triangle's vertices [m]."""
+    height: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_HEIGHT
+    """Reference prism height h0 [m] (also the length unit of pulse speed)."""
+    twist: Annotated[float, Opt("real", "rad", gt=math.pi / 3, lt=math.pi, rule_text="in (pi/3, pi)",
+                                why="5*pi/6 is the prestressable twist", default_text="5*pi/6")] = MINIMAL_TWIST
+    """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
+    cable_modulus: Annotated[float, Opt("real", "N m-2", ge=MODULUS[0], le=MODULUS[1])] = PAPER_CABLE_MODULUS
+    """Young modulus of the cables E_s [N m-2]."""
+    cable_radius: Annotated[float, Opt("real", "m", ge=CABLE_RADIUS[0], le=CABLE_RADIUS[1])] = PAPER_CABLE_RADIUS
+    """Cable cross-section radius r_s [m] (cable_EA = E_s pi r_s^2)."""
+    unit_mass: Annotated[float, Opt("real", "kg", ge=MASS[0], le=MASS[1])] = PAPER_UNIT_MASS
+    """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
+    end_base_mass: Annotated[str, Opt("choice", choices=END_BASE_MASS)] = "half"
+    """Mass on the end bases: 'half' (default: each unit's mass split between its two bases, so the
+    end bases carry half a unit) or 'full' (every base carries a whole unit)."""
+    bar_mass: Annotated[float, Opt("real", "kg", ge=0, le=MASS[1])] = 0.0
+    """Mass of each bar [kg], > 0 only for a single prism; the paper's columns carry their mass on
+    the bases (0)."""
+    impact_admissibility: Annotated[str, Opt("choice", choices=IMPACT_ADMISSIBILITY)] = "end_twist"
+    """How the axial impact velocity is made compatible with the rigid bars (default 'end_twist',
+    the best fit to the paper's Section 4, see analysis/paper_2017.md):
+    'project' - the impulse view: the axial velocity -v0 on the free-end nodes is projected onto
+    the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
+    'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
+    (twisting) velocity that satisfies the bars; no other node moves."""
+
+    def __post_init__(self):
+        self.prism_handedness()  # validates
+        if not ASPECT[0] <= self.height / self.radius <= ASPECT[1]:
+            raise NetworkError(f"height = {self.height!r}, radius = {self.radius!r}: the prism aspect ratio height/radius "
+                               f"= {self.height / self.radius:.3g} must lie in [{ASPECT[0]:g}, {ASPECT[1]:g}]")
+        if self.cable_radius > self.radius:
+            raise NetworkError(f"cable_radius = {self.cable_radius!r}: must be <= radius = {self.radius!r} m "
+                               "(a cable thicker than the prism)")
+        if self.bar_mass > 0 and self.n_prisms > 1:
+            # the consistent bar inertia needs class-1 networks; a column's inner nodes carry two bars
+            raise NetworkError(f"bar_mass = {self.bar_mass!r}: massive bars need n_prisms = 1 (the inner nodes of a "
+                               f"column carry two bars; n_prisms = {self.n_prisms}): put the mass in unit_mass")
+
+    @property
+    def cable_EA(self) -> float:
+        """E_s * pi * r_s^2 [N]."""
+        return self.cable_modulus * np.pi * self.cable_radius**2
+
+    def prism_handedness(self) -> np.ndarray:
+        """+1 (right) or -1 (left) per prism."""
+        h = self.handedness
+        n = self.n_prisms
+        if h == "right":
+            return np.ones(n, dtype=np.int64)
+        if h == "left":
+            return -np.ones(n, dtype=np.int64)
+        if h == "alternating":
+            return np.where(np.arange(n) % 2 == 0, 1, -1).astype(np.int64)
+        if isinstance(h, str) and len(h) == n and set(h.upper()) <= {"R", "L"}:
+            return np.array([1 if c == "R" else -1 for c in h.upper()], dtype=np.int64)
+        raise NetworkError(f"handedness = {h!r}: use 'right', 'left', 'alternating' or {n} letters R/L")
+
 
 
 # ---------------------------------------------------------------------- topology
@@ -166,7 +242,7 @@ def check_column_params(prestrain, v0, base_rigidity, cable_EA, unit_mass) -> No
     """Raise NetworkError naming the parameter and value for any physically impossible input."""
     for name, val in zip(("prestrain", "v0", "base_rigidity", "cable_EA", "unit_mass"),
                          (prestrain, v0, base_rigidity, cable_EA, unit_mass)):
-        check_column_param(name, val)  # bounds declared once, in options.ColumnParameters
+        check_column_param(name, val, NetworkError)  # bounds declared once, in options.ColumnParameters
 
 
 def node_masses(topo: ColumnTopology, unit_mass: float) -> np.ndarray:
@@ -333,7 +409,3 @@ def prism_heights(topo: ColumnTopology, positions: np.ndarray) -> np.ndarray:
     ``positions`` has shape (..., n_nodes, 3)."""
     zl = positions[..., topo.level_nodes, 2].mean(axis=-1)
     return zl[..., 1:] - zl[..., :-1]
-
-
-def with_config(config: ColumnConfig, **changes) -> ColumnConfig:
-    return replace(config, **changes)

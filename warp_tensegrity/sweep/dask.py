@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-_WORKER_DEVICE_KEY = "warp_tensegrity_device"
+from ..io import code_version
 
 
 def _gpu_count() -> int:
@@ -40,11 +40,9 @@ def _quiet_warp() -> None:
         pass
 
 
-def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
-    """Runs on a worker: compute shard ``index``, write it atomically, return (index, path, n_failed)."""
-    from . import sweep
-    from .spec import code_version
-
+def _shard_task(run_one, plan, index: int, device_map: dict | None, quiet: bool = True):
+    """Runs on a worker: ``run_one(plan, index, device)`` (compute shard ``index``, write it
+    atomically, check it) on this worker's device; returns what it returns."""
     if quiet:
         _quiet_warp()
 
@@ -62,11 +60,7 @@ def _shard_task(plan, index: int, device_map: dict | None, quiet: bool = True):
             device = device_map.get(get_worker().address)
         except Exception:
             device = None
-    path = sweep.run_shard(plan, index, device=device)
-    st = sweep.check_shard(plan, index)
-    if st.state != "done":
-        raise RuntimeError(f"shard {index} written to {path} does not check out: {st.reason}")
-    return index, str(path), st.n_failed
+    return run_one(plan, index, device)
 
 
 def _device_map(client, device: str | None) -> dict:
@@ -89,9 +83,10 @@ def local_cluster(n_workers: int, **kwargs):
     return LocalCluster(**opts)
 
 
-def run_shards_dask(plan, indices, *, n_workers: int | None = None, scheduler: str | None = None, client=None,
+def run_shards_dask(plan, indices, run_one, *, n_workers: int | None = None, scheduler: str | None = None, client=None,
                     bar=None) -> list[Path]:
-    """Run shards ``indices`` of ``plan`` as Dask tasks; returns the shard paths (in ``indices`` order)."""
+    """Run shards ``indices`` of ``plan`` as Dask tasks, each ``run_one(plan, index, device)``
+    (:func:`~warp_tensegrity.sweep.shard.run_and_check`); returns the shard paths (in ``indices`` order)."""
     from distributed import Client, as_completed
 
     cluster = None
@@ -113,7 +108,7 @@ def run_shards_dask(plan, indices, *, n_workers: int | None = None, scheduler: s
             dmap = {w: plan.device for w in client.scheduler_info()["workers"]}
         else:
             dmap = None
-        futures = client.map(_shard_task, [plan] * len(indices), list(indices), [dmap] * len(indices),
+        futures = client.map(_shard_task, [run_one] * len(indices), [plan] * len(indices), list(indices), [dmap] * len(indices),
                              pure=False, retries=0)
         paths = {}
         done_cols = bar.done if bar is not None else 0

@@ -1,0 +1,146 @@
+"""Import contracts of the package layout (docs/architecture.md): no cycles, no upward imports,
+import chains at most MAX_CHAIN modules long, and reading a spec does not load Warp.
+
+Edges are every ``import`` / ``from ... import`` of a package module, at module level or inside
+functions, except those under ``if TYPE_CHECKING:`` (annotations only). Hand-written rather than
+import-linter: import-linter has layers and independence contracts but no chain-length contract,
+and this reads the same graph for all three checks."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = "warp_tensegrity"
+MAX_CHAIN = 7
+
+# Lowest layer first; a module may import lower layers and its own layer's modules (acyclic).
+LAYERS = [
+    {"types", "options", "scene.network", "kernels", "measure.pulse", "sweep.errors", "sweep.budget",
+     "sweep.progress"},  # leaves
+    {"settings", "scene.columns", "fused", "model", "measure"},
+    {"scene.batch", "scene", "integrate", "io", "checks", "checks.reference", "checks.linear"},
+    {"engine", "sweep.store"},
+    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", ""},
+    {"sweep.run", "sweep"},
+    {"cli", "__main__"},
+]
+LAYER = {m: i for i, layer in enumerate(LAYERS) for m in layer}
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for p in (ROOT / PKG).rglob("*.py"):
+        parts = list(p.relative_to(ROOT / PKG).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        mods[".".join(parts)] = p
+    return mods
+
+
+def _type_checking_nodes(tree) -> set:
+    skip = set()
+    for n in ast.walk(tree):
+        if isinstance(n, ast.If) and "TYPE_CHECKING" in ast.unparse(n.test):
+            for c in n.body:
+                skip.update(id(x) for x in ast.walk(c))
+    return skip
+
+
+def _imports(name: str, path: Path, mods) -> set[str]:
+    tree = ast.parse(path.read_text())
+    skip = _type_checking_nodes(tree)
+    base = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    base = [b for b in base if b]
+    out = set()
+    for n in ast.walk(tree):
+        if id(n) in skip:
+            continue
+        if isinstance(n, ast.ImportFrom):
+            if n.level:
+                stem = base[: len(base) - (n.level - 1)] + ([n.module] if n.module else [])
+            elif (n.module or "").split(".")[0] == PKG:
+                stem = n.module.split(".")[1:]
+            else:
+                continue
+            for a in n.names:
+                sub = ".".join(stem + [a.name])
+                out.add(sub if sub in mods else ".".join(stem))
+        elif isinstance(n, ast.Import):
+            for a in n.names:
+                if a.name.split(".")[0] == PKG:
+                    out.add(".".join(a.name.split(".")[1:]))
+    return {m for m in out if m in mods and m != name}
+
+
+def import_graph() -> dict[str, set[str]]:
+    mods = _modules()
+    return {m: _imports(m, p, mods) for m, p in mods.items()}
+
+
+def longest_chain(graph) -> list[str]:
+    """Longest import path between importable modules (``__main__``, the ``python -m`` shim that
+    nothing imports, is left out; it would add one)."""
+    def longest(m, seen=()):  # simple paths only, so a cycle (its own test fails) cannot recurse forever
+        best = [m]
+        for d in graph[m]:
+            if d not in seen:
+                tail = longest(d, seen + (m,))
+                if len(tail) + 1 > len(best):
+                    best = [m] + tail
+        return best
+
+    return max((longest(m) for m in graph if m != '__main__'), key=len)
+
+
+def test_every_module_has_a_layer():
+    assert set(import_graph()) - set(LAYER) == set()
+
+
+def test_no_upward_imports_and_no_cycles():
+    g = import_graph()
+    upward = [(m, d) for m, deps in g.items() for d in deps if LAYER[d] > LAYER[m]]
+    assert not upward, f"upward imports: {upward}"
+    # within a layer: acyclic (a DFS that finds a back edge names the cycle)
+    state = {}
+
+    def visit(m, stack):
+        state[m] = 1
+        for d in g[m]:
+            if state.get(d) == 1:
+                raise AssertionError("import cycle: " + " -> ".join(stack[stack.index(d):] + [d]))
+            if d not in state:
+                visit(d, stack + [d])
+        state[m] = 2
+
+    for m in g:
+        if m not in state:
+            visit(m, [m])
+
+
+def test_import_chains_are_short():
+    chain = longest_chain(import_graph())
+    assert len(chain) <= MAX_CHAIN, f"{len(chain)} modules: " + " -> ".join(c or PKG for c in chain)
+
+
+def test_contract_checker_sees_real_edges():
+    g = import_graph()
+    assert "integrate" in g["engine"] and "kernels" in g["fused"] and "engine" in g["sweep.plan"]
+    assert "sweep.spec" not in g["io"]  # TYPE_CHECKING only
+
+
+@pytest.mark.parametrize("code", [
+    "import warp_tensegrity",
+    "from warp_tensegrity.sweep import parse_spec; parse_spec('[scene]\\nn_prisms = 4\\n[sweep]\\n"
+    "grid = { v0 = [0.01] }\\n[run]\\nt_end = 0.01\\naccuracy = 1e-3\\n').run_settings()",
+    "from warp_tensegrity.sweep import load_spec; load_spec('sweeps/paper_2017.toml')",
+])
+def test_reading_a_spec_does_not_import_warp(code):
+    r = subprocess.run([sys.executable, "-c", code + "; import sys; print('warp' in sys.modules)"],
+                       cwd=ROOT, capture_output=True, text=True, env={"PYTHONPATH": str(ROOT), "PATH": ""})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "False"
+

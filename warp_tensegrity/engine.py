@@ -1,0 +1,316 @@
+"""Policy: what to integrate and how, decided in one place from the scene and the settings.
+
+* accuracy -> method, precision and dt (:func:`for_accuracy`, :func:`apply_accuracy`);
+* dt and output stride from the stability limit (:func:`choose_timestep`);
+* truncation: which prisms to simulate (:func:`prisms_to_simulate`, :func:`reachable_prisms`);
+* launch path, staged or fused (:func:`choose_path`);
+* the cost and memory model (:func:`estimate_batch`);
+* and the entry points that apply them: :func:`simulate_batch` (columns), :func:`run_batch`
+  (any prepared batch).
+
+Nothing here imports Warp at module level, so a spec validates (it checks ``run.accuracy``
+through :func:`for_accuracy`) without loading Warp; the integrator is imported when a batch runs.
+Model no more than a scene needs: choices taken from the requested accuracy and the scene.
+
+* :func:`for_accuracy` maps a target relative error of the pulse measures (speed, amplitude) to
+  method, precision and the fraction of the stability limit used as dt. Errors accumulate as
+  the pulse travels, so the rule depends on the prisms it crosses. Measured on the paper's
+  50-prism column (``analysis/work_precision.md``, "Model no more than a scene needs"), the
+  worse of speed and amplitude error is bounded by
+
+      RATTLE:  0.59 (dt / dt_limit)^2 (n / 50)        RK4:  8 (dt / dt_limit)^4 (n / 50)
+
+  with dt_limit = 2/omega_max (RATTLE) or 2*sqrt(2)/omega_max (RK4). The engine takes the
+  cheaper method (force evaluations per simulated second) that meets the target, with dt at most
+  half the limit, and fp32 unless the target is below 1e-4 (fp32 pulse errors equal fp64's
+  down to ~1e-5). The final state of flexible-base columns after reflections is another matter:
+  fp64 only (see the verdict). Flexible-base amplitudes below ~1e-4 are not promised: slack/taut
+  cable switches cut RK4 to about second order there.
+
+* :func:`reachable_prisms`: prisms a disturbance can reach within ``t_end``. A chain whose
+  levels couple only to their neighbours has group velocities at most ``h0 * omega_max / 2``;
+  with a factor 2 for stiffening under strong compression the front covers at most
+  ``omega_max * t_end`` prisms. Prisms beyond that (plus a margin) stay at rest to round-off and
+  need not be simulated: the column is clamped at the last level the front can reach.
+  Not for mixed-handed columns with rigid bases: their rigid links and bars form a kinematic
+  chain that moves prisms far ahead of the front (the disturbance decays only ~2x per prism
+  there, against ~1000x per prism in a uniform rigid-base column), so those are never truncated.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from .scene.batch import (
+    NetworkBatch,
+    column_batch,
+    column_params,
+    omega_max_bound,
+    reference_elastic_energy,
+    reference_states,
+)
+from .scene.columns import ColumnConfig
+from .settings import BatchResult, RunSettings, SettingsError
+from .types import FORCE_EVALS, STABILITY, Base, Method, Path
+
+# fused='auto' on a GPU: above this many columns the staged kernels stream faster (H200: the fused
+# step is 1.25-1.55x faster at 16,384 columns, RB fp64 0.87x; 0.5-0.93x at 32,768; benchmarks/README.md)
+FUSED_MAX_COLUMNS = 16384
+
+REACH_MARGIN_PRISMS = 8
+
+
+ERROR_MODEL = {"rattle": (0.59, 2), "rk4": (8.0, 4)}
+"""Measured error constant C and order p: error <= C (dt/dt_limit)^p (n_prisms/50)."""
+REFERENCE_PRISMS = 50
+MAX_FRACTION = 0.5
+
+
+def for_accuracy(accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> dict:
+    """Method, precision and dt_safety for a target relative error of the pulse measures over a
+    pulse that crosses ``n_prisms`` prisms."""
+    if not (math.isfinite(accuracy) and 0 < accuracy < 1):
+        raise SettingsError(f"accuracy = {accuracy!r} must lie in (0, 1) (relative error of pulse speed/amplitude)")
+    travel = max(int(n_prisms), 1) / REFERENCE_PRISMS
+    best = None
+    for method, (C, p) in ERROR_MODEL.items():
+        frac = min(MAX_FRACTION, (accuracy / (C * travel)) ** (1.0 / p))
+        cost = FORCE_EVALS[method] / (frac * STABILITY[method])  # evaluations per unit of omega_max * t
+        if best is None or cost < best[0]:
+            best = (cost, method, frac)
+    _, method, frac = best
+    return {"method": method, "precision": "fp32" if accuracy >= 1e-4 else "fp64", "dt_safety": frac}
+
+
+def apply_accuracy(settings: RunSettings, n_prisms: int = REFERENCE_PRISMS) -> tuple[RunSettings, dict]:
+    """Settings with method/precision/dt_safety chosen from ``settings.accuracy`` (if given) for a
+    pulse crossing ``n_prisms`` prisms."""
+    if settings.accuracy is None:
+        return settings, {}
+    if settings.dt != "auto":
+        raise SettingsError(
+            f"accuracy = {settings.accuracy!r} and dt = {settings.dt!r}: give one of them; accuracy chooses dt"
+        )
+    choice = for_accuracy(settings.accuracy, n_prisms)
+    fields = {k: v for k, v in vars(settings).items()}
+    fields.update(choice)
+    return RunSettings(**fields), {"accuracy": settings.accuracy, **choice}
+
+
+def reachable_prisms(omega_max: float, t_end: float, n_prisms: int) -> int:
+    """Prisms from the impacted end that a disturbance can reach within t_end, plus a margin."""
+    reach = math.ceil(omega_max * t_end) + REACH_MARGIN_PRISMS
+    return int(min(n_prisms, max(reach, 2)))
+
+def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int) -> Path:
+    """Fused RATTLE (a block per column) or staged kernels: ``settings.fused`` True/False, or
+    'auto': fused for RATTLE except on a GPU above :data:`FUSED_MAX_COLUMNS` columns."""
+    if settings.fused is True or (settings.fused == "auto" and settings.method == Method.RATTLE
+                                  and (not on_gpu or n_columns <= FUSED_MAX_COLUMNS)):
+        return Path.FUSED
+    return Path.STAGED
+
+
+def choose_timestep(settings: RunSettings, omega_max: float):
+    """Returns (dt, dt_limit, n_steps, output_every) with dt dividing the output interval."""
+    limit = STABILITY[settings.method] / omega_max if omega_max > 0 else math.inf
+    interval = settings.output_interval or settings.t_end / 200.0
+    if settings.dt == "auto":
+        target = settings.dt_safety * limit
+        every = max(1, math.ceil(interval / target))
+        dt = interval / every
+        dt = min(dt, settings.t_end)
+    else:
+        dt = float(settings.dt)
+        if dt > limit and not settings.allow_unstable_dt:
+            raise SettingsError(
+                f"dt = {dt:.4g} s exceeds the stability limit {limit:.4g} s of method {settings.method!r} "
+                f"(omega_max = {omega_max:.4g} rad/s with all cables taut); use dt <= {limit:.4g}, dt = 'auto', "
+                "or allow_unstable_dt"
+            )
+        every = max(1, round(interval / dt))
+    n_steps = max(1, math.ceil(settings.t_end / dt - 1e-9))
+    return dt, limit, n_steps, every
+
+
+def _to_host(a):
+    return None if a is None else a.numpy().astype(np.float64)
+
+
+def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> BatchResult:
+    """Integrate a prepared batch; see :func:`simulate_batch` for columns."""
+    from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
+
+    omega = float(omega_max_bound(batch).max())
+    dt, limit, n_steps, every = choose_timestep(settings, omega)
+    n_out = n_steps // every + 1
+    path = choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns)
+    integ = Integrator(batch, settings, dt, every, n_out, path=path)
+    wall, t_compile = integ.run(n_steps, progress)
+    d = integ.data
+    ke = _to_host(integ.kinetic).T  # (B, n_out)
+    ee = _to_host(integ.elastic).T
+    status = d.status.numpy().astype(np.int32)
+    fail_step = d.fail_step.numpy().astype(np.int64)
+    E = ke + ee
+    # only outputs written before a failure are meaningful
+    valid = np.ones_like(E, dtype=bool)
+    for b in np.flatnonzero(status):
+        last_slot = max(int(fail_step[b]) - 1, 0) // every
+        valid[b, last_slot + 1 :] = False
+        ke[b, last_slot + 1 :] = np.nan
+        ee[b, last_slot + 1 :] = np.nan
+    scale = np.where(ke[:, 0] > 0, ke[:, 0], np.nan)
+    with np.errstate(invalid="ignore"):
+        dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
+        energy_error = dev.max(axis=1) / scale
+    strain = None
+    if integ.strain is not None:
+        strain = _to_host(integ.strain).transpose(2, 0, 1)  # (B, n_out, n_prisms)
+        for b in np.flatnonzero(status):
+            last_slot = max(int(fail_step[b]) - 1, 0) // every
+            strain[b, last_slot + 1 :] = np.nan
+    return BatchResult(
+        params=dict(batch.params),
+        time=np.arange(n_out) * every * dt,
+        strain=strain,
+        kinetic_energy=ke,
+        elastic_energy=ee,
+        energy_error=energy_error,
+        bar_length_error=d.bar_err.numpy().astype(np.float64),
+        status=status,
+        fail_step=fail_step,
+        dt=dt,
+        n_steps=n_steps,
+        method=settings.method,
+        precision=settings.precision,
+        device=str(integ.device),
+        device_name=integ.device.name,
+        wall_time=wall,
+        final_displacement=d.u.numpy().astype(np.float64).transpose(1, 0, 2),
+        final_velocity=d.v.numpy().astype(np.float64).transpose(1, 0, 2),
+        dt_limit=limit,
+        info={
+            "omega_max_bound": omega,
+            "output_every": every,
+            "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
+            "bandwidth": integ.model.bandwidth,
+            "n_constraints": integ.model.n_constraints,
+            "build_time": integ.build_time,
+            "initialize_time": t_compile,
+            "graph_steps": integ.graph_steps,
+            "force_evaluations_per_step": FORCE_EVALS[settings.method],
+            "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
+        },
+    )
+
+
+def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, progress=None) -> BatchResult:
+    """Simulate B T3 columns of one topology, each with its own parameters.
+
+    ``params`` maps names in :data:`~warp_tensegrity.settings.COLUMN_PARAMETERS` to arrays of
+    shape (B,) (or scalars); missing ones take the config's defaults.
+    ``progress(steps_done, n_steps, n_failed)`` is called about twice a second.
+    With ``settings.accuracy`` the method, precision and dt are chosen from it; with
+    ``settings.truncate`` only the prisms a wave can reach within t_end are simulated. Both are
+    reported in ``result.info['choices']``.
+    """
+    n = config.n_prisms
+    n_sim = prisms_to_simulate(config, params, settings)
+    settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
+    sim_config = _far_end(config, n_sim) if n_sim < n else config
+    batch = column_batch(sim_config, params)
+    result = run_batch(batch, settings, progress)
+    if n_sim < n:
+        _pad_to_full_column(result, config, sim_config, params, n, n_sim)
+    choices.update({"prisms_simulated": n_sim, "prisms": n, "method": settings.method,
+                    "precision": settings.precision, "dt": result.dt,
+                    "record_strain": settings.record_strain})
+    result.info["choices"] = choices
+    return result
+
+
+def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings) -> int:
+    """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end."""
+    n = config.n_prisms
+    if not settings.truncate or n <= 4:
+        return n
+    hand = config.prism_handedness()
+    if np.any(hand != hand[0]) and np.any(column_params(config, params)["base_rigidity"] >= Base.RIGID):
+        # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
+        # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
+        return n
+    probe = column_batch(_far_end(config, 4), params)  # the omega bound is a local property
+    return reachable_prisms(float(omega_max_bound(probe).max()), settings.t_end, n)
+
+
+def _far_end(config: ColumnConfig, n_sim: int) -> ColumnConfig:
+    """The last n_sim prisms of the column (the impacted end), as a column of their own."""
+    hand = config.prism_handedness()[-n_sim:]
+    return replace(config, n_prisms=n_sim, handedness="".join("R" if h > 0 else "L" for h in hand))
+
+
+def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int, n_sim: int):
+    """Give a truncated run the shapes and constants of the full column: the far prisms at rest."""
+    cut = n - n_sim  # prisms (and levels) removed at the clamped end
+    if result.strain is not None:
+        B, T, _ = result.strain.shape
+        result.strain = np.concatenate([np.zeros((B, T, cut)), result.strain], axis=2)
+    # the short column starts untwisted: rotate its vectors into the full column's frame
+    theta = -config.twist * float(config.prism_handedness()[:cut].sum())
+    c, sn = np.cos(theta), np.sin(theta)
+    rot = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+    for name in ("final_displacement", "final_velocity"):
+        a = getattr(result, name)
+        if a is not None:
+            setattr(result, name, np.concatenate([np.zeros((a.shape[0], 3 * cut, 3)), a @ rot.T], axis=1))
+    # the removed prisms keep their prestress energy: add it so energies mean the whole column
+    states, index = reference_states(column_params(config, params))
+    offset = reference_elastic_energy(column_batch(config, states)) - reference_elastic_energy(
+        column_batch(sim_config, states))
+    result.elastic_energy = result.elastic_energy + offset[index][:, None]
+
+
+def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
+    """Time step, stability limit, step count and memory of a batch, without launching kernels."""
+    from .integrate import resolve_device
+    from .model import constraint_coupling, mass_entries
+
+    settings, _ = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
+    batch = column_batch(config, params)
+    omega = float(omega_max_bound(batch).max())
+    dt, limit, n_steps, every = choose_timestep(settings, omega)
+    n_out = n_steps // every + 1
+    r = 4 if settings.precision == "fp32" else 8
+    n, nc, ne, npr = batch.positions.shape[0], len(batch.constraints), len(batch.cables), config.n_prisms
+    partner, *_ = mass_entries(batch)
+    bw = constraint_coupling(batch, partner)[-1]
+    state_vecs = 5 + (6 if settings.method == Method.RK4 else 0)
+    per_col = r * (3 * n * state_vecs + nc * (bw + 2) + 3 * ne + 2 * n_out + (n_out * npr if settings.record_strain else 0))
+    flops = FORCE_EVALS[settings.method] * (ne * 60 + n * 10) + nc * (bw + 1) ** 2 * (5 if settings.method == Method.RK4 else 2)
+    # measured (benchmarks/results): the 2-core CPU backend runs ~1 ns per flop serially; on an H200 the
+    # fused step takes >= ~0.1 ms (FB) .. 0.7 ms (RB, 50 prisms) per step (lane 0's serial Cholesky) and
+    # sustains ~6e11 (fp32) / 3e11 (fp64) useful flop/s once the GPU is full
+    device = resolve_device(settings.device)
+    if device.is_cuda:
+        step_latency = 1e-4 * (nc / 150.0) * ((bw + 1) / 4.0) ** 2
+        rate = 6e11 if settings.precision == "fp32" else 3e11
+        seconds = n_steps * max(step_latency, flops * batch.n_columns / rate)
+    else:
+        seconds = n_steps * batch.n_columns * flops * 1e-9
+    return {
+        "dt": dt,
+        "dt_limit": limit,
+        "n_steps": n_steps,
+        "output_every": every,
+        "n_out": n_out,
+        "bytes_per_column": int(per_col),
+        "flops_per_column_step": int(flops),
+        "omega_max_bound": omega,
+        "bandwidth": int(bw),
+        "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
+        "seconds_estimate": seconds,
+    }

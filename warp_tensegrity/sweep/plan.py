@@ -1,0 +1,155 @@
+"""Planning a sweep: bind a spec to an output, split its columns into shards, resolve dt once for
+the whole sweep (so every shard steps alike), and describe the run (dry run)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..engine import estimate_batch
+from ..io import code_version
+from ..settings import RunSettings
+from .progress import fmt_seconds
+from .budget import check_plan
+from .errors import SpecError
+from .store import shard_dir_for, shard_name
+
+if TYPE_CHECKING:
+    from .spec import SweepSpec
+
+
+@dataclass
+class SweepPlan:
+    """A spec bound to an output, its shards and the resolved run settings."""
+
+    spec: SweepSpec
+    out: Path | None
+    shard_size: int
+    shards: list
+    """[(start, stop)] per shard."""
+    params: dict
+    """Every per-column parameter, shape (N,)."""
+    fingerprint: str
+    code_version: str
+    device: str | None
+    """Requested device (None: the GPU if there is one, else the CPU)."""
+    settings: RunSettings | None = None
+    """Engine settings with dt resolved once for the whole sweep (None until estimated)."""
+    estimate: dict = field(default_factory=dict)
+
+    @property
+    def n_shards(self) -> int:
+        return len(self.shards)
+
+    @property
+    def n_columns(self) -> int:
+        return self.spec.n_columns
+
+    @property
+    def shard_dir(self) -> Path:
+        return shard_dir_for(self.out)
+
+    def resolve(self) -> SweepPlan:
+        """Resolve dt once for the whole sweep (:func:`resolve_dt`)."""
+        return resolve_dt(self)
+
+    def shard_path(self, index: int) -> Path:
+        return self.shard_dir / shard_name(index)
+
+    @property
+    def dt(self) -> float:
+        return float(self.settings.dt)
+
+    @property
+    def dt_limit(self) -> float:
+        return float(self.estimate.get("dt_limit", float("nan")))
+
+
+def plan_sweep(
+    spec: SweepSpec,
+    out=None,
+    *,
+    device: str | None = None,
+    shard_size: int | None = None,
+    estimate: bool = True,
+) -> SweepPlan:
+    """Bind ``spec`` to ``out``; with ``estimate`` also ask the engine for the stability limit,
+    refuse an explicit dt above it (SpecError naming the limit) and resolve dt = "auto" once
+    for the whole sweep, so every shard steps with the same dt."""
+    size = int(shard_size or spec.run["shard_size"])
+    if size < 1:
+        raise SpecError(f"shard_size = {size!r} must be a positive integer")
+    check_plan(spec)  # refuse, with the figures, a sweep whose planning would not fit in memory
+    dev = device if device is not None else spec.run["device"]
+    plan = SweepPlan(
+        spec=spec,
+        out=Path(out).absolute() if out is not None else None,
+        shard_size=size,
+        shards=spec.shards(size),
+        params=spec.column_params(),
+        fingerprint="",
+        code_version=code_version(),
+        device=None if dev in (None, "auto") else dev,
+    )
+    plan.fingerprint = spec.fingerprint(plan.code_version)
+    if estimate:
+        resolve_dt(plan)
+    return plan
+
+
+def resolve_dt(plan: SweepPlan) -> SweepPlan:
+    spec = plan.spec
+    probe = dataclasses.replace(spec.run_settings(device=plan.device), allow_unstable_dt=True)
+    est = dict(estimate_batch(spec.scene, plan.params, probe))
+    plan.estimate = est
+    spec.check_dt(float(est["dt_limit"]))
+    dt = float(est["dt"]) if isinstance(spec.run["dt"], str) else float(spec.run["dt"])
+    plan.settings = spec.run_settings(device=plan.device, dt=dt)
+    return plan
+
+
+def dry_run(plan: SweepPlan) -> str:
+    """What a run would do: columns, shards, dt, steps, memory and time estimates."""
+    spec, est = plan.spec, plan.estimate
+    r = spec.run
+    n = plan.n_columns
+    n_steps = int(est.get("n_steps", 0))
+    oi = r["output_interval"]
+    n_out = int(math.floor(r["t_end"] / oi + 1e-9)) + 1 if oi else 201
+    P = spec.scene.n_prisms
+    per_col_out = 8 * (5 + 2 + P) + (8 * 2 * n_out if r["record_energy"] else 0)
+    per_col_strain = 8 * n_out * P
+    out_bytes = n * (per_col_out + (per_col_strain if r["record_strain"] else 0))
+    dev_bytes = int(est.get("bytes_per_column", 0)) * max(b - a for a, b in plan.shards)
+    host_shard = (per_col_out + per_col_strain) * max(b - a for a, b in plan.shards)
+    spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
+    secs = spc * n_steps * n
+    dt_txt = f"{plan.dt:.4g} s"
+    if isinstance(r["dt"], str):
+        dt_txt += f" (auto: {r['dt_safety']} x limit {plan.dt_limit:.4g} s)"
+    else:
+        dt_txt += f" (explicit; limit {plan.dt_limit:.4g} s)"
+    lines = [
+        f"spec:        {spec.source or '<text>'} (sha256 {spec.text_sha256[:12]})",
+        f"columns:     {spec.describe()}",
+        f"shards:      {plan.n_shards} of up to {plan.shard_size} columns -> {plan.shard_dir}/",
+        f"method:      {r['method']} {r['precision']}, dt = {dt_txt}",
+        f"steps:       {n_steps} to t_end = {r['t_end']} s, {n_out} outputs",
+        f"device:      {plan.device or 'auto (the GPU if there is one, else the CPU)'}",
+        f"memory:      {_fmt_bytes(dev_bytes)} device memory per shard, {_fmt_bytes(host_shard)} host memory per shard",
+        f"output:      {_fmt_bytes(out_bytes)} uncompressed"
+        + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"),
+        f"time:        ~{fmt_seconds(secs)} ({n} columns x {n_steps} steps x {spc:.3g} s per column-step)",
+    ]
+    return "\n".join(lines)
+
+
+def _fmt_bytes(b: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if abs(b) < 1000 or unit == "TB":
+            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.1f} {unit}"
+        b /= 1000.0
+    return f"{b:.1f} TB"

@@ -1,0 +1,130 @@
+"""Names and shapes shared by every layer: enums for the states and choices that were bare ints or
+strings, and the shapes and SI units of the device arrays, stated once.
+
+Nothing here imports Warp (specs validate without it).
+
+Device arrays (:class:`~warp_tensegrity.model.Model`, :class:`~warp_tensegrity.model.Data`)
+-------------------------------------------------------------------------------------------
+``B`` = columns in the batch, ``Bp`` = B or 1 (a per-column parameter shared by all columns),
+``n`` = nodes, ``nc`` = rigid members (constraints), ``ne`` = cables, ``bw`` = half-bandwidth of
+the constraint Gram matrix G M^-1 G^T, ``np`` = prisms. Batched arrays put the column index last
+(fastest), so neighbouring threads read neighbouring columns; the fused step's scratch puts it
+first (one thread block per column). Per-column parameters are read as ``param[k, b % Bp]``.
+
+=============  ===============  ========  ============================================
+array          shape            unit      meaning
+=============  ===============  ========  ============================================
+con_dref       (nc,) vec3       m         reference bar vector X_j - X_i
+con_L          (nc,)            m         bar length
+con_active     (nc, Bp)         1         1 if the rigid member exists in the column
+cab_dref       (ne,) vec3       m         reference cable vector
+cab_EA         (ne, Bp)         N         tension stiffness EA (EAc: compression)
+cab_L          (ne, Bp)         m         rest length
+m_self         (n, Bp)          kg        mass matrix entry of the node (m_cross: partner)
+minv_self      (n, Bp)          kg-1      inverse-mass entry, 0 at fixed nodes
+h0             (np,)            m         reference prism heights
+u, v, a        (n, B) vec3      m, m s-1, m s-2  displacement from the reference, velocity, acceleration
+band           (nc, bw+1, B)    --        banded Cholesky factor of G M^-1 G^T
+lam            (nc, B)          --        multipliers / right-hand sides
+status         (B,) int32       --        :class:`Status`
+fail_step      (B,) int32       --        step at which the column froze, -1 if none
+bar_err        (B,)             1         max relative bar-length error after projection
+fused.nodes    (B, 5 n) vec3    --        node rows, slot :class:`Slot` s of node i at 5 i + s
+=============  ===============  ========  ============================================
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum, IntEnum, StrEnum
+
+
+class Status(IntEnum):
+    """Per-column status (``BatchResult.status``, the datasets' ``status`` flag)."""
+
+    OK = 0
+    NONFINITE = 1
+    """Non-finite state: the column was frozen."""
+    CONSTRAINT = 2
+    """A bar's relative length error exceeded ``failure_bar_error``: the column was frozen."""
+
+    @property
+    def meaning(self) -> str:
+        return STATUS_MEANINGS[self]
+
+
+STATUS_MEANINGS = {Status.OK: "ok", Status.NONFINITE: "non-finite state", Status.CONSTRAINT: "bar constraint failed"}
+
+
+class Method(StrEnum):
+    """Time integrators (see :mod:`warp_tensegrity.integrate`)."""
+
+    RATTLE = "rattle"
+    RK4 = "rk4"
+    YOSHIDA4 = "yoshida4"
+    SYMPLECTIC_EULER = "symplectic_euler"
+
+
+STABILITY = {Method.RATTLE: 2.0, Method.RK4: 2.0 * math.sqrt(2.0), Method.YOSHIDA4: 1.5734,
+             Method.SYMPLECTIC_EULER: 2.0}
+"""Stability limit of omega*dt of each method on an undamped oscillator."""
+FORCE_EVALS = {Method.RATTLE: 1, Method.RK4: 4, Method.YOSHIDA4: 3, Method.SYMPLECTIC_EULER: 1}
+"""Force evaluations (``gather_accel`` launches) per step."""
+
+
+class Precision(StrEnum):
+    FP32 = "fp32"
+    FP64 = "fp64"
+
+
+class Path(StrEnum):
+    """How a step is launched: one kernel per stage, or the fused RATTLE step (a block per column)."""
+
+    STAGED = "staged"
+    FUSED = "fused"
+
+
+class Base(float, Enum):
+    """Base rigidity beta at the two ends of its range (it is continuous in between)."""
+
+    FLEXIBLE = 0.0
+    """FB: base members are tension-only cables."""
+    RIGID = 1.0
+    """RB: base members are rigid links (constraints)."""
+
+
+class Slot(IntEnum):
+    """Slots of a node's row in the fused step's scratch (``FusedScratch.nodes``)."""
+
+    U = 0
+    """displacement [m]"""
+    V = 1
+    """velocity [m s-1]"""
+    A = 2
+    """acceleration [m s-2]"""
+    P = 3
+    """displacement at the start of the step [m]"""
+    I = 4  # noqa: E741
+    """G^T lambda (impulse or force of the multipliers)"""
+
+
+class RKStage(IntEnum):
+    """The ``first`` argument of the ``rk_stage`` kernel: which RK4 stage it finishes."""
+
+    MIDDLE = 0
+    """stages 2 and 3: accumulate, write the next stage's input"""
+    FIRST = 1
+    """stage 1: start the accumulators"""
+    LAST = 2
+    """stage 4: write the new state"""
+
+
+class ShardState(StrEnum):
+    """State of one shard file of a sweep."""
+
+    DONE = "done"
+    MISSING = "missing"
+    STALE = "stale"
+    """written by another spec, code version or case range"""
+    CORRUPT = "corrupt"
+    """does not open"""
