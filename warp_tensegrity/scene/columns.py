@@ -63,14 +63,15 @@ class ColumnConfig:
     radius: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_RADIUS
     """Radius a of the circle through each base triangle's vertices [m]."""
     height: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_HEIGHT
-    """Reference prism height h0 [m] (also the length unit of pulse speed)."""
+    """Reference prism height h0 [m] (also the length unit of pulse speed); height/radius must lie
+    in [1e-3, 1e3]."""
     twist: Annotated[float, Opt("real", "rad", gt=math.pi / 3, lt=math.pi, rule_text="in (pi/3, pi)",
                                 why="5*pi/6 is the prestressable twist", default_text="5*pi/6")] = MINIMAL_TWIST
     """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
     cable_modulus: Annotated[float, Opt("real", "N m-2", ge=MODULUS[0], le=MODULUS[1])] = PAPER_CABLE_MODULUS
     """Young modulus of the cables E_s [N m-2]."""
     cable_radius: Annotated[float, Opt("real", "m", ge=CABLE_RADIUS[0], le=CABLE_RADIUS[1])] = PAPER_CABLE_RADIUS
-    """Cable cross-section radius r_s [m] (cable_EA = E_s pi r_s^2)."""
+    """Cable cross-section radius r_s [m], <= radius (cable_EA = E_s pi r_s^2)."""
     unit_mass: Annotated[float, Opt("real", "kg", ge=MASS[0], le=MASS[1])] = PAPER_UNIT_MASS
     """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
     end_base_mass: Annotated[str, Opt("choice", choices=END_BASE_MASS)] = "half"

@@ -35,7 +35,7 @@ class BudgetError(SweepError):
     """The estimate says the sweep does not fit the machine; the message gives the figures."""
 
 
-def _fmt_bytes(b: float) -> str:
+def fmt_bytes(b: float) -> str:
     for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
         if abs(b) < 1000 or unit == "PB":
             return f"{b:.0f} {unit}" if unit == "B" else f"{b:.3g} {unit}"
@@ -93,7 +93,7 @@ def check_plan(spec, available: int | None = None) -> None:
     if need > have:
         raise BudgetError(
             f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms: planning it needs about "
-            f"{_fmt_bytes(need)} of host memory and {_fmt_bytes(have)} is available; split the sweep "
+            f"{fmt_bytes(need)} of host memory and {fmt_bytes(have)} is available; split the sweep "
             "into several specs (fewer grid values per spec)"
         )
 
@@ -143,15 +143,15 @@ def problems(plan, *, time_limit: float = DEFAULT_TIME_LIMIT, device_bytes: int 
         dev_name = plan.device or "device"
     if need["device_bytes_per_shard"] > device_bytes:
         fit = device_bytes // max(need["device_bytes_per_column"], 1)
-        out.append(f"a shard of {need['shard']:,} columns needs {_fmt_bytes(need['device_bytes_per_shard'])} of "
-                   f"{dev_name} memory and {_fmt_bytes(device_bytes)} is available; "
+        out.append(f"a shard of {need['shard']:,} columns needs {fmt_bytes(need['device_bytes_per_shard'])} of "
+                   f"{dev_name} memory and {fmt_bytes(device_bytes)} is available; "
                    + (f"use --shard-size {fit:,} or less" if fit >= 1 else "one column does not fit: "
                       "raise run.output_interval or set record_strain = false"))
     host = host_memory_available() if host_bytes is None else int(host_bytes)
     if need["host_bytes_per_shard"] > host:
         fit = host // max(need["host_bytes_per_column"], 1)
-        out.append(f"a shard of {need['shard']:,} columns needs {_fmt_bytes(need['host_bytes_per_shard'])} of "
-                   f"host memory for its results and {_fmt_bytes(host)} is available; "
+        out.append(f"a shard of {need['shard']:,} columns needs {fmt_bytes(need['host_bytes_per_shard'])} of "
+                   f"host memory for its results and {fmt_bytes(host)} is available; "
                    + (f"use --shard-size {fit:,} or less" if fit >= 1 else "raise run.output_interval"))
     if plan.out is not None:
         if disk_bytes is None:
@@ -160,8 +160,8 @@ def problems(plan, *, time_limit: float = DEFAULT_TIME_LIMIT, device_bytes: int 
                 d = d.parent
             disk_bytes = shutil.disk_usage(d).free
         if need["output_bytes"] > disk_bytes:
-            out.append(f"the output needs up to {_fmt_bytes(need['output_bytes'])} (uncompressed) and "
-                       f"{_fmt_bytes(disk_bytes)} is free on {Path(plan.out).parent}")
+            out.append(f"the output needs up to {fmt_bytes(need['output_bytes'])} (uncompressed) and "
+                       f"{fmt_bytes(disk_bytes)} is free on {Path(plan.out).parent}")
     if math.isfinite(need["seconds"]) and need["seconds"] > time_limit:
         out.append(f"the estimate is {_fmt_time(need['seconds'])} ({plan.n_columns:,} columns x "
                    f"{need['n_steps']:,} steps) and the time limit is {_fmt_time(time_limit)} "

@@ -45,6 +45,7 @@ from ..options import (
     suggest,
 )
 from ..scene.columns import ColumnConfig
+from .budget import fmt_bytes, host_memory_available, plan_bytes
 from .errors import SpecError
 
 
@@ -454,6 +455,11 @@ def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None
         if num is not None and num < 1:
             ck.bad(f"{path}.num", spec["num"], "must be >= 1")
             num = None
+        elif num is not None and (need := plan_bytes(num, 1)) > (have := host_memory_available()):
+            # checked before the axis is made: np.linspace would try to allocate it
+            ck.bad(f"{path}.num", spec["num"], f"an axis of {num:,} values cannot be planned: even one-prism columns "
+                   f"need about {fmt_bytes(need)} of host memory and {fmt_bytes(have)} is available")
+            num = None
         spacing = spec.get("spacing", "linear")
         spacing = ck.choice(f"{path}.spacing", spacing, SPACINGS)
         if None in (start, stop, num, spacing):
@@ -467,6 +473,9 @@ def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None
             vals[0], vals[-1] = start, stop
         else:
             vals = np.linspace(start, stop, num)
+        if np.unique(vals).size != vals.size:  # as for a list: one column per distinct value
+            ck.bad(path, spec, f"gives repeated values ({num} values from {start!r} to {stop!r}); grid values must be distinct")
+            return None
         return vals.astype(np.float64)
     if isinstance(spec, list):
         if not spec:
