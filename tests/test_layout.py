@@ -20,12 +20,12 @@ MAX_CHAIN = 7
 # Lowest layer first; a module may import lower layers and its own layer's modules (acyclic).
 LAYERS = [
     {"types", "options", "scene.network", "kernels", "measure.pulse", "sweep.errors", "sweep.budget",
-     "sweep.progress"},  # leaves
+     "sweep.progress", "lens.host", "lens.design"},  # leaves
     {"settings", "scene.columns", "fused", "model", "measure"},
-    {"scene.batch", "scene", "integrate", "io", "checks", "checks.reference", "checks.linear"},
-    {"engine", "sweep.store"},
-    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", ""},
-    {"sweep.run", "sweep"},
+    {"scene.batch", "scene", "integrate", "io", "checks", "checks.reference", "checks.linear", "lens.spec"},
+    {"engine", "sweep.store", "lens.io"},
+    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "", "lens.run"},
+    {"sweep.run", "sweep", "lens", "lens.command"},
     {"cli", "__main__"},
 ]
 LAYER = {m: i for i, layer in enumerate(LAYERS) for m in layer}

@@ -27,6 +27,7 @@ NOTEBOOKS = {
                    "paper_spacetime", "paper_conventions", "paper_sonic_vacuum", "paper_linear_speeds"],
     "phase_diagrams": ["phase_amplitude", "phase_speed", "phase_width_maps", "phase_width", "phase_speed_lines",
                        "phase_nonlinearity", "phase_compactness", "phase_regimes"],
+    "lens": ["lens_calibration", "lens_prestrain", "lens_pulses", "lens_focal_map", "lens_focus_moving"],
 }
 
 
@@ -60,6 +61,8 @@ def test_notebook_outputs(name):
     if name == "paper_2017":
         assert (out / "paper_2017.nc").exists()
         assert (out / "data" / "paper_2017_table.csv").exists()
+    elif name == "lens":
+        assert (out / "lens_ci.nc").exists()  # its CPU fallback: sweeps/lens_ci.toml
     else:
         assert (out / "phase_ci_small.nc").exists()
     assert not list(ANALYSIS.glob("*.nc.shards"))

@@ -4,6 +4,7 @@
     warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc)
     warp-tensegrity status OUT.nc
     warp-tensegrity combine OUT.nc
+    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N]   (acoustic lens, docs/lens.md)
 
 Warp is imported only when a command needs the engine, so ``--help`` is instant.
 """
@@ -101,6 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("combine", help="combine the shards of a run into OUT.nc")
     p.add_argument("output", metavar="OUT.nc")
+    from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
+
+    add_lens_parser(sub)
     return parser
 
 
@@ -159,6 +163,11 @@ def main(argv=None) -> int:
 
 
 def _dispatch(args) -> int:
+    if args.command == "lens":
+        from .lens.command import run_lens_command
+
+        _quiet_warp(False)
+        return run_lens_command(args)
     from .sweep import plan as sweep_plan
     from .sweep import run as sweep
     from .sweep.errors import SweepError
