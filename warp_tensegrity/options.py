@@ -212,7 +212,7 @@ class Opt:
             arr = np.asarray(values)
         except (TypeError, ValueError):  # ragged nesting
             arr = np.asarray(None)
-        if arr.dtype.kind not in "iuf":  # strings, bools, None, ragged lists
+        if arr.dtype.kind not in "iuf" or arr.size == 0:  # strings, bools, None, ragged or empty lists
             raise error(f"{name} = {fmt(values)}: must be a number or an array of numbers [{self.unit}]")
         arr = arr.astype(np.float64).ravel()
         good = np.isfinite(arr)

@@ -67,7 +67,8 @@ class ColumnConfig:
     in [1e-3, 1e3]."""
     twist: Annotated[float, Opt("real", "rad", gt=math.pi / 3, lt=math.pi, rule_text="in (pi/3, pi)",
                                 why="5*pi/6 is the prestressable twist", default_text="5*pi/6")] = MINIMAL_TWIST
-    """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
+    """Twist angle between bottom and top base [rad]; a regular minimal prism has a self-stress only
+    at 5*pi/6, so a spec with another twist is refused when it is read."""
     cable_modulus: Annotated[float, Opt("real", "N m-2", ge=MODULUS[0], le=MODULUS[1])] = PAPER_CABLE_MODULUS
     """Young modulus of the cables E_s [N m-2]."""
     cable_radius: Annotated[float, Opt("real", "m", ge=CABLE_RADIUS[0], le=CABLE_RADIUS[1])] = PAPER_CABLE_RADIUS
@@ -207,16 +208,20 @@ def column_topology(config: ColumnConfig) -> ColumnTopology:
     unit_bar = np.zeros(3 * n)
     unit_base = np.zeros(3 * (n + 1))
     for m in range(n):
-        sb, sc, sbot, stop = prism_self_stress(
-            pos, bars[3 * m : 3 * m + 3], cross[3 * m : 3 * m + 3], base[3 * m : 3 * m + 3], base[3 * m + 3 : 3 * m + 6]
-        )
+        try:
+            sb, sc, sbot, stop = prism_self_stress(
+                pos, bars[3 * m : 3 * m + 3], cross[3 * m : 3 * m + 3], base[3 * m : 3 * m + 3], base[3 * m + 3 : 3 * m + 6]
+            )
+        except NetworkError as e:  # name the option that decides it
+            raise NetworkError(f"twist = {config.twist!r} rad: {e}") from None
         if np.any(np.abs(sc - 1) > 1e-9):
             raise NetworkError(f"prism {m}: cross cables do not share one self-stress level: {sc}")
         unit_bar[3 * m : 3 * m + 3] = sb
         unit_base[3 * m : 3 * m + 3] += sbot  # superposition: interior bases carry both prisms' share
         unit_base[3 * m + 3 : 3 * m + 6] += stop
     if np.any(unit_bar >= 0) or np.any(unit_base <= 0):
-        raise NetworkError("self-stress has compressed cables or stretched bars; check twist/handedness")
+        raise NetworkError(f"twist = {config.twist!r} rad, handedness = {config.handedness!r}: self-stress has "
+                           "compressed cables or stretched bars")
     fixed = np.zeros(3 * (n + 1), dtype=bool)
     fixed[level_nodes[0]] = True
     return ColumnTopology(config, pos, fixed, level_nodes, bars, cross, base, base_level, unit_bar, unit_base)

@@ -44,7 +44,8 @@ from ..options import (
     RunSettings,
     suggest,
 )
-from ..scene.columns import ColumnConfig
+from ..scene.columns import ColumnConfig, column_topology
+from ..scene.network import NetworkError
 from .budget import fmt_bytes, host_memory_available, plan_bytes
 from .errors import SpecError
 
@@ -436,8 +437,13 @@ def _parse_scene(ck: _Checker, t: dict):
     given = {k: v for k, v in t.items() if k in SCENE_FIELDS}
     try:
         scene = O.build(ColumnConfig, given, prefix="scene.")
+        # one prism of the scene: is it prestressable (twist)? cheap, and the engine would refuse later
+        column_topology(dataclasses.replace(scene, n_prisms=1, handedness="right"))
     except OptionError as e:
         ck.errors += e.errors
+        return None, {}, params
+    except NetworkError as e:
+        ck.errors.append(f"scene.{e}")
         return None, {}, params
     return scene, {k: getattr(scene, k) for k in given}, params
 
