@@ -378,13 +378,14 @@ def markdown_table(df, columns: dict) -> str:
 
 # ====================================================================== simulations for side studies
 def simulate_cases(params: dict, config=None, t_end: float = 10.0, output_interval: float = 0.01,
-                   dt="auto", device: str | None = None, keep_strain: bool = False):
+                   dt="auto", device: str | None = None, keep_strain: bool = False, dt_safety: float | None = 0.25):
     """Run one batch (``warp_tensegrity.simulate_batch``) and measure it as the sweeps do
     (``warp_tensegrity.sweep.measure_columns``). ``params``: per-column arrays (prestrain, v0,
     base_rigidity, ...). Returns a DataFrame, one row per column: the parameters, the scene's
     conventions, ``amplitude``, ``speed``, ``width``, ``width_10``, ``prisms_measured``,
     ``energy_error``, ``ke0`` (initial kinetic energy [J]), ``status``; and the BatchResult if
-    ``keep_strain``."""
+    ``keep_strain``. ``dt_safety`` 0.25 (with dt = "auto"): the paper run's dt fraction, so the side
+    studies stay as they were; None: the engine's default accuracy."""
     import pandas as pd
     from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
     from warp_tensegrity.sweep import measure_columns
@@ -392,7 +393,8 @@ def simulate_cases(params: dict, config=None, t_end: float = 10.0, output_interv
     config = config or ColumnConfig()
     device = device or os.environ.get("WT_DEVICE", "cpu")
     r = simulate_batch(config, params, RunSettings(t_end=t_end, dt=dt, output_interval=output_interval,
-                                                   device=device, record_strain=True))
+                                                   device=device, record_strain=True,
+                                                   dt_safety=dt_safety if dt == "auto" else None))
     m = measure_columns(r, config.height)
     B = r.n_columns
     df = pd.DataFrame({k: np.broadcast_to(np.asarray(v, float), (B,)) for k, v in params.items()})

@@ -84,7 +84,7 @@ SCENE_RULES = {
     "unit_mass": lambda x: _real(x) and 1e-15 <= x <= 1e6,
     "end_base_mass": lambda x: x in ("half", "full"),
     "bar_mass": lambda x: _real(x) and 0 <= x <= 1e6,
-    "impact_admissibility": lambda x: x in ("project", "end_twist"),
+    "impact_admissibility": lambda x: x in ("rigid_members", "project", "end_twist"),
 }
 PARAM_RULES = {
     "prestrain": lambda x: _real(x) and 0 <= x < 1,  # p = 1: zero cable rest length

@@ -19,9 +19,9 @@ MAX_CHAIN = 7
 
 # Lowest layer first; a module may import lower layers and its own layer's modules (acyclic).
 LAYERS = [
-    {"types", "options", "scene.network", "kernels", "measure.pulse", "sweep.errors", "sweep.budget",
-     "sweep.progress", "lens.host", "lens.design"},  # leaves
-    {"settings", "scene.columns", "fused", "model", "measure"},
+    {"types", "options", "scene.network", "scene.impact", "kernels", "measure.pulse", "sweep.errors",
+     "sweep.budget", "sweep.progress", "lens.host", "lens.design"},  # leaves
+    {"settings", "scene.columns", "fused", "model", "measure", "measure.nan_reasons"},
     {"scene.batch", "scene", "integrate", "io", "checks", "checks.reference", "checks.linear", "lens.spec"},
     {"engine", "sweep.store", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "", "lens.run"},

@@ -67,7 +67,7 @@ def test_docs_tables_are_generated_not_hand_edited():
 def test_defaults_unchanged():
     """The defaults every earlier result was made with (fp64 CPU outputs stay bit-identical)."""
     want = dict(t_end=1.0, dt="auto", method="rattle", precision="fp64", output_interval=None,
-                record_strain=True, record_energy=True, device=None, shard_size=256, dt_safety=0.25,
+                record_strain=True, record_energy=True, device=None, shard_size=256, dt_safety=None,
                 allow_unstable_dt=False, projection_tol=None, max_projection_iters=25, failure_bar_error=1e-3,
                 steps_per_graph=50, fused="auto", accuracy=None, truncate=True)
     assert dataclasses.asdict(RunSettings()) == want
@@ -76,7 +76,7 @@ def test_defaults_unchanged():
     c = ColumnConfig()
     assert (c.n_prisms, c.radius, c.height, c.twist, c.cable_modulus, c.cable_radius, c.unit_mass) == (
         50, 5.0e-3, 6.2e-3, 5.0 * np.pi / 6.0, 5.48e6, 0.14e-3, 0.0249)
-    assert (c.handedness, c.end_base_mass, c.bar_mass, c.impact_admissibility) == ("right", "half", 0.0, "end_twist")
+    assert (c.handedness, c.end_base_mass, c.bar_mass, c.impact_admissibility) == ("right", "half", 0.0, "rigid_members")
 
 
 def test_public_constructor_and_replace_validate():

@@ -24,6 +24,7 @@ GRID_SPEC = """
 title = "test grid"
 [scene]
 n_prisms = 6
+impact_admissibility = "end_twist"  # FB p = 0 pulses cross 6 prisms within 0.2 s
 
 [sweep]
 grid = { prestrain = [0.0, 0.002], v0 = [0.003, 0.006], base_rigidity = [0.0, 1.0] }

@@ -214,6 +214,7 @@ def _dispatch(args) -> int:
             scheduler=args.scheduler,
         )
         print(f"wrote {path}")
+        _print_nan_summary(path)
         return 0
     if args.command == "status":
         st = sweep.sweep_status(args.output)
@@ -224,6 +225,15 @@ def _dispatch(args) -> int:
         print(f"wrote {path}")
         return 0
     raise AssertionError(args.command)  # pragma: no cover
+
+
+def _print_nan_summary(path) -> None:
+    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons)."""
+    from .io import open_sweep
+    from .measure.nan_reasons import dataset_summary
+
+    for line in dataset_summary(open_sweep(path)):
+        print(line)
 
 
 if __name__ == "__main__":  # pragma: no cover

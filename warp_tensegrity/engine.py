@@ -63,6 +63,14 @@ FUSED_MAX_COLUMNS = 16384
 REACH_MARGIN_PRISMS = 8
 
 
+DEFAULT_ACCURACY = 1e-3
+"""Relative error of the pulse measures targeted when neither dt nor accuracy nor dt_safety is
+given: the default run's dt fraction comes from the same error model as ``accuracy`` (measured on
+the paper's FB and RB columns: amplitude and speed within 4.3e-4, strain history RMS within 8.5e-4
+of the peak; README, benchmarks/default_accuracy.py)."""
+LEGACY_DT_SAFETY = 0.25
+"""dt fraction for methods without a measured error model (yoshida4, symplectic_euler)."""
+
 ERROR_MODEL = {"rattle": (0.59, 2), "rk4": (8.0, 4)}
 """Measured error constant C and order p: error <= C (dt/dt_limit)^p (n_prisms/50)."""
 REFERENCE_PRISMS = 50
@@ -74,10 +82,9 @@ def for_accuracy(accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> dict:
     pulse that crosses ``n_prisms`` prisms."""
     if not (math.isfinite(accuracy) and 0 < accuracy < 1):
         raise SettingsError(f"accuracy = {accuracy!r} must lie in (0, 1) (relative error of pulse speed/amplitude)")
-    travel = max(int(n_prisms), 1) / REFERENCE_PRISMS
     best = None
-    for method, (C, p) in ERROR_MODEL.items():
-        frac = min(MAX_FRACTION, (accuracy / (C * travel)) ** (1.0 / p))
+    for method in ERROR_MODEL:
+        frac = dt_fraction(method, accuracy, n_prisms)
         cost = FORCE_EVALS[method] / (frac * STABILITY[method])  # evaluations per unit of omega_max * t
         if best is None or cost < best[0]:
             best = (cost, method, frac)
@@ -85,11 +92,32 @@ def for_accuracy(accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> dict:
     return {"method": method, "precision": "fp32" if accuracy >= 1e-4 else "fp64", "dt_safety": frac}
 
 
+def dt_fraction(method: str, accuracy: float, n_prisms: int = REFERENCE_PRISMS) -> float:
+    """The one accuracy -> dt decision: the fraction of the stability limit at which ``method``
+    meets a relative error ``accuracy`` of the pulse measures over ``n_prisms`` prisms
+    (``ERROR_MODEL``), at most ``MAX_FRACTION``."""
+    C, p = ERROR_MODEL[method]
+    travel = max(int(n_prisms), 1) / REFERENCE_PRISMS
+    return min(MAX_FRACTION, (accuracy / (C * travel)) ** (1.0 / p))
+
+
+def default_dt_safety(method: str, n_prisms: int = REFERENCE_PRISMS) -> tuple[float, float | None]:
+    """(dt_safety, accuracy targeted) of a run given neither dt nor accuracy nor dt_safety."""
+    if method in ERROR_MODEL:
+        return dt_fraction(method, DEFAULT_ACCURACY, n_prisms), DEFAULT_ACCURACY
+    return LEGACY_DT_SAFETY, None
+
+
 def apply_accuracy(settings: RunSettings, n_prisms: int = REFERENCE_PRISMS) -> tuple[RunSettings, dict]:
     """Settings with method/precision/dt_safety chosen from ``settings.accuracy`` (if given) for a
-    pulse crossing ``n_prisms`` prisms."""
+    pulse crossing ``n_prisms`` prisms. Without accuracy, dt = 'auto' and no dt_safety, the dt
+    fraction targets :data:`DEFAULT_ACCURACY` with the given method and precision."""
     if settings.accuracy is None:
-        return settings, {}
+        if settings.dt != "auto" or settings.dt_safety is not None:
+            return settings, {}
+        frac, target = default_dt_safety(settings.method, n_prisms)
+        fields = dict(vars(settings), dt_safety=frac)
+        return RunSettings(**fields), {"accuracy": target, "accuracy_source": "default", "dt_safety": frac}
     if settings.dt != "auto":
         raise SettingsError(
             f"accuracy = {settings.accuracy!r} and dt = {settings.dt!r}: give one of them; accuracy chooses dt"
@@ -97,7 +125,7 @@ def apply_accuracy(settings: RunSettings, n_prisms: int = REFERENCE_PRISMS) -> t
     choice = for_accuracy(settings.accuracy, n_prisms)
     fields = {k: v for k, v in vars(settings).items()}
     fields.update(choice)
-    return RunSettings(**fields), {"accuracy": settings.accuracy, **choice}
+    return RunSettings(**fields), {"accuracy": settings.accuracy, "accuracy_source": "run.accuracy", **choice}
 
 
 def reachable_prisms(omega_max: float, t_end: float, n_prisms: int) -> int:
@@ -119,7 +147,10 @@ def choose_timestep(settings: RunSettings, omega_max: float):
     limit = STABILITY[settings.method] / omega_max if omega_max > 0 else math.inf
     interval = settings.output_interval or settings.t_end / 200.0
     if settings.dt == "auto":
-        target = settings.dt_safety * limit
+        safety = settings.dt_safety
+        if safety is None:  # a batch run directly: the default accuracy over the reference column
+            safety = default_dt_safety(settings.method)[0]
+        target = safety * limit
         every = max(1, math.ceil(interval / target))
         dt = interval / every
         dt = min(dt, settings.t_end)
@@ -134,6 +165,21 @@ def choose_timestep(settings: RunSettings, omega_max: float):
         every = max(1, round(interval / dt))
     n_steps = max(1, math.ceil(settings.t_end / dt - 1e-9))
     return dt, limit, n_steps, every
+
+
+def output_times(steps: np.ndarray, dt: float) -> np.ndarray:
+    """Output times [s] = step * dt, rounded to the decimals of the output interval (the step
+    between outputs times dt), so printed times select exactly: 4975 * 0.002 gives 9.95, not
+    9.950000000000001. Intervals with no decimal form of up to 12 decimals are not rounded."""
+    steps = np.asarray(steps, dtype=np.int64)
+    t = steps * dt
+    if steps.size < 2:
+        return t
+    interval = float(steps[1] - steps[0]) * dt
+    for d in range(13):
+        if abs(round(interval, d) - interval) <= 1e-14 * interval:  # round-off only
+            return np.round(t, d)
+    return t
 
 
 def _to_host(a):
@@ -175,7 +221,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
             strain[b, last_slot + 1 :] = np.nan
     return BatchResult(
         params=dict(batch.params),
-        time=np.arange(n_out) * every * dt,
+        time=output_times(np.arange(n_out) * every, dt),
         strain=strain,
         kinetic_energy=ke,
         elastic_energy=ee,
@@ -196,6 +242,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
         info={
             "omega_max_bound": omega,
             "output_every": every,
+            "output_step": np.arange(n_out, dtype=np.int64) * every,
             "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
             "bandwidth": integ.model.bandwidth,
             "n_constraints": integ.model.n_constraints,
@@ -226,7 +273,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     result = run_batch(batch, settings, progress)
     if n_sim < n:
         _pad_to_full_column(result, config, sim_config, params, n, n_sim)
-    choices.update({"prisms_simulated": n_sim, "prisms": n, "method": settings.method,
+    choices.update({"dt_safety": settings.dt_safety, "prisms_simulated": n_sim, "prisms": n, "method": settings.method,
                     "precision": settings.precision, "dt": result.dt,
                     "record_strain": settings.record_strain})
     result.info["choices"] = choices
@@ -279,7 +326,7 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     from .integrate import resolve_device
     from .model import constraint_coupling, mass_entries
 
-    settings, _ = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
+    settings, choices = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
     batch = column_batch(config, params)
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)
@@ -313,4 +360,6 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "bandwidth": int(bw),
         "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
         "seconds_estimate": seconds,
+        "dt_safety": settings.dt_safety,
+        "accuracy_target": choices.get("accuracy"),
     }

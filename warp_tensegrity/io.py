@@ -29,7 +29,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import xarray as xr
 
+from .measure.nan_reasons import FLAG_MEANINGS, FLAG_VALUES
 from .scene.columns import ColumnConfig
+from .scene.impact import kinematic_lock_strain
 from .settings import COLUMN_PARAMETERS, STATUS_NAMES
 
 if TYPE_CHECKING:
@@ -48,7 +50,7 @@ RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created")
 """Global attributes that differ between two runs of the same spec (drop before comparing)."""
 
 
-MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time")
+MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time", "max_compression")
 
 STATUS_MEANINGS = " ".join(STATUS_NAMES[k].replace(" ", "_").replace("-", "_") for k in sorted(STATUS_NAMES))
 
@@ -65,7 +67,9 @@ COORD_ATTRS = {
         "long_name": "prism index from the clamped base (0) to the impacted free end (n_prisms - 1)",
         "axis": "X",
     },
-    "time": {"units": "s", "long_name": "time since impact", "axis": "T"},
+    "time": {"units": "s", "long_name": "time since impact (step * dt, rounded to the output interval's decimals)",
+             "axis": "T"},
+    "step": {"units": "1", "long_name": "time step count of each output (time = step * dt)"},
 }
 
 VAR_ATTRS = {
@@ -80,7 +84,19 @@ VAR_ATTRS = {
         "units": "1",
         "long_name": "prisms of the measurement window the leading pulse reached within t_end",
     },
-    "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism"},
+    "max_compression": {
+        "units": "1",
+        "long_name": "largest prism compression -strain over the record",
+        "comment": "at or above the rigid-base kinematic lock (attribute kinematic_lock_compression) the limit "
+                   "base_rigidity -> 1 is singular: rigid bases (1) are then not the limit of stiff ones (docs/impact.md)",
+    },
+    "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism",
+                     "comment": "NaN at the prisms the pulse had not reached by t_end"},
+    "measurement_flag": {
+        "long_name": "why the pulse measures of the column are NaN (ok: all defined; docs/measurements.md)",
+        "flag_values": FLAG_VALUES,
+        "flag_meanings": FLAG_MEANINGS,
+    },
     "status": {
         "long_name": "column status at the end of the run",
         "flag_values": np.array(sorted(STATUS_NAMES), dtype=np.int8),
@@ -210,16 +226,28 @@ def spec_attrs(spec: SweepSpec) -> dict:
     for f in SCENE_FIELDS:
         a[f"scene_{f}"] = getattr(spec.scene, f)
     a["scene_cable_EA"] = float(spec.scene.cable_EA)
+    sc = spec.scene
+    a["kinematic_lock_compression"] = -kinematic_lock_strain(sc.radius, sc.height, sc.twist)
+    a["base_rigidity_law"] = ("base members: tension EA/(1-beta), compression beta*EA/(1-beta); beta = 1: rigid links; "
+                              "continuous in beta, with the rigid_members impact the same initial state for every beta")
+    a["base_rigidity_continuity"] = (
+        "outputs converge as beta -> 0 (to FB) and, while max_compression stays below kinematic_lock_compression, as "
+        "beta -> 1 (difference ~ 1 - beta); pulses that reach the lock make beta -> 1 singular (stiff base modes "
+        "take energy at the locked prisms), so beta = 1 is a separate model there: compare it with beta < 1 only "
+        "where max_compression < kinematic_lock_compression (docs/impact.md)")
     return {k: _attr(v) for k, v in a.items()}
 
 
 # ---------------------------------------------------------------------- building
-def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int) -> dict:
+def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int,
+            steps: np.ndarray | None = None) -> dict:
     coords = {
         "case": ("case", np.arange(start, stop, dtype=np.int64), COORD_ATTRS["case"]),
         "prism": ("prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
         "time": ("time", np.asarray(time, dtype=np.float64), COORD_ATTRS["time"]),
     }
+    if steps is not None:  # exact: time = step * dt, rounded to the output interval's decimals
+        coords["step"] = ("time", np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     swept = spec.swept
     for p in COLUMN_PARAMETERS:
         if p in swept:
@@ -258,6 +286,9 @@ def shard_dataset(
         "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
         "bar_length_error": (C, np.asarray(result.bar_length_error, dtype=np.float64)),
     }
+    for k, dtype in (("max_compression", np.float64), ("measurement_flag", np.int8)):  # sweep.measure_columns
+        if k in measurements:
+            dv[k] = (C, np.asarray(measurements[k], dtype=dtype))
     if spec.run["record_energy"]:
         dv["kinetic_energy"] = (("case", "time"), np.asarray(result.kinetic_energy, dtype=np.float64))
         dv["elastic_energy"] = (("case", "time"), np.asarray(result.elastic_energy, dtype=np.float64))
@@ -269,7 +300,8 @@ def shard_dataset(
         k: xr.Variable(d, np.asarray(v, dtype=np.float64) if k in MEASUREMENTS else v, attrs=dict(VAR_ATTRS[k]))
         for k, (d, v) in dv.items()
     }
-    ds = xr.Dataset(data_vars, coords=_coords(spec, params, start, stop, result.time, n_prisms))
+    ds = xr.Dataset(data_vars, coords=_coords(spec, params, start, stop, result.time, n_prisms,
+                                              result.info.get("output_step")))
     ds.attrs = {k: _attr(v) for k, v in attrs.items()}
     return ds
 
@@ -323,7 +355,10 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
 
     attrs = spec_attrs(spec)
     a0 = first.attrs
-    for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval"):
+    for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval",
+              "dt_safety_used", "accuracy_target"):
+        if k not in a0:
+            continue
         attrs[k] = a0[k]
     for k in ("warp_version", "git_commit", "device", "device_name"):
         attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)

@@ -358,9 +358,12 @@ class RunSettings:
     """Warp device ('cpu', 'cuda:0'); None ('auto'): the GPU if there is one, else the CPU."""
     shard_size: Annotated[int, Opt("int", "1", ge=1)] = 256
     """Columns per shard of a sweep (one engine batch, one file); not part of the fingerprint."""
-    dt_safety: Annotated[float, Opt("real", "1", gt=0, le=0.5,
-                                    why="strong impacts lower the stability limit to ~0.45 of the prediction")] = 0.25
-    """Fraction of the predicted stability limit used when dt = 'auto'."""
+    dt_safety: Annotated[float | None, Opt("real", "1", gt=0, le=0.5, optional=True, default_text="from the default accuracy",
+                                           why="strong impacts lower the stability limit to ~0.45 of the prediction")] = None
+    """Fraction of the predicted stability limit used when dt = 'auto'; None (not given, and no
+    accuracy): the fraction the error model gives for :data:`~warp_tensegrity.engine.DEFAULT_ACCURACY`
+    (1e-3) on the pulse measures (:func:`~warp_tensegrity.engine.default_dt_safety`), recorded as
+    ``dt_safety_used`` and ``accuracy_target``."""
     # dt_safety, measured (analysis/work_precision.md): strong impacts stiffen the prisms and lower
     # the real limit to ~0.45 of 2/omega_max; the default 0.25 keeps a margin of >= 2.5x
     allow_unstable_dt: Annotated[bool, Opt("bool")] = False

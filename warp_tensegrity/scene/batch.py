@@ -177,8 +177,10 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     # the admissible initial velocity is linear in v0 and invariant to a uniform mass scale:
     # one exact build per base class (FB-like or RB)
     velocity = np.zeros((B, topo.n_nodes, 3))
-    for r in (False, True):
-        cols_r = np.flatnonzero(rigid == r)
+    # ('rigid_members' does not depend on beta: one build for all)
+    classes = (False,) if config.impact_admissibility == "rigid_members" else (False, True)
+    for r in classes:
+        cols_r = np.arange(B) if len(classes) == 1 else np.flatnonzero(rigid == r)
         if cols_r.size == 0:
             continue
         scene = col.build_column(config, prestrain=0.0, v0=1.0, base_rigidity=1.0 if r else 0.0, topology=topo)

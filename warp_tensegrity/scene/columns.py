@@ -29,6 +29,7 @@ from typing import Annotated, Sequence
 import numpy as np
 
 from ..options import MASS, Opt, check_column_param, options_class
+from .impact import least_energy_impact
 from .network import Network, NetworkError
 
 PAPER_CABLE_MODULUS = 5.48e6  # N m-2
@@ -40,7 +41,8 @@ PAPER_N_PRISMS = 50
 MINIMAL_TWIST = 5.0 * np.pi / 6.0  # rad
 
 END_BASE_MASS = ("full", "half")
-IMPACT_ADMISSIBILITY = ("project", "end_twist")
+IMPACT_ADMISSIBILITY = ("rigid_members", "end_twist", "project")
+PAPER_IMPACT = "end_twist"  # the convention of the paper reproduction (analysis/paper_2017.md)
 
 # Physical ranges of the scene (SI). Wide enough for any laboratory or built tensegrity column
 # (micro-fabricated to building scale), narrow enough that every derived quantity (cable_EA,
@@ -81,9 +83,14 @@ class ColumnConfig:
     bar_mass: Annotated[float, Opt("real", "kg", ge=0, le=MASS[1])] = 0.0
     """Mass of each bar [kg], > 0 only for a single prism; the paper's columns carry their mass on
     the bases (0)."""
-    impact_admissibility: Annotated[str, Opt("choice", choices=IMPACT_ADMISSIBILITY)] = "end_twist"
-    """How the axial impact velocity is made compatible with the rigid bars (default 'end_twist',
-    the best fit to the paper's Section 4, see analysis/paper_2017.md):
+    impact_admissibility: Annotated[str, Opt("choice", choices=IMPACT_ADMISSIBILITY)] = "rigid_members"
+    """How the axial impact velocity is made compatible with the members (docs/impact.md):
+    'rigid_members' (default) - the least-kinetic-energy velocity with v_z = -v0 on the free-end
+    nodes that keeps every bar and every base member rigid at the instant of impact, whatever the
+    base rigidity: the same initial state for every beta, so outputs are continuous in beta;
+    the paper's conventions, which treat only the members rigid in the dynamics as rigid at
+    impact (their initial velocity jumps at beta = 1; 'end_twist' is the best fit to the
+    paper's Section 4, see analysis/paper_2017.md):
     'project' - the impulse view: the axial velocity -v0 on the free-end nodes is projected onto
     the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
     'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
@@ -341,7 +348,11 @@ def build_column(
         cable_names=names,
     ).validate()
     residual = equilibrium_residual(net)
-    vel = impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
+    if config.impact_admissibility == "rigid_members":
+        vel = least_energy_impact(X, net.mass_matrix(), topo.fixed, np.concatenate([topo.bars, topo.base]),
+                                  topo.level_nodes[-1], v0)
+    else:
+        vel = impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
     return ColumnScene(topo, net, vel, float(prestrain), float(v0), float(base_rigidity), T, residual)
 
 

@@ -129,7 +129,7 @@ def dry_run(plan: SweepPlan) -> str:
     secs = spc * n_steps * n
     dt_txt = f"{plan.dt:.4g} s"
     if isinstance(r["dt"], str):
-        dt_txt += f" (auto: {r['dt_safety']} x limit {plan.dt_limit:.4g} s)"
+        dt_txt += f" (auto: {plan.estimate.get('dt_safety', r['dt_safety']):.4g} x limit {plan.dt_limit:.4g} s)"
     else:
         dt_txt += f" (explicit; limit {plan.dt_limit:.4g} s)"
     lines = [

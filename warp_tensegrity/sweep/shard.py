@@ -13,6 +13,7 @@ import numpy as np
 from .. import io as D
 from ..engine import simulate_batch
 from ..measure import measure_pulse
+from ..measure.nan_reasons import measurement_flags
 from ..types import ShardState, Status
 from .store import check_shard
 
@@ -38,7 +39,16 @@ def measure_columns(result, prism_height: float) -> dict:
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
         v[bad] = np.nan
+    with np.errstate(invalid="ignore"):
+        out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
+    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)
     return out
+
+
+def _num(x):
+    """A float attribute, or 'none'."""
+    return "none" if x is None else float(x)
 
 
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
@@ -70,6 +80,8 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "dt": float(result.dt),
         "dt_limit": plan.dt_limit,
         "n_steps": int(result.n_steps),
+        "dt_safety_used": _num(plan.estimate.get("dt_safety") if isinstance(spec.run["dt"], str) else None),
+        "accuracy_target": _num(plan.estimate.get("accuracy_target") if isinstance(spec.run["dt"], str) else None),
         "output_interval": float(result.time[1] - result.time[0]) if len(result.time) > 1 else float("nan"),
         "wall_time": float(result.wall_time),
         "history": f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} shard {index} computed by warp_tensegrity",

@@ -1,0 +1,173 @@
+"""Why a pulse measurement is NaN: one CF flag per column, and the end-of-run summary.
+
+Every NaN in ``amplitude``, ``speed``, ``width``, ``width_10`` and ``prisms_measured`` of a column
+carries a flag other than ``ok`` in ``measurement_flag`` (the first reason, in the order of the
+table below, that explains the first NaN of amplitude, speed, widths):
+
+==  ==================================  =====================================================
+ 0  ok                                  every measure defined
+ 1  non_finite                          the state became non-finite (status 1) or the record
+                                        holds a non-finite sample: every measure NaN
+ 2  constraint_failure                  a bar constraint failed (status 2): every measure NaN
+ 3  no_leading_pulse                    no compression above 1e-9 anywhere (flat
+                                        record), or the front crossed the window but no
+                                        pulse formed (no peak after which compression fell to
+                                        half): every measure NaN
+ 4  pulse_not_reached_window_by_t_end   the leading pulse had passed fewer than a quarter of
+                                        the measurement window's prisms by t_end: run longer
+ 5  record_too_short_for_width          amplitude and speed are defined, but the mid-column
+                                        snapshot has no crossing of half (or 10 %) of the peak
+                                        on one side within the column (the pulse had not left
+                                        the impacted end or the window by t_end): width NaN
+ 6  speed_undefined                     amplitude defined, but the leading-peak times do not
+                                        move toward the clamp (no positive speed)
+ 7  measurement_undefined               any other NaN (should not occur; report it)
+==  ==================================  =====================================================
+
+``arrival_time`` is per prism: NaN at the prisms the threshold never reached by t_end (that is
+what it measures), which needs no flag.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .pulse import measurement_window
+
+FLAGS = (
+    "ok",
+    "non_finite",
+    "constraint_failure",
+    "no_leading_pulse",
+    "pulse_not_reached_window_by_t_end",
+    "record_too_short_for_width",
+    "speed_undefined",
+    "measurement_undefined",
+)
+FLAG = {name: i for i, name in enumerate(FLAGS)}
+FLAG_VALUES = np.arange(len(FLAGS), dtype=np.int8)
+FLAG_MEANINGS = " ".join(FLAGS)
+FLAGGED = ("amplitude", "speed", "width", "width_10", "prisms_measured", "max_compression")
+"""Per-column measures that are NaN only where measurement_flag is not ok."""
+
+FLAT_STRAIN = 1e-9
+"""A record whose largest compression stays below this strain is flat (round-off of the prestressed
+reference state is ~1e-14)."""
+# prisms beyond the window's far end the front must pass for the last peak to be over
+_PEAK_CLEARANCE = 4
+
+
+def measurement_flags(status, strain, time, meas: dict) -> np.ndarray:
+    """(B,) int8 flag per column from the engine status, the strain record (B, T, P) (None if not
+    recorded) and the measures of :func:`warp_tensegrity.sweep.shard.measure_columns`."""
+    status = np.asarray(status)
+    B = status.shape[0]
+    flags = np.full(B, FLAG["ok"], dtype=np.int8)
+    amp, speed = np.asarray(meas["amplitude"]), np.asarray(meas["speed"])
+    widths = np.isnan(np.asarray(meas["width"])) | np.isnan(np.asarray(meas["width_10"]))
+    if strain is None:
+        finite = np.ones(B, dtype=bool)
+        compressed = np.zeros(B, dtype=bool)
+        arrived = np.zeros(B)
+        P = None
+    else:
+        s = np.asarray(strain)
+        finite = np.isfinite(s).all(axis=(1, 2))
+        P = s.shape[-1]
+        with np.errstate(invalid="ignore"):
+            compressed = np.nanmax(np.where(np.isfinite(s), -s, 0.0), axis=(1, 2)) > FLAT_STRAIN
+        lo, hi = measurement_window(P)
+        arrived = np.isfinite(np.asarray(meas["arrival_time"])[:, lo:hi]).sum(axis=1)
+    need = None if P is None else max(min(5, hi - lo), (hi - lo) // 4)
+    for b in range(B):
+        if status[b] == 1 or not finite[b]:
+            flags[b] = FLAG["non_finite"]
+        elif status[b] == 2:
+            flags[b] = FLAG["constraint_failure"]
+        elif np.isnan(amp[b]):
+            if not compressed[b]:
+                flags[b] = FLAG["no_leading_pulse"]
+            elif need is not None and arrived[b] >= need:
+                flags[b] = FLAG["no_leading_pulse"]  # the front crossed the window, no pulse over it
+            elif need is not None:
+                flags[b] = FLAG["pulse_not_reached_window_by_t_end"]
+            else:
+                flags[b] = FLAG["measurement_undefined"]
+        elif np.isnan(speed[b]):
+            flags[b] = FLAG["speed_undefined"]
+        elif widths[b]:
+            flags[b] = FLAG["record_too_short_for_width"]
+    return flags
+
+
+def t_end_needed(arrival_time: np.ndarray, time: np.ndarray) -> np.ndarray:
+    """(B,) t_end [s] at which the leading front would have passed the far end of the measurement
+    window by a few prisms (so that its last peak is over), extrapolated linearly from the
+    arrival times so far; NaN where fewer than two prisms were reached."""
+    at = np.asarray(arrival_time, dtype=np.float64)
+    B, P = at.shape
+    lo, _ = measurement_window(P)
+    target = lo - _PEAK_CLEARANCE
+    out = np.full(B, np.nan)
+    j = np.arange(P, dtype=np.float64)
+    for b in range(B):
+        ok = np.isfinite(at[b])
+        if ok.sum() < 2:
+            continue
+        c1, c0 = np.polyfit(j[ok], at[b, ok], 1)
+        if c1 < 0:
+            out[b] = c0 + c1 * target
+    return out
+
+
+def _round_up(x: float) -> float:
+    """x rounded up to two significant digits."""
+    if not (math.isfinite(x) and x > 0):
+        return x
+    scale = 10.0 ** (math.floor(math.log10(x)) - 1)
+    return math.ceil(x / scale - 1e-9) * scale
+
+
+def summary(flags, n_prisms: int, t_end: float, needed=None) -> list[str]:
+    """One line per kind of NaN: how many columns, why, and what would help."""
+    flags = np.asarray(flags).reshape(-1)
+    n = flags.size
+    lines = []
+    lo, _ = measurement_window(int(n_prisms))
+    counts = {f: int((flags == FLAG[f]).sum()) for f in FLAGS[1:]}
+    k = counts["pulse_not_reached_window_by_t_end"]
+    if k:
+        text = (f"{k} of {n} cases have no speed: the pulse had not reached prism {lo} (far end of the "
+                f"measurement window) by t_end = {t_end:g} s")
+        if needed is not None:
+            nd = np.asarray(needed).reshape(-1)[flags == FLAG["pulse_not_reached_window_by_t_end"]]
+            if np.isfinite(nd).all() and nd.size:
+                text += f"; t_end >= {_round_up(float(nd.max()) * 1.1):g} s would be enough"
+            else:
+                text += "; run longer"
+        lines.append(text)
+    why = {
+        "non_finite": "the state became non-finite (try a smaller dt)",
+        "constraint_failure": "a bar constraint failed (try a smaller dt)",
+        "no_leading_pulse": "no leading pulse formed (flat or front without a pulse)",
+        "record_too_short_for_width": "no width: the pulse was not clear of the ends in the mid-column snapshot",
+        "speed_undefined": "no speed: the leading peak does not travel toward the clamp",
+        "measurement_undefined": "a measure is NaN for no known reason",
+    }
+    for f, text in why.items():
+        if counts[f]:
+            lines.append(f"{counts[f]} of {n} cases: {text}")
+    return lines
+
+
+def dataset_summary(ds) -> list[str]:
+    """:func:`summary` of a sweep dataset (grid or case list) with ``measurement_flag``."""
+    if "measurement_flag" not in ds:
+        return []
+    flags = ds["measurement_flag"].values.reshape(-1)
+    at = ds["arrival_time"].transpose(..., "prism").values
+    at = at.reshape(-1, at.shape[-1])
+    t_end = float(ds.attrs.get("t_end", float(ds["time"].values[-1])))
+    return summary(flags, ds.sizes["prism"], t_end, t_end_needed(at, ds["time"].values))
