@@ -72,7 +72,7 @@ def _integral(x):
 
 
 SCENE_RULES = {
-    "n_prisms": lambda x: _integral(x) and x >= 1,
+    "n_prisms": lambda x: _integral(x) and 1 <= x <= 100_000,  # longer: 600 m of the paper's prisms
     "handedness": lambda x: isinstance(x, str),  # checked with n_prisms below
     # physical ranges (SI): micro-fabricated to building-scale columns
     "radius": lambda x: _real(x) and 1e-6 <= x <= 1e3,

@@ -37,6 +37,13 @@ def _positive_int(value: str) -> int:
     return n
 
 
+def _path(value: str) -> str:
+    """A file name: not empty, not a bare directory such as '.' (a usage error, not a traceback)."""
+    if not value.strip() or Path(value).name in ("", ".", ".."):
+        raise argparse.ArgumentTypeError(f"{value!r} is not a file name")
+    return value
+
+
 def _positive_float(value: str) -> float:
     import math
 
@@ -81,8 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a sweep spec into a netCDF file",
                        description="Run SPEC: shards go to OUT.shards/, then combine into OUT.")
-    p.add_argument("spec", metavar="SPEC", help="sweep spec (TOML)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="combined netCDF output")
+    p.add_argument("spec", type=_path, metavar="SPEC", help="sweep spec (TOML)")
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.nc", help="combined netCDF output")
     p.add_argument("--overwrite", action="store_true", help="discard an earlier run's shards and output")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="overrides",
                    help="override one spec option, typed and checked like the file (e.g. --set run.t_end=2.0, "
@@ -92,16 +99,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("resume", help="finish an interrupted run",
                        description="Reuse the shards that check out (same spec, code and columns), "
                                    "recompute the others, combine. Give OUT.nc, or SPEC -o OUT.nc.")
-    p.add_argument("target", metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
-    p.add_argument("-o", "--output", default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
+    p.add_argument("target", type=_path, metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
+    p.add_argument("-o", "--output", type=_path, default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
     _add_exec_options(p)
 
     p = sub.add_parser("status", help="cases done, diverged and remaining")
-    p.add_argument("output", metavar="OUT.nc")
+    p.add_argument("output", type=_path, metavar="OUT.nc")
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
     p = sub.add_parser("combine", help="combine the shards of a run into OUT.nc")
-    p.add_argument("output", metavar="OUT.nc")
+    p.add_argument("output", type=_path, metavar="OUT.nc")
     from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
 
     add_lens_parser(sub)

@@ -143,10 +143,10 @@ class Opt:
         extra = [f'"{s}"' for s, _ in self.special]
         return base + (f", or {' or '.join(extra)}" if extra else "")
 
-    def _expected(self) -> str:
+    def _expected(self, x=None) -> str:
         unit = f" [{self.unit}]" if self.unit and self.unit != "1" else ""
         sp = f" (or {' or '.join(repr(s) for s, _ in self.special)})" if self.special else ""
-        if self.kind == "int" and self.ge == 1 and self.le is None:
+        if self.kind == "int" and self.ge == 1 and (self.le is None or (x is not None and x < 1)):
             return f"must be a positive integer{sp}"
         b = self.rule_text or self.bounds()
         verb = "must lie " if b.startswith("in ") else "must be "
@@ -195,7 +195,7 @@ class Opt:
             and (self.le is None or x <= self.le)
         )
         if not ok:
-            raise _err(self._expected())
+            raise _err(self._expected(x))
         return x
 
     def problem(self, x) -> tuple[Any, str | None]:

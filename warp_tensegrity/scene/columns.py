@@ -28,7 +28,7 @@ from typing import Annotated, Sequence
 
 import numpy as np
 
-from ..options import MASS, Opt, check_column_param, options_class
+from ..options import MASS, Opt, check_column_param, fmt, options_class
 from .impact import least_energy_impact
 from .network import Network, NetworkError
 
@@ -51,6 +51,7 @@ LENGTH = (1e-6, 1e3)  # m: prism radius and height
 CABLE_RADIUS = (1e-9, 1.0)  # m
 MODULUS = (1.0, 1e13)  # N m-2: soft gels (~1e3) .. above diamond (1.2e12)
 ASPECT = (1e-3, 1e3)  # prism height / radius
+MAX_PRISMS = 100_000  # a 600 m column of the paper's prisms; the paper's has 50
 
 
 # ---------------------------------------------------------------------- the scene's options
@@ -58,7 +59,8 @@ ASPECT = (1e-3, 1e3)  # prism height / radius
 class ColumnConfig:
     """The fixed scene: geometry, material, masses, boundary and impact conventions (SI units)."""
 
-    n_prisms: Annotated[int, Opt("int", "1", ge=1)] = PAPER_N_PRISMS
+    n_prisms: Annotated[int, Opt("int", "1", ge=1, le=MAX_PRISMS,
+                                 why="planning builds every prism of every column (~720 B and ~33 us each)")] = PAPER_N_PRISMS
     """Number of stacked T3 prisms."""
     handedness: Annotated[str, Opt("str", rule_text="'right', 'left', 'alternating' or one letter R/L per prism")] = "right"
     """'right', 'left', 'alternating', or one letter R/L per prism (e.g. 'RRL...')."""
@@ -97,7 +99,9 @@ class ColumnConfig:
     (twisting) velocity that satisfies the bars; no other node moves."""
 
     def __post_init__(self):
-        self.prism_handedness()  # validates
+        h = self.handedness  # checked without building the per-prism array (n_prisms may be large)
+        if h not in ("right", "left", "alternating") and not (len(h) == self.n_prisms and set(h.upper()) <= {"R", "L"}):
+            raise NetworkError(f"handedness = {fmt(h)}: use 'right', 'left', 'alternating' or {self.n_prisms} letters R/L")
         if not ASPECT[0] <= self.height / self.radius <= ASPECT[1]:
             raise NetworkError(f"height = {self.height!r}, radius = {self.radius!r}: the prism aspect ratio height/radius "
                                f"= {self.height / self.radius:.3g} must lie in [{ASPECT[0]:g}, {ASPECT[1]:g}]")

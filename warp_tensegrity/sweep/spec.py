@@ -248,7 +248,7 @@ class SweepSpec:
                 f"run.dt = {dt!r} s is above the stability limit dt_limit = {dt_limit:.6g} s of method "
                 f"{self.run['method']!r} ({self.run['precision']}) for the stiffest column of the sweep; "
                 f"use run.dt <= {dt_limit:.6g}, run.dt = \"auto\" "
-                f"({self.run['dt_safety']} x the limit), or set run.allow_unstable_dt = true",
+                f"({self.run['dt_safety'] or 'a fraction of'} x the limit), or set run.allow_unstable_dt = true",
                 self.source,
             )
 
