@@ -301,10 +301,11 @@ def integrator_bytes(integ) -> dict:
         v = getattr(integ.data, f.name)
         if isinstance(v, dict):
             out["data"] += sum(_array_bytes(x) for x in v.values())
-        elif dataclasses.is_dataclass(v):  # FusedScratch
-            out["data"] += sum(_array_bytes(getattr(v, g.name)) for g in dataclasses.fields(v))
         else:
             out["data"] += _array_bytes(v)
+    fk = getattr(integ, "fk", None)  # the fused step's own rows (kernels.fused.FusedStep)
+    if fk is not None:
+        out["data"] += _array_bytes(fk.sx) + _array_bytes(fk.sq)
     for name in ("strain", "kinetic", "elastic"):
         out["outputs"] += _array_bytes(getattr(integ, name, None))
     out["total"] = out["model"] + out["data"] + out["outputs"]

@@ -32,18 +32,20 @@ def git_commit() -> str:
         return "unknown"
 
 
-def run(device, precision, method, t_end, out):
+def run(device, precision, method, t_end, out, fused="auto"):
     import warp as wp
 
     from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
     from warp_tensegrity.measure import measure_pulse
 
     cfg = ColumnConfig()
-    s = RunSettings(t_end=t_end, output_interval=0.01, device=device, precision=precision, method=method)
+    s = RunSettings(t_end=t_end, output_interval=0.01, device=device, precision=precision, method=method,
+                    fused=fused)
     r = simulate_batch(cfg, PAPER_CASES, s, progress=lambda d, n, f: print(f"\r{d}/{n} steps, {f} failed", end="", file=sys.stderr))
     print(file=sys.stderr)
     m = measure_pulse(r.strain, r.time, cfg.height)
-    tag = f"paper_cases_{r.device.replace(':', '')}_{precision}_{method}"
+    tag = f"paper_cases_{r.device.replace(':', '')}_{precision}_{method}" + ("" if fused == "auto" else
+                                                                         "_fused" if fused else "_staged")
     np.savez_compressed(os.path.join(out, tag + ".npz"), time=r.time, strain=r.strain.astype(np.float64),
                         kinetic=r.kinetic_energy, elastic=r.elastic_energy, **{k: v for k, v in PAPER_CASES.items()})
     summary = {
@@ -51,6 +53,7 @@ def run(device, precision, method, t_end, out):
         "commit": git_commit(), "warp": wp.config.version, "device": r.device, "device_name": r.device_name,
         "precision": precision, "method": method, "dt": r.dt, "dt_limit": r.dt_limit, "n_steps": r.n_steps,
         "t_end": t_end, "wall_time_s": r.wall_time, "n_columns": r.n_columns,
+        "step_path": r.info.get("step_path"),
         "cases": [
             {"base": "FB" if b == 0 else "RB", "prestrain": float(p), "v0": float(v),
              "status": int(r.status[i]), "bar_length_error": float(r.bar_length_error[i]),
@@ -89,6 +92,8 @@ def main(argv=None):
     ap.add_argument("--method", default="rattle")
     ap.add_argument("--t-end", type=float, default=10.0)
     ap.add_argument("--out", default="benchmarks/results")
+    ap.add_argument("--fused", default="auto", choices=["auto", "true", "false"],
+                    help="step path: auto (the engine's choice), true (fused), false (staged)")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"))
     ap.add_argument("--compare-out", default=None)
     args = ap.parse_args(argv)
@@ -96,7 +101,8 @@ def main(argv=None):
         compare(*args.compare, args.compare_out)
         return
     os.makedirs(args.out, exist_ok=True)
-    run(args.device, args.precision, args.method, args.t_end, args.out)
+    run(args.device, args.precision, args.method, args.t_end, args.out,
+        fused={"auto": "auto", "true": True, "false": False}[args.fused])
 
 
 if __name__ == "__main__":

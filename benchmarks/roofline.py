@@ -148,27 +148,40 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
 
 
 def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float, output_every: int = 100,
-                steps_per_launch: int = 16) -> dict:
-    """{part: (bytes, flops)} per column-step of the fused step (warp_tensegrity/fused.py).
+                steps_per_launch: int = 16, rows_in_shared: bool = True) -> dict:
+    """{part: (bytes, flops)} per column-step of the fused step with the block-cyclic-reduction
+    solve (warp_tensegrity/kernels/fused.py), counted from its loops.
 
-    DRAM bytes: the canonical state u, v, a read and written once per launch (6 V n), the node
-    scratch rows written back once per launch (5 V n, a column's rows stay in L1/L2 while its
-    block runs), the per-column cable rest lengths read each step (ne r, an upper estimate: at
-    B = 4,096 they stay in L2), and the outputs. Flops: the staged kernels' arithmetic (the same
-    loops) plus one extra factorisation of A(u) per launch. ``serial``: the flops lane 0 runs
-    alone (Cholesky and triangular sweeps), which occupy a whole warp each."""
+    Flops (S = max(bw, 1), nb = nc / S blocks): kick-drift 9n; per Newton iteration the residual
+    (bar vector 6, |b|^2 5, r and e 6: 17 nc), the CR solve (forward: kept blocks two S x S
+    transposed mat-vecs, ~4 S^2 per block; backward: eliminated blocks three mat-vecs, ~6 S^2:
+    10 S nc), the impulse gather (2 incidences per bar, 12 each: 24 nc) and M^-1 with the U and V
+    updates (21 n); the force gather (2 incidences per cable, ~24 each: 48 ne, + 15 n); the Gram
+    rows (6 nc + 20 per coupling term); the CR factor (per block: Gauss-Jordan inverse 2 S^3, W-
+    and W+ 4 S^3, Schur complement and coupling 6 S^3: 12 S^2 nc); the velocity projection (residual
+    11 nc, a solve, an impulse). One more factor per launch.
+
+    DRAM bytes: u, v, a read and written once per launch (6 V n / steps_per_launch); with the rows
+    in global memory (``rows_in_shared`` False) they are written back once per launch as well
+    (5 V n + the solver rows); the per-column rest lengths each step (ne r, upper estimate); outputs.
+    """
     V = 3 * r
-    staged = kernel_costs(n, ne, nc, bw, ncpl, r, it, output_every)
-    flops = sum(f for _, f in staged.values())
-    chol_f = nc * (bw + 1) ** 2
-    asm_f = 6 * nc + 14 * ncpl
-    solve_f = nc * (4 * bw + 2)
+    S = max(bw, 1)
+    solve = 10 * S * nc
+    impulse = 24 * nc + 21 * n
+    factor = 6 * nc + 20 * ncpl + 12 * S * S * nc
+    newton = 17 * nc + solve + impulse
+    vel = 11 * nc + solve + impulse + 3 * n
+    rows = 0.0 if rows_in_shared else (5 * V * n + r * nc * (1 + 5 * S)) / steps_per_launch
     return {
-        "launch_io": ((6 * V * n + 5 * V * n) / steps_per_launch, 0.0),
+        "launch_io": (6 * V * n / steps_per_launch + rows, 0.0),
         "rest_lengths": (ne * r, 0.0),
         "outputs": ((2 * r) / output_every, 0.0),
-        "arithmetic": (0.0, flops + (asm_f + chol_f) / steps_per_launch),
-        "serial": (0.0, chol_f * (1 + 1 / steps_per_launch) + solve_f * (it + 1)),
+        "kick_drift": (0.0, 9 * n),
+        "newton": (0.0, it * newton),
+        "forces": (0.0, 48 * ne + 15 * n),
+        "factor": (0.0, factor * (1 + 1 / steps_per_launch)),
+        "velocity_projection": (0.0, vel),
     }
 
 
@@ -229,28 +242,31 @@ def _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B) ->
     k = fused_costs(c["n_nodes"], c["n_cables"], c["n_constraints"], c["bandwidth"], c["n_coupling"], r, it,
                     output_every)
     byts = sum(b for b, _ in k.values())
-    flops = k["arithmetic"][1]
-    serial = k["serial"][1]
+    flops = sum(f for _, f in k.values())
     peak = dev[precision]
     mem = dev["bw_measured"] / byts
     comp = peak / flops
-    # lane 0's sweeps leave 31 of 32 lanes idle: they cost a warp-instruction per flop
-    lane = peak / (flops - serial + 32 * serial)
     out = {
         "path": "fused", "n_prisms": int(n_prisms), "base": lab, "precision": precision, "device_kind": device_kind,
         **c, "real_bytes": r, "newton_iters": it, "output_every": output_every,
         "parts": {name: {"bytes": float(b), "flops": float(f)} for name, (b, f) in k.items()},
         "bytes_per_column_step": float(byts), "flops_per_column_step": float(flops),
-        "serial_flops_per_column_step": float(serial),
         "arithmetic_intensity": flops / byts, "peak_flops": peak, "bandwidth_measured": dev["bw_measured"],
         "memory_bound_column_steps_per_s": mem, "compute_bound_column_steps_per_s": comp,
-        "one_lane_bound_column_steps_per_s": lane,
         "bound_column_steps_per_s": min(mem, comp),
         "limiter": "memory" if mem <= comp else "compute",
     }
     if B is not None:
         out["B"] = int(B)
     return out
+
+
+def issue_bound(warp_instructions_per_column_step: float, device_kind: str = "h100",
+                clock_hz: float = 1.755e9) -> float:
+    """Column-steps/s at which the SMs' warp schedulers (4 per SM, one warp-instruction per cycle
+    each) issue a measured instruction count (Nsight Compute: Executed Instructions / column-steps
+    of the launch): the bound of a latency- and issue-limited kernel such as the fused step."""
+    return DEVICES[device_kind.lower()]["sm"] * 4 * clock_hz / warp_instructions_per_column_step
 
 
 def sm_fill(B: int, n_sm: int = 132, block: int = BLOCK) -> float:
@@ -299,9 +315,14 @@ def table(device_kind: str, prisms=(10, 25, 50, 100, 200, 400), results: dict | 
     return "\n".join(rows) + note
 
 
+# warp-instructions per column-step of the fused kernel, from Nsight Compute ("Executed Instructions"
+# of one 16-step launch / (16 B)): benchmarks/results/ncu_fused_*_B16384.csv (H100, B = 16,384)
+FUSED_NCU_INSTRUCTIONS = {("FB", "fp32"): 8.005853952e9 / (16 * 16384), ("RB", "fp64"): 48.088379904e9 / (16 * 16384)}
+
+
 def fused_table(device_kind: str, prisms=(10, 25, 50, 100, 200, 400), results: dict | None = None) -> str:
-    rows = ["| prisms | base | prec | it* | KB/col-step (DRAM) | kflop/col-step | of which lane 0 | "
-            "mem bound | compute bound | one-lane bound | measured (best B) | % of compute | % of one-lane |",
+    rows = ["| prisms | base | prec | it* | KB/col-step (DRAM) | kflop/col-step | mem bound | compute bound | "
+            "measured (best B) | % of compute bound | warp-instr/col-step (ncu) | issue bound | % of issue bound |",
             "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for npr in prisms:
         for base in ("FB", "RB"):
@@ -309,17 +330,19 @@ def fused_table(device_kind: str, prisms=(10, 25, 50, 100, 200, 400), results: d
                 p = measured_peak(results, npr, base, prec, "fused") if results is not None else None
                 it = p.get("mean_iters") if p is not None else None
                 b = bound(npr, base, prec, device_kind, it=it, path="fused")
-                meas = pc = pl = ""
+                meas = pc = ins = ib = pi = ""
                 if p is not None:
                     x = p["column_steps_per_s"]
                     meas = f"{x:.3g} (B={p['B']})"
-                    pc = f"{100 * x / b['compute_bound_column_steps_per_s']:.1f}"
-                    pl = f"{100 * x / b['one_lane_bound_column_steps_per_s']:.1f}"
+                    pc = f"{100 * x / b['compute_bound_column_steps_per_s']:.2f}"
+                    if npr == 50 and (base, prec) in FUSED_NCU_INSTRUCTIONS and device_kind == "h100":
+                        n_ins = FUSED_NCU_INSTRUCTIONS[(base, prec)]
+                        bi = issue_bound(n_ins, device_kind)
+                        ins, ib, pi = f"{n_ins:.3g}", f"{bi:.3g}", f"{100 * x / bi:.0f}"
                 rows.append(
                     f"| {npr} | {base} | {prec} | {b['newton_iters']:.1f} | {b['bytes_per_column_step'] / 1e3:.2f} | "
-                    f"{b['flops_per_column_step'] / 1e3:.1f} | {b['serial_flops_per_column_step'] / 1e3:.1f} | "
-                    f"{b['memory_bound_column_steps_per_s']:.3g} | {b['compute_bound_column_steps_per_s']:.3g} | "
-                    f"{b['one_lane_bound_column_steps_per_s']:.3g} | {meas} | {pc} | {pl} |")
+                    f"{b['flops_per_column_step'] / 1e3:.1f} | {b['memory_bound_column_steps_per_s']:.3g} | "
+                    f"{b['compute_bound_column_steps_per_s']:.3g} | {meas} | {pc} | {ins} | {ib} | {pi} |")
     return "\n".join(rows) + ("\n\n*it: Newton solve iterations per column-step (measured at the best point "
                               "when results are given, else DEFAULT_ITERS).")
 

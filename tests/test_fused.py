@@ -5,9 +5,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import integrate
-from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
-from warp_tensegrity.fused import SHARED_BYTES_MAX, shared_capacity
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, integrate, simulate_batch
+from warp_tensegrity.kernels.fused import SHARED_BYTES_MAX, shared_plan, solver_reals
 from warp_tensegrity.sweep import SpecError, parse_spec
 
 CASES = {  # FB and RB, slack-cable impacts and a prestressed one
@@ -94,11 +93,18 @@ def test_spec_fused_key():
         parse_spec(base + 'method = "rk4"\nfused = true\n')
 
 
-def test_shared_capacity_buckets():
-    assert shared_capacity(150, 3, 4) == 1024  # FB, 50 prisms: 750 reals
-    assert shared_capacity(300, 6, 8) == 2560  # RB, 50 prisms: 2400 reals
-    assert shared_capacity(2400, 6, 8) == 0  # RB, 400 prisms: over SHARED_BYTES_MAX, global rows
-    assert shared_capacity(2400, 6, 8) * 8 <= SHARED_BYTES_MAX
+def test_shared_plan_places_whole_rows_within_the_budget():
+    # FB, 50 prisms: 153 nodes, 150 bars, band 3 -> 50 blocks of 3x3; 32 lanes
+    assert solver_reals(150, 3, 32) == 50 * 3 * 16 + 32
+    x, q = shared_plan(153, 150, 3, 32, 4)  # fp32: solver rows and node rows fit
+    assert x == solver_reals(150, 3, 32) and q == 153 * 5
+    x, q = shared_plan(153, 300, 6, 32, 8)  # RB fp64: 50 blocks of 6x6 = 60 kB: global rows
+    assert x == 0 and q == 153 * 5
+    x, q = shared_plan(603, 1200, 6, 32, 8)  # RB fp64, 200 prisms: nothing fits
+    assert (x, q) == (0, 0)
+    for args in [(153, 150, 3, 32, 8), (153, 300, 6, 32, 4), (33, 30, 3, 64, 8)]:
+        x, q = shared_plan(*args)
+        assert (x + 3 * q) * args[-1] <= SHARED_BYTES_MAX
 
 
 @pytest.mark.parametrize("precision, tol", [("fp64", 1e-12), ("fp32", 1e-5)])

@@ -56,9 +56,16 @@ from .scene.columns import ColumnConfig
 from .settings import BatchResult, RunSettings, SettingsError
 from .types import FORCE_EVALS, STABILITY, Base, Method, Path
 
-# fused='auto' on a GPU: above this many columns the staged kernels stream faster (H200: the fused
-# step is 1.25-1.55x faster at 16,384 columns, RB fp64 0.87x; 0.5-0.93x at 32,768; benchmarks/README.md)
+# fused='auto' on a GPU: the fused step (block cyclic reduction) up to FUSED_MAX_COLUMNS columns
+# for Gram bands up to 3 (FB) and FUSED_MAX_COLUMNS_WIDE for wider ones (RB: 6); the staged kernels
+# above. H100, 50 prisms (benchmarks/results/throughput_h100.json): fused/staged = 1.5-8.4x at
+# 1,024-16,384 columns for FB (0.59-0.69x from 65,536), 1.5-6.8x at 1,024-4,096 for RB (0.42-0.67x
+# at 16,384).
 FUSED_MAX_COLUMNS = 16384
+FUSED_MAX_COLUMNS_WIDE = 4096
+# widest Gram band the fused step takes at all (its S x S blocks live in registers); wider generic
+# networks run the staged kernels
+FUSED_MAX_BANDWIDTH = 8
 
 REACH_MARGIN_PRISMS = 8
 
@@ -133,13 +140,28 @@ def reachable_prisms(omega_max: float, t_end: float, n_prisms: int) -> int:
     reach = math.ceil(omega_max * t_end) + REACH_MARGIN_PRISMS
     return int(min(n_prisms, max(reach, 2)))
 
-def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int) -> Path:
+def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int, bandwidth: int = 0) -> Path:
     """Fused RATTLE (a block per column) or staged kernels: ``settings.fused`` True/False, or
-    'auto': fused for RATTLE except on a GPU above :data:`FUSED_MAX_COLUMNS` columns."""
-    if settings.fused is True or (settings.fused == "auto" and settings.method == Method.RATTLE
-                                  and (not on_gpu or n_columns <= FUSED_MAX_COLUMNS)):
+    'auto': fused for RATTLE with a Gram half-bandwidth of at most :data:`FUSED_MAX_BANDWIDTH`,
+    on a GPU only up to :data:`FUSED_MAX_COLUMNS` columns (:data:`FUSED_MAX_COLUMNS_WIDE` for bands
+    wider than 3), where it measured faster than the staged kernels."""
+    if settings.fused is True:
+        if bandwidth > FUSED_MAX_BANDWIDTH:
+            raise SettingsError(f"fused = true: the constraint Gram band is {bandwidth} wide, above the fused "
+                                f"step's {FUSED_MAX_BANDWIDTH}; use fused = 'auto' or false (staged kernels)")
+        return Path.FUSED
+    limit = FUSED_MAX_COLUMNS if bandwidth <= 3 else FUSED_MAX_COLUMNS_WIDE
+    if settings.fused == "auto" and settings.method == Method.RATTLE and bandwidth <= FUSED_MAX_BANDWIDTH and (
+            not on_gpu or n_columns <= limit):
         return Path.FUSED
     return Path.STAGED
+
+
+def gram_bandwidth(batch: NetworkBatch) -> int:
+    """Half-bandwidth of the batch's constraint Gram matrix (host-side, no kernel)."""
+    from .model import constraint_coupling, mass_entries
+
+    return int(constraint_coupling(batch, mass_entries(batch)[0])[-1])
 
 
 def choose_timestep(settings: RunSettings, omega_max: float):
@@ -193,7 +215,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     n_out = n_steps // every + 1
-    path = choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns)
+    path = choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns, gram_bandwidth(batch))
     integ = Integrator(batch, settings, dt, every, n_out, path=path)
     wall, t_compile = integ.run(n_steps, progress)
     d = integ.data
@@ -250,6 +272,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> Batc
             "initialize_time": t_compile,
             "graph_steps": integ.graph_steps,
             "force_evaluations_per_step": FORCE_EVALS[settings.method],
+            "step_path": integ.fk.description if integ.fused else "staged (one kernel per stage)",
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
         },
     )
@@ -358,6 +381,8 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "flops_per_column_step": int(flops),
         "omega_max_bound": omega,
         "bandwidth": int(bw),
+        "step_path": str(choose_path(settings, device.is_cuda, batch.n_columns, int(bw)).value),
+        "on_gpu": bool(device.is_cuda),
         "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
         "seconds_estimate": seconds,
         "dt_safety": settings.dt_safety,

@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from .fused import make_fused_kernels, shared_capacity
-from .kernels import make_kernels, make_solver_kernels
+from .kernels.fused import FusedStep
+from .kernels.staged import make_kernels, make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
 from .settings import RunSettings, SettingsError
 from .types import Method, Path, RKStage
@@ -83,10 +83,7 @@ class Integrator:
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
-            cap = 0  # reals of shared memory for the band and multipliers (0: global rows)
-            if self.fused and (self.device.is_cuda or FUSED_SHARED_ON_CPU):
-                cap = shared_capacity(m.n_constraints, m.bandwidth, 4 if settings.precision == "fp32" else 8)
-            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused_block, cap > 0)
+            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused)
             real = REAL[settings.precision]
             self.real = real
             self.k = make_kernels(real)
@@ -99,7 +96,8 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
-            self.fk = make_fused_kernels(real, cap, m.bandwidth) if self.fused else None
+            self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU) \
+                if self.fused else None
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)
@@ -174,12 +172,7 @@ class Integrator:
             u, v, d.step, d.band, a, d.lam, d.imp, d.status, d.fail_step])
 
     def _fused(self, n_sub: int, init: int = 0):
-        m, d, f = self.model, self.data, self.data.fused
-        inputs = self.bars + self.coupling + self.node_bars + self.cables + [m.node_start, m.node_member] + self.minv \
-            + self.projection + [self.real(self.dt), int(n_sub), int(init), d.step, d.u, d.v, d.a, d.bar_err, d.iters,
-                                 d.status, d.fail_step, f.nodes, f.solve, f.red]
-        wp.launch_tiled(self.fk.rattle_columns, dim=[m.n_columns], block_dim=self.fused_block, device=self.device,
-                        inputs=inputs)
+        self.fk.launch(self.data, self.settings, self.dt, n_sub, init)
 
     def _fused_steps(self, n: int):
         """n RATTLE steps as fused launches of at most FUSED_STEPS, each followed by the counter and
@@ -187,7 +180,7 @@ class Integrator:
         while n > 0:
             k = min(FUSED_STEPS, n)
             self._fused(k)
-            self._launch(self.fk.advance_counter_by, 1, [self.data.step, k])
+            self.fk.advance_counter(self.data, k)
             self._record()
             n -= k
 
@@ -204,8 +197,8 @@ class Integrator:
         """Compile/load the kernels this method uses now, with the block size they launch with,
         so no load happens while stepping or capturing."""
         if self.fused:
-            self.fk.rattle_columns.module.load(self.device, self.fused_block)
-            for kern in (self.fk.advance_counter_by, self.k.record_strain, self.k.record_energy):
+            self.fk.load()
+            for kern in (self.k.record_strain, self.k.record_energy):
                 kern.module.load(self.device, self._block_dim(kern))
             return
         rk_only = {"rk_stage", "constrained_accel", "factor_only"}

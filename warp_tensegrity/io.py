@@ -360,7 +360,7 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
         if k not in a0:
             continue
         attrs[k] = a0[k]
-    for k in ("warp_version", "git_commit", "device", "device_name"):
+    for k in ("warp_version", "git_commit", "device", "device_name", "step_path"):
         attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)
     attrs["wall_time"] = float(sum(float(d.attrs.get("wall_time", 0.0)) for d in shards))
     attrs["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} combined {len(shards)} shards by warp_tensegrity {package_version()}"

@@ -244,40 +244,12 @@ class Data:
     bar_err: wp.array  # (B,) max relative bar-length error after projection
     step: wp.array  # (1,) int32 completed steps
     rk: dict | None  # RK4 scratch: u0, v0, acc_u, acc_v, us, vs, each (n, B) vec3
-    fused: FusedScratch | None = None  # working rows of the fused step (warp_tensegrity.fused)
 
 
-@dataclass
-class FusedScratch:
-    """Per-column working rows of the fused RATTLE step: column index first, so one block's
-    data are contiguous. Rows that live in block shared memory are (1, 1) placeholders.
-    ``block`` = threads per column block."""
-
-    nodes: wp.array  # (B, 5 n) vec3: per node displacement [m], velocity [m s-1], acceleration
-    # [m s-2], displacement at the step start [m], G^T lambda (slots types.Slot: U, V, A, P, I)
-    solve: wp.array  # (B, nc*(bw+2)): Cholesky factor of G M^-1 G^T by rows (inverse diagonal in
-    # slot 0 of each row), then the multipliers
-    red: wp.array  # (B, block) per-lane values for block reductions
-
-
-def make_fused_scratch(model: Model, block: int, shared_solve: bool) -> FusedScratch:
-    real = REAL[model.precision]
-    vec = wp.types.vector(3, real)
-    d, n, B = model.device, model.n_nodes, model.n_columns
-    nc = max(model.n_constraints, 1)
-    return FusedScratch(
-        nodes=wp.zeros((B, 5 * n), dtype=vec, device=d),
-        solve=wp.zeros((1, 1) if shared_solve else (B, nc * (model.bandwidth + 2)), dtype=real, device=d),
-        red=wp.zeros((B, block), dtype=real, device=d),
-    )
-
-
-def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int | None = None,
-              fused_shared: bool = False) -> Data:
-    """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused_block`` (threads per column
-    block) the solver scratch lives in :class:`FusedScratch` (``fused_shared``: whether its solver
-    rows are in block shared memory instead) and the staged kernels' scratch
-    (u_prev, imp, band, lam) is not allocated (size-1 placeholders)."""
+def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = False) -> Data:
+    """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused`` the staged kernels' scratch
+    (u_prev, imp, band, lam) is not allocated (size-1 placeholders; the fused step keeps its own
+    rows, :class:`warp_tensegrity.kernels.FusedStep`)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d = model.device
@@ -292,11 +264,10 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused_block: int 
         bar_err=wp.zeros(B, dtype=real, device=d),
         step=wp.zeros(1, dtype=wp.int32, device=d),
     )
-    if fused_block is not None:
+    if fused:
         one = wp.zeros((1, 1), dtype=vec, device=d)
         return Data(**common, u_prev=one, imp=one, band=wp.zeros((1, 1, 1), dtype=real, device=d),
-                    lam=wp.zeros((1, 1), dtype=real, device=d), rk=None,
-                    fused=make_fused_scratch(model, fused_block, fused_shared))
+                    lam=wp.zeros((1, 1), dtype=real, device=d), rk=None)
     rk = None
     if method == "rk4":
         rk = {k: z() for k in ("u0", "v0", "acc_u", "acc_v", "us", "vs")}

@@ -380,10 +380,12 @@ class RunSettings:
     """Steps captured in one CUDA graph."""
     fused: Annotated[bool | Literal["auto"], Opt("bool", special=(("auto", "auto"),))] = "auto"
     """RATTLE as one fused kernel, a thread block per column and several steps per launch
-    (:mod:`warp_tensegrity.fused`); False: one kernel per stage (the only path of the other
+    (:mod:`warp_tensegrity.kernels.fused`); False: one kernel per stage (the only path of the other
     methods). 'auto': fused for RATTLE, except on a GPU above
-    :data:`~warp_tensegrity.engine.FUSED_MAX_COLUMNS` (16,384) columns, where the staged kernels
-    stream faster. Both paths give the same numbers to round-off (not part of the fingerprint)."""
+    :data:`~warp_tensegrity.engine.FUSED_MAX_COLUMNS` columns (FB; ``FUSED_MAX_COLUMNS_WIDE`` for
+    wider Gram bands, RB) where the staged kernels stream faster, and for Gram bands wider than
+    ``FUSED_MAX_BANDWIDTH`` (generic networks). Both paths give the same numbers to round-off (not
+    part of the fingerprint)."""
     accuracy: Annotated[float | None, Opt("real", "1", gt=0, lt=1, optional=True,
                                           why="the relative error wanted on pulse speed and amplitude")] = None
     """Target relative error of the pulse measures (speed, amplitude). When given, the engine

@@ -94,7 +94,7 @@ class Base(float, Enum):
 
 
 class Slot(IntEnum):
-    """Slots of a node's row in the fused step's scratch (``FusedScratch.nodes``)."""
+    """Slots of a node's row in the fused step's scratch (``kernels.fused.FusedStep``: rows (n, NQ) per column)."""
 
     U = 0
     """displacement [m]"""

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..engine import estimate_batch
+from ..engine import choose_path, estimate_batch
 from ..io import code_version
 from ..settings import RunSettings
 from .progress import fmt_seconds
@@ -139,12 +139,20 @@ def dry_run(plan: SweepPlan) -> str:
         f"method:      {r['method']} {r['precision']}, dt = {dt_txt}",
         f"steps:       {n_steps} to t_end = {r['t_end']} s, {n_out} outputs",
         f"device:      {plan.device or 'auto (the GPU if there is one, else the CPU)'}",
+        f"step path:   {_step_path(plan)} (per shard of {max(b - a for a, b in plan.shards)} columns)",
         f"memory:      {_fmt_bytes(dev_bytes)} device memory per shard, {_fmt_bytes(host_shard)} host memory per shard",
         f"output:      {_fmt_bytes(out_bytes)} uncompressed"
         + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"),
         f"time:        ~{fmt_seconds(secs)} ({n} columns x {n_steps} steps x {spc:.3g} s per column-step)",
     ]
     return "\n".join(lines)
+
+
+def _step_path(plan: SweepPlan) -> str:
+    """The launch path (engine.choose_path) a shard takes: 'fused' or 'staged'."""
+    est = plan.estimate
+    shard = max(b - a for a, b in plan.shards)
+    return str(choose_path(plan.settings, bool(est.get("on_gpu")), shard, int(est.get("bandwidth", 0))).value)
 
 
 def _fmt_bytes(b: float) -> str:

@@ -75,6 +75,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "case_stop": stop,
         "device": result.device,
         "device_name": result.device_name,
+        "step_path": result.info.get("step_path", "unknown"),
         "method": result.method,
         "precision": result.precision,
         "dt": float(result.dt),

@@ -22,54 +22,35 @@ from types import SimpleNamespace
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+from .common import (
+    STATUS_CONSTRAINT,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    bar_residual,
+    finite3,
+    make_gram_row,
+    member_vec,
+    node_force,
+    node_impulse,
+    pget,
+    set_failure,
+)
 
-STATUS_OK = wp.constant(0)
-STATUS_NONFINITE = wp.constant(1)
-STATUS_CONSTRAINT = wp.constant(2)
+wp.set_module_options({"enable_backward": False})
 
 
 @functools.cache
 def make_kernels(real):
-    """Kernels for scalar type ``real`` (wp.float32 or wp.float64)."""
+    """Kernels for scalar type ``real`` (wp.float32 or wp.float64): the per-node step kernels
+    and the output records."""
+    return SimpleNamespace(real=real, vec=wp.types.vector(3, real), **vars(_node_kernels(real)),
+                           **vars(_record_kernels(real)))
+
+
+@functools.cache
+def _node_kernels(real):
     vec = wp.types.vector(3, real)
-    opts = {"enable_backward": False}
 
-    @wp.func
-    def pget(p: wp.array2d(dtype=real), k: int, w: int):
-        return p[k, w % p.shape[1]]
-
-    @wp.func
-    def member_vec(dref: wp.array(dtype=vec), ni: wp.array(dtype=int), nj: wp.array(dtype=int),
-                   u: wp.array2d(dtype=vec), k: int, w: int):
-        return dref[k] + u[nj[k], w] - u[ni[k], w]
-
-    @wp.func
-    def cable_force(b: vec, EA: real, EAc: real, L: real):
-        """Force on the member's first node (toward the second) for the bilinear axial law."""
-        s = wp.length(b)
-        stretch = s - L
-        k = EA
-        if stretch < real(0.0):
-            k = EAc
-        return b * (k * stretch / (L * s))  # tension k/L (s - L), along b/s: one division
-
-    @wp.func
-    def node_force(
-        node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), node_other: wp.array(dtype=int),
-        node_dref: wp.array(dtype=vec), cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
-        cab_L: wp.array2d(dtype=real), u: wp.array2d(dtype=vec), n: int, w: int, wE: int, wC: int, wL: int,
-    ):
-        """Sum of the cable forces on node n, each along its vector from n to the cable's other end;
-        wE, wC, wL: column w's index into EA, EA_c, L."""
-        un = u[n, w]
-        f = vec()
-        for t in range(node_start[n], node_start[n + 1]):
-            c = node_member[t]
-            f += cable_force(node_dref[t] + u[node_other[t], w] - un, cab_EA[c, wE], cab_EAc[c, wC], cab_L[c, wL])
-        return f
-
-    # ------------------------------------------------------------------ per-node kernels
     @wp.kernel(enable_backward=False, module="unique")
     def gather_accel(
         # Model:
@@ -158,7 +139,13 @@ def make_kernels(real):
             u_next[n, w] = u0[n, w] + du * c_next
             v_next[n, w] = v0[n, w] + dv * c_next
 
-    # ------------------------------------------------------------------ outputs
+    return SimpleNamespace(gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage)
+
+
+@functools.cache
+def _record_kernels(real):
+    vec = wp.types.vector(3, real)
+
     @wp.kernel(enable_backward=False, module="unique")
     def advance_counter(step: wp.array(dtype=int)):
         step[0] = step[0] + 1
@@ -227,40 +214,21 @@ def make_kernels(real):
         kinetic[slot, w] = real(0.5) * ke
         elastic[slot, w] = real(0.5) * ee
 
-    return SimpleNamespace(
-        real=real, vec=vec, gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage,
-        advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
-        pget=pget, member_vec=member_vec, cable_force=cable_force,  # shared with the solvers
-    )
+    return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy)
 
 
 @functools.cache
-def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
-    """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
-    the Gram-matrix half-bandwidth ``bandwidth`` compiled in: lane loops over the band unroll, the
-    row being factored and the last ``bandwidth`` unknowns of a triangular sweep sit in registers,
-    and each sweep loads the next row while it works on the current one. ``max_registers`` caps
-    the registers per CUDA thread (``__maxnreg__``; None: the compiler's choice). ``bar_window``
-    keeps the bar vectors of the last ``bandwidth`` + 1 rows in registers while the Gram matrix is
-    assembled (None: for fp32 only; fp64 spills them at 64 registers).
+def _band_funcs(real, bandwidth: int):
+    """The sequential banded Cholesky of the staged solver threads, the bandwidth compiled in:
+    the row being factored and the last ``bandwidth`` unknowns of a sweep sit in registers, and
+    each sweep loads the next row while it works on the current one.
 
     The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
     except the diagonal slot, which holds 1/L[k, k]."""
-    k0 = make_kernels(real)
-    vec, member_vec = k0.vec, k0.member_vec
     BW = int(bandwidth)
     LD = BW + 1
-    rowvec = wp.types.vector(LD, real)
+    rowvec = make_gram_row(real, BW)[1]
     winvec = wp.types.vector(max(BW, 1), real)
-    if bar_window is None:
-        bar_window = real == wp.float32
-    kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
-
-    @wp.func
-    def fail(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), step: wp.array(dtype=int), w: int, code: int):
-        if status[w] == STATUS_OK:
-            status[w] = code
-            fail_step[w] = step[0] + 1
 
     @wp.func
     def band_row(band: wp.array3d(dtype=real), k: int, w: int):
@@ -305,91 +273,6 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         return ok
 
     @wp.func
-    def assemble_factor_reload(
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
-    ):
-        """Assemble each row k of A = G M^-1 G^T at u in registers (bar vectors of the coupled rows
-        reloaded from u), factor it and store it. Returns False on a non-positive pivot."""
-        nc = con_i.shape[0]
-        wa = w % con_active.shape[1]  # column w's index into per-column parameters (hoisted)
-        ws = w % minv_self.shape[1]
-        wx = w % minv_cross.shape[1]
-        ok = bool(True)
-        for k in range(nc):
-            r = rowvec()
-            if con_active[k, wa] > real(0.0):
-                bk = member_vec(con_dref, con_i, con_j, u, k, w)
-                for t in range(cpl_start[k], cpl_start[k + 1]):
-                    l = cpl_l[t]
-                    if con_active[l, wa] > real(0.0):
-                        na = cpl_a[t]
-                        m = minv_self[na, ws]
-                        if cpl_cross[t] != 0:
-                            m = minv_cross[na, wx]
-                        val = cpl_sign[t] * m * wp.dot(bk, member_vec(con_dref, con_i, con_j, u, l, w))
-                        for e in range(LD):
-                            if k - l == e:
-                                r[e] += val
-            else:
-                r[0] = real(1.0)
-            if not factor_store_row(band, r, k, w):
-                ok = False
-        return ok
-
-    @wp.func
-    def assemble_factor_window(
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
-    ):
-        """As assemble_factor_reload, with the bar vectors of rows k-BW..k kept in registers (zero
-        for an inactive row): each is loaded once instead of once per coupling term."""
-        nc = con_i.shape[0]
-        wa = w % con_active.shape[1]
-        ws = w % minv_self.shape[1]
-        wx = w % minv_cross.shape[1]
-        bx = rowvec()  # bx[e], by[e], bz[e]: bar vector of row k - e
-        by = rowvec()
-        bz = rowvec()
-        ok = bool(True)
-        for k in range(nc):
-            for e in range(BW):
-                bx[BW - e] = bx[BW - 1 - e]
-                by[BW - e] = by[BW - 1 - e]
-                bz[BW - e] = bz[BW - 1 - e]
-            r = rowvec()
-            bk = vec()
-            if con_active[k, wa] > real(0.0):
-                bk = member_vec(con_dref, con_i, con_j, u, k, w)
-            bx[0] = bk[0]
-            by[0] = bk[1]
-            bz[0] = bk[2]
-            if con_active[k, wa] > real(0.0):
-                for t in range(cpl_start[k], cpl_start[k + 1]):
-                    na = cpl_a[t]
-                    m = minv_self[na, ws]
-                    if cpl_cross[t] != 0:
-                        m = minv_cross[na, wx]
-                    sm = cpl_sign[t] * m
-                    d = k - cpl_l[t]
-                    for e in range(LD):
-                        if d == e:
-                            r[e] += sm * (bk[0] * bx[e] + bk[1] * by[e] + bk[2] * bz[e])
-            else:
-                r[0] = real(1.0)
-            if not factor_store_row(band, r, k, w):
-                ok = False
-        return ok
-
-    assemble_factor = assemble_factor_window if bar_window else assemble_factor_reload
-
-    @wp.func
     def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), w: int):
         """Solve L L^T x = rhs in place (rhs given in x)."""
         nc = x.shape[0]
@@ -427,6 +310,98 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
                 xw[BW - 1 - e] = xw[BW - 2 - e]
             xw[0] = xk
 
+    return SimpleNamespace(factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)
+
+
+@functools.cache
+def _assemble_funcs(real, bandwidth: int, bar_window: bool):
+    """Gram assembly of one column thread, each row factored as it is assembled: from
+    common.gram_row (reload) or with the last bandwidth + 1 bar vectors in registers (window)."""
+    vec = wp.types.vector(3, real)
+    BW = int(bandwidth)
+    LD = BW + 1
+    gram_row, rowvec = make_gram_row(real, BW)
+    factor_store_row = _band_funcs(real, bandwidth).factor_store_row
+
+    @wp.func
+    def assemble_factor_reload(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
+    ):
+        """Assemble each row k of A = G M^-1 G^T at u in registers (common.gram_row), factor it
+        and store it. Returns False on a non-positive pivot."""
+        wa = w % con_active.shape[1]  # column w's index into per-column parameters (hoisted)
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
+        ok = bool(True)
+        for k in range(con_i.shape[0]):
+            r = gram_row(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                         minv_self, minv_cross, u, w, k, wa, ws, wx)
+            if not factor_store_row(band, r, k, w):
+                ok = False
+        return ok
+
+    @wp.func
+    def assemble_factor_window(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
+    ):
+        """As assemble_factor_reload, with the bar vectors of rows k-BW..k kept in registers (zero
+        for an inactive row): each is loaded once instead of once per coupling term (possible
+        only because this thread assembles the rows in order)."""
+        nc = con_i.shape[0]
+        wa = w % con_active.shape[1]
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
+        bx = rowvec()  # bx[e], by[e], bz[e]: bar vector of row k - e
+        by = rowvec()
+        bz = rowvec()
+        ok = bool(True)
+        for k in range(nc):
+            for e in range(BW):
+                bx[BW - e] = bx[BW - 1 - e]
+                by[BW - e] = by[BW - 1 - e]
+                bz[BW - e] = bz[BW - 1 - e]
+            r = rowvec()
+            # zero for an inactive row (no branch: a generic function's vector type must not
+            # replace a variable declared as another vector class inside an if)
+            on = wp.where(con_active[k, wa] > real(0.0), real(1.0), real(0.0))
+            bk = member_vec(con_dref, con_i, con_j, u, k, w) * on
+            bx[0] = bk[0]
+            by[0] = bk[1]
+            bz[0] = bk[2]
+            if con_active[k, wa] > real(0.0):
+                for t in range(cpl_start[k], cpl_start[k + 1]):
+                    na = cpl_a[t]
+                    m = minv_self[na, ws]
+                    if cpl_cross[t] != 0:
+                        m = minv_cross[na, wx]
+                    sm = cpl_sign[t] * m
+                    d = k - cpl_l[t]
+                    for e in range(LD):
+                        if d == e:
+                            r[e] += sm * (bk[0] * bx[e] + bk[1] * by[e] + bk[2] * bz[e])
+            else:
+                r[0] = real(1.0)
+            if not factor_store_row(band, r, k, w):
+                ok = False
+        return ok
+
+    return assemble_factor_window if bar_window else assemble_factor_reload
+
+
+@functools.cache
+def _projection_funcs(real, bandwidth: int):
+    """Impulse application and the rate projection of one column thread."""
+    vec = wp.types.vector(3, real)
+    band_solve = _band_funcs(real, bandwidth).band_solve
+
     @wp.func
     def apply_impulse(
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
@@ -435,22 +410,15 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         ug: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
         scale: real, y: wp.array2d(dtype=vec), scale2: real, y2: wp.array2d(dtype=vec), w: int,
     ):
-        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam. Each node gathers its
-        own members (no read-modify-write chains). A node whose M^-1 row is its own (partner -1)
-        is updated at once; a massive bar's two free nodes go through imp, then M^-1 couples them."""
+        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam. A node whose M^-1
+        row is its own (partner -1) is updated at once; a massive bar's two free nodes go
+        through imp, then M^-1 couples them."""
         nn = imp.shape[0]
         ws = w % minv_self.shape[1]
         wx = w % minv_cross.shape[1]
         n_coupled = int(0)
         for n in range(nn):
-            g = vec()
-            for t in range(ncon_start[n], ncon_start[n + 1]):
-                k = ncon_member[t]
-                gk = member_vec(con_dref, con_i, con_j, ug, k, w) * lam[k, w]
-                if con_j[k] == n:
-                    g += gk
-                else:
-                    g -= gk
+            g = node_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, ug, w, lam, w, n)
             if partner[n] < 0:
                 d = g * minv_self[n, ws]
                 y[n, w] = y[n, w] - d * scale
@@ -494,6 +462,30 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, u, lam,
                       imp, real(1.0), y, real(0.0), y, w)
 
+    return SimpleNamespace(apply_impulse=apply_impulse, project_rates=project_rates)
+
+
+@functools.cache
+def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
+    """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
+    the Gram-matrix half-bandwidth ``bandwidth`` compiled in (see :func:`_band_funcs`).
+    ``max_registers`` caps the registers per CUDA thread (``__maxnreg__``; None: the compiler's
+    choice). ``bar_window`` keeps the bar vectors of the last ``bandwidth`` + 1 rows in registers
+    while the Gram matrix is assembled (None: for fp32 only; fp64 spills them at 64 registers)."""
+    if bar_window is None:
+        bar_window = real == wp.float32
+    kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
+    ns = SimpleNamespace(real=real, bandwidth=int(bandwidth))
+    ns.project_positions = _position_kernel(real, bandwidth, bar_window, kopts)
+    ns.__dict__.update(vars(_factor_kernels(real, bandwidth, bar_window, kopts)))
+    return ns
+
+
+def _position_kernel(real, bandwidth, bar_window, kopts):
+    vec = wp.types.vector(3, real)
+    fb = _band_funcs(real, bandwidth)
+    band_solve, apply_impulse = fb.band_solve, _projection_funcs(real, bandwidth).apply_impulse
+
     @wp.kernel(**kopts)
     def project_positions(
         # Model:
@@ -525,11 +517,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
             for k in range(nc):
                 r = real(0.0)
                 if con_active[k, wa] > real(0.0):
-                    b = member_vec(con_dref, con_i, con_j, u, k, w)
-                    L = con_L[k]
-                    bb = wp.dot(b, b)
-                    r = real(0.5) * (bb - L * L)
-                    e = wp.abs(wp.sqrt(bb) - L) / L
+                    r, e = bar_residual(member_vec(con_dref, con_i, con_j, u, k, w), con_L[k])
                     if not (e <= err):  # also catches NaN
                         err = e
                 lam[k, w] = r
@@ -543,11 +531,35 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
             it += 1
         iters[w] = wp.max(iters[w], it)
         if not wp.isfinite(err):
-            fail(status, fail_step, step, w, STATUS_NONFINITE)
+            set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
         elif err > fail_tol:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
         if err > bar_err[w]:
             bar_err[w] = err
+
+    return project_positions
+
+
+def _factor_kernels(real, bandwidth, bar_window, kopts):
+    vec = wp.types.vector(3, real)
+    assemble_factor = _assemble_funcs(real, bandwidth, bar_window)
+    project_rates = _projection_funcs(real, bandwidth).project_rates
+
+    @wp.func
+    def factor_or_flag(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real), u: wp.array2d(dtype=vec),
+        step: wp.array(dtype=int), band: wp.array3d(dtype=real), status: wp.array(dtype=int),
+        fail_step: wp.array(dtype=int), w: int,
+    ):
+        """Factor A(u) into the band; False (and column w flagged) if it is not positive definite."""
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, w)
+        if not ok:
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        return ok
 
     @wp.kernel(**kopts)
     def factor_project_velocities(
@@ -567,16 +579,14 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, w)
-        if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                              minv_self, minv_cross, u, step, band, status, fail_step, w):
             return
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 0, band, v, lam, imp, w)
         for n in range(u.shape[0]):
-            if not (wp.isfinite(v[n, w][0]) and wp.isfinite(v[n, w][1]) and wp.isfinite(v[n, w][2])):
-                fail(status, fail_step, step, w, STATUS_NONFINITE)
+            if not finite3(v[n, w]):
+                set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
                 return
 
     @wp.kernel(**kopts)
@@ -594,10 +604,8 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, w)
-        if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+        factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                       minv_self, minv_cross, u, step, band, status, fail_step, w)
 
     @wp.kernel(**kopts)
     def constrained_accel(
@@ -617,16 +625,11 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
-        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                             minv_self, minv_cross, u, band, w)
-        if not ok:
-            fail(status, fail_step, step, w, STATUS_CONSTRAINT)
+        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                              minv_self, minv_cross, u, step, band, status, fail_step, w):
             return
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 1, band, a, lam, imp, w)
 
-    return SimpleNamespace(
-        real=real, bandwidth=BW, project_positions=project_positions,
-        factor_project_velocities=factor_project_velocities, factor_only=factor_only,
-        constrained_accel=constrained_accel,
-    )
+    return SimpleNamespace(factor_project_velocities=factor_project_velocities, factor_only=factor_only,
+                           constrained_accel=constrained_accel)

@@ -1,0 +1,209 @@
+"""The fused step's lane-parallel constraint solve (block cyclic reduction, kernels/fused.py).
+
+Warp's CPU device runs a block's lanes only with ``wp.config.enable_cpu_blocks``; every test here
+switches it on, so the lane split and the barriers of the GPU kernel run in CI.
+"""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from warp_tensegrity import ColumnConfig, RunSettings, integrate, simulate_batch
+from warp_tensegrity.kernels.fused import block_sync, make_cr_funcs
+
+
+@pytest.fixture
+def lanes(monkeypatch):
+    """Emulated lanes on the CPU, with the solver and node rows in the block's shared buffer."""
+    def use(n):
+        monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+        monkeypatch.setattr(integrate, "FUSED_BLOCK_DIM", n)
+        monkeypatch.setattr(integrate, "FUSED_SHARED_ON_CPU", True)
+    return use
+
+
+_SOLVE_KERNELS = {}
+
+
+def _solve_kernel(S):
+    """Test kernel: column w's system from ``sys[w]`` (layout of make_cr_funcs), reduce, solve."""
+    if S in _SOLVE_KERNELS:
+        return _SOLVE_KERNELS[S]
+    cr = make_cr_funcs(wp.float64, S)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def cr_test(sys: wp.array2d(dtype=wp.float64), nb: int, ok: wp.array2d(dtype=int)):
+        w, lane = wp.tid()
+        x = sys[w]
+        ok[w, lane] = cr.cr_factor(x, nb, lane, wp.block_dim())
+        block_sync()
+        cr.cr_solve(x, nb, lane, wp.block_dim())
+
+    _SOLVE_KERNELS[S] = cr_test
+    return cr_test
+
+
+def _random_system(rng, nb, S, spd=True):
+    """A random SPD block-tridiagonal matrix (diagonally weighted), its blocks in the kernel's layout."""
+    n = nb * S
+    Araw = np.zeros((n, n))
+    for i in range(nb):
+        Araw[i * S:(i + 1) * S, i * S:(i + 1) * S] = rng.normal(size=(S, S))
+        if i:
+            Araw[i * S:(i + 1) * S, (i - 1) * S:i * S] = rng.normal(size=(S, S))
+    A = Araw @ Araw.T  # SPD, but with a wider band: keep its block-tridiagonal part and make it SPD
+    mask = np.zeros((n, n), bool)
+    for i in range(nb):
+        for j in (i - 1, i, i + 1):
+            if 0 <= j < nb:
+                mask[i * S:(i + 1) * S, j * S:(j + 1) * S] = True
+    A = np.where(mask, A, 0.0)
+    A += np.eye(n) * (np.abs(A).sum(axis=1).max() if spd else -np.abs(A).sum(axis=1).max())
+    b = rng.normal(size=n)
+    D = np.stack([A[i * S:(i + 1) * S, i * S:(i + 1) * S] for i in range(nb)])
+    E = np.stack([A[i * S:(i + 1) * S, (i - 1) * S:i * S] if i else np.zeros((S, S)) for i in range(nb)])
+    row = np.concatenate([b, D.ravel(), E.ravel(), np.zeros(3 * nb * S * S)])
+    return A, b, row
+
+
+@pytest.mark.parametrize("S", [1, 3, 6])
+@pytest.mark.parametrize("block_dim", [1, 4, 32])
+def test_block_cyclic_reduction_matches_numpy(S, block_dim, monkeypatch):
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    rng = np.random.default_rng(S * 100 + block_dim)
+    kern = _solve_kernel(S)
+    for nb in (1, 2, 3, 5, 8, 13, 50):
+        systems = [_random_system(rng, nb, S) for _ in range(3)]
+        sys = wp.array(np.stack([r for _, _, r in systems]), dtype=wp.float64, device="cpu")
+        ok = wp.zeros((3, block_dim), dtype=int, device="cpu")
+        wp.launch_tiled(kern, dim=[3], inputs=[sys, nb, ok], block_dim=block_dim, device="cpu")
+        out = sys.numpy()
+        assert np.all(ok.numpy().min(axis=1) == 1)
+        for w, (A, b, _) in enumerate(systems):
+            x = np.linalg.solve(A, b)
+            np.testing.assert_allclose(out[w, :nb * S], x, rtol=0, atol=1e-12 * np.abs(x).max())
+
+
+def test_block_cyclic_reduction_flags_an_indefinite_matrix(monkeypatch):
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    rng = np.random.default_rng(7)
+    kern = _solve_kernel(3)
+    A, b, row = _random_system(rng, 9, 3, spd=False)
+    assert np.linalg.eigvalsh(A).min() < 0
+    sys = wp.array(row[None, :], dtype=wp.float64, device="cpu")
+    ok = wp.zeros((1, 4), dtype=int, device="cpu")
+    wp.launch_tiled(kern, dim=[1], inputs=[sys, 9, ok], block_dim=4, device="cpu")
+    assert ok.numpy().min() == 0
+
+
+def _pair(cfg, params, precision="fp64", t_end=0.03, dt=5e-4):
+    out = {}
+    for fused in (False, True):
+        s = RunSettings(t_end=t_end, dt=dt, precision=precision, device="cpu", fused=fused, truncate=False,
+                        output_interval=0.01)
+        out[fused] = simulate_batch(cfg, params, s)
+    return out[False], out[True]
+
+
+COLUMNS = {  # (config, params): FB, RB, continuous base rigidity (elastic base members), mixed handedness
+    "FB-RB-beta": (ColumnConfig(n_prisms=7), {"base_rigidity": [0.0, 1.0, 0.4], "v0": [0.1, 0.1, 0.05],
+                                              "prestrain": [0.002, 0.0, 0.001]}),
+    "mixed": (ColumnConfig(n_prisms=7, handedness="LRRLRLL"), {"base_rigidity": [0.0, 1.0], "v0": [0.1, 0.1],
+                                                               "prestrain": [0.002, 0.002]}),
+    "1-prism": (ColumnConfig(n_prisms=1), {"base_rigidity": [0.0, 1.0], "v0": [0.1, 0.1]}),
+    "2-prisms": (ColumnConfig(n_prisms=2, handedness="LR"), {"base_rigidity": [0.0, 1.0], "v0": [0.1, 0.1]}),
+}
+
+
+@pytest.mark.parametrize("case", list(COLUMNS))
+def test_lane_parallel_step_matches_staged(case, lanes):
+    lanes(4)
+    cfg, params = COLUMNS[case]
+    staged, fused = _pair(cfg, params)
+    assert "block cyclic reduction, 4 lanes" in fused.info["step_path"]
+    assert np.all(staged.status == 0) and np.all(fused.status == 0)
+    scale = np.abs(staged.strain).max(axis=(1, 2))
+    assert np.all(scale > 1e-7)
+    rel = np.abs(fused.strain - staged.strain).max(axis=(1, 2)) / scale
+    assert np.all(rel < 1e-10), rel
+    assert np.all(fused.bar_length_error <= 1e-12) and np.all(fused.bar_length_error > 0)
+    np.testing.assert_allclose(fused.final_velocity, staged.final_velocity, rtol=0,
+                               atol=1e-10 * np.abs(staged.final_velocity).max())
+
+
+def test_lane_parallel_step_50_prisms(lanes):
+    """50 prisms (nb = 50 blocks: six CR levels) FB and RB, 32 lanes, few steps."""
+    lanes(32)
+    cfg = ColumnConfig(n_prisms=50)
+    params = {"base_rigidity": [0.0, 1.0], "v0": [0.1, 0.1], "prestrain": [0.002, 0.002]}
+    staged, fused = _pair(cfg, params, t_end=0.004, dt=5e-4)
+    assert np.all(staged.status == 0) and np.all(fused.status == 0)
+    for name in ("final_displacement", "final_velocity"):  # 8 steps: compare the end state
+        a, b = getattr(staged, name), getattr(fused, name)
+        scale = np.abs(a).max(axis=(1, 2))
+        rel = np.abs(b - a).max(axis=(1, 2)) / scale
+        assert np.all(scale > 0) and np.all(rel < 1e-10), (name, rel)
+    assert np.all(fused.bar_length_error <= 1e-12) and np.all(fused.bar_length_error > 0)
+
+
+def test_lane_parallel_step_fp32(lanes):
+    lanes(8)
+    cfg, params = COLUMNS["FB-RB-beta"]
+    staged, fused = _pair(cfg, params, precision="fp32")
+    scale = np.abs(staged.strain).max(axis=(1, 2))
+    rel = np.abs(fused.strain - staged.strain).max(axis=(1, 2)) / scale
+    assert np.all(rel < 1e-3), rel
+    assert np.all(fused.bar_length_error <= 1e-6)
+
+
+def test_fused_node_slots_are_the_types_slots():
+    from warp_tensegrity.kernels import common
+    from warp_tensegrity.types import Slot
+
+    assert common.NQ == len(Slot)
+    assert [int(c) for c in (common.U, common.V, common.A, common.P, common.I)] == [int(s) for s in Slot]
+
+
+def test_auto_path_policy_follows_the_measured_crossovers():
+    from warp_tensegrity import SettingsError
+    from warp_tensegrity.engine import FUSED_MAX_BANDWIDTH, FUSED_MAX_COLUMNS, FUSED_MAX_COLUMNS_WIDE, choose_path
+    from warp_tensegrity.types import Path
+
+    auto = RunSettings()
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS, 3) == Path.FUSED
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS + 1, 3) == Path.STAGED
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS_WIDE, 6) == Path.FUSED
+    assert choose_path(auto, True, FUSED_MAX_COLUMNS_WIDE + 1, 6) == Path.STAGED
+    assert choose_path(auto, False, 10**6, 6) == Path.FUSED  # CPU: one lane, no crossover measured
+    assert choose_path(auto, False, 4, FUSED_MAX_BANDWIDTH + 1) == Path.STAGED  # generic wide band
+    assert choose_path(RunSettings(method="rk4"), False, 4, 3) == Path.STAGED
+    with pytest.raises(SettingsError, match="Gram band is 12 wide"):
+        choose_path(RunSettings(fused=True), True, 4, 12)
+
+
+def test_lane_parallel_step_with_massive_bars(lanes):
+    """A free class-1 prism whose mass is in its bars: M^-1 couples each bar's two nodes, so lanes
+    read the impulses and forces their partner nodes' lanes wrote (the barrier between the
+    gather and the M^-1 pass)."""
+    from warp_tensegrity import Network, network_batch, run_batch
+    from warp_tensegrity.checks.reference import ReferenceSystem
+    from warp_tensegrity.scene.columns import build_column
+
+    lanes(4)
+    net = build_column(ColumnConfig(n_prisms=1), prestrain=0.01).network
+    free = Network(positions=net.positions, node_mass=0.0, fixed=False, bars=net.bars, bar_mass=0.01,
+                   cables=net.cables, cable_EA=net.cable_EA, cable_rest_length=net.cable_rest_length).validate()
+    v = ReferenceSystem(free).project_velocities(free.positions,
+                                                 np.random.default_rng(3).normal(scale=0.01, size=(free.n_nodes, 3)))
+    out = {}
+    for fused in (False, True):
+        s = RunSettings(t_end=0.02, dt=2.5e-4, fused=fused, output_interval=0.01, device="cpu")
+        out[fused] = run_batch(network_batch([free, free], [v, -v]), s)
+    a, b = out[False], out[True]
+    assert "4 lanes" in b.info["step_path"]
+    scale = np.abs(a.final_velocity).max()
+    assert scale > 1e-4
+    np.testing.assert_allclose(b.final_velocity, a.final_velocity, rtol=0, atol=1e-10 * scale)
+    np.testing.assert_allclose(b.final_displacement, a.final_displacement, rtol=0,
+                               atol=1e-10 * np.abs(a.final_displacement).max())
+    assert np.all(b.bar_length_error <= 1e-12)

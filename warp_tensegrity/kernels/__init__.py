@@ -1,0 +1,18 @@
+"""Warp kernels of the integrator step.
+
+* :mod:`.common`: the ``@wp.func`` bodies both paths share (cable law, per-column reads, Gram
+  rows, impulses, status codes), each written once;
+* :mod:`.staged`: one kernel per stage (per-node kernels and one thread per column for the
+  constraint solves); every method;
+* :mod:`.fused`: RATTLE as one kernel, a thread block per column, several steps per launch,
+  the constraint solve by block cyclic reduction across the block's lanes.
+"""
+
+from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK
+from .fused import FusedStep, make_fused_kernels, shared_plan, solver_reals
+from .staged import make_kernels, make_solver_kernels
+
+__all__ = [
+    "STATUS_CONSTRAINT", "STATUS_NONFINITE", "STATUS_OK", "FusedStep", "make_fused_kernels",
+    "shared_plan", "solver_reals", "make_kernels", "make_solver_kernels",
+]

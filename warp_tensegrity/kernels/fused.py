@@ -1,0 +1,683 @@
+"""Fused RATTLE step: one thread block per column, every lane through the whole step.
+
+A block owns a column for ``n_sub`` steps per launch. Its lanes take nodes (kick, drift, force
+gather, impulses), members (residuals, Gram rows) and blocks of the Gram matrix in turn
+(``for i in range(lane, n, block_dim)``); barriers are Warp's tile barrier (``__syncthreads()``).
+
+Constraint solve: with level-by-level constraint order the Gram matrix A = G M^-1 G^T is banded
+with half-bandwidth BW (3 FB, 6 RB), so rows grouped in chunks of S = max(BW, 1) make it block
+tridiagonal with S x S blocks, for any banded network. It is solved by block cyclic reduction
+(CR): level s = 1, 2, 4, ... eliminates the blocks i = s, 3s, 5s, ... (one lane each: the SPD
+block inverse by Gauss-Jordan, whose pivots are the Cholesky pivots, and W- = D^-1 E_i,
+W+ = D^-1 E_{i+s}^T), then every kept block j = 0, 2s, ... forms its Schur complement. CR is
+block Cholesky of the odd-even permuted SPD matrix, so it needs no pivoting; the stored
+reduction (D^-1, W-, W+ per block) is reused by every Newton iteration and the velocity
+projection: a solve is log2(nb) forward levels, the root, and log2(nb) backward levels, each one
+S x S mat-vec per lane. Same Newton / RATTLE semantics and tolerances as the staged path.
+
+On chip: the column's CR storage and node rows live in block shared memory when they fit
+(:func:`shared_plan`), else in per-column global rows (contiguous, so they stay in L1/L2); the
+canonical ``(n, B)`` state is read once and written once per launch. On the CPU a block has one
+lane unless ``wp.config.enable_cpu_blocks`` emulates the lanes (the tests do).
+"""
+
+import functools
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import warp as wp
+
+from .common import (
+    NQ,
+    STATUS_CONSTRAINT,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    A,
+    I,
+    P,
+    U,
+    V,
+    bar_residual,
+    finite3,
+    make_gram_row,
+    member_vec,
+    node_force,
+    node_impulse,
+    set_failure,
+)
+
+SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
+SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
+
+
+@wp.func_native("WP_TILE_SYNC();")
+def block_sync(): ...
+
+
+def block_size(bandwidth: int) -> int:
+    """S: rows per block of the block-tridiagonal Gram matrix."""
+    return max(int(bandwidth), 1)
+
+
+def solver_reals(n_constraints: int, bandwidth: int, block_dim: int) -> int:
+    """Reals of one column's solver rows: multipliers (nb S), then D^-1, E (two buffers), W-, W+
+    (nb S^2 each), then one reduction slot per lane."""
+    S = block_size(bandwidth)
+    nb = max(-(-n_constraints // S), 1)
+    return nb * S * (1 + 5 * S) + block_dim
+
+
+def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int, real_bytes: int,
+                budget: int | None = None) -> tuple[int, int]:
+    """(solver reals, node vectors) to place in block shared memory: the solver rows first (the
+    CR levels read them most), then the node rows, each only if it fits whole; 0 = global rows.
+    ``budget``: bytes (None: SHARED_BYTES_MAX)."""
+    budget = SHARED_BYTES_MAX if budget is None else budget
+    xs = solver_reals(n_constraints, bandwidth, block_dim) * real_bytes
+    qs = n_nodes * NQ * 3 * real_bytes
+    x_cap = solver_reals(n_constraints, bandwidth, block_dim) if xs <= budget else 0
+    q_cap = n_nodes * NQ if SHARED_NODES and x_cap * real_bytes + qs <= budget else 0
+    return x_cap, q_cap
+
+
+def _shared_snippet(ctype: str, n: int, name: str) -> str:
+    """Native body returning the address of a block-shared buffer of n ``ctype`` (``static`` on
+    the CPU: blocks run one after another there, and emulated lanes share it)."""
+    return f"""
+#if defined(__CUDA_ARCH__)
+    __shared__ {ctype} {name}[{max(n, 1)}];
+#else
+    static {ctype} {name}[{max(n, 1)}];
+#endif
+    return (uint64_t)(&{name}[0]);
+"""
+
+
+@functools.cache
+def make_block_funcs(real, S: int):
+    """S x S block helpers over a column's solver rows x (row-major blocks at an offset):
+    loads and stores of blocks, vectors and columns, streamed mat-vecs, the SPD block inverse."""
+    SS = S * S
+    mat = wp.types.matrix((S, S), real)
+    vecS = wp.types.vector(S, real)
+
+    @wp.func
+    def mload(x: wp.array2d(dtype=real), off: int):
+        m = mat()
+        for r in range(S):
+            for c in range(S):
+                m[r, c] = x[off + r * S + c, 0]
+        return m
+
+    @wp.func
+    def mstore(x: wp.array2d(dtype=real), off: int, m: mat):
+        for r in range(S):
+            for c in range(S):
+                x[off + r * S + c, 0] = m[r, c]
+
+    @wp.func
+    def vload(x: wp.array2d(dtype=real), off: int):
+        b = vecS()
+        for r in range(S):
+            b[r] = x[off + r, 0]
+        return b
+
+    @wp.func
+    def vstore(x: wp.array2d(dtype=real), off: int, b: vecS):
+        for r in range(S):
+            x[off + r, 0] = b[r]
+
+    @wp.func
+    def spd_inverse(a: mat):
+        """In-place Gauss-Jordan inverse of an SPD block; its pivots are the squared Cholesky
+        pivots, so ok = 0 exactly when a pivot is not positive (not positive definite)."""
+        ok = int(1)
+        for k in range(S):
+            p = a[k, k]
+            if not (p > real(0.0)):
+                ok = 0
+                p = real(1.0)
+            ip = real(1.0) / p
+            for j in range(S):
+                if j != k:
+                    a[k, j] = a[k, j] * ip
+            a[k, k] = ip
+            for i in range(S):
+                if i != k:
+                    f = a[i, k]
+                    for j in range(S):
+                        if j != k:
+                            a[i, j] = a[i, j] - f * a[k, j]
+                    a[i, k] = -f * ip
+        return a, ok
+
+    @wp.func
+    def col(x: wp.array2d(dtype=real), off: int, c: int):
+        """Column c of the block at off."""
+        v = vecS()
+        for r in range(S):
+            v[r] = x[off + r * S + c, 0]
+        return v
+
+    @wp.func
+    def col_store(x: wp.array2d(dtype=real), off: int, c: int, v: vecS):
+        for r in range(S):
+            x[off + r * S + c, 0] = v[r]
+
+    @wp.func
+    def mv(x: wp.array2d(dtype=real), off: int, v: vecS):
+        """(block at off) v, the block streamed from x row by row."""
+        y = vecS()
+        for r in range(S):
+            t = real(0.0)
+            for k in range(S):
+                t += x[off + r * S + k, 0] * v[k]
+            y[r] = t
+        return y
+
+    @wp.func
+    def mtv(x: wp.array2d(dtype=real), off: int, v: vecS):
+        """(block at off)^T v."""
+        y = vecS()
+        for k in range(S):
+            for r in range(S):
+                y[r] += x[off + k * S + r, 0] * v[k]
+        return y
+
+    return SimpleNamespace(mat=mat, vec=vecS, mload=mload, mstore=mstore, vload=vload, vstore=vstore,
+                           spd_inverse=spd_inverse, col=col, col_store=col_store, mv=mv, mtv=mtv)
+
+
+@functools.cache
+def make_cr_funcs(real, S: int):
+    """Block cyclic reduction of a block-tridiagonal SPD matrix with S x S blocks, lanes of a
+    block in parallel. Layout of the column's solver rows x: x[0 : nb S, 0] right-hand side /
+    solution, then at D, E, WM, WP (each nb S^2, row-major blocks): D_i (D_i^-1 once block i is
+    eliminated), E_i (the block coupling row-block i to i - s at the current level), W-_i, W+_i."""
+    SS = S * S
+    bf = make_block_funcs(real, S)
+    mload, mstore, vload, vstore, spd_inverse = bf.mload, bf.mstore, bf.vload, bf.vstore, bf.spd_inverse
+    col, col_store, mv, mtv = bf.col, bf.col_store, bf.mv, bf.mtv
+
+    @wp.func
+    def cr_factor(x: wp.array2d(dtype=real), nb: int, lane: int, bd: int):
+        """Reduce the assembled D, E in place. Returns this lane's ok flag (0: a pivot <= 0).
+        Per level: one lane per eliminated block inverts it; then one lane per (block, column)
+        forms that column of W-, W+ and, for the kept blocks, of the Schur complement and the
+        new coupling (written to the other E buffer: the old one is still being read)."""
+        D = nb * S
+        WM = D + 3 * nb * SS
+        WP = WM + nb * SS
+        cur = D + nb * SS
+        nxt = cur + nb * SS
+        ok = int(1)
+        s = int(1)
+        while s < nb:
+            n_el = (nb + s - 1) / (2 * s)  # eliminated i = s, 3s, ...
+            for q in range(lane, n_el, bd):
+                i = s * (2 * q + 1)
+                dinv, okq = spd_inverse(mload(x, D + i * SS))
+                ok = wp.min(ok, okq)
+                mstore(x, D + i * SS, dinv)
+            block_sync()
+            for t in range(lane, n_el * S, bd):
+                q = t / S
+                c = t - q * S
+                i = s * (2 * q + 1)
+                col_store(x, WM + i * SS, c, mv(x, D + i * SS, col(x, cur + i * SS, c)))
+                if i + s < nb:  # W+ column c: D_i^-1 (row c of E_{i+s})
+                    col_store(x, WP + i * SS, c, mv(x, D + i * SS, vload(x, cur + (i + s) * SS + c * S)))
+            block_sync()
+            for t in range(lane, ((nb + 2 * s - 1) / (2 * s)) * S, bd):  # kept j = 0, 2s, ...
+                q = t / S
+                c = t - q * S
+                j = 2 * s * q
+                d = col(x, D + j * SS, c)
+                if j > 0:
+                    d = d - mv(x, cur + j * SS, col(x, WP + (j - s) * SS, c))
+                    col_store(x, nxt + j * SS, c, -mv(x, cur + j * SS, col(x, WM + (j - s) * SS, c)))
+                if j + s < nb:
+                    d = d - mtv(x, cur + (j + s) * SS, col(x, WM + (j + s) * SS, c))
+                col_store(x, D + j * SS, c, d)
+            block_sync()
+            tmp = cur
+            cur = nxt
+            nxt = tmp
+            s = s * 2
+        if lane == 0:
+            dinv, okq = spd_inverse(mload(x, D))
+            ok = wp.min(ok, okq)
+            mstore(x, D, dinv)
+        return ok
+
+    @wp.func
+    def cr_solve(x: wp.array2d(dtype=real), nb: int, lane: int, bd: int):
+        """Solve A y = x[0 : nb S, 0] in place with the stored reduction; ends with a barrier."""
+        D = nb * S
+        WM = D + 3 * nb * SS
+        WP = WM + nb * SS
+        s = int(1)
+        while s < nb:  # forward: kept blocks take the eliminated neighbours' right-hand sides
+            for q in range(lane, (nb + 2 * s - 1) // (2 * s), bd):
+                j = 2 * s * q
+                b = vload(x, j * S)
+                if j > 0:
+                    b = b - wp.transpose(mload(x, WP + (j - s) * SS)) @ vload(x, (j - s) * S)
+                if j + s < nb:
+                    b = b - wp.transpose(mload(x, WM + (j + s) * SS)) @ vload(x, (j + s) * S)
+                vstore(x, j * S, b)
+            block_sync()
+            s = s * 2
+        if lane == 0:
+            vstore(x, 0, mload(x, D) @ vload(x, 0))
+        block_sync()
+        s = s / 2
+        while s >= 1:  # backward: eliminated blocks from their solved neighbours
+            for q in range(lane, (nb + s - 1) // (2 * s), bd):
+                i = s * (2 * q + 1)
+                y = mload(x, D + i * SS) @ vload(x, i * S) - mload(x, WM + i * SS) @ vload(x, (i - s) * S)
+                if i + s < nb:
+                    y = y - mload(x, WP + i * SS) @ vload(x, (i + s) * S)
+                vstore(x, i * S, y)
+            block_sync()
+            s = s / 2
+
+    return SimpleNamespace(cr_factor=cr_factor, cr_solve=cr_solve, mat=bf.mat, vec=bf.vec)
+
+
+@functools.cache
+def make_node_funcs(real):
+    """The model struct and the node passes of the fused step (lanes over nodes), plus the
+    block reduction."""
+    vec = wp.types.vector(3, real)
+
+    @wp.struct
+    class ColumnModel:
+        """Topology and per-column parameters (shapes and units: :class:`warp_tensegrity.model.Model`)."""
+        con_i: wp.array(dtype=int)
+        con_j: wp.array(dtype=int)
+        con_dref: wp.array(dtype=vec)
+        con_L: wp.array(dtype=real)
+        con_active: wp.array2d(dtype=real)
+        cpl_start: wp.array(dtype=int)
+        cpl_l: wp.array(dtype=int)
+        cpl_a: wp.array(dtype=int)
+        cpl_cross: wp.array(dtype=int)
+        cpl_sign: wp.array(dtype=real)
+        ncon_start: wp.array(dtype=int)
+        ncon_member: wp.array(dtype=int)
+        cab_EA: wp.array2d(dtype=real)
+        cab_EAc: wp.array2d(dtype=real)
+        cab_L: wp.array2d(dtype=real)
+        node_start: wp.array(dtype=int)
+        node_member: wp.array(dtype=int)
+        node_other: wp.array(dtype=int)
+        node_dref: wp.array(dtype=vec)
+        partner: wp.array(dtype=int)
+        minv_self: wp.array2d(dtype=real)
+        minv_cross: wp.array2d(dtype=real)
+
+    @wp.func
+    def block_max(x: wp.array2d(dtype=real), red: int, v: real, lane: int, bd: int):
+        """Max of v over the block's lanes (NaN wins), the same on every lane."""
+        x[red + lane, 0] = v
+        block_sync()
+        m = x[red, 0]
+        for t in range(1, bd):
+            y = x[red + t, 0]
+            if wp.isnan(y) or y > m:
+                m = y
+        block_sync()
+        return m
+
+    @wp.func
+    def minv_apply(m: ColumnModel, q: wp.array2d(dtype=vec), n: int, ws: int, wx: int):
+        """(M^-1 g)_n for the per-node vectors g in slot I."""
+        dn = q[n, I] * m.minv_self[n, ws]
+        p = m.partner[n]
+        if p >= 0:
+            dn = dn + q[p, I] * m.minv_cross[n, wx]
+        return dn
+
+    @wp.func
+    def gather_kick(m: ColumnModel, q: wp.array2d(dtype=vec), kick: real, w: int, lane: int, bd: int):
+        """A = M^-1 f(U); V += kick A. Forces go through slot I first, so each is evaluated once."""
+        nn = m.partner.shape[0]
+        wE = w % m.cab_EA.shape[1]
+        wC = w % m.cab_EAc.shape[1]
+        wL = w % m.cab_L.shape[1]
+        ws = w % m.minv_self.shape[1]
+        wx = w % m.minv_cross.shape[1]
+        for n in range(lane, nn, bd):
+            q[n, I] = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc,
+                                 m.cab_L, q, n, U, wE, wC, wL)
+        block_sync()
+        for n in range(lane, nn, bd):
+            acc = minv_apply(m, q, n, ws, wx)
+            q[n, A] = acc
+            q[n, V] = q[n, V] + acc * kick
+        block_sync()
+
+    @wp.func
+    def apply_impulse(m: ColumnModel, q: wp.array2d(dtype=vec), g_slot: int, x: wp.array2d(dtype=real),
+                      scale_u: real, scale_v: real, w: int, lane: int, bd: int):
+        """d = M^-1 G(u in g_slot)^T lam (lam = x[0:nc, 0]); U -= scale_u d; V -= scale_v d."""
+        nn = m.partner.shape[0]
+        ws = w % m.minv_self.shape[1]
+        wx = w % m.minv_cross.shape[1]
+        for n in range(lane, nn, bd):
+            q[n, I] = node_impulse(m.con_i, m.con_j, m.con_dref, m.ncon_start, m.ncon_member, q, g_slot, x, 0, n)
+        block_sync()
+        for n in range(lane, nn, bd):
+            dn = minv_apply(m, q, n, ws, wx)
+            if scale_u != real(0.0):
+                q[n, U] = q[n, U] - dn * scale_u
+            q[n, V] = q[n, V] - dn * scale_v
+        block_sync()
+
+    return SimpleNamespace(ColumnModel=ColumnModel, block_max=block_max, gather_kick=gather_kick,
+                           apply_impulse=apply_impulse, vec=vec)
+
+
+@functools.cache
+def make_column_funcs(real, bandwidth: int):
+    """The fused step's constraint pieces over the model struct ``ColumnModel``: Gram assembly into
+    blocks with the CR factor, and the position and velocity projections."""
+    vec = wp.types.vector(3, real)
+    BW = int(bandwidth)
+    S = block_size(BW)
+    SS = S * S
+    LD = BW + 1
+    gram_row, rowvec = make_gram_row(real, BW)
+    cr = make_cr_funcs(real, S)
+
+    nf = make_node_funcs(real)
+    ColumnModel, block_max, apply_impulse = nf.ColumnModel, nf.block_max, nf.apply_impulse
+
+    @wp.func
+    def factor_gram(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
+                    w: int, lane: int, bd: int):
+        """Rows of A(U) into the blocks D_i, E_i (lane per row), then CR. True if A is SPD."""
+        nc = m.con_i.shape[0]
+        nb = (nc + S - 1) // S
+        D = nb * S
+        E = D + nb * SS
+        wa = w % m.con_active.shape[1]
+        ws = w % m.minv_self.shape[1]
+        wx = w % m.minv_cross.shape[1]
+        for k in range(lane, nb * S, bd):
+            r = rowvec()
+            if k < nc:
+                r = gram_row(m.con_i, m.con_j, m.con_dref, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a,
+                             m.cpl_cross, m.cpl_sign, m.minv_self, m.minv_cross, q, U, k, wa, ws, wx)
+            else:  # padding row of the last block: identity
+                r[0] = real(1.0)
+            i = k / S
+            rr = k - i * S
+            for c in range(S):
+                x[E + i * SS + rr * S + c, 0] = real(0.0)
+            for d in range(LD):
+                c = rr - d  # column of A[k, k-d] within block i, or within block i-1 if negative
+                if c >= 0:
+                    x[D + i * SS + rr * S + c, 0] = r[d]
+                    x[D + i * SS + c * S + rr, 0] = r[d]
+                elif i > 0:
+                    x[E + i * SS + rr * S + c + S, 0] = r[d]
+        block_sync()
+        bad = real(1.0) - real(cr.cr_factor(x, nb, lane, bd))
+        return block_max(x, red, bad, lane, bd) < real(0.5)
+
+    @wp.func
+    def project_velocities(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
+                           w: int, lane: int, bd: int):
+        """V -= M^-1 G^T lam with A lam = G V (x holds the reduction of A(U)). True if V is finite."""
+        nc = m.con_i.shape[0]
+        nb = (nc + S - 1) // S
+        wa = w % m.con_active.shape[1]
+        for k in range(lane, nb * S, bd):
+            r = real(0.0)
+            if k < nc:
+                if m.con_active[k, wa] > real(0.0):
+                    r = wp.dot(member_vec(m.con_dref, m.con_i, m.con_j, q, k, U),
+                               q[m.con_j[k], V] - q[m.con_i[k], V])
+            x[k, 0] = r
+        block_sync()
+        cr.cr_solve(x, nb, lane, bd)
+        apply_impulse(m, q, U, x, real(0.0), real(1.0), w, lane, bd)
+        bad = real(0.0)
+        for n in range(lane, m.partner.shape[0], bd):
+            if not finite3(q[n, V]):
+                bad = real(1.0)
+        return block_max(x, red, bad, lane, bd) < real(0.5)
+
+    @wp.func
+    def project_positions(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
+                          tol: real, max_iter: int, h: real, w: int, lane: int, bd: int):
+        """Simplified Newton onto |b_k| = L_k along M^-1 G(P)^T (x: reduction of A(P)); V gets
+        the RATTLE update. Returns (max relative bar error, iterations)."""
+        nc = m.con_i.shape[0]
+        nb = (nc + S - 1) // S
+        wa = w % m.con_active.shape[1]
+        err = real(0.0)
+        prev = real(0.0)
+        it = int(0)
+        while nc > 0:
+            prev = err
+            e_lane = real(0.0)
+            for k in range(lane, nb * S, bd):
+                r = real(0.0)
+                if k < nc:
+                    if m.con_active[k, wa] > real(0.0):
+                        r, e = bar_residual(member_vec(m.con_dref, m.con_i, m.con_j, q, k, U), m.con_L[k])
+                        if wp.isnan(e) or e > e_lane:
+                            e_lane = e
+                x[k, 0] = r
+            err = block_max(x, red, e_lane, lane, bd)
+            if err <= tol or it >= max_iter:
+                break
+            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
+                break  # stalled at round-off just above tol
+            cr.cr_solve(x, nb, lane, bd)
+            apply_impulse(m, q, P, x, real(1.0), real(1.0) / h, w, lane, bd)
+            it += 1
+        return err, it
+
+    return SimpleNamespace(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=factor_gram,
+                           project_velocities=project_velocities, project_positions=project_positions, vec=vec)
+
+
+@functools.cache
+def make_step_funcs(real, bandwidth: int):
+    """The RATTLE steps of one launch over the lanes' pieces (:func:`make_column_funcs`)."""
+    f = make_column_funcs(real, bandwidth)
+    vec, ColumnModel = f.vec, f.ColumnModel
+
+    @wp.func
+    def first_factor(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int, init: int,
+                     s0: int, status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
+        """init = 1: make V admissible and compute A(U), returns 0 steps to take; else factor A(U)
+        for the first position projection (shared memory does not outlive a launch: the same
+        numbers as the previous launch's last factor). Returns False on failure."""
+        if m.con_i.shape[0] > 0:
+            if not f.factor_gram(m, q, x, red, w, lane, bd):
+                if lane == 0:
+                    set_failure(status, fail_step, w, STATUS_CONSTRAINT, s0 + 1)
+                return False
+            if init != 0:
+                f.project_velocities(m, q, x, red, w, lane, bd)
+        if init != 0:
+            f.gather_kick(m, q, real(0.0), w, lane, bd)
+        return True
+
+    @wp.func
+    def rattle_steps(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
+                     tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, s0: int,
+                     status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
+        """n_sub RATTLE steps (x holds the reduction of A(U) on entry). Returns (worst bar error,
+        most Newton iterations)."""
+        nn = m.partner.shape[0]
+        nc = m.con_i.shape[0]
+        half = real(0.5) * h
+        worst = real(0.0)
+        most = int(0)
+        for sub in range(n_sub):
+            for n in range(lane, nn, bd):  # kick and drift
+                vn = q[n, V] + q[n, A] * half
+                q[n, V] = vn
+                un = q[n, U]
+                q[n, P] = un
+                q[n, U] = un + vn * h
+            block_sync()
+            err, it = f.project_positions(m, q, x, red, tol, max_iter, h, w, lane, bd)
+            most = wp.max(most, it)
+            if err > worst:
+                worst = err
+            code = int(STATUS_OK)
+            if not wp.isfinite(err):
+                code = STATUS_NONFINITE
+            elif err > fail_tol:
+                code = STATUS_CONSTRAINT
+            else:
+                f.gather_kick(m, q, half, w, lane, bd)  # force, second half kick
+                if nc > 0:  # velocity projection at the new positions
+                    if not f.factor_gram(m, q, x, red, w, lane, bd):
+                        code = STATUS_CONSTRAINT
+                    elif not f.project_velocities(m, q, x, red, w, lane, bd):
+                        code = STATUS_NONFINITE
+            if code != STATUS_OK:
+                if lane == 0:
+                    set_failure(status, fail_step, w, code, s0 + sub + 1)
+                break
+        return worst, most
+
+    return SimpleNamespace(first_factor=first_factor, rattle_steps=rattle_steps, ColumnModel=ColumnModel, vec=vec)
+
+
+@functools.cache
+def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
+    """The fused kernel for scalar type ``real`` and Gram half-bandwidth ``bandwidth``, with
+    ``x_cap`` solver reals and ``q_cap`` node vectors in block shared memory (0: in the global
+    rows ``sx[w]``, ``sq[w]``)."""
+    st = make_step_funcs(real, bandwidth)
+    vec, ColumnModel = st.vec, st.ColumnModel
+    ctype = "double" if real == wp.float64 else "float"
+
+    # Warp keys functions by name: one native function of its own name per buffer
+    @wp.func_native(_shared_snippet(ctype, x_cap, "wt_solver"))
+    def xptr() -> wp.uint64: ...
+
+    @wp.func_native(_shared_snippet(ctype, 3 * q_cap, "wt_nodes"))
+    def qptr() -> wp.uint64: ...
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def rattle_columns(
+        # Model:
+        m: ColumnModel, tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, init: int,
+        step: wp.array(dtype=int),
+        # Data in/out:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
+        bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+        # Scratch, one row per column unless in shared memory:
+        sq: wp.array3d(dtype=vec), sx: wp.array3d(dtype=real),
+    ):
+        """n_sub RATTLE steps of size h for column w (init = 1: make v admissible and compute a(u)
+        instead)."""
+        w, lane = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        bd = wp.block_dim()
+        if wp.static(x_cap > 0):
+            x = wp.array(ptr=xptr(), shape=(x_cap, 1), dtype=real)
+        else:
+            x = sx[w]
+        if wp.static(q_cap > 0):
+            q = wp.array(ptr=qptr(), shape=(q_cap // NQ, NQ), dtype=vec)
+        else:
+            q = sq[w]
+        red = x.shape[0] - bd
+        nn = u.shape[0]
+        for n in range(lane, nn, bd):
+            q[n, U] = u[n, w]
+            q[n, V] = v[n, w]
+            q[n, A] = a[n, w]
+        block_sync()
+        s0 = step[0]
+        if init == 0 and n_sub == 0:
+            return
+        if not st.first_factor(m, q, x, red, init, s0, status, fail_step, w, lane, bd):
+            return
+        if init == 0:
+            worst, most = st.rattle_steps(m, q, x, red, tol, max_iter, fail_tol, h, n_sub, s0, status, fail_step,
+                                          w, lane, bd)
+            if lane == 0:
+                iters[w] = wp.max(iters[w], most)
+                if worst > bar_err[w]:
+                    bar_err[w] = worst
+        for n in range(lane, nn, bd):
+            u[n, w] = q[n, U]
+            v[n, w] = q[n, V]
+            a[n, w] = q[n, A]
+        block_sync()  # CPU fibers may start the next block as lanes finish: its loads must wait for our stores
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def advance_counter_by(step: wp.array(dtype=int), n: int):
+        step[0] = step[0] + n
+
+    return SimpleNamespace(real=real, vec=vec, ColumnModel=ColumnModel, rattle_columns=rattle_columns,
+                           advance_counter_by=advance_counter_by)
+
+
+@dataclass
+class FusedStep:
+    """Scratch and launches of the fused step for one model on one device; the Integrator calls
+    :meth:`launch` (n_sub steps or the initialisation) and :meth:`advance_counter`."""
+
+    model: object  # warp_tensegrity.model.Model
+    device: object  # wp.context.Device
+    block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
+    shared: bool = True  # solver / node rows in block shared memory where they fit
+
+    def __post_init__(self):
+        m = self.model
+        real = wp.float64 if m.precision == "fp64" else wp.float32
+        rb = 8 if real == wp.float64 else 4
+        self.x_cap, self.q_cap = (shared_plan(m.n_nodes, m.n_constraints, m.bandwidth, self.block_dim, rb)
+                                  if self.shared else (0, 0))
+        self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap)
+        k, B, d = self.kernels, m.n_columns, m.device
+        nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim)
+        self.sx = wp.zeros((1, 1, 1) if self.x_cap else (B, nx, 1), dtype=real, device=d)
+        self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
+        cm = k.ColumnModel()
+        for name in _STRUCT_FIELDS:
+            setattr(cm, name, getattr(m, name))
+        self.cm = cm
+        self.real = real
+
+    @property
+    def description(self) -> str:
+        where = ("shared" if self.x_cap else "global") + "/" + ("shared" if self.q_cap else "global")
+        return f"fused (block cyclic reduction, {self.block_dim} lanes per column; solver/node rows {where})"
+
+    def load(self):
+        self.kernels.rattle_columns.module.load(self.device, self.block_dim)
+        self.kernels.advance_counter_by.module.load(self.device, 1 if not self.device.is_cuda else 256)
+
+    def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
+        r = self.real
+        wp.launch_tiled(self.kernels.rattle_columns, dim=[self.model.n_columns], block_dim=self.block_dim,
+                        device=self.device, inputs=[
+                            self.cm, r(settings.tolerance), int(settings.max_projection_iters),
+                            r(settings.failure_bar_error), r(dt), int(n_sub), int(init), data.step,
+                            data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
+                            self.sq, self.sx])
+
+    def advance_counter(self, data, n: int):
+        wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device,
+                  block_dim=1 if not self.device.is_cuda else 256)
+
+
+_STRUCT_FIELDS = ("con_i", "con_j", "con_dref", "con_L", "con_active", "cpl_start", "cpl_l", "cpl_a", "cpl_cross",
+                  "cpl_sign", "ncon_start", "ncon_member", "cab_EA", "cab_EAc", "cab_L", "node_start", "node_member",
+                  "node_other", "node_dref", "partner", "minv_self", "minv_cross")
