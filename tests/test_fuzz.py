@@ -96,23 +96,24 @@ PARAM_RULES = {
 _POS_INT = lambda x: _integral(x) and x >= 1  # noqa: E731
 _BOOL = lambda x: isinstance(x, bool)  # noqa: E731
 RUN_RULES = {
-    "t_end": lambda x: _real(x) and x > 0,
-    "dt": lambda x: x == "auto" or (_real(x) and x > 0),
-    "output_interval": lambda x: x == "auto" or (_real(x) and x > 0),
+    # times: a femtosecond to ~30 years
+    "t_end": lambda x: _real(x) and 0 < x <= 1e9,
+    "dt": lambda x: x == "auto" or (_real(x) and x >= 1e-15),
+    "output_interval": lambda x: x == "auto" or (_real(x) and x >= 1e-15),
     "method": lambda x: x in ("rattle", "rk4", "yoshida4", "symplectic_euler"),
     "precision": lambda x: x in ("fp32", "fp64"),
     "device": lambda x: x in ("cpu", "auto"),  # this machine; cuda is checked by the engine
     "shard_size": _POS_INT,
     "record_strain": _BOOL,
     "record_energy": _BOOL,
-    "dt_safety": lambda x: _real(x) and 0 < x <= 0.5,  # strong impacts lower the limit to ~0.45
+    "dt_safety": lambda x: _real(x) and 1e-6 <= x <= 0.5,  # strong impacts lower the limit to ~0.45
     "allow_unstable_dt": _BOOL,
     "projection_tol": lambda x: _real(x) and 0 < x < 1e-2,
     "max_projection_iters": _POS_INT,
     "failure_bar_error": lambda x: _real(x) and x > 0,
     "steps_per_graph": _POS_INT,
     "fused": lambda x: x is True or x is False or x == "auto",
-    "accuracy": lambda x: _real(x) and 0 < x < 1,
+    "accuracy": lambda x: _real(x) and 1e-15 <= x < 1,  # not below fp64 round-off
     "truncate": _BOOL,
 }
 
@@ -289,7 +290,9 @@ def _report(cls: str, minimum: int):
 @fuzz("spec values")
 @given(target=st.sampled_from(VALUE_TARGETS), value=NASTY)
 # the named cases of the issue, always run beside the generated ones
-@example(target=("run", "dt"), value=1e-300)  # absurd dt: 2e298 steps, refused by the estimate
+@example(target=("run", "dt"), value=1e-300)  # below a femtosecond: refused by the model
+@example(target=("run", "dt"), value=1e-14)  # absurd dt: 2e12 steps, refused by the estimate
+@example(target=("run", "dt_safety"), value=2.225073858507203e-309)  # subnormal: overflowed the estimate
 @example(target=("run", "dt"), value=1e300)
 @example(target=("run", "t_end"), value=1e300)
 @example(target=("run", "output_interval"), value=1e-300)

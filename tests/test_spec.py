@@ -176,13 +176,13 @@ def test_scene_field_cannot_be_swept():
         (spec_text(scene='n_prisms = 6\nhandedness = "RRL"'), ["scene.handedness", "RRL"]),
         (spec_text(scene='n_prisms = 6\nend_base_mass = "halve"'), ["scene.end_base_mass", "did you mean 'half'"]),
         (spec_text(run='dt = "fast"'), ["run.dt", "'fast'", "auto"]),
-        (spec_text(run="dt = 0"), ["run.dt", "0", "> 0"]),
-        (spec_text(run="t_end = -1.0"), ["run.t_end", "-1.0", "> 0"]),
+        (spec_text(run="dt = 0"), ["run.dt", "0", ">= 1e-15 [s]"]),
+        (spec_text(run="t_end = -1.0"), ["run.t_end", "-1.0", "in (0, 1e+09] [s]"]),
         (spec_text(run="t_end = 0.1\ndt = 0.5"), ["run.dt", "0.5", "t_end"]),
         (spec_text(run="t_end = 0.1\nshard_size = 0"), ["run.shard_size", "0", "positive integer"]),
         (spec_text(run="t_end = 0.1\nrecord_strain = 1"), ["run.record_strain", "true or false"]),
         (spec_text(run='t_end = 0.1\ndevice = "gpu"'), ["run.device", "'gpu'", "cuda:N"]),
-        (spec_text(run="t_end = 0.1\ndt_safety = 2.0"), ["run.dt_safety", "2.0", "(0, 0.5]"]),
+        (spec_text(run="t_end = 0.1\ndt_safety = 2.0"), ["run.dt_safety", "2.0", "[1e-06, 0.5]"]),
     ],
 )
 def test_bad_value_names_key_path_and_value(text, fragments):

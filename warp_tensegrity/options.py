@@ -42,6 +42,9 @@ PRECISIONS = ("fp32", "fp64")
 # any laboratory or built tensegrity column, narrow enough that derived quantities stay normal floats.
 MASS = (1e-15, 1e6)  # kg: unit and bar masses
 MAX_EA = 1e20  # N
+# Times (s): a femtosecond to ~30 years. Outside, step and output counts overflow float64 in the
+# estimate; inside, the estimate refuses what will not finish (sweep.budget).
+MIN_TIME, MAX_TIME = 1e-15, 1e9
 
 
 # ---------------------------------------------------------------------- errors
@@ -336,9 +339,9 @@ def check_column_param(name: str, values, error: type[ValueError] = OptionError)
 class RunSettings:
     """How to integrate a batch, and (sweeps) how to store it (SI units)."""
 
-    t_end: Annotated[float, Opt("real", "s", gt=0)] = 1.0
+    t_end: Annotated[float, Opt("real", "s", gt=0, le=MAX_TIME, why="about 30 years of simulated time")] = 1.0
     """Simulated time [s]."""
-    dt: Annotated[float | Literal["auto"], Opt("real", "s", gt=0, special=(("auto", "auto"),))] = "auto"
+    dt: Annotated[float | Literal["auto"], Opt("real", "s", ge=MIN_TIME, special=(("auto", "auto"),))] = "auto"
     """Time step [s], <= t_end; 'auto': the largest step <= dt_safety x the method's stability limit
     that divides the output interval."""
     method: Annotated[str, Opt("choice", choices=METHODS)] = "rattle"
@@ -346,7 +349,7 @@ class RunSettings:
     RK4 with projection), 'yoshida4' (RATTLE triple-jump composition), 'symplectic_euler'."""
     precision: Annotated[str, Opt("choice", choices=PRECISIONS)] = "fp64"
     """Floating point of the state: 'fp32' or 'fp64'."""
-    output_interval: Annotated[float | None, Opt("real", "s", gt=0, optional=True, special=(("auto", None),))] = None
+    output_interval: Annotated[float | None, Opt("real", "s", ge=MIN_TIME, optional=True, special=(("auto", None),))] = None
     """Time between recorded outputs [s], <= t_end; None ('auto'): t_end / 200."""
     record_strain: Annotated[bool, Opt("bool")] = True
     """Keep the prism strain history (n_out x n_prisms per column) in the result and the dataset
@@ -358,7 +361,7 @@ class RunSettings:
     """Warp device ('cpu', 'cuda:0'); None ('auto'): the GPU if there is one, else the CPU."""
     shard_size: Annotated[int, Opt("int", "1", ge=1)] = 256
     """Columns per shard of a sweep (one engine batch, one file); not part of the fingerprint."""
-    dt_safety: Annotated[float | None, Opt("real", "1", gt=0, le=0.5, optional=True, default_text="from the default accuracy",
+    dt_safety: Annotated[float | None, Opt("real", "1", ge=1e-6, le=0.5, optional=True, default_text="from the default accuracy",
                                            why="strong impacts lower the stability limit to ~0.45 of the prediction")] = None
     """Fraction of the predicted stability limit used when dt = 'auto'; None (not given, and no
     accuracy): the fraction the error model gives for :data:`~warp_tensegrity.engine.DEFAULT_ACCURACY`
@@ -386,8 +389,9 @@ class RunSettings:
     wider Gram bands, RB) where the staged kernels stream faster, and for Gram bands wider than
     ``FUSED_MAX_BANDWIDTH`` (generic networks). Both paths give the same numbers to round-off (not
     part of the fingerprint)."""
-    accuracy: Annotated[float | None, Opt("real", "1", gt=0, lt=1, optional=True,
-                                          why="the relative error wanted on pulse speed and amplitude")] = None
+    accuracy: Annotated[float | None, Opt("real", "1", ge=1e-15, lt=1, optional=True,
+                                          why="the relative error wanted on pulse speed and amplitude, "
+                                              "not below fp64 round-off")] = None
     """Target relative error of the pulse measures (speed, amplitude). When given, the engine
     chooses method, precision and dt from the measured work-precision curves
     (:mod:`warp_tensegrity.engine`) and says what it chose in ``BatchResult.info['choices']``."""
