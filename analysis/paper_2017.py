@@ -32,9 +32,9 @@
 #
 # | variable | default | meaning |
 # |---|---|---|
-# | `WT_PAPER_NC` | `analysis/data/paper_2017.nc` | output of `warp-tensegrity run sweeps/paper_2017.toml`; made (CPU, ~15 s) if missing |
-# | `WT_FIG_DIR` | `analysis/figures` | where the PNGs go |
-# | `WT_DATA_DIR` | `analysis/data` | where the CSVs this notebook writes go (the stored studies are always read from `analysis/data`) |
+# | `WT_PAPER_NC` | `analysis/output/paper_2017.nc` | output of `warp-tensegrity run sweeps/paper_2017.toml`; made (CPU, ~15 s) if missing |
+# | `WT_FIG_DIR` | `analysis/output/figures` | where the PNGs go (`analysis/output/` is git-ignored: a run never rewrites tracked files) |
+# | `WT_DATA_DIR` | `analysis/output/data` | where the CSVs this notebook writes go (the stored studies are always read from `analysis/data`) |
 # | `WT_PAPER_RECOMPUTE` | `0` | `1`: rerun the side studies (~3 min on 2 CPU cores) instead of reading `analysis/data/paper_2017_*.csv` |
 # | `WT_DEVICE` | `cpu` | Warp device for anything this notebook runs |
 
@@ -57,12 +57,11 @@ P.use_style()
 pd.set_option("display.width", 200)
 pd.set_option("display.max_columns", 40)
 
-NC = P.ensure_sweep(P.input_path("WT_PAPER_NC", "analysis/data/paper_2017.nc"), "sweeps/paper_2017.toml")
+NC = P.ensure_sweep(P.input_path("WT_PAPER_NC", f"{P.OUTPUT_DIR}/paper_2017.nc"), "sweeps/paper_2017.toml")
 DATA = P.repo_root() / "analysis" / "data"  # stored side-study results (read)
-OUT = P.input_path("WT_DATA_DIR", "analysis/data")  # what this run writes
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = P.output_dir("WT_DATA_DIR", "data")  # what this run writes (git-ignored by default)
 RECOMPUTE = os.environ.get("WT_PAPER_RECOMPUTE", "0") == "1"
-ds = xr.open_dataset(NC).load()
+ds = P.open_sweep(NC)
 H = float(ds.attrs["scene_height"])
 print(NC)
 print({k: ds.attrs[k] for k in ("code_version", "device", "precision", "method", "dt", "t_end", "output_interval")})
@@ -123,7 +122,7 @@ for fig_no, spec in FIGS.items():
 # %%
 from warp_tensegrity.measure import measure_pulse
 
-meas = measure_pulse(ds.strain.values, ds.time.values, H)
+meas = measure_pulse(ds.strain.values, ds.t.values, H)
 fig, axes = plt.subplots(4, 3, figsize=(11, 12.5), sharex=True)
 spacetime_meshes = {}
 for ax, c, k in zip(axes.flat, P.PAPER_2017, idx):
@@ -345,7 +344,7 @@ L_bar = float(np.linalg.norm(topo.positions[topo.bars[0, 1]] - topo.positions[to
 a_r = float(ds.attrs["scene_radius"])
 h_min = np.sqrt(L_bar**2 - 4 * a_r**2)
 eps_lock = (h_min - H) / h_min
-rb_max = (-ds.strain.isel(case=idx[9:])).max(("time", "prism")).values
+rb_max = (-ds.strain.isel(case=idx[9:])).max(("t", "prism")).values
 print(f"bar length L = {L_bar * 1e3:.4f} mm, h_min = {h_min * 1e3:.4f} mm, lock strain = {eps_lock:.5f}"
       f" ((h - h0)/h0 = {(h_min - H) / H:.5f})")
 print("largest compression anywhere, any time, RB p=0.002 cases:", np.round(rb_max, 5),
@@ -475,7 +474,7 @@ print(dt_change.round(4))
 
 sampling = []
 for step in (1, 2, 5):
-    m = measure_pulse(ds.strain.values[:, ::step], ds.time.values[::step], H)
+    m = measure_pulse(ds.strain.values[:, ::step], ds.t.values[::step], H)
     sampling.append(pd.DataFrame({"figure": [c.figure for c in P.PAPER_2017], "output interval [s]": 0.01 * step,
                                   "amplitude": m["amplitude"][idx], "speed": m["speed"][idx]}))
 sampling = pd.concat(sampling).pivot(index="figure", columns="output interval [s]")

@@ -27,7 +27,7 @@
 # | `WT_PHASE_NC` | `analysis/data/phase_large.nc` | the grid sweep (relative paths: from the repository root) |
 # | `WT_PHASE_FALLBACK_SPEC` | `sweeps/ci_small.toml` | run (CPU, seconds) when `WT_PHASE_NC` does not exist |
 # | `WT_PHASE_FALLBACK_NC` | `<tmp>/warp_tensegrity/phase_fallback.nc` | where that fallback run goes |
-# | `WT_FIG_DIR` | `analysis/figures` (fallback data: `<tmp>/warp_tensegrity/figures`) | where the PNGs go |
+# | `WT_FIG_DIR` | `analysis/output/figures` (git-ignored; fallback data: `<tmp>/warp_tensegrity/figures`) | where the PNGs go |
 # | `WT_DEVICE` | `cpu` | Warp device of the fallback run and of the strain cross-check |
 # | `WT_PHASE_RERUN` | `1` | `0` skips the strain cross-check (a few cells run again with the strain recorded; ~25 s on 2 CPU cores for phase_large) |
 
@@ -59,7 +59,7 @@ if FALLBACK:
                         os.environ.get("WT_PHASE_FALLBACK_SPEC", "sweeps/ci_small.toml"))
     os.environ.setdefault("WT_FIG_DIR", str(tmp / "figures"))  # never overwrite the real figures
     print("input missing: using the fallback sweep", NC)
-ds = xr.open_dataset(NC).load()
+ds = P.open_sweep(NC)
 print(NC, "| figures ->", P.figure_dir())
 print(ds.attrs.get("title"), "|", {k: ds.attrs.get(k) for k in ("n_columns", "device", "t_end", "output_interval")})
 print({d: ds.sizes[d] for d in P.GRID_DIMS}, "| status != 0:", int((ds.status != 0).sum()))

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +36,8 @@ __all__ = [
     "repo_root",
     "input_path",
     "figure_dir",
+    "output_dir",
+    "open_sweep",
     "ensure_sweep",
     "use_style",
     "save_figure",
@@ -78,8 +79,31 @@ try:  # the notebooks also run from a plain checkout (package not installed)
 except ImportError:  # pragma: no cover
     sys.path.insert(0, str(REPO_ROOT))
 
+from warp_tensegrity import plot as W  # noqa: E402  (the package's plot API draws every figure)
+from warp_tensegrity.settings import TIME  # noqa: E402  (the time axis, "t")
+
 
 # ====================================================================== inputs and outputs
+OUTPUT_DIR = "analysis/output"
+"""Default folder of everything the notebooks write (git-ignored)."""
+
+
+def output_dir(env: str, sub: str = "") -> Path:
+    """``$env`` or ``analysis/output/<sub>`` (created): where a notebook writes."""
+    d = input_path(env, f"{OUTPUT_DIR}/{sub}".rstrip("/"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def open_sweep(path) -> xr.Dataset:
+    """A sweep's dataset, loaded; files written before the time axis became ``t`` (CF: simulated
+    time is no calendar time) have their ``time`` axis renamed."""
+    ds = xr.open_dataset(path, decode_timedelta=False).load()
+    if "time" in ds.dims and TIME not in ds.dims:
+        ds = ds.rename({"time": TIME})
+    return ds
+
+
 def repo_root() -> Path:
     """The repository root (the parent of ``analysis/``)."""
     return REPO_ROOT
@@ -93,16 +117,20 @@ def input_path(env: str, default: str) -> Path:
 
 
 def figure_dir() -> Path:
-    """Where figures go: ``$WT_FIG_DIR``, default ``analysis/figures`` (created)."""
-    d = input_path("WT_FIG_DIR", "analysis/figures")
+    """Where figures go: ``$WT_FIG_DIR``, default ``analysis/output/figures`` (created; git-ignored,
+    so running a notebook never rewrites a tracked file; the committed figures in
+    ``analysis/figures`` are refreshed on purpose with ``WT_FIG_DIR=analysis/figures``)."""
+    d = input_path("WT_FIG_DIR", f"{OUTPUT_DIR}/figures")
     d.mkdir(parents=True, exist_ok=True)
     return d
 
 
 def ensure_sweep(path, spec, device: str | None = None) -> Path:
-    """Return ``path``; if it does not exist, make it first by running
-    ``python -m warp_tensegrity run SPEC -o PATH --device DEVICE`` (device: ``$WT_DEVICE``,
-    default ``cpu``). The shard directory the command leaves next to ``PATH`` is removed."""
+    """Return ``path``; if it does not exist, make it first with the Python sweep API
+    (:func:`warp_tensegrity.sweep.run_sweep`, the engine of ``warp-tensegrity run``; device:
+    ``$WT_DEVICE``, default ``cpu``). The shard directory the run leaves next to ``PATH`` is removed."""
+    from warp_tensegrity.sweep import run_sweep
+
     path = Path(path)
     if path.exists():
         return path
@@ -110,15 +138,8 @@ def ensure_sweep(path, spec, device: str | None = None) -> Path:
     if not spec.is_absolute():
         spec = repo_root() / spec
     device = device or os.environ.get("WT_DEVICE", "cpu")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "warp_tensegrity", "run", str(spec), "-o", str(path),
-           "--device", device, "--no-progress", "--overwrite"]
-    print(f"{path} not found: running {' '.join(cmd[1:])}", flush=True)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(repo_root()), env.get("PYTHONPATH")]))
-    done = subprocess.run(cmd, cwd=repo_root(), env=env, capture_output=True, text=True)
-    if done.returncode != 0 or not path.exists():
-        raise RuntimeError(f"making {path} failed (exit {done.returncode}):\n{done.stdout}\n{done.stderr}")
+    print(f"{path} not found: running {spec.name} on {device}", flush=True)
+    run_sweep(spec, path, device=device, progress=False, overwrite=True)
     shutil.rmtree(Path(str(path) + ".shards"), ignore_errors=True)
     return path
 
@@ -151,57 +172,29 @@ def save_figure(fig, name: str) -> Path:
 
 
 # ====================================================================== strain figures
-STRAIN_LABEL = r"axial strain $\varepsilon = (h - h_0)/h$ [-]"
-PRISM_LABEL = "prism j (0: clamped end; impact at the last)"
+STRAIN_LABEL = W.STRAIN_LABEL
+PRISM_LABEL = W.PRISM_LABEL
+robust_limit = W.robust_limit
 
 
 def strain_snapshots(ax, strain: xr.DataArray, times, cmap: str = "viridis", marker: str = ".") -> list:
     """Axial strain against prism at the output times nearest to ``times`` (the paper's "time
-    shots"). ``strain`` has dims (time, prism). Returns the Line2D objects, one per time, whose
-    y-data are the dataset's strain at that time and whose label gives the time actually drawn."""
-    cm = plt.get_cmap(cmap)
-    n = len(times)
-    lines = []
-    for i, t in enumerate(times):
-        s = strain.sel(time=t, method="nearest")
-        (ln,) = ax.plot(strain["prism"].values, s.values, marker=marker, color=cm(0.9 * i / max(n - 1, 1)),
-                        label=f"t = {float(s['time']):g} s")
-        lines.append(ln)
-    ax.axhline(0.0, color="0.6", lw=0.6, zorder=0)
-    ax.set_xlabel(PRISM_LABEL)
-    ax.set_ylabel(STRAIN_LABEL)
-    ax.set_xlim(strain["prism"].values[0] - 0.5, strain["prism"].values[-1] + 0.5)
-    return lines
-
-
-def robust_limit(values, q: float = 99.5) -> float:
-    """Symmetric colour limit: the q-th percentile of |values| (finite ones), so that one spike
-    at the impacted end does not wash out the map; > 0."""
-    a = np.abs(np.asarray(values, dtype=float))
-    a = a[np.isfinite(a)]
-    v = float(np.percentile(a, q)) if a.size else 1.0
-    return v if v > 0 else 1.0
+    shots"), drawn by :func:`warp_tensegrity.plot.pulse_profile`. ``strain`` has dims (t, prism).
+    Returns the Line2D objects, one per time, whose y-data are the dataset's strain at that time
+    and whose label gives the time actually drawn."""
+    before = len(ax.lines)
+    W.pulse_profile(strain, times, ax=ax, cmap=cmap, marker=marker)
+    ax.get_legend().remove()  # the notebooks place their own legends
+    return ax.lines[before:before + len(times)]
 
 
 def spacetime_map(ax, strain: xr.DataArray, vmax: float | None = None, cmap: str = "RdBu_r",
                   colorbar: bool = True, cbar_label: str = STRAIN_LABEL):
-    """Space-time map of the strain: prism on x, time on y, diverging colour map centred at 0
-    (blue: compression, red: extension), limits +-``vmax`` (default :func:`robust_limit`).
-    ``strain`` has dims (time, prism). Returns (QuadMesh, Colorbar or None); the mesh's array is
-    the dataset's strain, time-major."""
-    s = strain.transpose("time", "prism")
-    v = robust_limit(s.values) if vmax is None else float(vmax)
-    mesh = ax.pcolormesh(s["prism"].values, s["time"].values, s.values, cmap=cmap, shading="nearest",
-                         norm=colors.TwoSlopeNorm(vcenter=0.0, vmin=-v, vmax=v), rasterized=True)
-    ax.set_xlabel(PRISM_LABEL)
-    ax.set_ylabel("time t [s]")
-    cb = None
-    if colorbar:
-        cb = ax.figure.colorbar(mesh, ax=ax, extend="both", pad=0.01)
-        cb.set_label(cbar_label)
-        cb.formatter.set_powerlimits((-2, 2))
-        cb.update_ticks()
-    return mesh, cb
+    """Space-time map of the strain (:func:`warp_tensegrity.plot.spacetime`). Returns
+    (QuadMesh, Colorbar or None); the mesh's array is the dataset's strain, time-major."""
+    W.spacetime(strain, ax=ax, vmax=vmax, cmap=cmap, colorbar=colorbar, cbar_label=cbar_label)
+    mesh = ax.collections[-1]
+    return mesh, mesh.colorbar if colorbar else None
 
 
 def overlay_peak_track(ax, peak_time, prism, **kw):
@@ -279,8 +272,8 @@ def leading_pulse_at(strain: xr.DataArray, t_read: float, h: float = H0, search:
     the peak compressed by at least 1 % of the reading [prisms]. Arrays of shape (...)."""
     from warp_tensegrity.measure import measure_pulse, pulse_width
 
-    s = strain.transpose(..., "time", "prism")
-    t = s["time"].values
+    s = strain.transpose(..., TIME, "prism")
+    t = s[TIME].values
     vals = s.values
     m = measure_pulse(vals, t, h)
     k = int(np.abs(t - t_read).argmin())
@@ -471,35 +464,19 @@ def log_slope(da: xr.DataArray, dim: str) -> xr.DataArray:
     return da.copy(data=np.moveaxis(out, -1, ax))
 
 
-def cell_edges(centres, log: bool = False) -> np.ndarray:
-    """Edges of cells centred on ``centres`` (midpoints; geometric midpoints when ``log``; the end
-    cells are symmetric about their centre). A single centre gets a cell of +-50 % (log) or +-0.5."""
-    c = np.asarray(centres, dtype=float)
-    if log:
-        return np.exp(cell_edges(np.log(c)))
-    if c.size == 1:
-        return np.array([c[0] - 0.5, c[0] + 0.5])
-    mid = 0.5 * (c[1:] + c[:-1])
-    return np.concatenate([[2 * c[0] - mid[0]], mid, [2 * c[-1] - mid[-1]]])
+cell_edges = W.cell_edges
 
 
 def phase_map(ax, da: xr.DataArray, x: str = "prestrain", y: str = "v0", logy: bool = True,
               norm=None, cmap: str = "viridis", cbar_label: str | None = None, colorbar: bool = True):
-    """Colour map of a 2-D DataArray over (x, y), one cell per grid point (cell edges from
-    :func:`cell_edges`, geometric on a log y axis), NaN cells blank. Returns (QuadMesh, Colorbar or
-    None); the mesh's array is ``da`` with y as rows (``mesh.get_array()`` flattened)."""
-    d = da.transpose(y, x)
-    mesh = ax.pcolormesh(cell_edges(d[x].values), cell_edges(d[y].values, log=logy),
-                         np.ma.masked_invalid(d.values), shading="flat", cmap=cmap, norm=norm)
-    if logy:
-        ax.set_yscale("log")
+    """Colour map of a 2-D DataArray over (x, y) (:func:`warp_tensegrity.plot.phase_diagram`), one
+    cell per grid point, NaN cells blank. Returns (QuadMesh, Colorbar or None); the mesh's array is
+    ``da`` with y as rows (``mesh.get_array()`` flattened)."""
+    W.phase_diagram(da, x=x, y=y, ax=ax, log_y=logy, norm=norm, cmap=cmap, colorbar=colorbar,
+                    cbar_label=cbar_label or "")
     ax.xaxis.set_major_locator(mpl.ticker.MaxNLocator(5))
-    cb = None
-    if colorbar:
-        cb = ax.figure.colorbar(mesh, ax=ax, pad=0.01)
-        if cbar_label:
-            cb.set_label(cbar_label)
-    return mesh, cb
+    mesh = ax.collections[-1]
+    return mesh, mesh.colorbar if colorbar else None
 
 
 def hatch_cells(ax, da: xr.DataArray, x: str = "prestrain", y: str = "v0", logy: bool = True,
@@ -591,8 +568,8 @@ def lead_pulse_snapshot(strain: xr.DataArray, h: float = H0) -> xr.Dataset:
     every variable has dims (...)."""
     from warp_tensegrity.measure import measure_pulse, measurement_window
 
-    s = strain.transpose(..., "time", "prism")
-    vals, t = s.values, s["time"].values
+    s = strain.transpose(..., TIME, "prism")
+    vals, t = s.values, s[TIME].values
     lead_dims = s.dims[:-2]
     P = vals.shape[-1]
     flat = vals.reshape(-1, len(t), P)
@@ -708,8 +685,8 @@ def rerun_cells(ds: xr.Dataset, points, device: str | None = None) -> xr.Dataset
     df, r = simulate_cases(params, scene_config(ds), t_end=float(ds.attrs["t_end"]),
                            output_interval=float(ds.attrs["output_interval"]),
                            dt=float(dt) if not isinstance(dt, str) else dt, device=device, keep_strain=True)
-    out = xr.Dataset({"strain": (("cell", "time", "prism"), np.asarray(r.strain))},
-                     coords={"cell": np.arange(len(cells)), "time": r.time, "prism": np.arange(r.strain.shape[-1]),
+    out = xr.Dataset({"strain": (("cell", TIME, "prism"), np.asarray(r.strain))},
+                     coords={"cell": np.arange(len(cells)), TIME: r.time, "prism": np.arange(r.strain.shape[-1]),
                              **{d: ("cell", params[d]) for d in GRID_DIMS}})
     for k in ("amplitude", "speed", "width", "width_10", "energy_error", "status"):
         out[k] = ("cell", df[k].to_numpy())
@@ -743,8 +720,8 @@ def samples_per_passage(ds: xr.Dataset) -> xr.DataArray:
     With phase_large's 2 ms outputs every cell has >= 4.7 samples but one, whose FWHM is misread
     (0.03 prism): the criterion then flags a width that cannot be a pulse's."""
     dt_out = float(ds.attrs.get("output_interval", np.nan))
-    if not np.isfinite(dt_out) and "time" in ds.coords and ds.sizes["time"] > 1:
-        dt_out = float(np.median(np.diff(ds["time"].values)))  # NaN if the interval is unknown
+    if not np.isfinite(dt_out) and TIME in ds.coords and ds.sizes[TIME] > 1:
+        dt_out = float(np.median(np.diff(ds[TIME].values)))  # NaN if the interval is unknown
     h = float(ds.attrs.get("scene_height", H0))
     with np.errstate(divide="ignore", invalid="ignore"):
         n = grid_variable(ds, "width") * h / (grid_variable(ds, "speed") * dt_out)

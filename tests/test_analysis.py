@@ -49,7 +49,7 @@ def paper_like_dataset(amps=None, speeds=None):
     n = len(c)
     ds = xr.Dataset(
         {
-            "strain": (("case", "time", "prism"), strain),
+            "strain": (("case", "t", "prism"), strain),
             "amplitude": ("case", amps * 1.01),
             "speed": ("case", speeds * 0.99),
             "width": ("case", np.full(n, 2.0)),
@@ -59,7 +59,7 @@ def paper_like_dataset(amps=None, speeds=None):
             "status": ("case", np.zeros(n, dtype=np.int8)),
         },
         coords={
-            "case": np.arange(n), "time": t, "prism": np.arange(50),
+            "case": np.arange(n), "t": t, "prism": np.arange(50),
             "base_rigidity": ("case", [x.base_rigidity for x in c]),
             "prestrain": ("case", [x.prestrain for x in c]),
             "v0": ("case", [x.v0 for x in c]),
@@ -137,12 +137,12 @@ def test_match_cases_refuses_missing_case():
 def test_leading_pulse_at_reads_the_snapshot():
     t = np.arange(0, 2.0001, 0.01)
     c, a = 0.1, 0.02
-    da = xr.DataArray(travelling_pulse(a, c, t), dims=("time", "prism"), coords={"time": t, "prism": np.arange(50)})
+    da = xr.DataArray(travelling_pulse(a, c, t), dims=("t", "prism"), coords={"t": t, "prism": np.arange(50)})
     r = P.leading_pulse_at(da, 0.5)
     pos = 49 - c * 0.5 / H
     assert r["time"] == pytest.approx(0.5)
     assert int(r["prism"]) == round(pos)
-    assert float(r["amplitude"]) == pytest.approx(float(-da.sel(time=0.5).values.min()))
+    assert float(r["amplitude"]) == pytest.approx(float(-da.sel(t=0.5).values.min()))
     assert float(r["width"]) == pytest.approx(2 * 1.5 * np.arccosh(np.sqrt(2)), rel=0.08)
     assert float(r["support"]) >= 5
 
@@ -165,7 +165,7 @@ def test_strain_snapshots_plot_the_dataset():
     assert len(lines) == 3
     for ln, t in zip(lines, [0.25, 0.5, 0.74]):
         np.testing.assert_array_equal(ln.get_xdata(), ds.prism.values)
-        np.testing.assert_array_equal(ln.get_ydata(), s.sel(time=t).values)
+        np.testing.assert_array_equal(ln.get_ydata(), s.sel(t=t).values)
         assert ln.get_label() == f"t = {t:g} s"
     assert "strain" in ax.get_ylabel() and "prism" in ax.get_xlabel()
 
@@ -174,7 +174,7 @@ def test_spacetime_map_array_is_the_strain():
     ds = paper_like_dataset()
     s = ds.strain.isel(case=3)
     fig, ax = plt.subplots()
-    mesh, cb = P.spacetime_map(ax, s.transpose("prism", "time"))  # any dim order in
+    mesh, cb = P.spacetime_map(ax, s.transpose("prism", "t"))  # any dim order in
     np.testing.assert_array_equal(np.asarray(mesh.get_array()).reshape(s.shape), s.values)
     norm = mesh.norm
     assert norm.vcenter == 0.0 and norm.vmin == -norm.vmax > -np.inf
@@ -261,8 +261,8 @@ def test_lead_fraction_compact_and_tail():
     t = np.arange(0, 3.0001, 0.01)
     compact = travelling_pulse(0.01, 0.1, t, n=30)
     tail = compact + travelling_pulse(0.03, 0.02, t, n=30)  # a big slow wave behind
-    da = xr.DataArray(np.stack([compact, tail]), dims=("v0", "time", "prism"),
-                      coords={"v0": [1.0, 2.0], "time": t, "prism": np.arange(30)})
+    da = xr.DataArray(np.stack([compact, tail]), dims=("v0", "t", "prism"),
+                      coords={"v0": [1.0, 2.0], "t": t, "prism": np.arange(30)})
     share = P.lead_fraction(da)
     assert share.dims == ("v0",)
     assert share.values[0] > 0.95
@@ -272,8 +272,8 @@ def test_lead_fraction_compact_and_tail():
 def test_lead_pulse_snapshot_sums_the_pulse():
     t = np.arange(0, 3.0001, 0.01)
     amp, width = 0.01, 1.5
-    da = xr.DataArray(travelling_pulse(amp, 0.1, t, n=30, width=width)[None], dims=("v0", "time", "prism"),
-                      coords={"v0": [1.0], "time": t, "prism": np.arange(30)})
+    da = xr.DataArray(travelling_pulse(amp, 0.1, t, n=30, width=width)[None], dims=("v0", "t", "prism"),
+                      coords={"v0": [1.0], "t": t, "prism": np.arange(30)})
     snap = P.lead_pulse_snapshot(da)
     assert snap.sum_q.dims == ("v0",)
     # integral of a sech^2 pulse: 2 w amp = SECH2_AREA x amplitude x FWHM (the 10 % window holds 95 % of it)
@@ -364,8 +364,8 @@ def test_rerun_cells_reproduces_the_sweep(ci_small):
            dict(base_rigidity=1.0, prestrain=0.0, v0=0.002)]
     rr = P.rerun_cells(ci_small, pts, device="cpu")
     assert rr.sizes["cell"] == 2  # the first two snap to the same grid cell
-    assert rr.strain.dims == ("cell", "time", "prism")
-    np.testing.assert_allclose(rr.time, ci_small.time)
+    assert rr.strain.dims == ("cell", "t", "prism")
+    np.testing.assert_allclose(rr.t, ci_small.t)
     assert list(rr.prestrain.values) == [0.002, 0.0] and list(rr.base_rigidity.values) == [0.0, 1.0]
     for k in ("amplitude", "speed", "width"):
         np.testing.assert_array_equal(rr[k].values, rr[f"sweep_{k}"].values)  # same CPU, same settings

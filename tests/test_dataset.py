@@ -13,7 +13,8 @@ import xarray as xr
 
 from warp_tensegrity import io as D
 from warp_tensegrity import sweep
-from warp_tensegrity.settings import BatchResult, STATUS_NAMES
+from warp_tensegrity import BatchResult
+from warp_tensegrity.settings import STATUS_NAMES
 from warp_tensegrity.sweep import parse_spec
 
 CASES = """
@@ -73,7 +74,7 @@ def test_every_variable_has_cf_attributes(case_run):
         assert "long_name" in v.attrs, name
         if v.dtype.kind in "fiu" and "flag_values" not in v.attrs:  # CF flag variables have no units
             assert "units" in v.attrs, name
-    assert ds["v0"].attrs["units"] == "m s-1" and ds["time"].attrs["units"] == "s"
+    assert ds["v0"].attrs["units"] == "m s-1" and ds["t"].attrs["units"] == "s"
     assert ds["speed"].attrs["units"] == "m s-1" and ds["arrival_time"].attrs["units"] == "s"
     st = ds["status"]
     assert list(st.attrs["flag_values"]) == sorted(STATUS_NAMES)
@@ -90,9 +91,14 @@ def test_global_provenance(case_run):
     import warp
 
     assert a["warp_version"] == warp.config.version
-    assert a["package_version"] and a["code_version"].startswith(a["package_version"] + "+src.")
-    assert a["git_commit"] == D.git_commit()
-    assert a["device"] == "cpu" and a["device_name"]
+    from warp_tensegrity import provenance
+
+    assert a["package_version"] == provenance.package_version()
+    assert a["code_version"] == f"{provenance.release_version()}+src.{provenance.source_hash()[:16]}"
+    assert provenance.release_version() in a["package_version"]
+    assert a["git_commit"] == provenance.git_commit() and a["git_dirty"] in (0, 1)
+    assert a["device"] == "cpu" and a["device_name"] and a["cuda_driver"] == "none" or a["cuda_driver"][0].isdigit()
+    assert a["command_line"] == provenance.command_line()  # the combining process (pytest here)
     assert a["precision"] == "fp64" and a["method"] == "rattle"
     assert 0 < a["dt"] <= a["dt_limit"] and a["n_steps"] >= 1
     assert a["scene_n_prisms"] == 5 and a["swept_parameters"] == "prestrain v0 base_rigidity"
@@ -121,7 +127,7 @@ def test_grid_layout_and_selection(grid_run):
     ds = D.open_sweep(grid_run)
     assert ds["amplitude"].dims == ("v0", "base_rigidity")
     assert "strain" not in ds  # record_strain = false: not stored
-    assert ds["kinetic_energy"].dims == ("v0", "base_rigidity", "time")
+    assert ds["kinetic_energy"].dims == ("v0", "base_rigidity", "t")
     assert float(ds["prestrain"]) == 0.0 and ds["prestrain"].dims == ()
     assert ds.sel(v0=0.008, base_rigidity=0.5)["status"] == 0
     assert ds.attrs["sweep_kind"] == "grid"
@@ -136,7 +142,7 @@ def test_netcdf_round_trip_identical(case_run, tmp_path):
     assert back.attrs == ds.attrs
     for k in ds.variables:
         assert back[k].attrs.keys() == ds[k].attrs.keys(), k
-    assert back["time"].dtype == np.float64  # seconds stay floats (no timedelta decoding)
+    assert back["t"].dtype == np.float64  # seconds stay floats (no timedelta decoding)
 
 
 def test_shards_combine_to_the_sweep(case_run):
@@ -184,3 +190,26 @@ def test_write_is_atomic(tmp_path, monkeypatch):
 def test_drop_run_dependent():
     ds = xr.Dataset(attrs={"wall_time": 1.0, "history": "x", "dt": 0.1})
     assert D.drop_run_dependent(ds).attrs == {"dt": 0.1}
+
+
+def test_to_xarray_is_the_cli_layout(case_run):
+    """BatchResult.to_xarray() and a case-list sweep file: same variables, dims, attributes of
+    every variable and the same numbers (the same builder)."""
+    from warp_tensegrity import simulate_batch
+
+    d, out = case_run
+    spec = parse_spec(CASES)
+    params = spec.column_params()
+    res = simulate_batch(spec.scene, params, spec.run_settings(device="cpu", dt=float(D.open_sweep(out).attrs["dt"])))
+    mine = res.to_xarray()
+    cli = D.open_sweep(out)
+    assert set(mine.data_vars) == set(cli.data_vars)
+    for k in cli.variables:
+        if k == "case_label":
+            continue
+        assert mine[k].dims == cli[k].dims, k
+        assert {a: str(v) for a, v in mine[k].attrs.items()} == {a: str(v) for a, v in cli[k].attrs.items()}, k
+    for k in ("strain", "amplitude", "speed", "status", "kinetic_energy"):
+        np.testing.assert_allclose(mine[k].values, cli[k].values, rtol=1e-12, atol=0, equal_nan=True)
+    for k in ("git_commit", "warp_version", "device", "method", "dt", "n_steps"):
+        assert mine.attrs[k] == cli.attrs[k], k

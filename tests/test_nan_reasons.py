@@ -74,7 +74,7 @@ def test_cli_prints_the_nan_summary_and_its_t_end_is_enough(tmp_path, capsys):
     (tmp_path / "short.toml").write_text(spec)
     out = tmp_path / "short.nc"
     assert cli_main(["run", str(tmp_path / "short.toml"), "-o", str(out), "--device", "cpu", "--no-progress"]) == 0
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err  # the summary is a log message (stderr; -q hides it)
     ds = open_sweep(out)
     _check_every_nan_flagged(ds)
     n_short = int((ds.measurement_flag.values == FLAG["pulse_not_reached_window_by_t_end"]).sum())

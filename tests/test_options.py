@@ -52,6 +52,20 @@ def test_choices_are_the_enums():
     assert O.opt_of(RunSettings, "method").choices == O.METHODS
 
 
+def test_mkdocs_options_page_rows_are_the_model():
+    """docs/options.md (the MkDocs hook) lists the same run and scene options, from options_table()."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("options_hook", REPO / "docs" / "hooks" / "options.py")
+    hook = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hook)
+    keys = [r[0] for r in hook.option_rows()]
+    run = [k[4:] for k in keys if k.startswith("run.")]
+    assert sorted(run) == sorted(f.name for f in dataclasses.fields(RunSettings))
+    scene = {k[6:] for k in keys if k.startswith("scene.")}
+    assert scene == set(S.SCENE_FIELDS) | set(S.SCENE_PARAMS)
+
+
 def test_scene_and_parameter_options_same_set_in_model_spec_and_docs():
     scene = [f.name for f in dataclasses.fields(ColumnConfig)]
     assert set(S.SCENE_FIELDS) == set(scene) == set(_doc_keys("scene")) == {r["key"] for r in O.options_table("scene")}

@@ -65,10 +65,10 @@ def reference(tmp_path_factory):
 
 def test_grid_dataset_layout(reference):
     ds = reference
-    assert dict(ds.sizes) == {"prestrain": 2, "v0": 2, "base_rigidity": 2, "prism": 6, "time": 41}
+    assert dict(ds.sizes) == {"prestrain": 2, "v0": 2, "base_rigidity": 2, "prism": 6, "t": 41}
     assert ds["amplitude"].dims == ("prestrain", "v0", "base_rigidity")
     assert ds["arrival_time"].dims == ("prestrain", "v0", "base_rigidity", "prism")
-    assert ds["strain"].dims == ("prestrain", "v0", "base_rigidity", "time", "prism")
+    assert ds["strain"].dims == ("prestrain", "v0", "base_rigidity", "t", "prism")
     assert (ds["status"] == 0).all()
     assert float(ds["bar_length_error"].max()) < 1e-8
     # the stronger impact gives the larger pulse (FB, zero prestrain)
@@ -232,6 +232,21 @@ def test_progress_bar(tmp_path):
     sweep.run_sweep(spec, tmp_path / "p.nc", progress=True, stream=buf)
     text = buf.getvalue()
     assert "4/4 columns" in text and "0 diverged" in text and "ETA" in text
+    quiet = io.StringIO()  # not a terminal: by default (progress=None) the bar stays quiet
+    sweep.run_sweep(spec, tmp_path / "q.nc", progress=None, stream=quiet)
+    assert quiet.getvalue() == ""
+
+
+def test_progress_eta_starts_from_the_estimate():
+    from warp_tensegrity.sweep.progress import ProgressBar
+
+    bar = ProgressBar(100, enabled=False, estimate_s=50.0)
+    assert 49.0 < bar.eta() <= 50.0  # nothing done yet: the calibrated estimate
+    bar.t0 -= 10.0  # 10 s on, half done: blend of estimate (25 s left) and rate (10 s left)
+    bar.update(50, 0)
+    assert bar.eta() == pytest.approx(0.5 * 25.0 + 0.5 * 10.0, rel=1e-3)
+    bar.update(100, 0)
+    assert bar.eta() == 0.0
 
 
 def test_python_api_matches_spec_error_paths(tmp_path):

@@ -48,10 +48,10 @@ def test_every_printed_time_selects(ci_small):
     ds = ci_small
     interval = float(ds.attrs["output_interval"])
     decimals = len(repr(interval).split(".")[1])
-    for t in ds.time.values:
+    for t in ds.t.values:
         printed = round(float(t), decimals)
-        ds.strain.sel(time=printed)  # KeyError if the stored time were 0.30000000000000004
+        ds.strain.sel(t=printed)  # KeyError if the stored time were 0.30000000000000004
         assert float(repr(printed)) == printed
     np.testing.assert_array_equal(ds.step.values * float(ds.attrs["dt"]), ds.step.values * float(ds.attrs["dt"]))
-    np.testing.assert_allclose(ds.time.values, ds.step.values * float(ds.attrs["dt"]), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ds.t.values, ds.step.values * float(ds.attrs["dt"]), rtol=0, atol=1e-12)
     assert ds.step.dtype.kind == "i"

@@ -4,9 +4,8 @@ Data path (``docs/architecture.md``): scene (:mod:`.scene`: network, columns, ba
 model (:mod:`.model`) -> kernels -> :mod:`.integrate` (the step) -> :mod:`.engine` (policy and
 entry points) -> :mod:`.measure` -> :mod:`.io` (CF datasets) -> :mod:`.sweep` -> :mod:`.cli`.
 Importing the package (and reading a spec) does not import Warp; the first run does.
+Figures: :mod:`.plot`. ``__version__`` is the build's version (setuptools-scm; :mod:`.provenance`).
 """
-
-__version__ = "0.1.0"
 
 from .engine import estimate_batch, run_batch, simulate_batch
 from .measure import measure_pulse
@@ -21,7 +20,8 @@ from .scene import (
     column_topology,
     network_batch,
 )
-from .settings import COLUMN_PARAMETERS, BatchResult, RunSettings, SettingsError
+from .result import BatchResult
+from .settings import COLUMN_PARAMETERS, RunSettings, SettingsError
 from .types import Method, Status
 
 __all__ = [
@@ -46,3 +46,11 @@ __all__ = [
     "run_batch",
     "simulate_batch",
 ]
+
+
+def __getattr__(name):
+    if name == "__version__":  # the build's version (setuptools-scm; provenance.py)
+        from .provenance import package_version
+
+        return package_version()
+    raise AttributeError(name)

@@ -4,8 +4,12 @@
     warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc)
     warp-tensegrity status OUT.nc
     warp-tensegrity combine OUT.nc
+    warp-tensegrity plot OUT.nc KIND [-o FIG.png]      (phase, spacetime, profile, work-precision)
+    warp-tensegrity --version
     warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N]   (acoustic lens, docs/lens.md)
 
+Messages go through :mod:`logging` on stderr (``-v``: debug and Warp's own start-up lines,
+``-q``: warnings only, no progress bar); command results (status, dry run) go to stdout.
 Warp is imported only when a command needs the engine, so ``--help`` is instant.
 """
 
@@ -13,8 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
+
+log = logging.getLogger("warp_tensegrity")
 
 EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE = 0, 1, 3
 
@@ -73,8 +80,8 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
                    help="refuse a run estimated to take longer (default: 7 days)")
     p.add_argument("--ignore-estimate", action="store_true",
                    help="run even when the estimate says the run exceeds this machine's memory, disk or time limit")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.add_argument("--verbose", action="store_true", help="let Warp print its start-up and module-load messages")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (it shows only when stderr is a terminal anyway)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -83,8 +90,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="GPU batched parameter sweeps of impact waves in tensegrity columns (NVIDIA Warp).",
         epilog="Spec reference and dataset layout: docs/sweeps.md",
     )
+    parser.add_argument("--version", action="store_true",
+                        help="print the package version, commit, Warp version and default device, then exit")
+    verbosity = parser.add_mutually_exclusive_group()
+    verbosity.add_argument("-v", "--verbose", action="count", default=0,
+                           help="more messages: debug logging and Warp's start-up lines")
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only; no progress bar")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
 
     p = sub.add_parser("run", help="run a sweep spec into a netCDF file",
                        description="Run SPEC: shards go to OUT.shards/, then combine into OUT.")
@@ -109,6 +121,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("combine", help="combine the shards of a run into OUT.nc")
     p.add_argument("output", type=_path, metavar="OUT.nc")
+
+    from .plot import KINDS
+
+    p = sub.add_parser("plot", help="plot a sweep's dataset (warp_tensegrity.plot)",
+                       description="Draw one figure of OUT.nc with warp_tensegrity.plot and save it.")
+    p.add_argument("dataset", type=_path, metavar="OUT.nc", help="a sweep's netCDF output (or a work-precision study's)")
+    p.add_argument("kind", choices=sorted(KINDS), help="; ".join(f"{k}: {v}" for k, v in sorted(KINDS.items())))
+    p.add_argument("-o", "--output", default=None, metavar="FIG.png",
+                   help="figure file (default: OUT-KIND.png beside the dataset)")
+    p.add_argument("--var", default="speed", help="phase: the measured variable to map (default speed)")
+    p.add_argument("--x", default=None, help="phase: parameter on the x axis (default: the first swept)")
+    p.add_argument("--y", default=None, help="phase: parameter on the y axis (default: the second swept)")
+    p.add_argument("--sel", action="append", default=[], metavar="NAME=VALUE",
+                   help="pick one value of a dimension (nearest), e.g. --sel base_rigidity=1 --sel case=3")
+    p.add_argument("--times", default=None, metavar="T1,T2,...", help="profile: output times [s]")
     from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
 
     add_lens_parser(sub)
@@ -133,18 +160,28 @@ def _report_status(st: dict, as_json: bool) -> str:
     return "\n".join(lines)
 
 
-def _quiet_warp(verbose: bool) -> None:
-    if verbose:
-        return
-    try:
-        import warp
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is at the time (pytest's capture swaps it between calls)."""
 
-        if hasattr(warp.config, "log_level") and hasattr(warp, "LOG_WARNING"):
-            warp.config.log_level = warp.LOG_WARNING  # Warp >= 1.19
-        else:  # pragma: no cover - older Warp
-            warp.config.quiet = True
-    except ImportError:  # pragma: no cover - warp is a dependency
+    def __init__(self):
+        super().__init__()
+        self.setFormatter(logging.Formatter("warp-tensegrity: %(message)s"))
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):  # logging.StreamHandler.__init__ assigns it
         pass
+
+
+def setup_logging(verbose: int = 0, quiet: bool = False) -> None:
+    """One stderr handler on the package logger: INFO by default, DEBUG with -v, WARNING with -q."""
+    log.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    if not any(isinstance(h, _StderrHandler) for h in log.handlers):
+        log.addHandler(_StderrHandler())
+    log.propagate = False
 
 
 def _looks_like_spec(path: str) -> bool:
@@ -154,26 +191,37 @@ def _looks_like_spec(path: str) -> bool:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    setup_logging(args.verbose, args.quiet)
+    if args.version:
+        from .provenance import version_text
+        from .runtime import init_warp, warp_facts
+
+        init_warp(verbose=bool(args.verbose))
+        print(version_text(warp_facts()))
+        return EXIT_OK
+    if args.command is None:
+        parser.error("give a COMMAND (run, resume, status, combine, plot, lens) or --version")
     from .options import OptionError
+    from .plot import PlotError
     from .scene.network import NetworkError
     from .sweep.errors import SweepError
 
     try:
         return _dispatch(args)
-    except (OptionError, NetworkError, SweepError) as e:  # BudgetError is a SweepError
-        print(f"warp-tensegrity: error: {e}", file=sys.stderr)
+    except (OptionError, NetworkError, SweepError, PlotError) as e:  # SpecError, SettingsError: OptionError
+        log.error("error: %s", e)                                     # BudgetError: SweepError
         return EXIT_ERROR
     except KeyboardInterrupt:
-        print("\nwarp-tensegrity: interrupted; finished shards are kept: `warp-tensegrity resume` continues",
-              file=sys.stderr)
+        log.warning("interrupted; finished shards are kept: `warp-tensegrity resume` continues")
         return 130
 
 
 def _dispatch(args) -> int:
     if args.command == "lens":
         from .lens.command import run_lens_command
+        from .runtime import init_warp
 
-        _quiet_warp(False)
+        init_warp(verbose=bool(args.verbose))
         return run_lens_command(args)
     from .sweep import plan as sweep_plan
     from .sweep import run as sweep
@@ -181,7 +229,9 @@ def _dispatch(args) -> int:
     from .sweep.spec import load_spec
 
     if args.command in ("run", "resume"):
-        _quiet_warp(args.verbose)
+        from .runtime import init_warp
+
+        init_warp(verbose=bool(args.verbose))
         device = None if args.device == "auto" else args.device
         if args.command == "run":
             from .options import parse_set
@@ -216,12 +266,12 @@ def _dispatch(args) -> int:
             plan,
             resume=args.command == "resume",
             overwrite=getattr(args, "overwrite", False),
-            progress=not args.no_progress,
+            progress=False if (args.no_progress or args.quiet) else None,  # None: on a terminal only
             dask_workers=args.dask,
             scheduler=args.scheduler,
         )
-        print(f"wrote {path}")
-        _print_nan_summary(path)
+        log.info("wrote %s", path)
+        _log_nan_summary(path)
         return 0
     if args.command == "status":
         st = sweep.sweep_status(args.output)
@@ -229,18 +279,46 @@ def _dispatch(args) -> int:
         return 0 if st["cases_remaining"] == 0 else EXIT_INCOMPLETE
     if args.command == "combine":
         path = sweep.combine(args.output)
-        print(f"wrote {path}")
+        log.info("wrote %s", path)
         return 0
+    if args.command == "plot":
+        return _plot(args)
     raise AssertionError(args.command)  # pragma: no cover
 
 
-def _print_nan_summary(path) -> None:
+def _plot(args) -> int:
+    from . import plot
+    from .plot import PlotError
+
+    sel = {}
+    for item in args.sel:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise PlotError(f"--sel {item!r}: give NAME=VALUE")
+        try:
+            sel[name] = float(value)
+        except ValueError:
+            sel[name] = value
+    times = None
+    if args.times:
+        try:
+            times = [float(t) for t in args.times.split(",")]
+        except ValueError:
+            raise PlotError(f"--times {args.times!r}: give comma-separated seconds") from None
+    fig = plot.plot_file(args.dataset, args.kind, var=args.var, x=args.x, y=args.y, sel=sel, times=times)
+    out = Path(args.output) if args.output else Path(args.dataset).with_name(f"{Path(args.dataset).stem}-{args.kind}.png")
+    fig.savefig(out)
+    log.info("wrote %s", out)
+    return 0
+
+
+def _log_nan_summary(path) -> None:
     """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons)."""
     from .io import open_sweep
     from .measure.nan_reasons import dataset_summary
 
     for line in dataset_summary(open_sweep(path)):
-        print(line)
+        log.info("%s", line)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -53,7 +53,9 @@ from .scene.batch import (
     reference_states,
 )
 from .scene.columns import ColumnConfig
-from .settings import BatchResult, RunSettings, SettingsError
+from .runtime import init_warp
+from .result import BatchResult
+from .settings import RunSettings, SettingsError
 from .types import FORCE_EVALS, STABILITY, Base, Method, Path
 
 # fused='auto' on a GPU: the fused step (block cyclic reduction) up to FUSED_MAX_COLUMNS columns
@@ -210,6 +212,7 @@ def _to_host(a):
 
 def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None) -> BatchResult:
     """Integrate a prepared batch; see :func:`simulate_batch` for columns."""
+    init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
 
     omega = float(omega_max_bound(batch).max())
@@ -300,6 +303,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
                     "precision": settings.precision, "dt": result.dt,
                     "record_strain": settings.record_strain})
     result.info["choices"] = choices
+    result.info["prism_height"] = float(config.height)  # for BatchResult.to_xarray's measurements
     return result
 
 
@@ -346,6 +350,7 @@ def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int,
 
 def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) -> dict:
     """Time step, stability limit, step count and memory of a batch, without launching kernels."""
+    init_warp()
     from .integrate import resolve_device
     from .model import constraint_coupling, mass_entries
 

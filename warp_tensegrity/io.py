@@ -1,5 +1,7 @@
 """Sweep results as CF-annotated xarray Datasets, written to netCDF4 (one file per shard, one
-combined file per sweep).
+combined file per sweep). The CLI (:mod:`warp_tensegrity.sweep`) and
+:meth:`warp_tensegrity.BatchResult.to_xarray` build their datasets here, with one function
+(:func:`batch_dataset`), so Python and CLI users share one format.
 
 Layout (see ``docs/sweeps.md``):
 
@@ -8,7 +10,14 @@ Layout (see ``docs/sweeps.md``):
   coordinate variables along ``case`` (CF: listed in each variable's ``coordinates``
   attribute, which xarray writes and reads), never a pandas MultiIndex;
 * non-swept per-column parameters are scalar coordinates;
-* ``prism`` (index from the clamped end) and ``time`` [s] are the other dimensions.
+* ``prism`` (index from the clamped end) and ``t`` [s], the simulated time since impact, are
+  the other dimensions.
+
+CF (checked by ``compliance-checker --test cf:1.10`` in ``tests/test_cf.py``): every variable
+has a ``long_name`` (a ``standard_name`` where the CF table has one: only ``status_flag`` does)
+and ``units``. Simulated time is not a calendar time, so it is *not* a CF time coordinate
+(which needs "seconds since <date>"): the axis is named ``t``, with units "s" and no
+``axis``/``standard_name``, and xarray keeps it as plain float seconds.
 
 Shards are always case-stacked (a contiguous block of columns ``case_start:case_stop``).
 """
@@ -16,29 +25,26 @@ Shards are always case-stacked (a contiguous block of columns ``case_start:case_
 from __future__ import annotations
 
 import dataclasses
-import functools
-import hashlib
 import json
 import os
-import subprocess
 import time as _time
-import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
 
-from .measure.nan_reasons import FLAG_MEANINGS, FLAG_VALUES
-from .scene.columns import ColumnConfig
+from .measure.nan_reasons import FLAG_MEANINGS, FLAG_VALUES, measurement_flags
+from .measure.pulse import measure_pulse
 from .scene.impact import kinematic_lock_strain
-from .settings import COLUMN_PARAMETERS, STATUS_NAMES
+from .options import COLUMN_PARAMETERS  # declared once, with units and bounds: options.ColumnParameters
+from .types import STATUS_MEANINGS, TIME
 
 if TYPE_CHECKING:
     from .sweep.spec import SweepSpec
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-SCENE_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
+STATUS_NAMES = {int(k): v for k, v in STATUS_MEANINGS.items()}
 
 CONVENTIONS = "CF-1.10"
 REFERENCES = (
@@ -46,13 +52,27 @@ REFERENCES = (
     "lattices, Composite Structures 173 (2017) 9-16"
 )
 
-RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created")
+RUN_DEPENDENT_ATTRS = ("history", "wall_time", "date_created", "command_line")
 """Global attributes that differ between two runs of the same spec (drop before comparing)."""
 
 
 MEASUREMENTS = ("amplitude", "speed", "width", "width_10", "prisms_measured", "arrival_time", "max_compression")
 
-STATUS_MEANINGS = " ".join(STATUS_NAMES[k].replace(" ", "_").replace("-", "_") for k in sorted(STATUS_NAMES))
+PROVENANCE_ATTRS = ("package_version", "git_commit", "git_dirty", "warp_version", "device", "device_name",
+                    "cuda_driver", "command_line")
+"""Provenance every output carries (besides the full spec text in ``spec``)."""
+
+
+def flag_attrs(long_name: str, names: dict, standard_name: str = "status_flag") -> dict:
+    """CF flag-variable attributes (``flag_values``/``flag_meanings``) from {code: meaning};
+    meanings become blank-free words. For int8 flag variables (status and NaN-reason flags)."""
+    codes = sorted(names)
+    words = " ".join(str(names[k]).replace(" ", "_").replace("-", "_") for k in codes)
+    return {"standard_name": standard_name, "long_name": long_name,
+            "flag_values": np.array(codes, dtype=np.int8), "flag_meanings": words}
+
+
+STATUS_MEANINGS = flag_attrs("", STATUS_NAMES)["flag_meanings"]
 
 COORD_ATTRS = {
     "prestrain": {"units": "1", "long_name": "cross-cable prestrain p"},
@@ -65,11 +85,9 @@ COORD_ATTRS = {
     "prism": {
         "units": "1",
         "long_name": "prism index from the clamped base (0) to the impacted free end (n_prisms - 1)",
-        "axis": "X",
     },
-    "time": {"units": "s", "long_name": "time since impact (step * dt, rounded to the output interval's decimals)",
-             "axis": "T"},
-    "step": {"units": "1", "long_name": "time step count of each output (time = step * dt)"},
+    TIME: {"units": "s", "long_name": "simulated time since impact (step * dt, rounded to the output interval's decimals)"},
+    "step": {"units": "1", "long_name": "time step count of each output (t = step * dt)"},
 }
 
 VAR_ATTRS = {
@@ -93,15 +111,12 @@ VAR_ATTRS = {
     "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism",
                      "comment": "NaN at the prisms the pulse had not reached by t_end"},
     "measurement_flag": {
+        "standard_name": "status_flag",
         "long_name": "why the pulse measures of the column are NaN (ok: all defined; docs/measurements.md)",
         "flag_values": FLAG_VALUES,
         "flag_meanings": FLAG_MEANINGS,
     },
-    "status": {
-        "long_name": "column status at the end of the run",
-        "flag_values": np.array(sorted(STATUS_NAMES), dtype=np.int8),
-        "flag_meanings": STATUS_MEANINGS,
-    },
+    "status": flag_attrs("column status at the end of the run", STATUS_NAMES),
     "fail_step": {"units": "1", "long_name": "time step at which a failed column was frozen (-1: never failed)"},
     "energy_error": {
         "units": "1",
@@ -117,70 +132,6 @@ VAR_ATTRS = {
 }
 
 _COMPRESS = {"zlib": True, "complevel": 1, "shuffle": True}
-
-
-# ---------------------------------------------------------------------- provenance
-@functools.lru_cache(maxsize=1)
-def package_version() -> str:
-    try:
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            return version("warp_tensegrity")
-        except PackageNotFoundError:
-            pass
-    except ImportError:  # pragma: no cover
-        pass
-    pyproject = PACKAGE_DIR.parent / "pyproject.toml"
-    try:
-        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
-    except Exception:
-        return "unknown"
-
-
-def source_hash() -> str:
-    """sha256 over the package's .py sources (relative path and content, sorted by path)."""
-    h = hashlib.sha256()
-    for p in sorted(PACKAGE_DIR.rglob("*.py")):
-        if "__pycache__" in p.parts:
-            continue
-        h.update(p.relative_to(PACKAGE_DIR).as_posix().encode() + b"\0")
-        h.update(p.read_bytes() + b"\0")
-    return h.hexdigest()
-
-
-def code_version() -> str:
-    """Package version + hash of the package's .py sources, e.g. '0.1.0+src.1a2b3c4d5e6f7a8b'."""
-    return f"{package_version()}+src.{source_hash()[:16]}"
-
-
-
-def git_commit() -> str:
-    """The checkout's commit, or $GIT_COMMIT where there is no usable .git (copied trees)."""
-    env = os.environ.get("GIT_COMMIT")
-    if env:
-        return env
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(__file__).resolve().parent,
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
-        return out.stdout.strip() if out.returncode == 0 and out.stdout.strip() else "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-@functools.lru_cache(maxsize=1)
-def warp_version() -> str:
-    try:
-        import warp
-
-        return str(warp.config.version)
-    except Exception:  # pragma: no cover - warp is a hard dependency
-        return "unknown"
 
 
 def _attr(v):
@@ -202,7 +153,6 @@ def spec_attrs(spec: SweepSpec) -> dict:
     a = {
         "Conventions": CONVENTIONS,
         "title": spec.title or f"warp_tensegrity sweep{f' {Path(spec.source).name}' if spec.source else ''}",
-        "source": f"warp_tensegrity {package_version()} on NVIDIA Warp",
         "references": REFERENCES,
         "spec": spec.text,
         "spec_sha256": spec.text_sha256,
@@ -223,8 +173,8 @@ def spec_attrs(spec: SweepSpec) -> dict:
     }
     if spec.description:
         a["comment"] = spec.description
-    for f in SCENE_FIELDS:
-        a[f"scene_{f}"] = getattr(spec.scene, f)
+    for f in dataclasses.fields(spec.scene):  # the ColumnConfig
+        a[f"scene_{f.name}"] = getattr(spec.scene, f.name)
     a["scene_cable_EA"] = float(spec.scene.cable_EA)
     sc = spec.scene
     a["kinematic_lock_compression"] = -kinematic_lock_strain(sc.radius, sc.height, sc.twist)
@@ -239,24 +189,157 @@ def spec_attrs(spec: SweepSpec) -> dict:
 
 
 # ---------------------------------------------------------------------- building
+def _var(name: str, dims, data, attrs: dict) -> xr.Variable:
+    return xr.Variable(dims, data, attrs=dict(attrs))
+
+
 def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int,
             steps: np.ndarray | None = None) -> dict:
+    """Coordinates of columns ``start:stop`` of a spec: swept parameters along ``case``, the others scalar."""
     coords = {
-        "case": ("case", np.arange(start, stop, dtype=np.int64), COORD_ATTRS["case"]),
-        "prism": ("prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
-        "time": ("time", np.asarray(time, dtype=np.float64), COORD_ATTRS["time"]),
+        "case": _var("case", "case", np.arange(start, stop, dtype=np.int64), COORD_ATTRS["case"]),
+        "prism": _var("prism", "prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
+        TIME: _var(TIME, TIME, np.asarray(time, dtype=np.float64), COORD_ATTRS[TIME]),
     }
-    if steps is not None:  # exact: time = step * dt, rounded to the output interval's decimals
-        coords["step"] = ("time", np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
+    if steps is not None:  # exact: t = step * dt, rounded to the output interval's decimals
+        coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     swept = spec.swept
     for p in COLUMN_PARAMETERS:
         if p in swept:
-            coords[p] = ("case", np.asarray(params[p][start:stop], dtype=np.float64), COORD_ATTRS[p])
+            coords[p] = _var(p, "case", np.asarray(params[p][start:stop], dtype=np.float64), COORD_ATTRS[p])
         else:
-            coords[p] = ((), np.float64(spec.default_param(p)), COORD_ATTRS[p])
+            coords[p] = _var(p, (), np.float64(spec.default_param(p)), COORD_ATTRS[p])
     if spec.labels is not None:
-        coords["case_label"] = ("case", np.array(spec.labels[start:stop], dtype=object), COORD_ATTRS["case_label"])
-    return {k: xr.Variable(d, v, attrs=dict(a)) for k, (d, v, a) in coords.items()}
+        coords["case_label"] = _var("case_label", "case", np.array(spec.labels[start:stop], dtype=object),
+                                    COORD_ATTRS["case_label"])
+    return coords
+
+
+def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int,
+                  steps: np.ndarray | None = None) -> dict:
+    """Coordinates from per-column parameter arrays (a BatchResult's ``params``): a parameter
+    that varies lies along ``case``, a constant one is a scalar coordinate (as in a sweep)."""
+    coords = {
+        "case": _var("case", "case", np.arange(n_columns, dtype=np.int64), COORD_ATTRS["case"]),
+        "prism": _var("prism", "prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
+        TIME: _var(TIME, TIME, np.asarray(time, dtype=np.float64), COORD_ATTRS[TIME]),
+    }
+    if steps is not None:
+        coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
+    for p in COLUMN_PARAMETERS:
+        if p not in params:
+            continue
+        v = np.broadcast_to(np.asarray(params[p], dtype=np.float64), (n_columns,))
+        if n_columns > 1 and np.any(v != v[0]):
+            coords[p] = _var(p, "case", np.array(v), COORD_ATTRS[p])
+        else:
+            coords[p] = _var(p, (), np.float64(v[0]), COORD_ATTRS[p])
+    return coords
+
+
+def measure_columns(result, prism_height: float) -> dict:
+    """Leading-pulse measurements per column (:func:`warp_tensegrity.measure.measure_pulse`);
+    NaN where undefined and for every column whose status is not ok. ``prism_height`` [m]."""
+    status = np.asarray(result.status)
+    with np.errstate(all="ignore"):
+        m = measure_pulse(result.strain, result.time, prism_height)
+    bad = status != 0
+    out = {
+        "amplitude": m["amplitude"],
+        "speed": m["speed"],
+        "width": m["width_fwhm"],
+        "width_10": m["width_10"],
+        "prisms_measured": m["prisms_measured"],
+        "arrival_time": m["arrival_time"],
+    }
+    out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
+    for v in out.values():
+        v[bad] = np.nan
+    with np.errstate(invalid="ignore"):
+        out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
+    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)  # why a measure is NaN
+    return out
+
+
+def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
+                  record_energy: bool = True, record_strain: bool | None = None) -> xr.Dataset:
+    """Case-stacked dataset of a BatchResult: measurements (if given), per-column status and
+    errors, energy histories (``record_energy``) and the strain history (``record_strain``;
+    None: whenever the result has one). The one builder behind the CLI's files and
+    :meth:`BatchResult.to_xarray`."""
+    C = ("case",)
+    dv = {}
+    if measurements is not None:
+        dv.update({k: (C, measurements[k]) for k in MEASUREMENTS if k != "arrival_time" and k in measurements})
+        dv["arrival_time"] = (("case", "prism"), measurements["arrival_time"])
+        if "measurement_flag" in measurements:
+            dv["measurement_flag"] = (C, np.asarray(measurements["measurement_flag"], dtype=np.int8))
+    dv.update({
+        "status": (C, np.asarray(result.status, dtype=np.int8)),
+        "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),
+        "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
+        "bar_length_error": (C, np.asarray(result.bar_length_error, dtype=np.float64)),
+    })
+    if record_energy:
+        dv["kinetic_energy"] = (("case", TIME), np.asarray(result.kinetic_energy, dtype=np.float64))
+        dv["elastic_energy"] = (("case", TIME), np.asarray(result.elastic_energy, dtype=np.float64))
+    if record_strain is None:
+        record_strain = result.strain is not None
+    if record_strain:
+        if result.strain is None:
+            raise ValueError("record_strain is set but the engine returned no strain")
+        dv["strain"] = (("case", TIME, "prism"), np.asarray(result.strain, dtype=np.float64))
+    data_vars = {
+        k: xr.Variable(d, np.asarray(v, dtype=np.float64) if k in MEASUREMENTS else v, attrs=dict(VAR_ATTRS[k]))
+        for k, (d, v) in dv.items()
+    }
+    ds = xr.Dataset(data_vars, coords=coords)
+    ds.attrs = {k: _attr(v) for k, v in attrs.items()}
+    return ds
+
+
+def result_attrs(result) -> dict:
+    """Run facts of a BatchResult that go into the global attributes."""
+    a = {
+        "device": result.device,
+        "device_name": result.device_name,
+        "method": result.method,
+        "precision": result.precision,
+        "dt": float(result.dt),
+        "n_steps": int(result.n_steps),
+        "output_interval": float(result.time[1] - result.time[0]) if len(result.time) > 1 else float("nan"),
+        "wall_time": float(result.wall_time),
+    }
+    if "cuda_driver" in result.info:
+        a["cuda_driver"] = result.info["cuda_driver"]
+    return a
+
+
+def result_dataset(result, config=None, measure: bool = True, attrs: dict | None = None) -> xr.Dataset:
+    """:meth:`BatchResult.to_xarray`: the case-stacked layout the CLI writes for a case list.
+    ``config`` (the ColumnConfig) gives the prism height for the measurements and the scene
+    attributes; without it the height recorded by :func:`simulate_batch` is used. ``attrs``: the
+    caller's provenance (:func:`warp_tensegrity.provenance.provenance_attrs`) and anything else."""
+    n_prisms = int(result.strain.shape[-1]) if result.strain is not None else (
+        int(config.n_prisms) if config is not None else 0)
+    height = float(config.height) if config is not None else result.info.get("prism_height")
+    meas = None
+    if measure and result.strain is not None:
+        if height is None:
+            raise ValueError("to_xarray(measure=True) needs the column's config (prism height)")
+        meas = measure_columns(result, height)
+    attrs = dict(attrs or {})
+    a = {"Conventions": CONVENTIONS, "title": "warp_tensegrity batch",
+         "source": f"warp_tensegrity {attrs.get('package_version', 'unknown')} on NVIDIA Warp",
+         "references": REFERENCES, "n_columns": result.n_columns, **result_attrs(result)}
+    if config is not None:
+        for f in dataclasses.fields(config):
+            a[f"scene_{f.name}"] = getattr(config, f.name)
+    a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
+    a.update(attrs)
+    coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
+    return batch_dataset(result, meas, coords, a, record_energy=result.kinetic_energy is not None)
 
 
 def shard_dataset(
@@ -272,38 +355,9 @@ def shard_dataset(
     n = stop - start
     if result.n_columns != n:
         raise ValueError(f"batch has {result.n_columns} columns, shard {start}:{stop} needs {n}")
-    n_prisms = spec.scene.n_prisms
-    C = ("case",)
-    dv = {
-        "amplitude": (C, measurements["amplitude"]),
-        "speed": (C, measurements["speed"]),
-        "width": (C, measurements["width"]),
-        "width_10": (C, measurements["width_10"]),
-        "prisms_measured": (C, measurements["prisms_measured"]),
-        "arrival_time": (("case", "prism"), measurements["arrival_time"]),
-        "status": (C, np.asarray(result.status, dtype=np.int8)),
-        "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),
-        "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
-        "bar_length_error": (C, np.asarray(result.bar_length_error, dtype=np.float64)),
-    }
-    for k, dtype in (("max_compression", np.float64), ("measurement_flag", np.int8)):  # sweep.measure_columns
-        if k in measurements:
-            dv[k] = (C, np.asarray(measurements[k], dtype=dtype))
-    if spec.run["record_energy"]:
-        dv["kinetic_energy"] = (("case", "time"), np.asarray(result.kinetic_energy, dtype=np.float64))
-        dv["elastic_energy"] = (("case", "time"), np.asarray(result.elastic_energy, dtype=np.float64))
-    if spec.run["record_strain"]:
-        if result.strain is None:
-            raise ValueError("record_strain is set but the engine returned no strain")
-        dv["strain"] = (("case", "time", "prism"), np.asarray(result.strain, dtype=np.float64))
-    data_vars = {
-        k: xr.Variable(d, np.asarray(v, dtype=np.float64) if k in MEASUREMENTS else v, attrs=dict(VAR_ATTRS[k]))
-        for k, (d, v) in dv.items()
-    }
-    ds = xr.Dataset(data_vars, coords=_coords(spec, params, start, stop, result.time, n_prisms,
-                                              result.info.get("output_step")))
-    ds.attrs = {k: _attr(v) for k, v in attrs.items()}
-    return ds
+    coords = _coords(spec, params, start, stop, result.time, spec.scene.n_prisms, result.info.get("output_step"))
+    return batch_dataset(result, measurements, coords, attrs, record_energy=spec.run["record_energy"],
+                         record_strain=spec.run["record_strain"])
 
 
 def _joined(values) -> str:
@@ -316,7 +370,8 @@ def _joined(values) -> str:
 
 
 def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict | None = None) -> xr.Dataset:
-    """The sweep's dataset from its loaded shard datasets (in shard order, covering every column)."""
+    """The sweep's dataset from its loaded shard datasets (in shard order, covering every column).
+    Provenance comes from the shards; ``extra_attrs`` (e.g. the combining ``command_line``) wins."""
     if not shards:
         raise ValueError("no shards to combine")
     shards = sorted(shards, key=lambda d: int(d.attrs["case_start"]))
@@ -329,7 +384,7 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
         raise ValueError(f"shards cover {pos} of {spec.n_columns} columns")
     first = shards[0]
     for d in shards[1:]:
-        for c in ("time", "prism"):
+        for c in (TIME, "prism"):
             if not np.array_equal(d[c].values, first[c].values):
                 raise ValueError(f"shard {d.attrs['shard_index']} has a different {c} coordinate")
         for k in ("dt", "n_steps", "fingerprint"):
@@ -355,15 +410,18 @@ def combine_shards(spec: SweepSpec, shards: list[xr.Dataset], extra_attrs: dict 
 
     attrs = spec_attrs(spec)
     a0 = first.attrs
-    for k in ("package_version", "code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval",
+    for k in ("code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval",
               "dt_safety_used", "accuracy_target"):
         if k not in a0:
             continue
         attrs[k] = a0[k]
-    for k in ("warp_version", "git_commit", "device", "device_name", "step_path"):
+    for k in ("warp_version", "git_commit", "device", "device_name", "cuda_driver", "package_version", "step_path"):
         attrs[k] = _joined(d.attrs.get(k, "unknown") for d in shards)
+    attrs["git_dirty"] = int(any(int(d.attrs.get("git_dirty", 0)) for d in shards))
+    attrs["source"] = f"warp_tensegrity {attrs['package_version']} on NVIDIA Warp"
+    attrs["command_line"] = _joined(d.attrs.get("command_line", "unknown") for d in shards)  # extra_attrs: the combining one
     attrs["wall_time"] = float(sum(float(d.attrs.get("wall_time", 0.0)) for d in shards))
-    attrs["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} combined {len(shards)} shards by warp_tensegrity {package_version()}"
+    attrs["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} combined {len(shards)} shards by warp_tensegrity {attrs['package_version']}"
     if extra_attrs:
         attrs.update(extra_attrs)
     ds.attrs = {k: _attr(v) for k, v in attrs.items()}

@@ -1,62 +1,9 @@
-"""The batch result and status codes: what comes out of a run (host side). The run settings
-(what goes in) are declared in :mod:`warp_tensegrity.options`."""
+"""Run settings: what goes into a run (host side). Every run option is declared once, in
+:mod:`warp_tensegrity.options` (re-exported here). What comes out: :mod:`.result`."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
-import numpy as np
-
-from .types import STATUS_MEANINGS
-
-# every run option is declared once, in options.py (re-exported here for the existing imports)
-from .options import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError  # noqa: F401
+from .options import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError  # noqa: F401 (re-exported)
+from .types import STATUS_MEANINGS, TIME  # noqa: F401 (re-exported)
 
 STATUS_NAMES = {int(k): v for k, v in STATUS_MEANINGS.items()}
-
-
-@dataclass
-class BatchResult:
-    """What a batch run returns, on the host. B = number of columns."""
-
-    params: dict
-    """Per-column parameters actually used, each shape (B,)."""
-    time: np.ndarray
-    """(n_out,) output times [s]."""
-    strain: np.ndarray | None
-    """(B, n_out, n_prisms) prism axial strain (h - h0)/h [1], negative in compression; None if not kept."""
-    kinetic_energy: np.ndarray
-    """(B, n_out) [J]."""
-    elastic_energy: np.ndarray
-    """(B, n_out) elastic energy of all cables, prestress included [J]."""
-    energy_error: np.ndarray
-    """(B,) max_t |E(t) - E(0)| / KE(0) [1] over the outputs (E = kinetic + elastic)."""
-    bar_length_error: np.ndarray
-    """(B,) max over all steps and bars of |l - L| / L after projection [1]."""
-    status: np.ndarray
-    """(B,) :class:`~warp_tensegrity.types.Status`: 0 ok, 1 non-finite state, 2 bar constraint failed."""
-    fail_step: np.ndarray
-    """(B,) step at which the column was frozen, -1 if it never failed."""
-    dt: float
-    """Time step used [s]."""
-    n_steps: int
-    method: str
-    precision: str
-    device: str
-    """Warp device alias the batch ran on."""
-    device_name: str
-    """Human-readable device name."""
-    wall_time: float
-    """Seconds spent stepping (excludes build and compile)."""
-    final_displacement: np.ndarray | None = None
-    """(B, n_nodes, 3) displacement from the reference positions at the last step [m]."""
-    final_velocity: np.ndarray | None = None
-    """(B, n_nodes, 3) velocity at the last step [m s-1]."""
-    dt_limit: float = float("nan")
-    """Predicted stability limit of the method for the stiffest column [s]."""
-    info: dict = field(default_factory=dict)
-    """Extra facts: projection iterations, compile time, steps per graph, etc."""
-
-    @property
-    def n_columns(self) -> int:
-        return int(self.status.shape[0])

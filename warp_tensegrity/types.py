@@ -56,6 +56,11 @@ class Status(IntEnum):
 STATUS_MEANINGS = {Status.OK: "ok", Status.NONFINITE: "non-finite state", Status.CONSTRAINT: "bar constraint failed"}
 
 
+TIME = "t"
+"""Name of the simulated-time axis of every dataset [s since impact]. Not "time": CF reads a
+coordinate named time as calendar time, which needs "seconds since <date>" (io.py)."""
+
+
 class Method(StrEnum):
     """Time integrators (see :mod:`warp_tensegrity.integrate`)."""
 

@@ -9,6 +9,7 @@ import time as _time
 import numpy as np
 import xarray as xr
 
+from ..provenance import provenance_attrs
 from .spec import LensSpec
 
 CONVENTIONS = "CF-1.10"
@@ -128,9 +129,7 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
         "calibration_wall_time": float(r_cal.wall_time),
         "verification_wall_time": float(r_ver.wall_time),
         "wall_time": float(wall),
-        "git_commit": D.git_commit(),
-        "package_version": D.package_version(),
-        "warp_version": D.warp_version(),
+        **provenance_attrs(),  # package version, commit, dirty flag, Warp version, command line
     }
     return xr.Dataset(v, coords=coords, attrs=attrs)
 

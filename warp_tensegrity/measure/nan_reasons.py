@@ -34,6 +34,7 @@ import math
 
 import numpy as np
 
+from ..types import TIME
 from .pulse import measurement_window
 
 FLAGS = (
@@ -169,5 +170,5 @@ def dataset_summary(ds) -> list[str]:
     flags = ds["measurement_flag"].values.reshape(-1)
     at = ds["arrival_time"].transpose(..., "prism").values
     at = at.reshape(-1, at.shape[-1])
-    t_end = float(ds.attrs.get("t_end", float(ds["time"].values[-1])))
-    return summary(flags, ds.sizes["prism"], t_end, t_end_needed(at, ds["time"].values))
+    t_end = float(ds.attrs.get("t_end", float(ds[TIME].values[-1])))
+    return summary(flags, ds.sizes["prism"], t_end, t_end_needed(at, ds[TIME].values))

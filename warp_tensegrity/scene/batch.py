@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 from . import columns as col
 from .network import Network, NetworkError
-from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 
 
 @dataclass

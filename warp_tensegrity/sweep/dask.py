@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..io import code_version
+from ..provenance import code_version
 
 
 def _gpu_count() -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..engine import choose_path, estimate_batch
-from ..io import code_version
+from ..provenance import code_version
 from ..settings import RunSettings
 from .progress import fmt_seconds
 from .budget import check_plan

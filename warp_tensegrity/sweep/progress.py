@@ -1,4 +1,13 @@
-"""The sweep's progress bar (stderr)."""
+"""Sweep progress on stderr with tqdm: columns done, columns diverged, elapsed, ETA.
+
+tqdm draws the bar, limits the refresh rate and finds out whether the stream is a terminal; by
+default (``enabled=None``) the bar shows only on a terminal, so logs and pipes stay clean.
+
+The ETA starts from the engine's calibrated cost estimate (``estimate_s``, from
+:func:`warp_tensegrity.engine.estimate_batch`) and moves to the measured rate as columns
+finish: with a fraction f of the outstanding work done, ETA = (1 - f) * estimate_left + f * rate_left.
+tqdm's own ETA knows only the rate, hence the postfix.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +15,15 @@ import math
 import sys
 import time
 
+from tqdm import tqdm
+
+
+def _fmt(s: float) -> str:
+    return tqdm.format_interval(max(s, 0.0)) if math.isfinite(s) else "?"
+
 
 def fmt_seconds(s: float) -> str:
+    """A duration for the dry run's summary, e.g. '2m05s' ('?' when unknown)."""
     if not math.isfinite(s):
         return "?"
     s = int(round(s))
@@ -19,56 +35,54 @@ def fmt_seconds(s: float) -> str:
 
 
 class ProgressBar:
-    """A one-line stderr bar: columns done, columns diverged, ETA."""
+    """Progress of a sweep in columns. ``update(done, diverged)`` takes totals, not increments."""
 
-    def __init__(self, total: int, done: int = 0, diverged: int = 0, stream=None, enabled: bool = True, width: int = 28):
+    def __init__(self, total: int, done: int = 0, diverged: int = 0, stream=None, enabled: bool | None = None,
+                 estimate_s: float | None = None):
         self.total = max(int(total), 1)
-        self.base_done = done
-        self.base_diverged = diverged
+        self.base_done = float(done)
         self.done = float(done)
-        self.diverged = diverged
-        self.stream = stream or sys.stderr
-        self.enabled = enabled
-        self.width = width
+        self.diverged = int(diverged)
+        self.estimate_s = estimate_s
         self.t0 = time.monotonic()
-        self.last = 0.0
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self._len = 0
-        self._printed = None
+        stream = stream or sys.stderr
+        self._bar = tqdm(total=self.total, initial=done, file=stream, disable=None if enabled is None else not enabled,
+                         unit="col", dynamic_ncols=True, mininterval=0.2, leave=True,
+                         bar_format="{l_bar}{bar}| {postfix}")
+        self._set_postfix()
 
-    def update(self, done: float, diverged: int, force: bool = False):
-        self.done, self.diverged = float(done), int(diverged)
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        state = (int(self.done), self.diverged)
-        if force and state == self._printed and now - self.last < 1.0:
-            return  # nothing new to say
-        if not force and now - self.last < (0.2 if self.tty else 10.0):
-            return
-        self.last = now
-        self._printed = state
-        frac = min(self.done / self.total, 1.0)
-        fill = int(round(frac * self.width))
-        elapsed = now - self.t0
-        new = self.done - self.base_done
+    def eta(self) -> float:
+        """Seconds left: the calibrated estimate blended with the measured rate."""
         remaining = self.total - self.done
-        eta = elapsed * remaining / new if new > 0 else float("nan")
-        line = (
-            f"[{'#' * fill}{'.' * (self.width - fill)}] {int(self.done)}/{self.total} columns"
-            f"  {self.diverged} diverged  elapsed {fmt_seconds(elapsed)}  ETA {fmt_seconds(eta if remaining > 0 else 0)}"
-        )
-        if self.tty:
-            pad = " " * max(self._len - len(line), 0)
-            self.stream.write("\r" + line + pad)
-            self._len = len(line)
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
+        if remaining <= 0:
+            return 0.0
+        elapsed = time.monotonic() - self.t0
+        todo = self.total - self.base_done
+        f = (self.done - self.base_done) / todo if todo > 0 else 1.0
+        rate_left = elapsed * (1 - f) / f if f > 0 else math.inf
+        if self.estimate_s is None:
+            return rate_left
+        est_left = max(self.estimate_s - elapsed, 0.0) if f == 0 else self.estimate_s * (1 - f)
+        return est_left if f == 0 else (1 - f) * est_left + f * rate_left
 
-    def close(self):
-        if self.enabled:
+    def _set_postfix(self) -> None:
+        elapsed = time.monotonic() - self.t0
+        self._bar.set_postfix_str(
+            f"{int(self.done)}/{self.total} columns, {self.diverged} diverged, elapsed {_fmt(elapsed)}, "
+            f"ETA {_fmt(self.eta())}", refresh=False)
+
+    def update(self, done: float, diverged: int, force: bool = False) -> None:
+        self.done, self.diverged = float(done), int(diverged)
+        if self._bar.disable:
+            return
+        self._bar.n = min(self.done, self.total)
+        self._set_postfix()
+        if force:
+            self._bar.refresh()
+        else:
+            self._bar.update(0)  # tqdm redraws at most every mininterval
+
+    def close(self) -> None:
+        if not self._bar.disable:
             self.update(self.done, self.diverged, force=True)
-            if self.tty:
-                self.stream.write("\n")
-                self.stream.flush()
+        self._bar.close()

@@ -4,9 +4,12 @@ status (:mod:`.store` describes the files)."""
 
 from __future__ import annotations
 
+import logging
+import math
 from pathlib import Path
 
 from .. import io as D
+from ..provenance import command_line
 
 from ..types import ShardState
 from .dask import run_shards_dask
@@ -17,20 +20,23 @@ from .shard import run_and_check, run_shard
 from .spec import SweepSpec, load_spec
 from .store import ShardCheck, check_shard, prepare_dir, read_manifest, shard_dir_for, status_from_output
 
+log = logging.getLogger(__name__)
+
 
 def execute(
     plan: SweepPlan,
     *,
     resume: bool = False,
     overwrite: bool = False,
-    progress: bool = True,
+    progress: bool | None = None,
     dask_workers: int | None = None,
     scheduler: str | None = None,
     client=None,
     stream=None,
     combine_output: bool = True,
 ) -> Path | None:
-    """Run (or resume) every shard of ``plan`` that is not done, then combine into plan.out."""
+    """Run (or resume) every shard of ``plan`` that is not done, then combine into plan.out.
+    ``progress``: None shows the bar only when ``stream`` (stderr) is a terminal; True always; False never."""
     if plan.out is None:
         raise SweepError("no output path")
     if plan.settings is None:
@@ -42,7 +48,9 @@ def execute(
     todo = [s.index for s in states if s.state != ShardState.DONE]
     done_cols = sum(s.n_columns for s in states if s.state == ShardState.DONE)
     done_failed = sum(s.n_failed for s in states if s.state == ShardState.DONE)
-    bar = ProgressBar(plan.n_columns, done_cols, done_failed, stream=stream, enabled=progress)
+    bar = ProgressBar(plan.n_columns, done_cols, done_failed, stream=stream, enabled=progress,
+                      estimate_s=_estimated_seconds(plan, todo))
+    log.debug("%d of %d shards to run (%d columns done)", len(todo), plan.n_shards, done_cols)
     if todo:
         if dask_workers or scheduler or client is not None:
             run_shards_dask(plan, todo, run_and_check, n_workers=dask_workers, scheduler=scheduler, client=client, bar=bar)
@@ -67,7 +75,16 @@ def execute(
     return None
 
 
-def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=True,
+def _estimated_seconds(plan: SweepPlan, todo) -> float | None:
+    """The calibrated cost model's time for the shards still to run (None if unknown)."""
+    spc = float(plan.estimate.get("seconds_per_column_step_estimate", float("nan")))
+    steps = int(plan.estimate.get("n_steps", 0))
+    cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in todo)
+    secs = spc * steps * cols
+    return secs if math.isfinite(secs) and secs > 0 else None
+
+
+def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=None,
               dask_workers=None, scheduler=None, client=None, stream=None) -> Path:
     """Run a spec (SweepSpec, path or TOML text) into ``out`` (netCDF)."""
     if not isinstance(spec, SweepSpec):
@@ -77,7 +94,7 @@ def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrit
                    scheduler=scheduler, client=client, stream=stream)
 
 
-def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=True, dask_workers=None,
+def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=None, dask_workers=None,
                  scheduler=None, client=None, stream=None) -> Path:
     """Finish an interrupted run: reuse the shards that check out, recompute the others, combine."""
     if spec is None:
@@ -121,7 +138,7 @@ def combine(plan_or_out, spec=None) -> Path:
             f"run `warp-tensegrity resume {plan.out}`"
         )
     shards = [D.open_sweep(plan.shard_path(i)) for i in range(plan.n_shards)]
-    ds = D.combine_shards(plan.spec, shards)
+    ds = D.combine_shards(plan.spec, shards, extra_attrs={"command_line": command_line()})
     return D.write_netcdf(ds, plan.out)
 
 

@@ -12,38 +12,16 @@ import numpy as np
 
 from .. import io as D
 from ..engine import simulate_batch
-from ..measure import measure_pulse
-from ..measure.nan_reasons import measurement_flags
-from ..types import ShardState, Status
+from ..provenance import provenance_attrs
+from ..runtime import warp_facts
+from ..types import ShardState
 from .store import check_shard
 
 if TYPE_CHECKING:
     from .plan import SweepPlan
 
 
-def measure_columns(result, prism_height: float) -> dict:
-    """Leading-pulse measurements per column (:func:`warp_tensegrity.measure.measure_pulse`);
-    NaN where undefined and for every column whose status is not ok."""
-    status = np.asarray(result.status)
-    with np.errstate(all="ignore"):
-        m = measure_pulse(result.strain, result.time, prism_height)
-    bad = status != Status.OK
-    out = {
-        "amplitude": m["amplitude"],
-        "speed": m["speed"],
-        "width": m["width_fwhm"],
-        "width_10": m["width_10"],
-        "prisms_measured": m["prisms_measured"],
-        "arrival_time": m["arrival_time"],
-    }
-    out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
-    for v in out.values():
-        v[bad] = np.nan
-    with np.errstate(invalid="ignore"):
-        out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
-    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
-    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out)
-    return out
+measure_columns = D.measure_columns  # leading-pulse measures of a BatchResult (io.py, shared with to_xarray)
 
 
 def _num(x):
@@ -65,26 +43,18 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         "Conventions": D.CONVENTIONS,
         "fingerprint": plan.fingerprint,
         "code_version": plan.code_version,
-        "package_version": D.package_version(),
-        "warp_version": D.warp_version(),
-        "git_commit": D.git_commit(),
+        **provenance_attrs(),
+        **warp_facts(result.device),
         "spec_sha256": spec.text_sha256,
         "shard_index": index,
         "n_shards": plan.n_shards,
         "case_start": start,
         "case_stop": stop,
-        "device": result.device,
-        "device_name": result.device_name,
+        **D.result_attrs(result),
         "step_path": result.info.get("step_path", "unknown"),
-        "method": result.method,
-        "precision": result.precision,
-        "dt": float(result.dt),
         "dt_limit": plan.dt_limit,
-        "n_steps": int(result.n_steps),
         "dt_safety_used": _num(plan.estimate.get("dt_safety") if isinstance(spec.run["dt"], str) else None),
         "accuracy_target": _num(plan.estimate.get("accuracy_target") if isinstance(spec.run["dt"], str) else None),
-        "output_interval": float(result.time[1] - result.time[0]) if len(result.time) > 1 else float("nan"),
-        "wall_time": float(result.wall_time),
         "history": f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} shard {index} computed by warp_tensegrity",
     }
     if spec.run["output_interval"] is not None:

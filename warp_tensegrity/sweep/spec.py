@@ -35,7 +35,6 @@ import numpy as np
 
 from .. import options as O
 from ..engine import for_accuracy
-from ..io import code_version
 from ..options import (
     COLUMN_PARAMETERS,
     EXECUTION_KEYS,
@@ -44,6 +43,7 @@ from ..options import (
     RunSettings,
     suggest,
 )
+from ..provenance import code_version
 from ..scene.columns import ColumnConfig, column_topology
 from ..scene.network import NetworkError
 from .budget import fmt_bytes, host_memory_available, plan_bytes
@@ -65,6 +65,25 @@ RUN_KEYS = tuple(f.name for f in dataclasses.fields(RunSettings))
 PARAM_DEFAULTS = {f.name: f.default for f in dataclasses.fields(ColumnParameters) if f.default is not None}
 """Defaults of the per-column parameters that are not scene-derived (cable_EA and unit_mass
 default to the scene's values)."""
+
+KEY_DOCS = {
+    "title": "dataset `title` attribute (default: from the file name)",
+    "description": "dataset `comment` attribute",
+    "scene": "table: the fixed scene, the same for every column",
+    "sweep": "table: the swept per-column parameters",
+    "run": "table: run settings",
+    "sweep.grid": "a full grid, one axis per per-column parameter, in the order written (C order: the first varies slowest); "
+                  "each axis a list of distinct values or a range table",
+    "sweep.cases": "an explicit list of tables, one column each, setting any per-column parameters (and `label`)",
+    "sweep.fixed": "non-swept per-column parameters (a parameter is either swept or fixed)",
+    "sweep.grid.<param>.start": "first value of a range axis (included)",
+    "sweep.grid.<param>.stop": "last value of a range axis (included)",
+    "sweep.grid.<param>.num": "number of values of a range axis (integer >= 1)",
+    "sweep.grid.<param>.spacing": '`"linear"` (default) or `"log"` (geometric; start, stop > 0)',
+    "sweep.cases[i].label": "case label, stored as the `case_label` coordinate",
+}
+"""What each structural spec key means (the options themselves are documented where they are
+declared: :func:`warp_tensegrity.options.options_table`; the docs' hook reads both)."""
 
 
 

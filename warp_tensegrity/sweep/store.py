@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import io as D
+from ..provenance import warp_version
 from ..types import ShardState, Status
 from .errors import SweepError
 
@@ -69,8 +70,8 @@ def check_shard(plan: SweepPlan, index: int) -> ShardCheck:
         reason = "fingerprint differs (spec or code changed)"
     elif (int(a.get("case_start", -1)), int(a.get("case_stop", -1))) != (start, stop):
         reason = f"covers columns {a.get('case_start')}:{a.get('case_stop')}, expected {start}:{stop}"
-    elif a.get("warp_version") != D.warp_version():
-        reason = f"made with Warp {a.get('warp_version')}, this is Warp {D.warp_version()}"
+    elif a.get("warp_version") != warp_version():
+        reason = f"made with Warp {a.get('warp_version')}, this is Warp {warp_version()}"
     elif ds.sizes.get("case") != stop - start or "status" not in ds:
         reason = "incomplete contents"
     if reason:

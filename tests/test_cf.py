@@ -1,0 +1,56 @@
+"""The CLI's netCDF passes the IOOS compliance checker, CF 1.10, with no error and no warning.
+
+Two layouts: ``sweeps/ci_small.toml`` (a grid: one dimension per swept parameter) and
+``sweeps/paper_2017.toml`` (a labelled case list: parameters as auxiliary coordinates along
+``case``). paper_2017 runs with t_end = 0.2 s here to keep CI fast: t_end changes the lengths
+of the axes, not the variables or their attributes. The full run was checked by hand with
+``compliance-checker --test cf:1.10`` (no corrective actions).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from warp_tensegrity import sweep
+from warp_tensegrity.sweep import load_spec
+
+cc_runner = pytest.importorskip("compliance_checker.runner")
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cf_messages(path: Path, tmp_path: Path) -> tuple[dict, list]:
+    """(scores, every message of every priority) of ``compliance-checker --test cf:1.10 PATH``."""
+    cc_runner.CheckSuite.load_all_available_checkers()
+    report = tmp_path / "cf.json"
+    cc_runner.ComplianceChecker.run_checker(str(path), ["cf:1.10"], 0, "normal",
+                                            output_filename=str(report), output_format="json")
+    r = json.loads(report.read_text())["cf:1.10"]
+    msgs = [(p, c["name"], m) for p in ("high_priorities", "medium_priorities", "low_priorities")
+            for c in r[p] for m in c["msgs"]]
+    return r, msgs
+
+
+@pytest.mark.parametrize("name, overrides", [("ci_small", None), ("paper_2017", {"run": {"t_end": 0.2}})])
+def test_cli_output_is_cf_clean(name, overrides, tmp_path):
+    spec = load_spec(ROOT / "sweeps" / f"{name}.toml", overrides=overrides)
+    out = sweep.run_sweep(spec, tmp_path / f"{name}.nc", device="cpu", progress=False)
+    r, msgs = cf_messages(out, tmp_path)
+    assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)  # errors (high) and warnings (medium, low)
+    assert r["scored_points"] == r["possible_points"] > 100
+
+
+def test_checker_sees_a_calendar_time_without_epoch(tmp_path):
+    """The check can fail: a 'time' axis in seconds with no reference date is a CF error (why ours is 't')."""
+    import numpy as np
+    import xarray as xr
+
+    ds = xr.Dataset({"x": (("time",), np.zeros(3), {"long_name": "x", "units": "1"})},
+                    coords={"time": ("time", np.arange(3.0), {"units": "s", "long_name": "time", "axis": "T"})},
+                    attrs={"Conventions": "CF-1.10"})
+    ds.to_netcdf(tmp_path / "bad.nc", encoding={"time": {"_FillValue": None}})
+    _, msgs = cf_messages(tmp_path / "bad.nc", tmp_path)
+    assert any("time" in m for _, _, m in msgs)

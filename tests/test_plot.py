@@ -1,0 +1,96 @@
+"""warp_tensegrity.plot: each figure holds the dataset's numbers; the `plot` subcommand draws them
+in-process; bad requests get a PlotError naming what is missing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import xarray as xr  # noqa: E402
+
+from warp_tensegrity import cli  # noqa: E402
+from warp_tensegrity import plot as W  # noqa: E402
+from warp_tensegrity.io import write_netcdf  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def grid_dataset() -> xr.Dataset:
+    p, v, b = np.array([0.0, 0.001, 0.002]), np.array([0.001, 0.01, 0.1]), np.array([0.0, 1.0])
+    t, prism = np.linspace(0, 1, 21), np.arange(6)
+    rng = np.random.default_rng(1)
+    speed = rng.random((3, 3, 2))
+    status = np.zeros((3, 3, 2), dtype=np.int8)
+    status[2, 0, 1] = 1
+    strain = -rng.random((3, 3, 2, 21, 6)) * 1e-3
+    return xr.Dataset(
+        {"speed": (("prestrain", "v0", "base_rigidity"), speed, {"long_name": "speed", "units": "m s-1"}),
+         "status": (("prestrain", "v0", "base_rigidity"), status),
+         "strain": (("prestrain", "v0", "base_rigidity", "t", "prism"), strain)},
+        coords={"prestrain": p, "v0": v, "base_rigidity": b, "t": t, "prism": prism},
+        attrs={"title": "test grid"})
+
+
+def test_phase_diagram_holds_the_variable_and_blanks_failed_columns():
+    ds = grid_dataset()
+    ax = W.phase_diagram(ds, "speed", sel={"base_rigidity": 1.0})
+    arr = ax.collections[-1].get_array()
+    want = ds.speed.sel(base_rigidity=1.0).where(ds.status.sel(base_rigidity=1.0) == 0).transpose("v0", "prestrain")
+    np.testing.assert_array_equal(np.ma.filled(arr, np.nan).ravel(), want.values.ravel())
+    assert np.ma.getmaskarray(arr).sum() == 1  # the failed column
+    assert ax.get_yscale() == "log" and "m s-1" in ax.figure.axes[-1].get_ylabel()  # colour bar label
+    plt.close("all")
+
+
+def test_phase_diagram_refuses_what_it_cannot_draw():
+    ds = grid_dataset()
+    with pytest.raises(W.PlotError, match="base_rigidity"):
+        W.phase_diagram(ds, "speed")  # a third grid dim left free
+    with pytest.raises(W.PlotError, match="no variable 'width'"):
+        W.phase_diagram(ds, "width", sel={"base_rigidity": 0.0})
+    cases = ds.stack(case=("prestrain", "v0", "base_rigidity")).reset_index("case")
+    with pytest.raises(W.PlotError, match="case list"):
+        W.phase_diagram(cases, "speed")
+
+
+def test_spacetime_and_profile_hold_the_strain():
+    ds = grid_dataset()
+    sel = {"prestrain": 0.001, "v0": 0.01, "base_rigidity": 0.0}
+    s = ds.strain.sel(sel)
+    ax = W.spacetime(ds, sel=sel)
+    np.testing.assert_array_equal(np.asarray(ax.collections[-1].get_array()).ravel(), s.transpose("t", "prism").values.ravel())
+    ax = W.pulse_profile(ds, times=[0.25, 0.5], sel=sel)
+    np.testing.assert_array_equal(ax.lines[0].get_ydata(), s.sel(t=0.25).values)
+    assert ax.lines[1].get_label() == "t = 0.5 s"
+    with pytest.raises(W.PlotError, match="pick one column"):
+        W.spacetime(ds, sel={"v0": 0.01})
+    plt.close("all")
+
+
+def test_work_precision_chart_of_the_stored_study():
+    ds = xr.open_dataset(ROOT / "analysis" / "data" / "wp_cuda0.nc").load()
+    ax = W.work_precision(ds, "speed")
+    ln = next(line for line in ax.lines if line.get_label() == "rattle fp64")
+    pick = {"method": "rattle", "precision": "fp64"}  # a dict: method= is also sel's own keyword
+    x, y = ds.cost_device.sel(pick).values, ds.err_speed.max("case").sel(pick).values
+    ok = np.isfinite(y) & (y > 0) & np.isfinite(x)
+    np.testing.assert_array_equal(ln.get_xdata(), x[ok])
+    np.testing.assert_array_equal(ln.get_ydata(), y[ok])
+    assert ax.get_xscale() == ax.get_yscale() == "log"
+    plt.close("all")
+
+
+def test_plot_subcommand(tmp_path, capsys):
+    nc = write_netcdf(grid_dataset(), tmp_path / "g.nc")
+    assert cli.main(["plot", str(nc), "phase", "--sel", "base_rigidity=0", "-o", str(tmp_path / "p.png")]) == 0
+    assert (tmp_path / "p.png").stat().st_size > 1000
+    assert cli.main(["plot", str(nc), "spacetime", "--sel", "prestrain=0", "--sel", "v0=0.1",
+                     "--sel", "base_rigidity=1"]) == 0
+    assert (tmp_path / "g-spacetime.png").exists()
+    assert cli.main(["plot", str(nc), "phase"]) == 1
+    assert "fix the other grid dimensions with sel: base_rigidity" in capsys.readouterr().err

@@ -1,0 +1,252 @@
+"""Figures of sweep datasets: phase diagrams, space-time maps, pulse profiles, work-precision charts.
+
+Each function takes a dataset (or DataArray) in the layout the CLI writes (``warp-tensegrity run``,
+:meth:`BatchResult.to_xarray`), draws on ``ax`` (a new figure when None) and returns the Axes.
+The artists keep the dataset's numbers (``ax.collections[0].get_array()``, ``line.get_ydata()``),
+which is what ``tests/test_plot.py`` checks. ``warp-tensegrity plot`` and the notebooks in
+``analysis/`` use these functions; matplotlib is imported only here.
+
+Units: strain [1] ((h - h0)/h, negative in compression), time ``t`` [s], speed [m s-1].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .settings import TIME  # xarray and matplotlib load on first use: `warp-tensegrity --help` stays instant
+
+KINDS = {
+    "phase": "a measured variable over two swept parameters",
+    "spacetime": "strain over prism and time, one column",
+    "profile": "strain against prism at a few times, one column",
+    "work-precision": "error against cost of a work-precision study (benchmarks/work_precision.py)",
+}
+
+STRAIN_LABEL = r"axial strain $\varepsilon = (h - h_0)/h$ [-]"
+PRISM_LABEL = "prism j (0: clamped end; impact at the last)"
+
+
+class PlotError(ValueError):
+    """A figure cannot be drawn from this dataset as asked; the message says why."""
+
+
+def _axes(ax):
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots(layout="constrained")
+    return ax
+
+
+def _label(da, name: str) -> str:
+    lab = da.attrs.get("long_name", name)
+    units = da.attrs.get("units")
+    return f"{lab} [{units}]" if units and units != "1" else lab
+
+
+def _short_label(da, name: str) -> str:
+    units = da.attrs.get("units")
+    return f"{name} [{units}]" if units and units != "1" else name
+
+
+def robust_limit(values, q: float = 99.5) -> float:
+    """Symmetric colour limit: the q-th percentile of |values| (finite ones), so that one spike at
+    the impacted end does not wash out a map; > 0."""
+    a = np.abs(np.asarray(values, dtype=float))
+    a = a[np.isfinite(a)]
+    v = float(np.percentile(a, q)) if a.size else 1.0
+    return v if v > 0 else 1.0
+
+
+def cell_edges(centres, log: bool = False) -> np.ndarray:
+    """Edges of cells centred on ``centres`` (midpoints; geometric midpoints when ``log``; the end
+    cells are symmetric about their centre). A single centre gets a cell of +-50 % (log) or +-0.5."""
+    c = np.asarray(centres, dtype=float)
+    if log:
+        return np.exp(cell_edges(np.log(c)))
+    if c.size == 1:
+        return np.array([c[0] - 0.5, c[0] + 0.5])
+    mid = 0.5 * (c[1:] + c[:-1])
+    return np.concatenate([[2 * c[0] - mid[0]], mid, [2 * c[-1] - mid[-1]]])
+
+
+def _select(obj, sel: dict | None):
+    """Nearest-value selection that names the dimension and the values on a miss."""
+    for name, value in (sel or {}).items():
+        if name not in obj.dims and name not in obj.coords:
+            raise PlotError(f"no dimension {name!r} to select (dims: {', '.join(map(str, obj.dims))})")
+        try:
+            obj = obj.sel({name: value}, method=None if isinstance(value, str) or name == "case" else "nearest")
+        except (KeyError, ValueError, TypeError) as e:
+            raise PlotError(f"{name} = {value!r} not found ({e})") from None
+    return obj
+
+
+def _strain_of_one_column(data, sel: dict | None):
+    if hasattr(data, "data_vars"):  # a Dataset
+        if "strain" not in data:
+            raise PlotError("the dataset has no strain: run with record_strain = true")
+        data = data["strain"]
+    da = _select(data, sel)
+    extra = [d for d in da.dims if d not in (TIME, "prism")]
+    if extra:
+        raise PlotError(f"pick one column first: give a value for {', '.join(map(str, extra))} "
+                        f"(e.g. sel={{{extra[0]!r}: ...}})")
+    return da.transpose(TIME, "prism")
+
+
+# ---------------------------------------------------------------------- figures
+def phase_diagram(data, var: str = "speed", x: str | None = None, y: str | None = None, ax=None,
+                  sel: dict | None = None, log_y: bool | None = None, colorbar: bool = True,
+                  cbar_label: str | None = None, **pcolormesh_kw):
+    """Colour map of the measured variable ``var`` over the swept parameters ``x`` and ``y`` of a
+    grid sweep (defaults: the first two grid dimensions), one cell per grid point; columns whose
+    status is not ok are blank. ``data``: the dataset, or a DataArray over the grid (e.g. a derived
+    quantity; then ``var`` is ignored). Other grid dimensions must be fixed with ``sel``. ``log_y``
+    (default: when y spans more than a decade and is > 0) uses geometric cell edges. Returns the Axes;
+    ``ax.collections[-1].get_array()`` is the variable with y as rows."""
+    if hasattr(data, "data_vars"):
+        if var not in data:
+            raise PlotError(f"no variable {var!r} in the dataset (have: {', '.join(map(str, data.data_vars))})")
+        da = data[var].where(data["status"] == 0) if "status" in data else data[var]
+    else:
+        da, var = data, str(data.name)
+    da = _select(da, sel)
+    dims = [d for d in da.dims if d not in ("prism", TIME)]
+    if "case" in dims:
+        raise PlotError("a phase diagram needs a grid sweep ([sweep] grid = ...); this dataset is a case list")
+    x = x or (dims[0] if dims else None)
+    y = y or next((d for d in dims if d != x), None)
+    if x is None or y is None or x not in dims or y not in dims:
+        raise PlotError(f"give x and y among the grid dimensions {dims}")
+    rest = [d for d in dims if d not in (x, y)]
+    if rest:
+        raise PlotError(f"fix the other grid dimensions with sel: {', '.join(rest)}")
+    d = da.transpose(y, x, ...)
+    if d.ndim != 2:
+        raise PlotError(f"{var} is not a per-column variable (dims {da.dims})")
+    yv = d[y].values.astype(float)
+    if log_y is None:
+        log_y = bool(np.all(yv > 0) and yv.max() / yv.min() > 10)
+    ax = _axes(ax)
+    kw = {"cmap": "viridis", "shading": "flat"}
+    kw.update(pcolormesh_kw)
+    mesh = ax.pcolormesh(cell_edges(d[x].values), cell_edges(yv, log=log_y), np.ma.masked_invalid(d.values), **kw)
+    if log_y:
+        ax.set_yscale("log")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.set_xlabel(_label(d[x], x))
+    ax.set_ylabel(_label(d[y], y))
+    if colorbar:
+        cb = ax.figure.colorbar(mesh, ax=ax, pad=0.01)
+        cb.set_label(cbar_label if cbar_label is not None else _short_label(da, var))
+    return ax
+
+
+def spacetime(data, ax=None, sel: dict | None = None, vmax: float | None = None, cmap: str = "RdBu_r",
+              colorbar: bool = True, cbar_label: str = STRAIN_LABEL):
+    """Space-time map of one column's strain: prism on x, time on y, a diverging colour map centred at
+    0 (blue: compression), limits +-``vmax`` (default :func:`robust_limit`). ``data``: a dataset
+    (pick the column with ``sel``, e.g. ``{"case": 3}``) or a (t, prism) DataArray in any order.
+    Returns the Axes; ``ax.collections[0].get_array()`` is the strain, time-major."""
+    from matplotlib import colors
+
+    s = _strain_of_one_column(data, sel)
+    v = robust_limit(s.values) if vmax is None else float(vmax)
+    ax = _axes(ax)
+    mesh = ax.pcolormesh(s["prism"].values, s[TIME].values, s.values, cmap=cmap, shading="nearest",
+                         norm=colors.TwoSlopeNorm(vcenter=0.0, vmin=-v, vmax=v), rasterized=True)
+    ax.set_xlabel(PRISM_LABEL)
+    ax.set_ylabel("time t [s]")
+    if colorbar:
+        cb = ax.figure.colorbar(mesh, ax=ax, extend="both", pad=0.01)
+        cb.set_label(cbar_label)
+        cb.formatter.set_powerlimits((-2, 2))
+        cb.update_ticks()
+    return ax
+
+
+def pulse_profile(data, times=None, ax=None, sel: dict | None = None, cmap: str = "viridis", marker: str = "."):
+    """Strain against prism at the output times nearest to ``times`` [s] (default: five times evenly
+    over the record), one line each, labelled with the time actually drawn: the paper's "time
+    shots". Returns the Axes; each line's y-data is the dataset's strain at that time."""
+    import matplotlib.pyplot as plt
+
+    s = _strain_of_one_column(data, sel)
+    t = s[TIME].values
+    if times is None:
+        times = t[np.linspace(0, len(t) - 1, 5).round().astype(int)]
+    ax = _axes(ax)
+    cm = plt.get_cmap(cmap)
+    n = len(times)
+    for i, ti in enumerate(times):
+        si = s.sel({TIME: ti}, method="nearest")
+        ax.plot(s["prism"].values, si.values, marker=marker, color=cm(0.9 * i / max(n - 1, 1)),
+                label=f"t = {float(si[TIME]):g} s")
+    ax.axhline(0.0, color="0.6", lw=0.6, zorder=0)
+    ax.set_xlabel(PRISM_LABEL)
+    ax.set_ylabel(STRAIN_LABEL)
+    ax.set_xlim(s["prism"].values[0] - 0.5, s["prism"].values[-1] + 0.5)
+    ax.legend()
+    return ax
+
+
+def work_precision(ds, measure: str = "speed", case=None, cost: str = "cost_device", ax=None):
+    """Error of ``measure`` against cost for every method and precision of a work-precision study
+    (the dataset ``benchmarks/work_precision.py`` writes: ``err_<measure>`` over (method, precision,
+    k, case) and ``cost`` over (method, precision, k)), log-log; fp64 solid, fp32 dashed; a star at
+    ``dt = "auto"`` where the study has it. ``case``: a case label (default: the worst case, max over
+    cases). Returns the Axes; each line's (x, y) are the study's (cost, error) with non-positive errors left out."""
+    ev = f"err_{measure}"
+    if ev not in ds or cost not in ds:
+        raise PlotError(f"not a work-precision study: needs {ev!r} and {cost!r} (have: {', '.join(map(str, ds.data_vars))})")
+    err = ds[ev].max("case") if case is None else _select(ds[ev], {"case": case})
+    ax = _axes(ax)
+    for method in ds["method"].values:
+        for prec in ds["precision"].values:
+            sel = {"method": method, "precision": prec}
+            xv, yv = ds[cost].sel(sel).values, err.sel(sel).values
+            ok = np.isfinite(xv) & np.isfinite(yv) & (yv > 0)
+            (ln,) = ax.plot(xv[ok], yv[ok], "-" if prec == "fp64" else "--", marker="o" if prec == "fp64" else "^",
+                            ms=3.5, label=f"{method} {prec}")
+            auto_e, auto_c = f"auto_{ev}", f"auto_{cost}"
+            if auto_e in ds and auto_c in ds:
+                ae = ds[auto_e].max("case") if case is None else ds[auto_e].sel(case=case)
+                ya, xa = float(ae.sel(sel)), float(ds[auto_c].sel(sel))
+                if np.isfinite(ya) and ya > 0:
+                    ax.plot([xa], [ya], marker="*", ms=9, color=ln.get_color(), mec="k", mew=0.5, ls="none")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(_label(ds[cost], cost))
+    ax.set_ylabel(f"relative error of {measure}" + (" (max over cases)" if case is None else f" ({case})"))
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=7)
+    return ax
+
+
+# ---------------------------------------------------------------------- the CLI's entry
+def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None):
+    """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure."""
+    from .io import open_sweep
+
+    if kind not in KINDS:
+        raise PlotError(f"plot kind {kind!r}: give one of {', '.join(sorted(KINDS))}")
+    try:
+        ds = open_sweep(path)
+    except (OSError, ValueError) as e:
+        raise PlotError(f"{path} does not open as netCDF ({e})") from None
+    sel = dict(sel or {})
+    if kind == "phase":
+        ax = phase_diagram(ds, var=var, x=x, y=y, sel=sel)
+    elif kind == "spacetime":
+        ax = spacetime(ds, sel=sel)
+    elif kind == "profile":
+        ax = pulse_profile(ds, times=times, sel=sel)
+    else:
+        ax = work_precision(ds, measure=var, case=sel.pop("case", None))
+    title = ds.attrs.get("title")
+    if title:
+        ax.set_title(str(title), fontsize=9)
+    return ax.figure

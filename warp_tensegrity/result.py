@@ -1,0 +1,70 @@
+"""The batch result: what a run returns, on the host, and its dataset (:meth:`BatchResult.to_xarray`).
+
+Apart from :mod:`.settings` so that the result may know its dataset format (:mod:`.io`) while the
+settings, which the step itself imports, stay a short import chain away from the bottom.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class BatchResult:
+    """What a batch run returns, on the host. B = number of columns."""
+
+    params: dict
+    """Per-column parameters actually used, each shape (B,)."""
+    time: np.ndarray
+    """(n_out,) output times [s]."""
+    strain: np.ndarray | None
+    """(B, n_out, n_prisms) prism axial strain (h - h0)/h [1], negative in compression; None if not kept."""
+    kinetic_energy: np.ndarray
+    """(B, n_out) [J]."""
+    elastic_energy: np.ndarray
+    """(B, n_out) elastic energy of all cables, prestress included [J]."""
+    energy_error: np.ndarray
+    """(B,) max_t |E(t) - E(0)| / KE(0) [1] over the outputs (E = kinetic + elastic)."""
+    bar_length_error: np.ndarray
+    """(B,) max over all steps and bars of |l - L| / L after projection [1]."""
+    status: np.ndarray
+    """(B,) :class:`~warp_tensegrity.types.Status`: 0 ok, 1 non-finite state, 2 bar constraint failed."""
+    fail_step: np.ndarray
+    """(B,) step at which the column was frozen, -1 if it never failed."""
+    dt: float
+    """Time step used [s]."""
+    n_steps: int
+    method: str
+    precision: str
+    device: str
+    """Warp device alias the batch ran on."""
+    device_name: str
+    """Human-readable device name."""
+    wall_time: float
+    """Seconds spent stepping (excludes build and compile)."""
+    final_displacement: np.ndarray | None = None
+    """(B, n_nodes, 3) displacement from the reference positions at the last step [m]."""
+    final_velocity: np.ndarray | None = None
+    """(B, n_nodes, 3) velocity at the last step [m s-1]."""
+    dt_limit: float = float("nan")
+    """Predicted stability limit of the method for the stiffest column [s]."""
+    info: dict = field(default_factory=dict)
+    """Extra facts: projection iterations, compile time, steps per graph, etc."""
+
+    @property
+    def n_columns(self) -> int:
+        return int(self.status.shape[0])
+
+    def to_xarray(self, config=None, measure: bool = True):
+        """The result as the CF dataset the CLI writes for a case list (``case`` dimension,
+        parameters as coordinates, time axis ``t`` [s]), with the pulse measurements when the
+        strain was kept. ``config``: the ColumnConfig (default: the prism height recorded by
+        :func:`simulate_batch`). Built by :func:`warp_tensegrity.io.result_dataset`."""
+        from .io import result_dataset  # xarray loads here, not with the package
+        from .provenance import provenance_attrs
+        from .runtime import warp_facts
+
+        attrs = {**provenance_attrs(), "cuda_driver": warp_facts(self.device)["cuda_driver"]}
+        return result_dataset(self, config=config, measure=measure, attrs=attrs)

@@ -1,0 +1,72 @@
+"""Warp start-up without noise: one call, :func:`init_warp`, before any kernel runs.
+
+Warp 1.19 has two sources of start-up output. Its Python banner ("Warp 1.19.0 initialized: ...")
+obeys ``wp.config.log_level``. The CUDA-driver warning on a machine without a GPU ("Warp CUDA
+warning: Could not find or load the NVIDIA CUDA driver ...") is printed by the native library
+straight to file descriptor 2 and has no switch. So :func:`init_warp` runs ``wp.init()`` with fd 2
+pointed at a temporary file (hand-written: no library offers this for a native library's stderr),
+drops the known driver lines, hands any other line to :mod:`logging` as a warning, and logs one
+line that the CPU will be used. :func:`warp_facts` gives the device facts every output records.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import tempfile
+
+log = logging.getLogger("warp_tensegrity")
+
+_NO_DRIVER = ("Could not find or load the NVIDIA CUDA driver", "Unable to determine CUDA driver version")
+_done = False
+
+
+def init_warp(verbose: bool = False):
+    """Import and initialise Warp once, quietly (``verbose``: keep Warp's own banner). Returns ``warp``."""
+    global _done
+    import warp as wp
+
+    if _done:
+        return wp
+    if hasattr(wp.config, "log_level"):
+        wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING
+    captured = ""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real fd 2 (embedded interpreters): let Warp print
+        saved = None
+    if saved is None:
+        wp.init()
+    else:
+        with tempfile.TemporaryFile(mode="w+b") as tmp:
+            try:
+                os.dup2(tmp.fileno(), 2)
+                wp.init()
+            finally:
+                sys.stderr.flush()
+                os.dup2(saved, 2)
+                os.close(saved)
+            tmp.seek(0)
+            captured = tmp.read().decode("utf-8", "replace")
+    for line in captured.splitlines():
+        if line.strip():  # the known no-driver lines only with -v; anything else is a warning
+            log.log(logging.DEBUG if any(s in line for s in _NO_DRIVER) else logging.WARNING, "%s", line)
+    _done = True
+    if not wp.is_cuda_available():
+        log.info("no CUDA device: Warp runs on the CPU")
+    return wp
+
+
+def warp_facts(device: str | None = None) -> dict:
+    """Warp version, the device (alias and name) and the CUDA driver version ('none' without one)."""
+    wp = init_warp()
+    dev = wp.get_device(device)
+    drv = wp.get_cuda_driver_version() if wp.is_cuda_available() else None
+    return {
+        "warp_version": str(wp.config.version),
+        "device": str(dev.alias),
+        "device_name": str(dev.name),
+        "cuda_driver": f"{drv // 1000}.{(drv % 1000) // 10}" if drv else "none",
+    }
