@@ -383,7 +383,8 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     """Build an Integrator for ``batch``, warm it up (kernels, graph capture), then time
     ``reps`` segments of n steps each (n chosen so that all segments take about target_s).
 
-    ``path``: 'fused' (one block per column, :mod:`warp_tensegrity.fused`) or 'staged' (one
+    ``path``: 'fused' (one block per column, :mod:`warp_tensegrity.kernels.fused`, block cyclic
+    reduction), 'fused-serial' (the same with lane 0's serial banded Cholesky) or 'staged' (one
     kernel per stage, the columns' solves one thread each).
 
     Per-step rate = total steps / total wall; rep_seconds_per_step gives each segment's rate.
@@ -407,9 +408,9 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     # otherwise. n_out covers at most 64 records (later records are skipped by the kernel's bound).
     settings = RunSettings(t_end=dt * output_every * 64, dt=dt, method="rattle", precision=precision,
                            device=str(device), record_strain=False, steps_per_graph=steps_per_graph,
-                           fused=path == "fused")
-    integ = Integrator(batch, settings, dt, output_every, 64, path=LaunchPath.FUSED if path == "fused" else LaunchPath.STAGED)
-    if path != "fused":
+                           fused=path != "staged")
+    integ = Integrator(batch, settings, dt, output_every, 64, path=LaunchPath(path))
+    if path == "staged":
         # the needed kernels were force-loaded with the launch block size; Integrator.load_kernels
         # would also compile the RK4-only kernels (and, on the CPU, a second block-size variant)
         mods = kernel_modules([integ.k, integ.ks])
@@ -434,7 +435,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
         # at large B keep one graph launch under ~1/3 of a segment
         seg = target_s / reps
         spg = int(max(1, min(steps_per_graph, math.floor(seg / 3.0 / max(probe, 1e-9)))))
-        if path == "fused":
+        if path != "staged":
             # whole fused launches: each launch factors A(u) once, so short launches would over-count it
             from warp_tensegrity import integrate
 

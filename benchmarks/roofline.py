@@ -148,7 +148,7 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
 
 
 def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float, output_every: int = 100,
-                steps_per_launch: int = 16, rows_in_shared: bool = True) -> dict:
+                steps_per_launch: int = 16, rows_in_shared: bool = True, solver: str = "cr") -> dict:
     """{part: (bytes, flops)} per column-step of the fused step with the block-cyclic-reduction
     solve (warp_tensegrity/kernels/fused.py), counted from its loops.
 
@@ -161,15 +161,20 @@ def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float,
     and W+ 4 S^3, Schur complement and coupling 6 S^3: 12 S^2 nc); the velocity projection (residual
     11 nc, a solve, an impulse). One more factor per launch.
 
+    ``solver='serial'`` (lane 0's banded Cholesky): a solve is two sweeps of (2 bw + 1) flops per
+    row, (4 bw + 2) nc; the factor nc (bw + 1)^2 after the Gram rows. (That variant is bound by
+    lane 0's dependent chain, not by these counts: its bound here is an upper bound only.)
+
     DRAM bytes: u, v, a read and written once per launch (6 V n / steps_per_launch); with the rows
     in global memory (``rows_in_shared`` False) they are written back once per launch as well
     (5 V n + the solver rows); the per-column rest lengths each step (ne r, upper estimate); outputs.
     """
     V = 3 * r
     S = max(bw, 1)
-    solve = 10 * S * nc
+    serial = solver == "serial"
+    solve = (4 * bw + 2) * nc if serial else 10 * S * nc
     impulse = 24 * nc + 21 * n
-    factor = 6 * nc + 20 * ncpl + 12 * S * S * nc
+    factor = 6 * nc + 20 * ncpl + (nc * (bw + 1) ** 2 if serial else 12 * S * S * nc)
     newton = 17 * nc + solve + impulse
     vel = 11 * nc + solve + impulse + 3 * n
     rows = 0.0 if rows_in_shared else (5 * V * n + r * nc * (1 + 5 * S)) / steps_per_launch
@@ -190,8 +195,9 @@ def bound(n_prisms: int = 50, base="FB", precision: str = "fp64", device_kind: s
           B: int | None = None, path: str = "staged") -> dict:
     """Bytes, flops and the roofline bound (column-steps/s) of one RATTLE column-step of the
     staged kernels (path='staged') or of the fused step (path='fused'; see fused_costs)."""
-    if path == "fused":
-        return _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B)
+    if path in ("fused", "fused-serial"):
+        return _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B,
+                            "serial" if path == "fused-serial" else "cr")
     lab = base_label(base)
     if precision not in ("fp32", "fp64"):
         raise ValueError(f"precision = {precision!r}")
@@ -233,21 +239,21 @@ def bound(n_prisms: int = 50, base="FB", precision: str = "fp64", device_kind: s
     return out
 
 
-def _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B) -> dict:
+def _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B, solver="cr") -> dict:
     lab = base_label(base)
     dev = DEVICES[device_kind.lower()]
     c = column_counts(int(n_prisms), lab)
     r = 4 if precision == "fp32" else 8
     it = DEFAULT_ITERS[(lab, precision)] if it is None else float(it)
     k = fused_costs(c["n_nodes"], c["n_cables"], c["n_constraints"], c["bandwidth"], c["n_coupling"], r, it,
-                    output_every)
+                    output_every, solver=solver)
     byts = sum(b for b, _ in k.values())
     flops = sum(f for _, f in k.values())
     peak = dev[precision]
     mem = dev["bw_measured"] / byts
     comp = peak / flops
     out = {
-        "path": "fused", "n_prisms": int(n_prisms), "base": lab, "precision": precision, "device_kind": device_kind,
+        "path": "fused" if solver == "cr" else "fused-serial", "n_prisms": int(n_prisms), "base": lab, "precision": precision, "device_kind": device_kind,
         **c, "real_bytes": r, "newton_iters": it, "output_every": output_every,
         "parts": {name: {"bytes": float(b), "flops": float(f)} for name, (b, f) in k.items()},
         "bytes_per_column_step": float(byts), "flops_per_column_step": float(flops),

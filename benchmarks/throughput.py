@@ -147,7 +147,7 @@ def run(args) -> dict:
                 extra = f" iters {p['mean_iters']:.2f} (warp max {p['warp32_max_iters_mean']:.2f})"
             if "roofline_fraction" in p:
                 extra += f" {100 * p['roofline_fraction']:.1f}% of roofline"
-            _log(f"  {sweep:7s} {path:6s} B={B:6d} prisms={n_prisms:4d} {base} {prec}: {p['column_steps_per_s']:.4g} col-steps/s "
+            _log(f"  {sweep:7s} {path:12s} B={B:6d} prisms={n_prisms:4d} {base} {prec}: {p['column_steps_per_s']:.4g} col-steps/s "
                  f"{p['node_steps_per_s']:.4g} node-steps/s ({p['steps']} steps, {p['wall_s']:.3f} s, "
                  f"graph {p['steps_per_graph']}) {p['bytes_per_column'] / 1e3:.1f} KB/col, build {p['build_s']:.2f} s,"
                  f" failed {p['n_failed']}{extra}")
@@ -211,10 +211,10 @@ def ncu_mode(args):
 
     batch = common.tile_batch(common.build_base_batch(npr, BASES[base], min(common.BASE_COLUMNS, B)), B)
     dt = common.rattle_dt(batch)
-    fused = args.paths[0] == "fused"
+    fused = args.paths[0] != "staged"
     s = RunSettings(t_end=dt * 1000, dt=dt, precision=prec, device=str(device), record_strain=False,
                     steps_per_graph=1 << 30, fused=fused)
-    integ = Integrator(batch, s, dt, 100, 16, path=LaunchPath.FUSED if fused else LaunchPath.STAGED)
+    integ = Integrator(batch, s, dt, 100, 16, path=LaunchPath(args.paths[0]))
     if not fused:
         integ.load_kernels = lambda: None
     integ.initialize()
@@ -240,8 +240,9 @@ def main(argv=None):
     ap.add_argument("--budget-s", dest="budget_s", type=float, default=None,
                     help="stop starting new points after this many seconds of sweeping (compile excluded)")
     ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--paths", nargs="+", default=["fused", "staged"], choices=["fused", "staged"],
-                    help="step implementations: fused (block per column) and/or staged (kernel per stage)")
+    ap.add_argument("--paths", nargs="+", default=["fused", "staged"], choices=["fused", "fused-serial", "staged"],
+                    help="step implementations: fused (block per column; its solve by block cyclic reduction), "
+                         "fused-serial (the same, lane 0's serial banded Cholesky) and/or staged (kernel per stage)")
     ap.add_argument("--prism-paths", dest="prism_paths", nargs="+", default=["fused"], choices=["fused", "staged"],
                     help="paths measured in the prism sweep")
     ap.add_argument("--max-steps", dest="max_steps", type=int, default=200_000)

@@ -164,21 +164,83 @@ def test_fused_node_slots_are_the_types_slots():
     assert [int(c) for c in (common.U, common.V, common.A, common.P, common.I)] == [int(s) for s in Slot]
 
 
-def test_auto_path_policy_follows_the_measured_crossovers():
+def test_auto_path_policy_picks_the_fastest_measured_path():
+    """On a GPU, 'auto' takes the fastest of fused (CR), fused-serial and staged measured for the
+    band, precision and batch; the table is the benchmark's JSON (3 significant digits)."""
+    import json
+    from pathlib import Path as FsPath
+
     from warp_tensegrity import SettingsError
-    from warp_tensegrity.engine import FUSED_MAX_BANDWIDTH, FUSED_MAX_COLUMNS, FUSED_MAX_COLUMNS_WIDE, choose_path
+    from warp_tensegrity.engine import FUSED_MAX_BANDWIDTH, MEASURED_H100, MEASURED_PATHS, choose_path
     from warp_tensegrity.types import Path
 
-    auto = RunSettings()
-    assert choose_path(auto, True, FUSED_MAX_COLUMNS, 3) == Path.FUSED
-    assert choose_path(auto, True, FUSED_MAX_COLUMNS + 1, 3) == Path.STAGED
-    assert choose_path(auto, True, FUSED_MAX_COLUMNS_WIDE, 6) == Path.FUSED
-    assert choose_path(auto, True, FUSED_MAX_COLUMNS_WIDE + 1, 6) == Path.STAGED
-    assert choose_path(auto, False, 10**6, 6) == Path.FUSED  # CPU: one lane, no crossover measured
-    assert choose_path(auto, False, 4, FUSED_MAX_BANDWIDTH + 1) == Path.STAGED  # generic wide band
-    assert choose_path(RunSettings(method="rk4"), False, 4, 3) == Path.STAGED
+    res = FsPath(__file__).parents[1] / "benchmarks/results"
+    doc = json.loads((res / "throughput_h100_solver.json").read_text())
+    glob = json.loads((res / "throughput_h100_solver_globalnodes.json").read_text())  # fused-serial, RB: node rows global
+    assert "H100" in doc["meta"]["device_name"] and "H100" in glob["meta"]["device_name"]
+    head = json.loads((res / "throughput_h100_solver_head.json").read_text())  # at 65,536 columns, the same
+    rb_serial = {(p["precision"], p["B"]): p for p in glob["points"] + [p for p in head["points"] if p["B"] == 65536]
+                 if p["base"] == "RB" and p["path"] == "fused-serial" and p.get("sweep") == "batch"}
+    seen = 0
+    for pt in doc["points"]:
+        if pt.get("sweep") != "batch":
+            continue
+        if pt["base"] == "RB" and pt["path"] == "fused-serial":
+            pt = rb_serial[(pt["precision"], pt["B"])]
+        band = 3 if pt["base"] == "FB" else 6
+        rate = MEASURED_H100[band][pt["precision"]][pt["B"]][MEASURED_PATHS.index(Path(pt["path"]))]
+        assert rate == pytest.approx(pt["column_steps_per_s"], rel=6e-3), pt
+        seen += 1
+    assert seen == 2 * 2 * 4 * 3
+    for band, by_prec in MEASURED_H100.items():
+        for prec, rows in by_prec.items():
+            for B, rates in rows.items():
+                fastest = MEASURED_PATHS[int(np.argmax(rates))]
+                auto = RunSettings(precision=prec)
+                assert choose_path(auto, True, B, band) == fastest
+                fused = MEASURED_PATHS[int(np.argmax(rates[:2]))]
+                assert choose_path(RunSettings(precision=prec, fused=True), True, B, band) == fused
+    # the regression this table fixes: RB at 4,096 columns takes the serial solve, 65,536 the staged kernels
+    assert choose_path(RunSettings(precision="fp32"), True, 4096, 6) == Path.FUSED_SERIAL
+    assert choose_path(RunSettings(precision="fp64"), True, 4096, 6) == Path.FUSED_SERIAL
+    assert choose_path(RunSettings(precision="fp64"), True, 100_000, 6) == Path.STAGED
+    fp32 = RunSettings(precision="fp32")
+    assert choose_path(fp32, True, 1, 3) == choose_path(fp32, True, 1024, 3)  # below the table: its first row
+    assert choose_path(RunSettings(), False, 10**6, 6) == Path.FUSED  # CPU: one lane, no crossover measured
+    assert choose_path(RunSettings(fused=True), False, 4, 6) == Path.FUSED
+    assert choose_path(RunSettings(), False, 4, FUSED_MAX_BANDWIDTH + 1) == Path.STAGED  # generic wide band
+    assert choose_path(RunSettings(method="rk4"), True, 4, 3) == Path.STAGED
+    assert choose_path(RunSettings(fused=False), True, 4096, 6) == Path.STAGED
     with pytest.raises(SettingsError, match="Gram band is 12 wide"):
         choose_path(RunSettings(fused=True), True, 4, 12)
+
+
+@pytest.mark.parametrize("case,shared", [("FB-RB-beta", True), ("mixed", True), ("mixed", False)])
+def test_serial_solver_variant_matches_staged_and_cr(case, shared, lanes, monkeypatch):
+    """The fused step with lane 0's banded Cholesky (Path.FUSED_SERIAL, the staged threads' band
+    bodies) against the staged kernels and the CR fused step, fp64, 4 emulated lanes."""
+    from warp_tensegrity import engine
+    from warp_tensegrity.types import Path
+
+    lanes(4)
+    monkeypatch.setattr(integrate, "FUSED_SHARED_ON_CPU", shared)
+    cfg, params = COLUMNS[case]
+    s = RunSettings(t_end=0.03, dt=5e-4, device="cpu", truncate=False, output_interval=0.01)
+    out = {}
+    for path in (Path.STAGED, Path.FUSED, Path.FUSED_SERIAL):
+        monkeypatch.setattr(engine, "choose_path", lambda *a, p=path, **k: p)
+        out[path] = simulate_batch(cfg, params, s)
+    ser = out[Path.FUSED_SERIAL]
+    assert ser.info["step_path"].startswith("fused-serial (serial banded Cholesky on lane 0, 4 lanes")
+    assert ("shared/" if shared else "global/") in ser.info["step_path"]
+    assert np.all(ser.status == 0)
+    for ref in (out[Path.STAGED], out[Path.FUSED]):
+        scale = np.abs(ref.strain).max(axis=(1, 2))
+        assert np.all(scale > 1e-7)
+        assert np.all(np.abs(ser.strain - ref.strain).max(axis=(1, 2)) / scale < 1e-10)
+        np.testing.assert_allclose(ser.final_velocity, ref.final_velocity, rtol=0,
+                                   atol=1e-10 * np.abs(ref.final_velocity).max())
+    assert np.all(ser.bar_length_error <= 1e-12) and np.all(ser.bar_length_error > 0)
 
 
 def test_lane_parallel_step_with_massive_bars(lanes):
@@ -207,3 +269,18 @@ def test_lane_parallel_step_with_massive_bars(lanes):
     np.testing.assert_allclose(b.final_displacement, a.final_displacement, rtol=0,
                                atol=1e-10 * np.abs(a.final_displacement).max())
     assert np.all(b.bar_length_error <= 1e-12)
+
+
+def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
+    """estimate_batch (the dry run) reports the path the policy picks on a GPU: RB fp32 at 4,096
+    columns is fused-serial, FB fp32 at 65,536 staged (a stand-in device: CI has no GPU)."""
+    from types import SimpleNamespace
+
+    from warp_tensegrity.engine import estimate_batch
+
+    monkeypatch.setattr(integrate, "resolve_device", lambda name: SimpleNamespace(is_cuda=True))
+    cfg = ColumnConfig(n_prisms=3)
+    s = RunSettings(t_end=0.01, precision="fp32", truncate=False)
+    assert estimate_batch(cfg, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "fused-serial"
+    assert estimate_batch(cfg, {"base_rigidity": np.zeros(65536)}, s)["step_path"] == "staged"
+    assert estimate_batch(cfg, {"base_rigidity": np.zeros(1024)}, s)["step_path"] == "fused"

@@ -58,13 +58,25 @@ from .result import BatchResult
 from .settings import RunSettings, SettingsError
 from .types import FORCE_EVALS, STABILITY, Base, Method, Path
 
-# fused='auto' on a GPU: the fused step (block cyclic reduction) up to FUSED_MAX_COLUMNS columns
-# for Gram bands up to 3 (FB) and FUSED_MAX_COLUMNS_WIDE for wider ones (RB: 6); the staged kernels
-# above. H100, 50 prisms (benchmarks/results/throughput_h100.json): fused/staged = 1.5-8.4x at
-# 1,024-16,384 columns for FB (0.59-0.69x from 65,536), 1.5-6.8x at 1,024-4,096 for RB (0.42-0.67x
-# at 16,384).
-FUSED_MAX_COLUMNS = 16384
-FUSED_MAX_COLUMNS_WIDE = 4096
+# fused='auto' on a GPU: the fastest measured of the fused step with its constraint solve by block
+# cyclic reduction ("fused"), the fused step with lane 0's serial banded Cholesky ("fused-serial")
+# and the staged kernels, per (band, precision, columns). H100, 50 prisms, RATTLE, column-steps/s
+# (benchmarks/results/throughput_h100_solver.json; tests/test_parallel_solve.py checks this table
+# against it): {band: {precision: {B: (fused, fused-serial, staged)}}}; band 3 = FB, 6 = RB. RB's
+# fused-serial figures are from runs with its node rows in global rows, as it runs for bands > 3
+# (kernels.fused.SERIAL_SHARED_NODES_MAX_BANDWIDTH): throughput_h100_solver_globalnodes.json up to
+# 16,384 columns, throughput_h100_solver_head.json at 65,536.
+MEASURED_H100 = {
+    3: {"fp32": {1024: (6.56e6, 5.40e6, 9.83e5), 4096: (7.71e6, 8.43e6, 3.27e6),
+                 16384: (1.18e7, 1.10e7, 8.04e6), 65536: (1.16e7, 1.11e7, 2.08e7)},
+        "fp64": {1024: (2.96e6, 3.62e6, 4.82e5), 4096: (5.61e6, 5.23e6, 1.25e6),
+                 16384: (6.03e6, 5.83e6, 3.86e6), 65536: (6.14e6, 6.00e6, 8.92e6)}},
+    6: {"fp32": {1024: (2.56e6, 2.74e6, 3.95e5), 4096: (2.65e6, 4.15e6, 1.13e6),
+                 16384: (2.38e6, 4.33e6, 3.67e6), 65536: (2.26e6, 4.39e6, 1.01e7)},
+        "fp64": {1024: (7.02e5, 1.25e6, 1.85e5), 4096: (7.99e5, 1.57e6, 5.27e5),
+                 16384: (7.79e5, 1.70e6, 1.83e6), 65536: (7.26e5, 1.75e6, 4.14e6)}},
+}
+MEASURED_PATHS = (Path.FUSED, Path.FUSED_SERIAL, Path.STAGED)
 # widest Gram band the fused step takes at all (its S x S blocks live in registers); wider generic
 # networks run the staged kernels
 FUSED_MAX_BANDWIDTH = 8
@@ -142,20 +154,34 @@ def reachable_prisms(omega_max: float, t_end: float, n_prisms: int) -> int:
     reach = math.ceil(omega_max * t_end) + REACH_MARGIN_PRISMS
     return int(min(n_prisms, max(reach, 2)))
 
+def measured_rates(bandwidth: int, precision: str, n_columns: int) -> dict:
+    """{path: column-steps/s} of :data:`MEASURED_H100` for the nearest measured case: the band
+    measured nearest ``bandwidth`` (3 or 6), the batch nearest ``n_columns`` in log scale."""
+    band = min(MEASURED_H100, key=lambda b: (abs(b - bandwidth), b))
+    rows = MEASURED_H100[band][precision]
+    B = min(rows, key=lambda b: (abs(math.log2(b) - math.log2(max(n_columns, 1))), b))
+    return dict(zip(MEASURED_PATHS, rows[B]))
+
+
 def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int, bandwidth: int = 0) -> Path:
-    """Fused RATTLE (a block per column) or staged kernels: ``settings.fused`` True/False, or
-    'auto': fused for RATTLE with a Gram half-bandwidth of at most :data:`FUSED_MAX_BANDWIDTH`,
-    on a GPU only up to :data:`FUSED_MAX_COLUMNS` columns (:data:`FUSED_MAX_COLUMNS_WIDE` for bands
-    wider than 3), where it measured faster than the staged kernels."""
+    """Fused RATTLE (a block per column; constraint solve by block cyclic reduction, or serial on
+    lane 0) or staged kernels. ``settings.fused`` False: staged; True: the fused variant measured
+    faster (:func:`measured_rates`; the CR variant on the CPU); 'auto': RATTLE with a Gram
+    half-bandwidth up to :data:`FUSED_MAX_BANDWIDTH` takes the fastest measured of the three on a
+    GPU, and the CR fused step on the CPU (one lane per block there: no crossover measured)."""
     if settings.fused is True:
         if bandwidth > FUSED_MAX_BANDWIDTH:
             raise SettingsError(f"fused = true: the constraint Gram band is {bandwidth} wide, above the fused "
                                 f"step's {FUSED_MAX_BANDWIDTH}; use fused = 'auto' or false (staged kernels)")
-        return Path.FUSED
-    limit = FUSED_MAX_COLUMNS if bandwidth <= 3 else FUSED_MAX_COLUMNS_WIDE
-    if settings.fused == "auto" and settings.method == Method.RATTLE and bandwidth <= FUSED_MAX_BANDWIDTH and (
-            not on_gpu or n_columns <= limit):
-        return Path.FUSED
+        if not on_gpu:
+            return Path.FUSED
+        rates = measured_rates(bandwidth, settings.precision, n_columns)
+        return max((Path.FUSED, Path.FUSED_SERIAL), key=rates.get)
+    if settings.fused == "auto" and settings.method == Method.RATTLE and bandwidth <= FUSED_MAX_BANDWIDTH:
+        if not on_gpu:
+            return Path.FUSED
+        rates = measured_rates(bandwidth, settings.precision, n_columns)
+        return max(MEASURED_PATHS, key=rates.get)
     return Path.STAGED
 
 

@@ -68,7 +68,7 @@ class Integrator:
                  path: Path):
         """``path``: staged or fused launches (:func:`warp_tensegrity.engine.choose_path`); the
         fused path runs RATTLE only."""
-        if path == Path.FUSED and settings.method != Method.RATTLE:
+        if path in (Path.FUSED, Path.FUSED_SERIAL) and settings.method != Method.RATTLE:
             raise SettingsError(f"the fused path needs method = 'rattle' (got method = {settings.method!r})")
         self.settings = settings
         self.path = Path(path)
@@ -79,7 +79,7 @@ class Integrator:
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
             self.model: Model = build_model(batch, settings.precision, self.device)
-            self.fused = self.path == Path.FUSED
+            self.fused = self.path in (Path.FUSED, Path.FUSED_SERIAL)
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
@@ -96,8 +96,8 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
-            self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU) \
-                if self.fused else None
+            self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU,
+                                "serial" if self.path == Path.FUSED_SERIAL else "cr") if self.fused else None
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)

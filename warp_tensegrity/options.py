@@ -384,11 +384,11 @@ class RunSettings:
     fused: Annotated[bool | Literal["auto"], Opt("bool", special=(("auto", "auto"),))] = "auto"
     """RATTLE as one fused kernel, a thread block per column and several steps per launch
     (:mod:`warp_tensegrity.kernels.fused`); False: one kernel per stage (the only path of the other
-    methods). 'auto': fused for RATTLE, except on a GPU above
-    :data:`~warp_tensegrity.engine.FUSED_MAX_COLUMNS` columns (FB; ``FUSED_MAX_COLUMNS_WIDE`` for
-    wider Gram bands, RB) where the staged kernels stream faster, and for Gram bands wider than
-    ``FUSED_MAX_BANDWIDTH`` (generic networks). Both paths give the same numbers to round-off (not
-    part of the fingerprint)."""
+    methods). 'auto': for RATTLE on a GPU the fastest measured of the fused step (constraint
+    solve by block cyclic reduction or serially on lane 0) and the staged kernels for the band,
+    precision and batch (:func:`~warp_tensegrity.engine.choose_path`); the fused step on the CPU;
+    staged for Gram bands wider than ``FUSED_MAX_BANDWIDTH`` (generic networks). True: the faster
+    fused variant. The paths give the same numbers to round-off (not part of the fingerprint)."""
     accuracy: Annotated[float | None, Opt("real", "1", ge=1e-15, lt=1, optional=True,
                                           why="the relative error wanted on pulse speed and amplitude, "
                                               "not below fp64 round-off")] = None

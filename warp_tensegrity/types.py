@@ -87,6 +87,9 @@ class Path(StrEnum):
 
     STAGED = "staged"
     FUSED = "fused"
+    """Fused, constraint solve by block cyclic reduction across the block's lanes."""
+    FUSED_SERIAL = "fused-serial"
+    """Fused, constraint solve by a serial banded Cholesky on lane 0."""
 
 
 class Base(float, Enum):

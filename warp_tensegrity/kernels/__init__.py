@@ -1,11 +1,12 @@
 """Warp kernels of the integrator step.
 
 * :mod:`.common`: the ``@wp.func`` bodies both paths share (cable law, per-column reads, Gram
-  rows, impulses, status codes), each written once;
+  rows, impulses, status codes, the serial banded Cholesky), each written once;
 * :mod:`.staged`: one kernel per stage (per-node kernels and one thread per column for the
   constraint solves); every method;
 * :mod:`.fused`: RATTLE as one kernel, a thread block per column, several steps per launch,
-  the constraint solve by block cyclic reduction across the block's lanes.
+  the constraint solve by block cyclic reduction across the block's lanes or (``solver="serial"``)
+  by lane 0 with the staged threads' banded Cholesky (:func:`.common.make_band_funcs`).
 """
 
 from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK

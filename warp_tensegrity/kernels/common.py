@@ -9,6 +9,7 @@ resolved to the wrong overload depending on compile order: do not.)
 """
 
 import functools
+from types import SimpleNamespace
 from typing import Any
 
 import warp as wp
@@ -139,3 +140,103 @@ def make_gram_row(real, bandwidth: int):
         return r
 
     return gram_row, rowvec
+
+
+@functools.cache
+def make_band_funcs(real, bandwidth: int):
+    """The sequential banded Cholesky of one thread (a staged solver thread per column, or lane 0
+    of the fused step's serial variant), the bandwidth compiled in:
+    the row being factored and the last ``bandwidth`` unknowns of a sweep sit in registers, and
+    each sweep loads the next row while it works on the current one.
+
+    The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
+    except the diagonal slot, which holds 1/L[k, k]."""
+    BW = int(bandwidth)
+    LD = BW + 1
+    rowvec = make_gram_row(real, BW)[1]
+    winvec = wp.types.vector(max(BW, 1), real)
+
+    @wp.func
+    def band_row(band: wp.array3d(dtype=real), k: int, w: int):
+        r = rowvec()
+        for e in range(LD):
+            r[e] = band[k, e, w]
+        return r
+
+    @wp.func
+    def band_col(band: wp.array3d(dtype=real), k: int, nc: int, w: int):
+        """(1/L[k,k], L[k+1,k], ..., L[k+BW,k]): what the backward sweep needs at row k."""
+        c = rowvec()
+        c[0] = band[k, 0, w]
+        for e in range(BW):
+            if k + e + 1 < nc:
+                c[e + 1] = band[k + e + 1, e + 1, w]
+        return c
+
+    @wp.func
+    def factor_store_row(band: wp.array3d(dtype=real), r: rowvec, k: int, w: int):
+        """Factor assembled row k of A against the rows above (A = L L^T) and store it. Returns
+        False if the pivot is not positive (singular constraints)."""
+        for dd in range(BW):
+            d = BW - dd  # l = k - d ascending
+            l = k - d
+            if l >= 0:
+                s = r[d]
+                for e in range(d + 1, LD):
+                    s -= r[e] * band[l, e - d, w]
+                r[d] = s * band[l, 0, w]
+        s = r[0]
+        for e in range(1, LD):
+            s -= r[e] * r[e]
+        ok = bool(True)
+        if s > real(0.0):
+            r[0] = real(1.0) / wp.sqrt(s)
+        else:
+            r[0] = real(1.0)
+            ok = False
+        for e in range(LD):
+            band[k, e, w] = r[e]
+        return ok
+
+    @wp.func
+    def sweep_row(cur: rowvec, rhs: real, win: winvec):
+        """One row of a triangular sweep: x_k = (rhs - sum_e cur[e+1] win[e]) cur[0], and the
+        window shifted to take x_k; returns (x_k, new window)."""
+        s = rhs
+        for e in range(BW):
+            s -= cur[e + 1] * win[e]
+        xk = s * cur[0]
+        out = winvec()
+        for e in range(BW - 1):
+            out[BW - 1 - e] = win[BW - 2 - e]
+        out[0] = xk
+        return xk, out
+
+    @wp.func
+    def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), nc: int, w: int):
+        """Solve L L^T x = rhs in place (rhs given in x[0:nc, w])."""
+        xw = winvec()  # xw[e] = x[k - 1 - e] (forward), x[k + 1 + e] (backward)
+        nxt = band_row(band, 0, w)
+        nrhs = x[0, w]
+        for k in range(nc):
+            cur = nxt
+            s = nrhs
+            if k + 1 < nc:  # issue the next row's loads before this row's dependent chain
+                nxt = band_row(band, k + 1, w)
+                nrhs = x[k + 1, w]
+            xk, xw = sweep_row(cur, s, xw)
+            x[k, w] = xk
+        xw = winvec()
+        nxt = band_col(band, nc - 1, nc, w)
+        nrhs = x[nc - 1, w]
+        for kk in range(nc):
+            k = nc - 1 - kk
+            cur = nxt
+            s = nrhs
+            if k > 0:
+                nxt = band_col(band, k - 1, nc, w)
+                nrhs = x[k - 1, w]
+            xk, xw = sweep_row(cur, s, xw)
+            x[k, w] = xk
+
+    return SimpleNamespace(band_row=band_row, factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)

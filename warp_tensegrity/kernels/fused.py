@@ -14,6 +14,11 @@ block Cholesky of the odd-even permuted SPD matrix, so it needs no pivoting; the
 reduction (D^-1, W-, W+ per block) is reused by every Newton iteration and the velocity
 projection: a solve is log2(nb) forward levels, the root, and log2(nb) backward levels, each one
 S x S mat-vec per lane. Same Newton / RATTLE semantics and tolerances as the staged path.
+The solver is a compile-time choice (``solver``): ``"cr"`` as above, or ``"serial"``: lanes
+assemble the Gram rows into a band, then lane 0 alone factors and solves it with the staged
+threads' sequential banded Cholesky (:func:`.common.make_band_funcs`, the same bodies) while the
+other lanes wait at a barrier. Which is faster depends on the bandwidth, precision and batch
+(``benchmarks/results/throughput_h100_solver.json``; the policy is ``engine.choose_path``).
 
 On chip: the column's CR storage and node rows live in block shared memory when they fit
 (:func:`shared_plan`), else in per-column global rows (contiguous, so they stay in L1/L2); the
@@ -39,6 +44,7 @@ from .common import (
     V,
     bar_residual,
     finite3,
+    make_band_funcs,
     make_gram_row,
     member_vec,
     node_force,
@@ -48,6 +54,10 @@ from .common import (
 
 SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
 SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
+# the serial solver keeps node rows in global rows for bands wider than this: the extra shared memory
+# costs resident blocks, which lane 0's latency-bound chain needs (H100, 50-prism RB, 1,024-16,384
+# columns: 1.1-1.4x faster, results/throughput_h100_solver_globalnodes.json vs _solver.json)
+SERIAL_SHARED_NODES_MAX_BANDWIDTH = 3
 
 
 @wp.func_native("WP_TILE_SYNC();")
@@ -59,24 +69,38 @@ def block_size(bandwidth: int) -> int:
     return max(int(bandwidth), 1)
 
 
-def solver_reals(n_constraints: int, bandwidth: int, block_dim: int) -> int:
-    """Reals of one column's solver rows: multipliers (nb S), then D^-1, E (two buffers), W-, W+
-    (nb S^2 each), then one reduction slot per lane."""
+SOLVERS = ("cr", "serial")
+
+
+def band_reals(n_constraints: int, bandwidth: int, solver: str = "cr") -> int:
+    """Reals of the serial solver's band (nc (bw+1)) ahead of its solver rows; 0 for CR."""
+    return max(n_constraints, 1) * (int(bandwidth) + 1) if solver == "serial" else 0
+
+
+def solver_reals(n_constraints: int, bandwidth: int, block_dim: int, solver: str = "cr") -> int:
+    """Reals of one column's solver rows. CR: multipliers (nb S), then D^-1, E (two buffers), W-,
+    W+ (nb S^2 each), then one reduction slot per lane. Serial: the band (:func:`band_reals`), then
+    the multipliers (nc) and the reduction slots."""
+    if solver not in SOLVERS:
+        raise ValueError(f"solver = {solver!r}: expected one of {SOLVERS}")
+    if solver == "serial":
+        return band_reals(n_constraints, bandwidth, solver) + max(n_constraints, 1) + block_dim
     S = block_size(bandwidth)
     nb = max(-(-n_constraints // S), 1)
     return nb * S * (1 + 5 * S) + block_dim
 
 
 def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int, real_bytes: int,
-                budget: int | None = None) -> tuple[int, int]:
+                budget: int | None = None, solver: str = "cr") -> tuple[int, int]:
     """(solver reals, node vectors) to place in block shared memory: the solver rows first (the
     CR levels read them most), then the node rows, each only if it fits whole; 0 = global rows.
     ``budget``: bytes (None: SHARED_BYTES_MAX)."""
     budget = SHARED_BYTES_MAX if budget is None else budget
-    xs = solver_reals(n_constraints, bandwidth, block_dim) * real_bytes
+    xs = solver_reals(n_constraints, bandwidth, block_dim, solver) * real_bytes
     qs = n_nodes * NQ * 3 * real_bytes
-    x_cap = solver_reals(n_constraints, bandwidth, block_dim) if xs <= budget else 0
-    q_cap = n_nodes * NQ if SHARED_NODES and x_cap * real_bytes + qs <= budget else 0
+    x_cap = solver_reals(n_constraints, bandwidth, block_dim, solver) if xs <= budget else 0
+    nodes = SHARED_NODES and not (solver == "serial" and bandwidth > SERIAL_SHARED_NODES_MAX_BANDWIDTH)
+    q_cap = n_nodes * NQ if nodes and x_cap * real_bytes + qs <= budget else 0
     return x_cap, q_cap
 
 
@@ -380,9 +404,11 @@ def make_node_funcs(real):
 
 
 @functools.cache
-def make_column_funcs(real, bandwidth: int):
-    """The fused step's constraint pieces over the model struct ``ColumnModel``: Gram assembly into
-    blocks with the CR factor, and the position and velocity projections."""
+def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
+    """The fused step's constraint pieces over the model struct ``ColumnModel``: Gram assembly with
+    the factor (CR: into blocks, all lanes; serial: into the band, lane 0), and the position and
+    velocity projections. ``band``: the serial solver's band (nc, bw+1, 1); unused by CR."""
+    serial = solver == "serial"
     vec = wp.types.vector(3, real)
     BW = int(bandwidth)
     S = block_size(BW)
@@ -390,13 +416,53 @@ def make_column_funcs(real, bandwidth: int):
     LD = BW + 1
     gram_row, rowvec = make_gram_row(real, BW)
     cr = make_cr_funcs(real, S)
+    sb = make_band_funcs(real, BW)
 
     nf = make_node_funcs(real)
     ColumnModel, block_max, apply_impulse = nf.ColumnModel, nf.block_max, nf.apply_impulse
 
     @wp.func
-    def factor_gram(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
-                    w: int, lane: int, bd: int):
+    def rows(nc: int):
+        """Multiplier rows a solve works on: nb S (CR pads the last block), nc (serial)."""
+        if wp.static(serial):
+            return nc
+        else:
+            return (nc + S - 1) // S * S
+
+    @wp.func
+    def solve(x: wp.array2d(dtype=real), band: wp.array3d(dtype=real), nc: int, lane: int, bd: int):
+        """A y = x[0 : rows(nc), 0] in place with the stored factor; ends with a barrier."""
+        if wp.static(serial):
+            if lane == 0:
+                sb.band_solve(band, x, nc, 0)
+            block_sync()
+        else:
+            cr.cr_solve(x, (nc + S - 1) // S, lane, bd)
+
+    @wp.func
+    def factor_band(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), band: wp.array3d(dtype=real),
+                    red: int, w: int, lane: int, bd: int):
+        """Rows of A(U) into the band (lane per row), then lane 0 factors it row by row. True if A is SPD."""
+        nc = m.con_i.shape[0]
+        wa = w % m.con_active.shape[1]
+        ws = w % m.minv_self.shape[1]
+        wx = w % m.minv_cross.shape[1]
+        for k in range(lane, nc, bd):
+            r = gram_row(m.con_i, m.con_j, m.con_dref, m.con_active, m.cpl_start, m.cpl_l, m.cpl_a,
+                         m.cpl_cross, m.cpl_sign, m.minv_self, m.minv_cross, q, U, k, wa, ws, wx)
+            for d in range(LD):
+                band[k, d, 0] = r[d]
+        block_sync()
+        bad = real(0.0)
+        if lane == 0:
+            for k in range(nc):
+                if not sb.factor_store_row(band, sb.band_row(band, k, 0), k, 0):
+                    bad = real(1.0)
+        return block_max(x, red, bad, lane, bd) < real(0.5)
+
+    @wp.func
+    def factor_blocks(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
+                      w: int, lane: int, bd: int):
         """Rows of A(U) into the blocks D_i, E_i (lane per row), then CR. True if A is SPD."""
         nc = m.con_i.shape[0]
         nb = (nc + S - 1) // S
@@ -428,13 +494,21 @@ def make_column_funcs(real, bandwidth: int):
         return block_max(x, red, bad, lane, bd) < real(0.5)
 
     @wp.func
-    def project_velocities(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
-                           w: int, lane: int, bd: int):
+    def factor_gram(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), band: wp.array3d(dtype=real),
+                    red: int, w: int, lane: int, bd: int):
+        """Factor A(U) with the compiled-in solver. True if A is SPD."""
+        if wp.static(serial):
+            return factor_band(m, q, x, band, red, w, lane, bd)
+        else:
+            return factor_blocks(m, q, x, red, w, lane, bd)
+
+    @wp.func
+    def project_velocities(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real),
+                           band: wp.array3d(dtype=real), red: int, w: int, lane: int, bd: int):
         """V -= M^-1 G^T lam with A lam = G V (x holds the reduction of A(U)). True if V is finite."""
         nc = m.con_i.shape[0]
-        nb = (nc + S - 1) // S
         wa = w % m.con_active.shape[1]
-        for k in range(lane, nb * S, bd):
+        for k in range(lane, rows(nc), bd):
             r = real(0.0)
             if k < nc:
                 if m.con_active[k, wa] > real(0.0):
@@ -442,7 +516,7 @@ def make_column_funcs(real, bandwidth: int):
                                q[m.con_j[k], V] - q[m.con_i[k], V])
             x[k, 0] = r
         block_sync()
-        cr.cr_solve(x, nb, lane, bd)
+        solve(x, band, nc, lane, bd)
         apply_impulse(m, q, U, x, real(0.0), real(1.0), w, lane, bd)
         bad = real(0.0)
         for n in range(lane, m.partner.shape[0], bd):
@@ -451,12 +525,12 @@ def make_column_funcs(real, bandwidth: int):
         return block_max(x, red, bad, lane, bd) < real(0.5)
 
     @wp.func
-    def project_positions(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
-                          tol: real, max_iter: int, h: real, w: int, lane: int, bd: int):
+    def project_positions(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real),
+                          band: wp.array3d(dtype=real), red: int, tol: real, max_iter: int, h: real, w: int,
+                          lane: int, bd: int):
         """Simplified Newton onto |b_k| = L_k along M^-1 G(P)^T (x: reduction of A(P)); V gets
         the RATTLE update. Returns (max relative bar error, iterations)."""
         nc = m.con_i.shape[0]
-        nb = (nc + S - 1) // S
         wa = w % m.con_active.shape[1]
         err = real(0.0)
         prev = real(0.0)
@@ -464,7 +538,7 @@ def make_column_funcs(real, bandwidth: int):
         while nc > 0:
             prev = err
             e_lane = real(0.0)
-            for k in range(lane, nb * S, bd):
+            for k in range(lane, rows(nc), bd):
                 r = real(0.0)
                 if k < nc:
                     if m.con_active[k, wa] > real(0.0):
@@ -477,7 +551,7 @@ def make_column_funcs(real, bandwidth: int):
                 break
             if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
                 break  # stalled at round-off just above tol
-            cr.cr_solve(x, nb, lane, bd)
+            solve(x, band, nc, lane, bd)
             apply_impulse(m, q, P, x, real(1.0), real(1.0) / h, w, lane, bd)
             it += 1
         return err, it
@@ -487,30 +561,32 @@ def make_column_funcs(real, bandwidth: int):
 
 
 @functools.cache
-def make_step_funcs(real, bandwidth: int):
+def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
     """The RATTLE steps of one launch over the lanes' pieces (:func:`make_column_funcs`)."""
-    f = make_column_funcs(real, bandwidth)
+    f = make_column_funcs(real, bandwidth, solver)
     vec, ColumnModel = f.vec, f.ColumnModel
 
     @wp.func
-    def first_factor(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int, init: int,
+    def first_factor(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real),
+                     band: wp.array3d(dtype=real), red: int, init: int,
                      s0: int, status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
         """init = 1: make V admissible and compute A(U), returns 0 steps to take; else factor A(U)
         for the first position projection (shared memory does not outlive a launch: the same
         numbers as the previous launch's last factor). Returns False on failure."""
         if m.con_i.shape[0] > 0:
-            if not f.factor_gram(m, q, x, red, w, lane, bd):
+            if not f.factor_gram(m, q, x, band, red, w, lane, bd):
                 if lane == 0:
                     set_failure(status, fail_step, w, STATUS_CONSTRAINT, s0 + 1)
                 return False
             if init != 0:
-                f.project_velocities(m, q, x, red, w, lane, bd)
+                f.project_velocities(m, q, x, band, red, w, lane, bd)
         if init != 0:
             f.gather_kick(m, q, real(0.0), w, lane, bd)
         return True
 
     @wp.func
-    def rattle_steps(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real), red: int,
+    def rattle_steps(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real),
+                     band: wp.array3d(dtype=real), red: int,
                      tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, s0: int,
                      status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
         """n_sub RATTLE steps (x holds the reduction of A(U) on entry). Returns (worst bar error,
@@ -528,7 +604,7 @@ def make_step_funcs(real, bandwidth: int):
                 q[n, P] = un
                 q[n, U] = un + vn * h
             block_sync()
-            err, it = f.project_positions(m, q, x, red, tol, max_iter, h, w, lane, bd)
+            err, it = f.project_positions(m, q, x, band, red, tol, max_iter, h, w, lane, bd)
             most = wp.max(most, it)
             if err > worst:
                 worst = err
@@ -540,9 +616,9 @@ def make_step_funcs(real, bandwidth: int):
             else:
                 f.gather_kick(m, q, half, w, lane, bd)  # force, second half kick
                 if nc > 0:  # velocity projection at the new positions
-                    if not f.factor_gram(m, q, x, red, w, lane, bd):
+                    if not f.factor_gram(m, q, x, band, red, w, lane, bd):
                         code = STATUS_CONSTRAINT
-                    elif not f.project_velocities(m, q, x, red, w, lane, bd):
+                    elif not f.project_velocities(m, q, x, band, red, w, lane, bd):
                         code = STATUS_NONFINITE
             if code != STATUS_OK:
                 if lane == 0:
@@ -554,11 +630,15 @@ def make_step_funcs(real, bandwidth: int):
 
 
 @functools.cache
-def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
-    """The fused kernel for scalar type ``real`` and Gram half-bandwidth ``bandwidth``, with
-    ``x_cap`` solver reals and ``q_cap`` node vectors in block shared memory (0: in the global
-    rows ``sx[w]``, ``sq[w]``)."""
-    st = make_step_funcs(real, bandwidth)
+def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0, solver: str = "cr", b_len: int = 0):
+    """The fused kernel for scalar type ``real``, Gram half-bandwidth ``bandwidth`` and constraint
+    solver ``solver`` ("cr" or "serial"), with ``x_cap`` solver reals and ``q_cap`` node vectors in
+    block shared memory (0: in the global rows ``sx[w]``, ``sq[w]``; the serial band in ``sb[w]``).
+    ``b_len``: rows of the serial band (n_constraints; its reals lead the shared solver rows)."""
+    st = make_step_funcs(real, bandwidth, solver)
+    LD = int(bandwidth) + 1
+    b_reals = int(b_len) * LD if solver == "serial" else 0
+    b_bytes = b_reals * (8 if real == wp.float64 else 4)
     vec, ColumnModel = st.vec, st.ColumnModel
     ctype = "double" if real == wp.float64 else "float"
 
@@ -579,7 +659,7 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
         bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
         status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
         # Scratch, one row per column unless in shared memory:
-        sq: wp.array3d(dtype=vec), sx: wp.array3d(dtype=real),
+        sq: wp.array3d(dtype=vec), sx: wp.array3d(dtype=real), sb: wp.array4d(dtype=real),
     ):
         """n_sub RATTLE steps of size h for column w (init = 1: make v admissible and compute a(u)
         instead)."""
@@ -588,9 +668,13 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
             return
         bd = wp.block_dim()
         if wp.static(x_cap > 0):
-            x = wp.array(ptr=xptr(), shape=(x_cap, 1), dtype=real)
+            x = wp.array(ptr=xptr() + wp.uint64(b_bytes), shape=(x_cap - b_reals, 1), dtype=real)
         else:
             x = sx[w]
+        if wp.static(x_cap > 0 and b_reals > 0):
+            band = wp.array(ptr=xptr(), shape=(b_reals // LD, LD, 1), dtype=real)
+        else:
+            band = sb[w % sb.shape[0]]  # (1, 1, 1, 1) placeholder for CR
         if wp.static(q_cap > 0):
             q = wp.array(ptr=qptr(), shape=(q_cap // NQ, NQ), dtype=vec)
         else:
@@ -605,10 +689,10 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0):
         s0 = step[0]
         if init == 0 and n_sub == 0:
             return
-        if not st.first_factor(m, q, x, red, init, s0, status, fail_step, w, lane, bd):
+        if not st.first_factor(m, q, x, band, red, init, s0, status, fail_step, w, lane, bd):
             return
         if init == 0:
-            worst, most = st.rattle_steps(m, q, x, red, tol, max_iter, fail_tol, h, n_sub, s0, status, fail_step,
+            worst, most = st.rattle_steps(m, q, x, band, red, tol, max_iter, fail_tol, h, n_sub, s0, status, fail_step,
                                           w, lane, bd)
             if lane == 0:
                 iters[w] = wp.max(iters[w], most)
@@ -637,17 +721,23 @@ class FusedStep:
     device: object  # wp.context.Device
     block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
     shared: bool = True  # solver / node rows in block shared memory where they fit
+    solver: str = "cr"  # constraint solver: "cr" (lanes in parallel) or "serial" (lane 0)
 
     def __post_init__(self):
         m = self.model
         real = wp.float64 if m.precision == "fp64" else wp.float32
         rb = 8 if real == wp.float64 else 4
-        self.x_cap, self.q_cap = (shared_plan(m.n_nodes, m.n_constraints, m.bandwidth, self.block_dim, rb)
+        sv = self.solver
+        self.x_cap, self.q_cap = (shared_plan(m.n_nodes, m.n_constraints, m.bandwidth, self.block_dim, rb, solver=sv)
                                   if self.shared else (0, 0))
-        self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap)
+        nbr = band_reals(m.n_constraints, m.bandwidth, sv)
+        self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap, sv,
+                                          max(m.n_constraints, 1) if nbr else 0)
         k, B, d = self.kernels, m.n_columns, m.device
-        nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim)
+        nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim, sv) - nbr
         self.sx = wp.zeros((1, 1, 1) if self.x_cap else (B, nx, 1), dtype=real, device=d)
+        self.sb = wp.zeros((B, max(m.n_constraints, 1), m.bandwidth + 1, 1) if nbr and not self.x_cap else (1, 1, 1, 1),
+                           dtype=real, device=d)
         self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
         cm = k.ColumnModel()
         for name in _STRUCT_FIELDS:
@@ -658,7 +748,9 @@ class FusedStep:
     @property
     def description(self) -> str:
         where = ("shared" if self.x_cap else "global") + "/" + ("shared" if self.q_cap else "global")
-        return f"fused (block cyclic reduction, {self.block_dim} lanes per column; solver/node rows {where})"
+        how = "block cyclic reduction" if self.solver == "cr" else "serial banded Cholesky on lane 0"
+        name = "fused" if self.solver == "cr" else "fused-serial"
+        return f"{name} ({how}, {self.block_dim} lanes per column; solver/node rows {where})"
 
     def load(self):
         self.kernels.rattle_columns.module.load(self.device, self.block_dim)
@@ -671,7 +763,7 @@ class FusedStep:
                             self.cm, r(settings.tolerance), int(settings.max_projection_iters),
                             r(settings.failure_bar_error), r(dt), int(n_sub), int(init), data.step,
                             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
-                            self.sq, self.sx])
+                            self.sq, self.sx, self.sb])
 
     def advance_counter(self, data, n: int):
         wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device,

@@ -28,6 +28,7 @@ from .common import (
     STATUS_OK,
     bar_residual,
     finite3,
+    make_band_funcs,
     make_gram_row,
     member_vec,
     node_force,
@@ -218,102 +219,6 @@ def _record_kernels(real):
 
 
 @functools.cache
-def _band_funcs(real, bandwidth: int):
-    """The sequential banded Cholesky of the staged solver threads, the bandwidth compiled in:
-    the row being factored and the last ``bandwidth`` unknowns of a sweep sit in registers, and
-    each sweep loads the next row while it works on the current one.
-
-    The band ``(nc, bw+1, B)`` holds row k of L at ``band[k, d, w] = L[k, k-d]`` (zero for k-d < 0),
-    except the diagonal slot, which holds 1/L[k, k]."""
-    BW = int(bandwidth)
-    LD = BW + 1
-    rowvec = make_gram_row(real, BW)[1]
-    winvec = wp.types.vector(max(BW, 1), real)
-
-    @wp.func
-    def band_row(band: wp.array3d(dtype=real), k: int, w: int):
-        r = rowvec()
-        for e in range(LD):
-            r[e] = band[k, e, w]
-        return r
-
-    @wp.func
-    def band_col(band: wp.array3d(dtype=real), k: int, nc: int, w: int):
-        """(1/L[k,k], L[k+1,k], ..., L[k+BW,k]): what the backward sweep needs at row k."""
-        c = rowvec()
-        c[0] = band[k, 0, w]
-        for e in range(BW):
-            if k + e + 1 < nc:
-                c[e + 1] = band[k + e + 1, e + 1, w]
-        return c
-
-    @wp.func
-    def factor_store_row(band: wp.array3d(dtype=real), r: rowvec, k: int, w: int):
-        """Factor assembled row k of A against the rows above (A = L L^T) and store it. Returns
-        False if the pivot is not positive (singular constraints)."""
-        for dd in range(BW):
-            d = BW - dd  # l = k - d ascending
-            l = k - d
-            if l >= 0:
-                s = r[d]
-                for e in range(d + 1, LD):
-                    s -= r[e] * band[l, e - d, w]
-                r[d] = s * band[l, 0, w]
-        s = r[0]
-        for e in range(1, LD):
-            s -= r[e] * r[e]
-        ok = bool(True)
-        if s > real(0.0):
-            r[0] = real(1.0) / wp.sqrt(s)
-        else:
-            r[0] = real(1.0)
-            ok = False
-        for e in range(LD):
-            band[k, e, w] = r[e]
-        return ok
-
-    @wp.func
-    def band_solve(band: wp.array3d(dtype=real), x: wp.array2d(dtype=real), w: int):
-        """Solve L L^T x = rhs in place (rhs given in x)."""
-        nc = x.shape[0]
-        xw = winvec()  # xw[e] = x[k - 1 - e] (forward), x[k + 1 + e] (backward)
-        nxt = band_row(band, 0, w)
-        nrhs = x[0, w]
-        for k in range(nc):
-            cur = nxt
-            s = nrhs
-            if k + 1 < nc:  # issue the next row's loads before this row's dependent chain
-                nxt = band_row(band, k + 1, w)
-                nrhs = x[k + 1, w]
-            for e in range(BW):
-                s -= cur[e + 1] * xw[e]
-            xk = s * cur[0]
-            x[k, w] = xk
-            for e in range(BW - 1):
-                xw[BW - 1 - e] = xw[BW - 2 - e]
-            xw[0] = xk
-        xw = winvec()
-        nxt = band_col(band, nc - 1, nc, w)
-        nrhs = x[nc - 1, w]
-        for kk in range(nc):
-            k = nc - 1 - kk
-            cur = nxt
-            s = nrhs
-            if k > 0:
-                nxt = band_col(band, k - 1, nc, w)
-                nrhs = x[k - 1, w]
-            for e in range(BW):
-                s -= cur[e + 1] * xw[e]
-            xk = s * cur[0]
-            x[k, w] = xk
-            for e in range(BW - 1):
-                xw[BW - 1 - e] = xw[BW - 2 - e]
-            xw[0] = xk
-
-    return SimpleNamespace(factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)
-
-
-@functools.cache
 def _assemble_funcs(real, bandwidth: int, bar_window: bool):
     """Gram assembly of one column thread, each row factored as it is assembled: from
     common.gram_row (reload) or with the last bandwidth + 1 bar vectors in registers (window)."""
@@ -321,7 +226,7 @@ def _assemble_funcs(real, bandwidth: int, bar_window: bool):
     BW = int(bandwidth)
     LD = BW + 1
     gram_row, rowvec = make_gram_row(real, BW)
-    factor_store_row = _band_funcs(real, bandwidth).factor_store_row
+    factor_store_row = make_band_funcs(real, bandwidth).factor_store_row
 
     @wp.func
     def assemble_factor_reload(
@@ -400,7 +305,7 @@ def _assemble_funcs(real, bandwidth: int, bar_window: bool):
 def _projection_funcs(real, bandwidth: int):
     """Impulse application and the rate projection of one column thread."""
     vec = wp.types.vector(3, real)
-    band_solve = _band_funcs(real, bandwidth).band_solve
+    band_solve = make_band_funcs(real, bandwidth).band_solve
 
     @wp.func
     def apply_impulse(
@@ -458,7 +363,7 @@ def _projection_funcs(real, bandwidth: int):
                     bd = v[con_j[k], w] - v[con_i[k], w]
                     r += wp.dot(bd, bd)
             lam[k, w] = r
-        band_solve(band, lam, w)
+        band_solve(band, lam, lam.shape[0], w)
         apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, u, lam,
                       imp, real(1.0), y, real(0.0), y, w)
 
@@ -468,7 +373,7 @@ def _projection_funcs(real, bandwidth: int):
 @functools.cache
 def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
     """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
-    the Gram-matrix half-bandwidth ``bandwidth`` compiled in (see :func:`_band_funcs`).
+    the Gram-matrix half-bandwidth ``bandwidth`` compiled in (see :func:`.common.make_band_funcs`).
     ``max_registers`` caps the registers per CUDA thread (``__maxnreg__``; None: the compiler's
     choice). ``bar_window`` keeps the bar vectors of the last ``bandwidth`` + 1 rows in registers
     while the Gram matrix is assembled (None: for fp32 only; fp64 spills them at 64 registers)."""
@@ -483,7 +388,7 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
 
 def _position_kernel(real, bandwidth, bar_window, kopts):
     vec = wp.types.vector(3, real)
-    fb = _band_funcs(real, bandwidth)
+    fb = make_band_funcs(real, bandwidth)
     band_solve, apply_impulse = fb.band_solve, _projection_funcs(real, bandwidth).apply_impulse
 
     @wp.kernel(**kopts)
@@ -525,7 +430,7 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
                 break
             if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
                 break  # stalled at round-off just above tol: more iterations cannot help
-            band_solve(band, lam, w)
+            band_solve(band, lam, lam.shape[0], w)
             apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, ug,
                           lam, imp, real(1.0), u, inv_dt, v, w)
             it += 1

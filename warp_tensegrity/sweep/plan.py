@@ -149,7 +149,7 @@ def dry_run(plan: SweepPlan) -> str:
 
 
 def _step_path(plan: SweepPlan) -> str:
-    """The launch path (engine.choose_path) a shard takes: 'fused' or 'staged'."""
+    """The launch path (engine.choose_path) a shard takes: 'fused', 'fused-serial' or 'staged'."""
     est = plan.estimate
     shard = max(b - a for a, b in plan.shards)
     return str(choose_path(plan.settings, bool(est.get("on_gpu")), shard, int(est.get("bandwidth", 0))).value)
