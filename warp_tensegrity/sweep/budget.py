@@ -85,9 +85,31 @@ def plan_bytes(n_columns: int, n_prisms: int) -> int:
     return int(n_columns) * (PARAM_BYTES + PLAN_BYTES_PER_LEVEL * (int(n_prisms) + 1))
 
 
+DENSE_IMPACT_SECONDS = 2.5e-8
+"""Seconds per (3 (n_prisms + 1))^3 and column of the 'rigid_members' impact velocity, a dense
+least-squares solve (scene/impact.py), measured on the 2-core CPU: 44 s per column at 400 prisms."""
+PLAN_TIME_LIMIT = 600.0
+"""Seconds planning may be estimated to take before a sweep is refused."""
+
+
+def plan_seconds(n_columns: int, n_prisms: int, impact: str) -> float:
+    """Seconds the estimate needs to build the sweep's columns (the dense impact solve dominates)."""
+    if impact != "rigid_members":
+        return 0.0
+    return float(n_columns) * DENSE_IMPACT_SECONDS * (3.0 * (int(n_prisms) + 1)) ** 3
+
+
 def check_plan(spec, available: int | None = None) -> None:
-    """Refuse a sweep whose planning alone would not fit in host memory (before any array of
-    the sweep's size is made)."""
+    """Refuse a sweep whose planning alone would not fit in host memory or would take longer than
+    PLAN_TIME_LIMIT (before any array of the sweep's size is made)."""
+    secs = plan_seconds(spec.n_columns, spec.scene.n_prisms, spec.scene.impact_admissibility)
+    if secs > PLAN_TIME_LIMIT:
+        raise BudgetError(
+            f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms with impact_admissibility = "
+            f"'rigid_members': planning builds every column's impact velocity by a dense solve, about "
+            f"{_fmt_time(secs)} here (limit {_fmt_time(PLAN_TIME_LIMIT)}); use fewer prisms or columns, or "
+            "scene.impact_admissibility = \"end_twist\""
+        )
     need = plan_bytes(spec.n_columns, spec.scene.n_prisms)
     have = host_memory_available() if available is None else int(available)
     if need > have:
