@@ -102,14 +102,6 @@ def plan_seconds(n_columns: int, n_prisms: int, impact: str) -> float:
 def check_plan(spec, available: int | None = None) -> None:
     """Refuse a sweep whose planning alone would not fit in host memory or would take longer than
     PLAN_TIME_LIMIT (before any array of the sweep's size is made)."""
-    secs = plan_seconds(spec.n_columns, spec.scene.n_prisms, spec.scene.impact_admissibility)
-    if secs > PLAN_TIME_LIMIT:
-        raise BudgetError(
-            f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms with impact_admissibility = "
-            f"'rigid_members': planning builds every column's impact velocity by a dense solve, about "
-            f"{_fmt_time(secs)} here (limit {_fmt_time(PLAN_TIME_LIMIT)}); use fewer prisms or columns, or "
-            "scene.impact_admissibility = \"end_twist\""
-        )
     need = plan_bytes(spec.n_columns, spec.scene.n_prisms)
     have = host_memory_available() if available is None else int(available)
     if need > have:
@@ -117,6 +109,14 @@ def check_plan(spec, available: int | None = None) -> None:
             f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms: planning it needs about "
             f"{fmt_bytes(need)} of host memory and {fmt_bytes(have)} is available; split the sweep "
             "into several specs (fewer grid values per spec)"
+        )
+    secs = plan_seconds(spec.n_columns, spec.scene.n_prisms, spec.scene.impact_admissibility)
+    if secs > PLAN_TIME_LIMIT:
+        raise BudgetError(
+            f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms with impact_admissibility = "
+            f"'rigid_members': planning builds every column's impact velocity by a dense solve, about "
+            f"{_fmt_time(secs)} here (limit {_fmt_time(PLAN_TIME_LIMIT)}); use fewer prisms or columns, or "
+            "scene.impact_admissibility = \"end_twist\""
         )
 
 
