@@ -48,6 +48,7 @@ t_end = 0.1
 output_interval = 0.01
 device = "cpu"
 shard_size = 4
+record_strain = false
 """
 
 
@@ -125,7 +126,7 @@ def test_case_list_is_cf_encoded_not_multiindex(case_run):
 def test_grid_layout_and_selection(grid_run):
     ds = D.open_sweep(grid_run)
     assert ds["amplitude"].dims == ("v0", "base_rigidity")
-    assert "strain" not in ds  # record_strain defaults to false
+    assert "strain" not in ds  # record_strain = false: not stored
     assert ds["kinetic_energy"].dims == ("v0", "base_rigidity", "t")
     assert float(ds["prestrain"]) == 0.0 and ds["prestrain"].dims == ()
     assert ds.sel(v0=0.008, base_rigidity=0.5)["status"] == 0

@@ -36,7 +36,7 @@ def spec_keys() -> list[str]:
     keys += [f"sweep.{t}.{p}" for p in COLUMN_PARAMETERS for t in ("grid", "fixed")]
     keys += [f"sweep.cases[i].{p}" for p in tuple(COLUMN_PARAMETERS) + S.CASE_EXTRA_KEYS]
     keys += [f"sweep.grid.<param>.{k}" for k in S.RANGE_KEYS]
-    keys += [f"run.{k}" for k in S.RUN_DEFAULTS]
+    keys += [f"run.{k}" for k in S.RUN_KEYS]
     return keys
 
 

@@ -19,8 +19,8 @@ MAX_CHAIN = 8  # 7 before issue 17: BatchResult.to_xarray (result, at depth 5 un
 
 # Lowest layer first; a module may import lower layers and its own layer's modules (acyclic).
 LAYERS = [
-    {"types", "scene.network", "scene.impact", "measure.pulse", "sweep.errors", "sweep.progress",
-     "provenance", "runtime", "_version", "lens.host", "lens.design"},  # leaves
+    {"types", "options", "scene.network", "scene.impact", "measure.pulse", "sweep.errors", "sweep.budget",
+     "sweep.progress", "provenance", "runtime", "_version", "lens.host", "lens.design"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.staged", "kernels.fused", "kernels", "model", "measure",
      "measure.nan_reasons", "io", "measure.device"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},

@@ -100,7 +100,7 @@ def _pair(cfg, params, precision="fp64", t_end=0.03, dt=5e-4):
     out = {}
     for fused in (False, True):
         s = RunSettings(t_end=t_end, dt=dt, precision=precision, device="cpu", fused=fused, truncate=False,
-                        output_interval=0.01)
+                        output_interval=min(0.01, t_end))  # the options model: output_interval <= t_end
         out[fused] = simulate_batch(cfg, params, s)
     return out[False], out[True]
 

@@ -44,6 +44,25 @@ def _positive_int(value: str) -> int:
     return n
 
 
+def _path(value: str) -> str:
+    """A file name: not empty, not a bare directory such as '.' (a usage error, not a traceback)."""
+    if not value.strip() or Path(value).name in ("", ".", ".."):
+        raise argparse.ArgumentTypeError(f"{value!r} is not a file name")
+    return value
+
+
+def _positive_float(value: str) -> float:
+    import math
+
+    try:
+        x = float(value)
+    except ValueError:
+        x = -1.0
+    if not (math.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"{value!r} is not a positive number of seconds")
+    return x
+
+
 def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
     p.add_argument("--device", type=_device, default=None,
                    help="Warp device: cpu, cuda:N or auto (default: the spec's run.device, else the GPU if there is one, else the CPU)")
@@ -59,6 +78,10 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
                        help="print the number of columns and shards and the estimated memory and time; run nothing")
     p.add_argument("--memory-limit", default=None, metavar="SIZE",
                    help="host memory for the shards in flight, e.g. 512MB (lowers the shard size to fit)")
+    p.add_argument("--time-limit", type=_positive_float, default=None, metavar="SECONDS",
+                   help="refuse a run estimated to take longer (default: 7 days)")
+    p.add_argument("--ignore-estimate", action="store_true",
+                   help="run even when the estimate says the run exceeds this machine's memory, disk or time limit")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (it shows only when stderr is a terminal anyway)")
 
@@ -80,30 +103,34 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a sweep spec into a netCDF file",
                        description="Run SPEC: shards stream into the Zarr store OUT.sweep/ as they finish; "
                                    "OUT is exported from it (netCDF).")
-    p.add_argument("spec", metavar="SPEC", help="sweep spec (TOML)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="netCDF output (the store goes to OUT.nc.sweep/)")
+    p.add_argument("spec", type=_path, metavar="SPEC", help="sweep spec (TOML)")
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.nc",
+                   help="netCDF output (the store goes to OUT.nc.sweep/)")
     p.add_argument("--overwrite", action="store_true", help="discard an earlier run's store and output")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="overrides",
+                   help="override one spec option, typed and checked like the file (e.g. --set run.t_end=2.0, "
+                        "--set scene.n_prisms=8); repeatable; every option: docs/sweeps.md")
     _add_exec_options(p)
 
     p = sub.add_parser("resume", help="finish an interrupted run",
                        description="Reuse the shards that check out (same spec, code and columns), "
                                    "recompute the others, combine. Give OUT.nc, or SPEC -o OUT.nc.")
-    p.add_argument("target", metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
-    p.add_argument("-o", "--output", default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
+    p.add_argument("target", type=_path, metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
+    p.add_argument("-o", "--output", type=_path, default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
     _add_exec_options(p)
 
     p = sub.add_parser("status", help="cases done, diverged and remaining")
-    p.add_argument("output", metavar="OUT.nc")
+    p.add_argument("output", type=_path, metavar="OUT.nc")
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
     p = sub.add_parser("combine", help="export a finished run's store to OUT.nc again")
-    p.add_argument("output", metavar="OUT.nc")
+    p.add_argument("output", type=_path, metavar="OUT.nc")
 
     from .plot import KINDS
 
     p = sub.add_parser("plot", help="plot a sweep's dataset (warp_tensegrity.plot)",
                        description="Draw one figure of OUT.nc with warp_tensegrity.plot and save it.")
-    p.add_argument("dataset", metavar="OUT.nc", help="a sweep's netCDF output (or a work-precision study's)")
+    p.add_argument("dataset", type=_path, metavar="OUT.nc", help="a sweep's netCDF output (or a work-precision study's)")
     p.add_argument("kind", choices=sorted(KINDS), help="; ".join(f"{k}: {v}" for k, v in sorted(KINDS.items())))
     p.add_argument("-o", "--output", default=None, metavar="FIG.png",
                    help="figure file (default: OUT-KIND.png beside the dataset)")
@@ -178,15 +205,15 @@ def main(argv=None) -> int:
         return EXIT_OK
     if args.command is None:
         parser.error("give a COMMAND (run, resume, status, combine, plot, lens) or --version")
+    from .options import OptionError
     from .plot import PlotError
     from .scene.network import NetworkError
-    from .settings import SettingsError
-    from .sweep.errors import SpecError, SweepError
+    from .sweep.errors import SweepError
 
     try:
         return _dispatch(args)
-    except (SpecError, SweepError, SettingsError, NetworkError, PlotError) as e:
-        log.error("error: %s", e)
+    except (OptionError, NetworkError, SweepError, PlotError) as e:  # SpecError, SettingsError: OptionError
+        log.error("error: %s", e)                                     # BudgetError: SweepError
         return EXIT_ERROR
     except KeyboardInterrupt:
         log.warning("interrupted; finished shards are kept: `warp-tensegrity resume` continues")
@@ -211,7 +238,9 @@ def _dispatch(args) -> int:
         init_warp(verbose=bool(args.verbose))
         device = None if args.device == "auto" else args.device
         if args.command == "run":
-            spec = load_spec(Path(args.spec))
+            from .options import parse_set
+
+            spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
             plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
         else:
@@ -226,14 +255,20 @@ def _dispatch(args) -> int:
                     raise SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
         plan = sweep_plan.apply_memory_limit(plan, args.memory_limit)
+        from .sweep import budget
+
+        limits = {"time_limit": args.time_limit or budget.DEFAULT_TIME_LIMIT}
         if args.dry_run:
             from .calibrate import estimate_plan  # a probe on the target device, cached
 
             print(sweep_plan.dry_run(plan, estimate_plan(plan)))
+            found = budget.hard_problems(plan) + budget.problems(plan, **limits)
+            print("fits:        " + ("yes (memory, disk, time limit)" if not found else "NO: " + "; ".join(found)))
             if args.command == "resume" and plan.shard_dir.exists():
                 st = sweep.sweep_status(out, plan.spec)
                 print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")
             return 0
+        budget.check_run(plan, ignore=args.ignore_estimate, **limits)
         path = sweep.execute(
             plan,
             resume=args.command == "resume",

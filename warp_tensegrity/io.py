@@ -37,7 +37,8 @@ import xarray as xr
 from .measure.nan_reasons import FLAG_MEANINGS, FLAG_VALUES, measurement_flags
 from .measure.pulse import measure_pulse
 from .scene.impact import kinematic_lock_strain
-from .types import COLUMN_PARAMETERS, STATUS_MEANINGS, TIME
+from .options import COLUMN_PARAMETERS  # declared once, with units and bounds: options.ColumnParameters
+from .types import STATUS_MEANINGS, TIME
 
 if TYPE_CHECKING:
     from .sweep.spec import SweepSpec

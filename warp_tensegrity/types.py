@@ -55,14 +55,6 @@ class Status(IntEnum):
 
 STATUS_MEANINGS = {Status.OK: "ok", Status.NONFINITE: "non-finite state", Status.CONSTRAINT: "bar constraint failed"}
 
-COLUMN_PARAMETERS = {
-    "prestrain": "1",
-    "v0": "m s-1",
-    "base_rigidity": "1",
-    "cable_EA": "N",
-    "unit_mass": "kg",
-}
-"""The per-column parameters (swept or fixed) and their units."""
 
 TIME = "t"
 """Name of the simulated-time axis of every dataset [s since impact]. Not "time": CF reads a

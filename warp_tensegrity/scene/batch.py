@@ -8,13 +8,14 @@ over columns; :func:`network_batch` wraps arbitrary networks of identical topolo
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 from . import columns as col
 from .network import Network, NetworkError
-from ..types import COLUMN_PARAMETERS
 
 
 @dataclass
@@ -102,13 +103,11 @@ def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarra
     unknown = sorted(set(params) - set(COLUMN_PARAMETERS))
     if unknown:
         raise NetworkError(f"unknown column parameter(s) {unknown}; known: {sorted(COLUMN_PARAMETERS)}")
-    defaults = {
-        "prestrain": 0.0,
-        "v0": 0.0,
-        "base_rigidity": 0.0,
-        "cable_EA": config.cable_EA,
-        "unit_mass": config.unit_mass,
-    }
+    # defaults declared in options.ColumnParameters; None there means "the scene's value"
+    defaults = {f.name: getattr(config, f.name) if f.default is None else f.default
+                for f in dataclasses.fields(ColumnParameters)}
+    for k in params:
+        check_column_param(k, params[k], NetworkError)  # type and bounds, before any conversion
     arrays = {k: np.atleast_1d(np.asarray(params.get(k, d), dtype=np.float64)) for k, d in defaults.items()}
     B = max(a.size for a in arrays.values())
     for k, a in arrays.items():

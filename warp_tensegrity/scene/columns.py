@@ -22,11 +22,13 @@ that stiffen continuously toward RB.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Annotated, Sequence
 
 import numpy as np
 
+from ..options import MASS, Opt, check_column_param, fmt, options_class
 from .impact import least_energy_impact
 from .network import Network, NetworkError
 
@@ -42,33 +44,49 @@ END_BASE_MASS = ("full", "half")
 IMPACT_ADMISSIBILITY = ("rigid_members", "end_twist", "project")
 PAPER_IMPACT = "end_twist"  # the convention of the paper reproduction (analysis/paper_2017.md)
 
+# Physical ranges of the scene (SI). Wide enough for any laboratory or built tensegrity column
+# (micro-fabricated to building scale), narrow enough that every derived quantity (cable_EA,
+# squared lengths, omega_max) stays a normal float64: values outside them are refused, not run.
+LENGTH = (1e-6, 1e3)  # m: prism radius and height
+CABLE_RADIUS = (1e-9, 1.0)  # m
+MODULUS = (1.0, 1e13)  # N m-2: soft gels (~1e3) .. above diamond (1.2e12)
+ASPECT = (1e-2, 1e2)  # prism height / radius: flatter or more slender is no tensegrity column (and the
+# rigid-member impact solve loses its accuracy beyond ~300)
+MAX_PRISMS = 100_000  # a 600 m column of the paper's prisms; the paper's has 50
 
-@dataclass(frozen=True)
+
+# ---------------------------------------------------------------------- the scene's options
+@options_class(NetworkError, frozen=True, section="scene")
 class ColumnConfig:
     """The fixed scene: geometry, material, masses, boundary and impact conventions (SI units)."""
 
-    n_prisms: int = PAPER_N_PRISMS
+    n_prisms: Annotated[int, Opt("int", "1", ge=1, le=MAX_PRISMS,
+                                 why="planning builds every prism of every column (~720 B and ~33 us each)")] = PAPER_N_PRISMS
     """Number of stacked T3 prisms."""
-    handedness: str = "right"
+    handedness: Annotated[str, Opt("str", rule_text="'right', 'left', 'alternating' or one letter R/L per prism")] = "right"
     """'right', 'left', 'alternating', or one letter R/L per prism (e.g. 'RRL...')."""
-    radius: float = PAPER_RADIUS
+    radius: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_RADIUS
     """Radius a of the circle through each base triangle's vertices [m]."""
-    height: float = PAPER_HEIGHT
-    """Reference prism height h0 [m]."""
-    twist: float = MINIMAL_TWIST
-    """Twist angle between bottom and top base [rad]; 5*pi/6 is the prestressable one."""
-    cable_modulus: float = PAPER_CABLE_MODULUS
+    height: Annotated[float, Opt("real", "m", ge=LENGTH[0], le=LENGTH[1])] = PAPER_HEIGHT
+    """Reference prism height h0 [m] (also the length unit of pulse speed); height/radius must lie
+    in [1e-2, 1e2]."""
+    twist: Annotated[float, Opt("real", "rad", gt=math.pi / 3, lt=math.pi, rule_text="in (pi/3, pi)",
+                                why="5*pi/6 is the prestressable twist", default_text="5*pi/6")] = MINIMAL_TWIST
+    """Twist angle between bottom and top base [rad]; a regular minimal prism has a self-stress only
+    at 5*pi/6, so a spec with another twist is refused when it is read."""
+    cable_modulus: Annotated[float, Opt("real", "N m-2", ge=MODULUS[0], le=MODULUS[1])] = PAPER_CABLE_MODULUS
     """Young modulus of the cables E_s [N m-2]."""
-    cable_radius: float = PAPER_CABLE_RADIUS
-    """Cable cross-section radius r_s [m]."""
-    unit_mass: float = PAPER_UNIT_MASS
+    cable_radius: Annotated[float, Opt("real", "m", ge=CABLE_RADIUS[0], le=CABLE_RADIUS[1])] = PAPER_CABLE_RADIUS
+    """Cable cross-section radius r_s [m], <= radius (cable_EA = E_s pi r_s^2)."""
+    unit_mass: Annotated[float, Opt("real", "kg", ge=MASS[0], le=MASS[1])] = PAPER_UNIT_MASS
     """Mass per unit (prism) lumped on the bases [kg]; each base's mass is split over its 3 nodes."""
-    end_base_mass: str = "half"
+    end_base_mass: Annotated[str, Opt("choice", choices=END_BASE_MASS)] = "half"
     """Mass on the end bases: 'half' (default: each unit's mass split between its two bases, so the
     end bases carry half a unit) or 'full' (every base carries a whole unit)."""
-    bar_mass: float = 0.0
-    """Mass of each bar [kg]; the paper's columns carry their mass on the bases (0)."""
-    impact_admissibility: str = "rigid_members"
+    bar_mass: Annotated[float, Opt("real", "kg", ge=0, le=MASS[1])] = 0.0
+    """Mass of each bar [kg], > 0 only for a single prism; the paper's columns carry their mass on
+    the bases (0)."""
+    impact_admissibility: Annotated[str, Opt("choice", choices=IMPACT_ADMISSIBILITY)] = "rigid_members"
     """How the axial impact velocity is made compatible with the members (docs/impact.md):
     'rigid_members' (default) - the least-kinetic-energy velocity with v_z = -v0 on the free-end
     nodes that keeps every bar and every base member rigid at the instant of impact, whatever the
@@ -82,20 +100,19 @@ class ColumnConfig:
     (twisting) velocity that satisfies the bars; no other node moves."""
 
     def __post_init__(self):
-        _check_positive("n_prisms", self.n_prisms, integer=True)
-        for name in ("radius", "height", "cable_modulus", "cable_radius", "unit_mass"):
-            _check_positive(name, getattr(self, name))
-        if not (np.isfinite(self.bar_mass) and self.bar_mass >= 0):
-            raise NetworkError(f"bar_mass = {self.bar_mass} kg must be finite and >= 0")
-        if not (np.pi / 3 < self.twist < np.pi):
-            raise NetworkError(f"twist = {self.twist} rad must lie in (pi/3, pi)")
-        if self.end_base_mass not in END_BASE_MASS:
-            raise NetworkError(f"end_base_mass = {self.end_base_mass!r}; choose one of {END_BASE_MASS}")
-        if self.impact_admissibility not in IMPACT_ADMISSIBILITY:
-            raise NetworkError(
-                f"impact_admissibility = {self.impact_admissibility!r}; choose one of {IMPACT_ADMISSIBILITY}"
-            )
-        self.prism_handedness()  # validates
+        h = self.handedness  # checked without building the per-prism array (n_prisms may be large)
+        if h not in ("right", "left", "alternating") and not (len(h) == self.n_prisms and set(h.upper()) <= {"R", "L"}):
+            raise NetworkError(f"handedness = {fmt(h)}: use 'right', 'left', 'alternating' or {self.n_prisms} letters R/L")
+        if not ASPECT[0] <= self.height / self.radius <= ASPECT[1]:
+            raise NetworkError(f"height = {self.height!r}, radius = {self.radius!r}: the prism aspect ratio height/radius "
+                               f"= {self.height / self.radius:.3g} must lie in [{ASPECT[0]:g}, {ASPECT[1]:g}]")
+        if self.cable_radius > self.radius:
+            raise NetworkError(f"cable_radius = {self.cable_radius!r}: must be <= radius = {self.radius!r} m "
+                               "(a cable thicker than the prism)")
+        if self.bar_mass > 0 and self.n_prisms > 1:
+            # the consistent bar inertia needs class-1 networks; a column's inner nodes carry two bars
+            raise NetworkError(f"bar_mass = {self.bar_mass!r}: massive bars need n_prisms = 1 (the inner nodes of a "
+                               f"column carry two bars; n_prisms = {self.n_prisms}): put the mass in unit_mass")
 
     @property
     def cable_EA(self) -> float:
@@ -114,16 +131,8 @@ class ColumnConfig:
             return np.where(np.arange(n) % 2 == 0, 1, -1).astype(np.int64)
         if isinstance(h, str) and len(h) == n and set(h.upper()) <= {"R", "L"}:
             return np.array([1 if c == "R" else -1 for c in h.upper()], dtype=np.int64)
-        raise NetworkError(
-            f"handedness = {h!r}: use 'right', 'left', 'alternating' or {n} letters R/L"
-        )
+        raise NetworkError(f"handedness = {h!r}: use 'right', 'left', 'alternating' or {n} letters R/L")
 
-
-def _check_positive(name, value, integer=False):
-    ok = np.isfinite(value) and value > 0 and (not integer or float(value).is_integer())
-    if not ok:
-        kind = "a positive integer" if integer else "finite and > 0"
-        raise NetworkError(f"{name} = {value} must be {kind}")
 
 
 # ---------------------------------------------------------------------- topology
@@ -211,16 +220,20 @@ def column_topology(config: ColumnConfig) -> ColumnTopology:
     unit_bar = np.zeros(3 * n)
     unit_base = np.zeros(3 * (n + 1))
     for m in range(n):
-        sb, sc, sbot, stop = prism_self_stress(
-            pos, bars[3 * m : 3 * m + 3], cross[3 * m : 3 * m + 3], base[3 * m : 3 * m + 3], base[3 * m + 3 : 3 * m + 6]
-        )
+        try:
+            sb, sc, sbot, stop = prism_self_stress(
+                pos, bars[3 * m : 3 * m + 3], cross[3 * m : 3 * m + 3], base[3 * m : 3 * m + 3], base[3 * m + 3 : 3 * m + 6]
+            )
+        except NetworkError as e:  # name the option that decides it
+            raise NetworkError(f"twist = {config.twist!r} rad: {e}") from None
         if np.any(np.abs(sc - 1) > 1e-9):
             raise NetworkError(f"prism {m}: cross cables do not share one self-stress level: {sc}")
         unit_bar[3 * m : 3 * m + 3] = sb
         unit_base[3 * m : 3 * m + 3] += sbot  # superposition: interior bases carry both prisms' share
         unit_base[3 * m + 3 : 3 * m + 6] += stop
     if np.any(unit_bar >= 0) or np.any(unit_base <= 0):
-        raise NetworkError("self-stress has compressed cables or stretched bars; check twist/handedness")
+        raise NetworkError(f"twist = {config.twist!r} rad, handedness = {config.handedness!r}: self-stress has "
+                           "compressed cables or stretched bars")
     fixed = np.zeros(3 * (n + 1), dtype=bool)
     fixed[level_nodes[0]] = True
     return ColumnTopology(config, pos, fixed, level_nodes, bars, cross, base, base_level, unit_bar, unit_base)
@@ -245,20 +258,9 @@ def base_member_law(EA: np.ndarray, base_rigidity: np.ndarray) -> tuple[np.ndarr
 
 def check_column_params(prestrain, v0, base_rigidity, cable_EA, unit_mass) -> None:
     """Raise NetworkError naming the parameter and value for any physically impossible input."""
-    checks = (
-        ("prestrain", prestrain, lambda x: (x >= 0) & (x < 1), "must lie in [0, 1)"),
-        ("v0", v0, lambda x: np.isfinite(x), "must be finite [m s-1]"),
-        ("base_rigidity", base_rigidity, lambda x: (x >= 0) & (x <= 1), "must lie in [0, 1]"),
-        ("cable_EA", cable_EA, lambda x: x > 0, "must be > 0 [N]"),
-        ("unit_mass", unit_mass, lambda x: x > 0, "must be > 0 [kg]"),
-    )
-    for name, val, ok, msg in checks:
-        arr = np.atleast_1d(np.asarray(val, dtype=np.float64))
-        good = np.isfinite(arr) & ok(arr)
-        if not good.all():
-            i = int(np.argmin(good))
-            where = f"[{i}]" if arr.size > 1 else ""
-            raise NetworkError(f"{name}{where} = {arr[i]} {msg}")
+    for name, val in zip(("prestrain", "v0", "base_rigidity", "cable_EA", "unit_mass"),
+                         (prestrain, v0, base_rigidity, cable_EA, unit_mass)):
+        check_column_param(name, val, NetworkError)  # bounds declared once, in options.ColumnParameters
 
 
 def node_masses(topo: ColumnTopology, unit_mass: float) -> np.ndarray:
@@ -352,8 +354,11 @@ def build_column(
     ).validate()
     residual = equilibrium_residual(net)
     if config.impact_admissibility == "rigid_members":
-        vel = least_energy_impact(X, net.mass_matrix(), topo.fixed, np.concatenate([topo.bars, topo.base]),
-                                  topo.level_nodes[-1], v0)
+        try:
+            vel = least_energy_impact(X, net.mass_matrix(), topo.fixed, np.concatenate([topo.bars, topo.base]),
+                                      topo.level_nodes[-1], v0)
+        except ValueError as e:  # the scene's error class, so callers see one kind of bad-input error
+            raise NetworkError(f"{e} (height = {config.height!r} m, radius = {config.radius!r} m)") from None
     else:
         vel = impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
     return ColumnScene(topo, net, vel, float(prestrain), float(v0), float(base_rigidity), T, residual)

@@ -19,7 +19,12 @@ import numpy as np
 
 
 class NetworkError(ValueError):
-    """Invalid network input. The message names the member or node and the bad value."""
+    """Invalid network or scene input. The message names the member, node or field and the bad
+    value; ``errors`` lists one message per problem."""
+
+    def __init__(self, errors):
+        self.errors = [errors] if isinstance(errors, str) else list(errors)
+        super().__init__(self.errors[0] if len(self.errors) == 1 else "; ".join(self.errors))
 
 
 @dataclass

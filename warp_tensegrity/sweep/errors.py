@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from ..options import OptionError
 
-class SpecError(ValueError):
+
+class SpecError(OptionError):
     """Invalid sweep spec. ``errors`` lists one message per problem, each naming the key path."""
 
     def __init__(self, errors, source: str | None = None):
@@ -16,7 +18,7 @@ class SpecError(ValueError):
             msg = f"{head}: {self.errors[0]}"
         else:
             msg = f"{head} ({len(self.errors)} problems):\n" + "\n".join(f"  - {e}" for e in self.errors)
-        super().__init__(msg)
+        ValueError.__init__(self, msg)
 
 
 class SweepError(RuntimeError):

@@ -13,6 +13,7 @@ from ..engine import choose_path, estimate_batch, prisms_to_simulate
 from ..provenance import code_version
 from ..settings import RunSettings
 from .progress import fmt_seconds
+from .budget import check_plan
 from .errors import SpecError
 from .store import limit_shard_size, parse_bytes, shard_dir_for
 
@@ -83,6 +84,7 @@ def plan_sweep(
     size = int(shard_size or spec.run["shard_size"])
     if size < 1:
         raise SpecError(f"shard_size = {size!r} must be a positive integer")
+    check_plan(spec)  # refuse, with the figures, a sweep whose planning would not fit in memory
     dev = device if device is not None else spec.run["device"]
     plan = SweepPlan(
         spec=spec,

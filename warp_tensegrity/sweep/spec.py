@@ -33,11 +33,20 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import options as O
 from ..engine import for_accuracy
+from ..options import (
+    COLUMN_PARAMETERS,
+    EXECUTION_KEYS,
+    ColumnParameters,
+    OptionError,
+    RunSettings,
+    suggest,
+)
 from ..provenance import code_version
-from ..scene.columns import END_BASE_MASS, IMPACT_ADMISSIBILITY, ColumnConfig
+from ..scene.columns import ColumnConfig, column_topology
 from ..scene.network import NetworkError
-from ..settings import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError
+from .budget import fmt_bytes, host_memory_available, plan_bytes
 from .errors import SpecError
 
 
@@ -50,29 +59,12 @@ CASE_EXTRA_KEYS = ("label",)
 SCENE_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
 # per-column parameters that are not ColumnConfig fields and may be given as scene scalars
 SCENE_PARAMS = tuple(p for p in COLUMN_PARAMETERS if p not in SCENE_FIELDS)
+RUN_KEYS = tuple(f.name for f in dataclasses.fields(RunSettings))
+"""Every [run] key: the fields of :class:`~warp_tensegrity.options.RunSettings`."""
 
-_RUN_DEFAULTS = {f.name: f.default for f in dataclasses.fields(RunSettings)}
-RUN_DEFAULTS = {
-    "method": _RUN_DEFAULTS["method"],
-    "dt": _RUN_DEFAULTS["dt"],
-    "t_end": _RUN_DEFAULTS["t_end"],
-    "output_interval": _RUN_DEFAULTS["output_interval"],
-    "precision": _RUN_DEFAULTS["precision"],
-    "device": _RUN_DEFAULTS["device"],
-    "shard_size": 256,
-    "record_strain": False,
-    "record_energy": True,
-    "dt_safety": _RUN_DEFAULTS["dt_safety"],
-    "allow_unstable_dt": _RUN_DEFAULTS["allow_unstable_dt"],
-    "projection_tol": _RUN_DEFAULTS["projection_tol"],
-    "max_projection_iters": _RUN_DEFAULTS["max_projection_iters"],
-    "failure_bar_error": _RUN_DEFAULTS["failure_bar_error"],
-    "steps_per_graph": _RUN_DEFAULTS["steps_per_graph"],
-    "accuracy": None,
-    "truncate": _RUN_DEFAULTS["truncate"],
-    "fused": _RUN_DEFAULTS["fused"],
-}
-"""Every [run] key and its default (None: engine's choice)."""
+PARAM_DEFAULTS = {f.name: f.default for f in dataclasses.fields(ColumnParameters) if f.default is not None}
+"""Defaults of the per-column parameters that are not scene-derived (cable_EA and unit_mass
+default to the scene's values)."""
 
 KEY_DOCS = {
     "title": "dataset `title` attribute (default: from the file name)",
@@ -89,21 +81,10 @@ KEY_DOCS = {
     "sweep.grid.<param>.num": "number of values of a range axis (integer >= 1)",
     "sweep.grid.<param>.spacing": '`"linear"` (default) or `"log"` (geometric; start, stop > 0)',
     "sweep.cases[i].label": "case label, stored as the `case_label` coordinate",
-    "run.shard_size": "columns per shard: one engine batch, one file (integer >= 1)",
-    "run.record_energy": "store the kinetic and elastic energy histories of each column",
-    "run.record_strain": "store the strain history (t x prism) of each column (the measures always use it)",
 }
-"""What each spec key that is not a ColumnConfig / RunSettings field means (the docs' options table
-reads these and the fields' docstrings: ``docs/hooks/options.py``)."""
+"""What each structural spec key means (the options themselves are documented where they are
+declared: :func:`warp_tensegrity.options.options_table`; the docs' hook reads both)."""
 
-EXECUTION_KEYS = ("device", "shard_size", "fused")
-"""[run] keys that say where/how a sweep runs, not what it computes: left out of the fingerprint."""
-
-PARAM_DEFAULTS = {"prestrain": 0.0, "v0": 0.0, "base_rigidity": 0.0}
-"""Defaults of the per-column parameters that are not scene-derived (cable_EA and unit_mass
-default to the scene's values)."""
-
-_DEVICE_RE = re.compile(r"^(cpu|cuda|cuda:\d+)$")
 
 
 # ---------------------------------------------------------------------- helpers
@@ -116,19 +97,6 @@ def _fmt(value) -> str:
         s = json.dumps(value, default=str)
         return s if len(s) < 80 else s[:77] + "..."
     return repr(value)
-
-
-def suggest(key: str, allowed) -> str:
-    """' (did you mean 'x'?)' for the closest allowed key, or ''."""
-    names = [str(a) for a in allowed]
-    match = difflib.get_close_matches(str(key), names, n=1, cutoff=0.6)
-    if not match and len(str(key)) <= 4:  # short keys: one wrong character is half the key
-        match = difflib.get_close_matches(str(key), [n for n in names if len(n) <= 4], n=1, cutoff=0.5)
-    if not match and isinstance(key, str):
-        low = {str(a).lower(): str(a) for a in allowed}
-        match = difflib.get_close_matches(key.lower(), list(low), n=1, cutoff=0.6)
-        match = [low[m] for m in match]
-    return f"; did you mean {match[0]!r}?" if match else ""
 
 
 class _Checker:
@@ -149,10 +117,7 @@ class _Checker:
             if k not in allowed:
                 full = f"{path}.{k}" if path else str(k)
                 extra = hint(k) if callable(hint) else hint
-                self.error(
-                    full,
-                    f"unknown {what}{suggest(k, allowed)}{extra} (allowed: {', '.join(map(str, allowed))})",
-                )
+                self.errors.append(O.unknown_key(full, k, allowed, what=what, hint=extra))
                 ok = False
         return ok
 
@@ -185,23 +150,11 @@ class _Checker:
         return value
 
 
-# per-column parameter physics: (predicate, message)
-_PARAM_RULES = {
-    "prestrain": (lambda x: 0.0 <= x < 1.0, "prestrain (cross-cable prestrain p) must lie in [0, 1)"),
-    "v0": (lambda x: x >= 0.0, "v0 is the compressive impact speed [m s-1] and must be >= 0"),
-    "base_rigidity": (lambda x: 0.0 <= x <= 1.0, "base_rigidity must lie in [0, 1] (0 flexible FB, 1 rigid RB)"),
-    "cable_EA": (lambda x: x > 0.0, "cable_EA [N] must be > 0"),
-    "unit_mass": (lambda x: x > 0.0, "unit_mass [kg] must be > 0"),
-}
-
-
 def _check_param(ck: _Checker, name: str, path: str, value) -> float | None:
-    v = ck.number(path, value)
-    if v is None:
-        return None
-    ok, msg = _PARAM_RULES[name]
-    if not ok(v):
-        ck.bad(path, value, msg)
+    """A per-column parameter checked against its declaration in options.ColumnParameters."""
+    v, problem = O.opt_of(ColumnParameters, name).problem(value)
+    if problem is not None or v is None:
+        ck.bad(path, value, problem or "must be a number")
         return None
     return v
 
@@ -293,29 +246,17 @@ class SweepSpec:
 
     # ------------------------------------------------------------------ settings
     def run_settings(self, device: str | None = None, dt: float | str | None = None) -> RunSettings:
-        """RunSettings for the engine. The engine always keeps the strain record on the device (the
-        measurements are taken there); record_strain decides whether it crosses to the host and is stored."""
-        r = self.run
-        dev = device if device is not None else r["device"]
-        if dev in ("auto", None):
-            dev = None
-        return RunSettings(
-            t_end=r["t_end"],
-            dt=r["dt"] if dt is None else dt,
-            method=r["method"],
-            precision=r["precision"],
-            output_interval=r["output_interval"],
-            record_strain=r["record_strain"],
-            device=dev,
-            dt_safety=r["dt_safety"],
-            allow_unstable_dt=r["allow_unstable_dt"],
-            projection_tol=r["projection_tol"],
-            max_projection_iters=r["max_projection_iters"],
-            failure_bar_error=r["failure_bar_error"],
-            steps_per_graph=r["steps_per_graph"],
-            truncate=r["truncate"],
-            fused=r["fused"],
-        )
+        """RunSettings for the engine. The engine keeps the strain record on the device (the
+        measurements are taken there); record_strain decides whether it crosses to the host and is
+        stored. The accuracy was resolved into method, precision and dt_safety for the whole column
+        when the spec was read."""
+        r = dict(self.run)
+        r.update(accuracy=None)
+        if device is not None:
+            r["device"] = device
+        if dt is not None:
+            r["dt"] = dt
+        return RunSettings(**r)
 
     def check_dt(self, dt_limit: float) -> None:
         """Refuse an explicit dt above the stability limit unless run.allow_unstable_dt."""
@@ -327,7 +268,7 @@ class SweepSpec:
                 f"run.dt = {dt!r} s is above the stability limit dt_limit = {dt_limit:.6g} s of method "
                 f"{self.run['method']!r} ({self.run['precision']}) for the stiffest column of the sweep; "
                 f"use run.dt <= {dt_limit:.6g}, run.dt = \"auto\" "
-                f"({self.run['dt_safety']} x the limit), or set run.allow_unstable_dt = true",
+                f"({self.run['dt_safety'] or 'a fraction of'} x the limit), or set run.allow_unstable_dt = true",
                 self.source,
             )
 
@@ -390,9 +331,15 @@ def load_spec(source, overrides: dict | None = None) -> SweepSpec:
     if is_path:
         path = Path(source)
         try:
-            text = path.read_text()
+            raw = path.read_bytes()
         except OSError as e:
             raise SpecError(f"cannot read spec: {e}", str(path)) from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as e:  # TOML is UTF-8
+            line = raw[: e.start].count(b"\n") + 1
+            raise SpecError(f"not UTF-8 text (TOML must be): byte {raw[e.start:e.start + 1]!r} at line {line}, "
+                            f"byte offset {e.start}", str(path)) from None
     else:
         text = str(source)
     return parse_spec(text, source=str(path) if path else None, overrides=overrides)
@@ -408,6 +355,19 @@ def _merge(base: dict, over: dict) -> dict:
     return out
 
 
+def _overridden_text(text: str, data: dict, overrides: dict) -> str:
+    """The spec as run: the merged tables written back as TOML (a resumed run reads this text,
+    so it must hold the overrides), headed by the overrides as a comment."""
+    import tomli_w  # only needed with overrides
+
+    flat = [f"{s}.{k} = {v!r}" for s, t in overrides.items() if isinstance(t, dict) for k, v in t.items()]
+    head = "# spec with command-line overrides: " + ", ".join(flat) + "\n"
+    try:
+        return head + tomli_w.dumps(data)
+    except (TypeError, ValueError):  # not writable as TOML: validation below names the bad value
+        return text
+
+
 def parse_spec(text: str, source: str | None = None, overrides: dict | None = None) -> SweepSpec:
     try:
         data = tomllib.loads(text)
@@ -415,6 +375,7 @@ def parse_spec(text: str, source: str | None = None, overrides: dict | None = No
         raise SpecError(f"not valid TOML: {e}", source) from None
     if overrides:
         data = _merge(data, overrides)
+        text = _overridden_text(text, data, overrides)
     ck = _Checker()
     ck.keys(data, "", TOP_KEYS, what="top-level table")
     title = data.get("title")
@@ -458,10 +419,7 @@ def parse_spec(text: str, source: str | None = None, overrides: dict | None = No
     run = _parse_run(ck, run_t)
     if ck.errors:
         raise SpecError(ck.errors, source)
-    try:  # last line of defence: the engine's own checks
-        scene_obj = ColumnConfig(**scene_keys) if scene is None else scene
-    except (NetworkError, TypeError) as e:
-        raise SpecError(f"scene.{e}", source) from None
+    scene_obj = scene
     if run.pop("accuracy_resolved", False):
         # conservative: the pulse may cross the whole column
         run.update(for_accuracy(run["accuracy"], scene_obj.n_prisms))
@@ -482,65 +440,32 @@ def parse_spec(text: str, source: str | None = None, overrides: dict | None = No
     )
     try:
         spec.run_settings()
-    except SettingsError as e:
-        raise SpecError(f"run.{e}", source) from None
+    except OptionError as e:
+        raise SpecError([f"run.{m}" for m in e.errors], source) from None
     return spec
 
 
 def _parse_scene(ck: _Checker, t: dict):
-    keys: dict = {}
+    """[scene]: ColumnConfig fields (validated by ColumnConfig itself) and per-column scalars."""
     params: dict = {}
-    allowed = SCENE_FIELDS + SCENE_PARAMS
-    ck.keys(t, "scene", allowed)
-    for k, v in t.items():
-        path = f"scene.{k}"
-        if k in SCENE_PARAMS:
-            val = _check_param(ck, k, path, v)
+    ck.keys(t, "scene", SCENE_FIELDS + SCENE_PARAMS)
+    for k in SCENE_PARAMS:
+        if k in t:
+            val = _check_param(ck, k, f"scene.{k}", t[k])
             if val is not None:
                 params[k] = val
-        elif k == "n_prisms":
-            n = ck.number(path, v, integer=True)
-            if n is not None and n < 1:
-                ck.bad(path, v, "must be a positive integer")
-            elif n is not None:
-                keys[k] = n
-        elif k in ("radius", "height", "cable_modulus", "cable_radius", "unit_mass"):
-            x = ck.number(path, v)
-            if x is not None and not x > 0:
-                units = {"radius": "m", "height": "m", "cable_modulus": "N m-2", "cable_radius": "m", "unit_mass": "kg"}
-                ck.bad(path, v, f"must be > 0 [{units[k]}]")
-            elif x is not None:
-                keys[k] = x
-        elif k == "bar_mass":
-            x = ck.number(path, v)
-            if x is not None and x < 0:
-                ck.bad(path, v, "must be >= 0 [kg]")
-            elif x is not None:
-                keys[k] = x
-        elif k == "twist":
-            x = ck.number(path, v)
-            if x is not None and not (math.pi / 3 < x < math.pi):
-                ck.bad(path, v, "must lie in (pi/3, pi) [rad]; 5*pi/6 is the prestressable twist")
-            elif x is not None:
-                keys[k] = x
-        elif k == "handedness":
-            if not isinstance(v, str):
-                ck.bad(path, v, "must be 'right', 'left', 'alternating' or one letter R/L per prism")
-            else:
-                keys[k] = v
-        elif k == "end_base_mass":
-            if ck.choice(path, v, END_BASE_MASS) is not None:
-                keys[k] = v
-        elif k == "impact_admissibility":
-            if ck.choice(path, v, IMPACT_ADMISSIBILITY) is not None:
-                keys[k] = v
-    scene = None
-    if not ck.errors:
-        try:
-            scene = ColumnConfig(**keys)
-        except NetworkError as e:  # e.g. handedness string of the wrong length
-            ck.errors.append(f"scene.{e}")
-    return scene, keys, params
+    given = {k: v for k, v in t.items() if k in SCENE_FIELDS}
+    try:
+        scene = O.build(ColumnConfig, given, prefix="scene.")
+        # one prism of the scene: is it prestressable (twist)? cheap, and the engine would refuse later
+        column_topology(dataclasses.replace(scene, n_prisms=1, handedness="right"))
+    except OptionError as e:
+        ck.errors += e.errors
+        return None, {}, params
+    except NetworkError as e:
+        ck.errors.append(f"scene.{e}")
+        return None, {}, params
+    return scene, {k: getattr(scene, k) for k in given}, params
 
 
 def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None:
@@ -556,6 +481,11 @@ def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None
         if num is not None and num < 1:
             ck.bad(f"{path}.num", spec["num"], "must be >= 1")
             num = None
+        elif num is not None and (need := plan_bytes(num, 1)) > (have := host_memory_available()):
+            # checked before the axis is made: np.linspace would try to allocate it
+            ck.bad(f"{path}.num", spec["num"], f"an axis of {num:,} values cannot be planned: even one-prism columns "
+                   f"need about {fmt_bytes(need)} of host memory and {fmt_bytes(have)} is available")
+            num = None
         spacing = spec.get("spacing", "linear")
         spacing = ck.choice(f"{path}.spacing", spacing, SPACINGS)
         if None in (start, stop, num, spacing):
@@ -569,6 +499,9 @@ def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None
             vals[0], vals[-1] = start, stop
         else:
             vals = np.linspace(start, stop, num)
+        if np.unique(vals).size != vals.size:  # as for a list: one column per distinct value
+            ck.bad(path, spec, f"gives repeated values ({num} values from {start!r} to {stop!r}); grid values must be distinct")
+            return None
         return vals.astype(np.float64)
     if isinstance(spec, list):
         if not spec:
@@ -655,92 +588,19 @@ def _parse_sweep(ck: _Checker, t: dict):
 
 
 def _parse_run(ck: _Checker, t: dict) -> dict:
-    run = dict(RUN_DEFAULTS)
-    ck.keys(t, "run", tuple(RUN_DEFAULTS))
-    for k, v in t.items():
-        path = f"run.{k}"
-        if k == "method":
-            if ck.choice(path, v, METHODS) is not None:
-                run[k] = v
-        elif k == "precision":
-            if ck.choice(path, v, PRECISIONS) is not None:
-                run[k] = v
-        elif k == "dt":
-            if isinstance(v, str):
-                if v != "auto":
-                    ck.bad(path, v, 'give the time step in seconds or "auto"')
-                else:
-                    run[k] = "auto"
-            else:
-                x = ck.number(path, v)
-                if x is not None and not x > 0:
-                    ck.bad(path, v, 'must be > 0 [s] (or "auto")')
-                elif x is not None:
-                    run[k] = x
-        elif k in ("t_end", "failure_bar_error"):
-            x = ck.number(path, v)
-            if x is not None and not x > 0:
-                ck.bad(path, v, "must be > 0" + (" [s]" if k == "t_end" else ""))
-            elif x is not None:
-                run[k] = x
-        elif k == "output_interval":
-            if v == "auto":
-                run[k] = None
-            else:
-                x = ck.number(path, v)
-                if x is not None and not x > 0:
-                    ck.bad(path, v, 'must be > 0 [s] (or "auto": about 200 outputs)')
-                elif x is not None:
-                    run[k] = x
-        elif k == "device":
-            if not isinstance(v, str) or not _DEVICE_RE.match(v) and v != "auto":
-                ck.bad(path, v, 'give "cpu", "cuda", "cuda:N" or "auto" (the GPU if there is one)')
-            else:
-                run[k] = None if v == "auto" else v
-        elif k in ("shard_size", "max_projection_iters", "steps_per_graph"):
-            n = ck.number(path, v, integer=True)
-            if n is not None and n < 1:
-                ck.bad(path, v, "must be a positive integer")
-            elif n is not None:
-                run[k] = n
-        elif k == "accuracy":
-            x = ck.number(path, v)
-            if x is not None and not (0 < x < 1):
-                ck.bad(path, v, "must lie in (0, 1): the relative error wanted on pulse speed and amplitude")
-            elif x is not None:
-                run[k] = x
-        elif k in ("record_strain", "record_energy", "allow_unstable_dt", "truncate"):
-            b = ck.boolean(path, v)
-            if b is not None:
-                run[k] = b
-        elif k == "fused":
-            if v not in (True, False, "auto") or isinstance(v, (int, float)) and not isinstance(v, bool):
-                ck.bad(path, v, 'give true (one block per column), false (one kernel per stage) or "auto"')
-            elif v is True and t.get("method", run["method"]) != "rattle":
-                ck.bad(path, v, f"the fused step is RATTLE's; run.method = {t.get('method')!r}")
-            else:
-                run[k] = v
-        elif k == "dt_safety":
-            x = ck.number(path, v)
-            if x is not None and not (0 < x <= 0.5):
-                ck.bad(path, v, "must lie in (0, 0.5]: strong impacts lower the stability limit to ~0.45 of the prediction")
-            elif x is not None:
-                run[k] = x
-        elif k == "projection_tol":
-            x = ck.number(path, v)
-            if x is not None and not (0 < x < 1e-2):
-                ck.bad(path, v, "must lie in (0, 1e-2)")
-            elif x is not None:
-                run[k] = x
+    """[run]: the fields of RunSettings, validated by RunSettings itself (every [run] key)."""
+    ck.keys(t, "run", RUN_KEYS)
+    given = {k: v for k, v in t.items() if k in RUN_KEYS}
+    try:
+        settings = O.build(RunSettings, given, prefix="run.")
+    except OptionError as e:
+        ck.errors += e.errors
+        return {f.name: f.default for f in dataclasses.fields(RunSettings)}
+    run = {k: getattr(settings, k) for k in RUN_KEYS}
     if run["accuracy"] is not None:
         # the accuracy chooses method, precision and dt: they may not be given beside it
         for key in ("method", "precision", "dt", "dt_safety"):
             if key in t:
                 ck.bad(f"run.{key}", t[key], "conflicts with run.accuracy, which chooses it; give one of them")
         run["accuracy_resolved"] = True  # method, precision, dt_safety set once the scene is known
-    if not isinstance(run["dt"], str) and run["dt"] > run["t_end"]:
-        ck.bad("run.dt", run["dt"], f"must be <= run.t_end = {run['t_end']!r} s")
-    oi = run["output_interval"]
-    if oi is not None and oi > run["t_end"]:
-        ck.bad("run.output_interval", oi, f"must be <= run.t_end = {run['t_end']!r} s")
     return run

@@ -1,0 +1,693 @@
+"""Fuzzed inputs (Hypothesis, derandomized: the same inputs on every run) over sweep specs, the
+command line and the Python API. Every input must end in one of two ways:
+
+* a clear error: non-zero exit (or an OptionError from the API), no traceback, and the message
+  names the key and the value that were bad;
+* a valid run: here a ``--dry-run`` (which plans the sweep and asks the engine's estimate), plus
+  a few tiny real runs and subprocess checks at the end.
+
+"Accepted nonsense" is decided by an oracle written here, independently of the options model:
+:func:`physics_problems` states the physical rules of a spec (SI units, the paper's model) and a
+spec it finds invalid must be refused; a spec it finds valid must be accepted.
+
+Per-class counts are printed and, with ``FUZZ_COUNTS_DIR=dir``, written there as JSON
+(``tests/artifacts/fuzz_counts.json`` holds the committed record).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import os
+import subprocess
+import sys
+import tomllib
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+
+from warp_tensegrity import cli
+from warp_tensegrity.options import OptionError, RunSettings, check_column_param
+from warp_tensegrity.scene import ColumnConfig, NetworkError
+
+REPO = Path(__file__).resolve().parents[1]
+
+EXPLORE = int(os.environ.get("FUZZ_EXPLORE", "0"))
+"""0 (CI): derandomized, the quotas below. N > 0 (a local bug hunt): random seeds, N x the quotas."""
+FUZZ = settings(derandomize=not EXPLORE, deadline=None, database=None, print_blob=True,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much,
+                                       HealthCheck.function_scoped_fixture])
+QUOTAS = {"spec values": 260, "spec structure": 220, "spec bytes": 170, "cli arguments": 220, "python api": 300}
+"""Generated inputs per class (1,170 in all). Derandomized Hypothesis may stop a little early
+once it has exhausted a strategy, so each class asserts at least 90 % of its quota."""
+
+
+def fuzz(cls: str):
+    return settings(FUZZ, max_examples=QUOTAS[cls] * max(1, EXPLORE))
+
+BASE = {
+    "title": "fuzz base",
+    "scene": {"n_prisms": 3},
+    "sweep": {"grid": {"v0": [0.001, 0.002]}, "fixed": {"prestrain": 0.001}},
+    "run": {"t_end": 0.02, "output_interval": 0.005},
+}
+
+# ---------------------------------------------------------------------- the oracle (independent of options.py)
+PI = math.pi
+
+
+def _real(x):
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _integral(x):
+    return _real(x) and float(x).is_integer()
+
+
+SCENE_RULES = {
+    "n_prisms": lambda x: _integral(x) and 1 <= x <= 100_000,  # longer: 600 m of the paper's prisms
+    "handedness": lambda x: isinstance(x, str),  # checked with n_prisms below
+    # physical ranges (SI): micro-fabricated to building-scale columns
+    "radius": lambda x: _real(x) and 1e-6 <= x <= 1e3,
+    "height": lambda x: _real(x) and 1e-6 <= x <= 1e3,
+    # a regular minimal prism has a self-stress only at twist 5 pi/6 (paper Sec. 3)
+    "twist": lambda x: _real(x) and abs(x - 5 * PI / 6) < 1e-9,
+    "cable_modulus": lambda x: _real(x) and 1.0 <= x <= 1e13,  # gels .. above diamond
+    "cable_radius": lambda x: _real(x) and 1e-9 <= x <= 1.0,
+    "unit_mass": lambda x: _real(x) and 1e-15 <= x <= 1e6,
+    "end_base_mass": lambda x: x in ("half", "full"),
+    "bar_mass": lambda x: _real(x) and 0 <= x <= 1e6,
+    "impact_admissibility": lambda x: x in ("rigid_members", "project", "end_twist"),
+}
+PARAM_RULES = {
+    "prestrain": lambda x: _real(x) and 0 <= x < 1,  # p = 1: zero cable rest length
+    "v0": lambda x: _real(x) and x >= 0,  # compressive impact speed
+    "base_rigidity": lambda x: _real(x) and 0 <= x <= 1,  # FB .. RB
+    "cable_EA": lambda x: _real(x) and 0 < x <= 1e20,
+    "unit_mass": lambda x: _real(x) and 1e-15 <= x <= 1e6,
+}
+_POS_INT = lambda x: _integral(x) and x >= 1  # noqa: E731
+_BOOL = lambda x: isinstance(x, bool)  # noqa: E731
+RUN_RULES = {
+    # times: a femtosecond to ~30 years
+    "t_end": lambda x: _real(x) and 0 < x <= 1e9,
+    "dt": lambda x: x == "auto" or (_real(x) and x >= 1e-15),
+    "output_interval": lambda x: x == "auto" or (_real(x) and x >= 1e-15),
+    "method": lambda x: x in ("rattle", "rk4", "yoshida4", "symplectic_euler"),
+    "precision": lambda x: x in ("fp32", "fp64"),
+    "device": lambda x: x in ("cpu", "auto"),  # this machine; cuda is checked by the engine
+    "shard_size": _POS_INT,
+    "record_strain": _BOOL,
+    "record_energy": _BOOL,
+    "dt_safety": lambda x: _real(x) and 1e-6 <= x <= 0.5,  # strong impacts lower the limit to ~0.45
+    "allow_unstable_dt": _BOOL,
+    "projection_tol": lambda x: _real(x) and 0 < x < 1e-2,
+    "max_projection_iters": _POS_INT,
+    "failure_bar_error": lambda x: _real(x) and x > 0,
+    "steps_per_graph": _POS_INT,
+    "fused": lambda x: x is True or x is False or x == "auto",
+    "accuracy": lambda x: _real(x) and 1e-15 <= x < 1,  # not below fp64 round-off
+    "truncate": _BOOL,
+}
+
+
+def physics_problems(data: dict) -> list[str]:
+    """Key paths whose value breaks the physical rules of a spec ([] = a valid spec)."""
+    bad = []
+    scene, sweep, run = (data.get(k, {}) for k in ("scene", "sweep", "run"))
+    scene, sweep, run = (t if isinstance(t, dict) else {} for t in (scene, sweep, run))
+    for k, v in scene.items():
+        rule = SCENE_RULES.get(k) or PARAM_RULES.get(k)
+        if rule is None or not rule(v):
+            bad.append(f"scene.{k}")
+    n = scene.get("n_prisms", 50)
+    h = scene.get("handedness", "right")
+    if isinstance(h, str) and h not in ("right", "left", "alternating") and _integral(n):
+        if not (len(h) == n and set(h.upper()) <= {"R", "L"}):
+            bad.append("scene.handedness")
+    a, h, rc = scene.get("radius", 5e-3), scene.get("height", 6.2e-3), scene.get("cable_radius", 0.14e-3)
+    if all(_real(x) and x > 0 for x in (a, h, rc)):
+        if not 1e-2 <= h / a <= 1e2:  # needle or disc: not a prism column
+            bad.append("scene.height" if "height" in scene else "scene.radius")
+        elif rc > a:  # a cable thicker than the prism
+            bad.append("scene.cable_radius" if "cable_radius" in scene else "scene.radius")
+    if _real(scene.get("bar_mass", 0)) and scene.get("bar_mass", 0) > 0 and n != 1 and "scene.bar_mass" not in bad:
+        bad.append("scene.bar_mass")  # a massive bar's inertia needs class-1 networks: one prism
+    grid = sweep.get("grid", {})
+    grid = grid if isinstance(grid, dict) else {}
+    for k, vals in grid.items():
+        if isinstance(vals, dict):  # a range table: structure_ok
+            continue
+        if k not in PARAM_RULES or not isinstance(vals, list) or not vals or k in scene:
+            bad.append(f"sweep.grid.{k}")
+            continue
+        for i, v in enumerate(vals):
+            if not PARAM_RULES[k](v):
+                bad.append(f"sweep.grid.{k}[{i}]")
+        if all(_real(v) for v in vals) and len(set(vals)) != len(vals):
+            bad.append(f"sweep.grid.{k}")
+    fixed = sweep.get("fixed", {})
+    for k, v in (fixed.items() if isinstance(fixed, dict) else [("fixed", None)]):
+        if k not in PARAM_RULES or not PARAM_RULES[k](v) or k in grid:
+            bad.append(f"sweep.fixed.{k}")
+    for k, v in run.items():
+        if k not in RUN_RULES or not RUN_RULES[k](v):
+            bad.append(f"run.{k}")
+    t_end = run.get("t_end", 1.0)
+    if _real(t_end) and t_end > 0:
+        for k in ("dt", "output_interval"):
+            v = run.get(k, "auto")
+            if _real(v) and v > t_end:
+                bad.append(f"run.{k}")
+    if run.get("fused") is True and run.get("method", "rattle") != "rattle":
+        bad.append("run.fused")
+    if "accuracy" in run:
+        bad += [f"run.{k}" for k in ("method", "precision", "dt", "dt_safety") if k in run]
+    return bad
+
+
+# ---------------------------------------------------------------------- running one input
+COUNTS: dict[str, Counter] = {}
+
+
+def _count(cls: str, outcome: str):
+    COUNTS.setdefault(cls, Counter())[outcome] += 1
+
+
+def run_cli(argv) -> tuple[int, str, str]:
+    """cli.main in-process: (exit code, stdout, stderr); SystemExit (argparse) is an exit code.
+    Any other exception propagates: it is a traceback the user would see."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            rc = cli.main([str(a) for a in argv])
+        except SystemExit as e:
+            rc = e.code if isinstance(e.code, int) else 1
+    return rc, out.getvalue(), err.getvalue()
+
+
+def _value_texts(v) -> list[str]:
+    """How a message may quote the value v."""
+    if isinstance(v, float):
+        return [repr(v), format(v, "g"), str(v)]
+    if isinstance(v, (list, dict)):
+        return [repr(v)[:40], json.dumps(v)[:40]]
+    return [repr(v), str(v)]
+
+
+def check_clear_error(rc, out, err, key: str | None = None, value=None):
+    assert rc != 0, (out, err)
+    assert "Traceback" not in err and "Traceback" not in out, err
+    assert err.strip(), "an error needs a message"
+    if key is not None:
+        leaf = key.split(".")[-1].split("[")[0]
+        assert leaf in err, (key, err)
+    if value is not None and not (isinstance(value, str) and len(value) > 60):
+        texts = _value_texts(value)
+        assert any(t in err for t in texts), (texts, err)
+
+
+def dry_run_spec(tmp_path: Path, payload: bytes, extra=()) -> tuple[int, str, str]:
+    p = tmp_path / "spec.toml"
+    p.write_bytes(payload)
+    return run_cli(["run", p, "-o", tmp_path / "out.nc", "--device", "cpu", "--dry-run", *extra])
+
+
+def judge_spec(cls: str, tmp_path: Path, data: dict, key: str | None = None, value=None, extra=()):
+    """Dry-run a spec (as a dict) and hold the outcome to the oracle."""
+    rc, out, err = dry_run_spec(tmp_path, tomli_w.dumps(data).encode(), extra)
+    bad = physics_problems(data)
+    if bad:
+        check_clear_error(rc, out, err, key if key in bad else bad[0], value if key in bad else None)
+        _count(cls, "clear error")
+    elif rc == 0:
+        assert "fits:" in out and "columns:" in out, out
+        _count(cls, "valid (dry run)" if "fits:        yes" in out else "valid, refused by the estimate")
+    else:  # valid by the oracle but refused: only the estimate may do that, with its figures
+        check_clear_error(rc, out, err)
+        assert "needs about" in err or "need about" in err or "estimate" in err or "stability limit" in err, err
+        _count(cls, "refused by the estimate")
+
+
+# ---------------------------------------------------------------------- strategies
+NASTY = st.one_of(
+    st.sampled_from([0, 0.0, -0.0, -1, -1e-300, 1e-300, 1e308, -1e308, float("nan"), float("inf"), float("-inf"),
+                     1, 2, 0.5, 0.4999, 0.5001, 1.0, 0.999999, 1.0000001, 2**31, 2**63 - 1, True, False,
+                     "", "auto", "x", "1.0", "nan", [], [1.0], {}, {"a": 1}]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(min_value=-2.0, max_value=2.0),
+    st.integers(min_value=-10, max_value=10),
+    st.text(max_size=8),
+    st.booleans(),
+)
+
+SCENE_KEYS = sorted(SCENE_RULES) + ["prestrain", "v0", "base_rigidity", "cable_EA"]
+VALUE_TARGETS = ([("scene", k) for k in SCENE_KEYS] + [("run", k) for k in sorted(RUN_RULES)]
+                 + [("sweep.grid", k) for k in PARAM_RULES] + [("sweep.fixed", k) for k in ("prestrain", "cable_EA")])
+
+# values that would need more than this machine: these must be refused, never run
+HUGE_SCENE = {"n_prisms": lambda x: _integral(x) and x > 10_000}
+
+
+def _with(section: str, key: str, value) -> dict:
+    data = json.loads(json.dumps(BASE))
+    if section == "sweep.grid":
+        data["sweep"]["grid"] = {key: [value] if not isinstance(value, list) else value}
+        data["sweep"]["fixed"] = {k: v for k, v in data["sweep"]["fixed"].items() if k != key}
+    elif section == "sweep.fixed":
+        data["sweep"]["fixed"][key] = value
+    else:
+        data[section][key] = value
+    if section == "scene" and key in data["sweep"]["fixed"]:
+        del data["sweep"]["fixed"][key]
+    return data
+
+
+@pytest.fixture
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("fuzz")
+
+
+def _report(cls: str, minimum: int):
+    c = COUNTS.get(cls, Counter())
+    total = sum(c.values())
+    print(f"\nfuzz class {cls!r}: {total} inputs {dict(c)}")
+    d = os.environ.get("FUZZ_COUNTS_DIR")
+    if d:
+        Path(d).mkdir(parents=True, exist_ok=True)
+        (Path(d) / f"{cls}.json").write_text(json.dumps({"class": cls, "total": total, "outcomes": dict(c)}, indent=1))
+    assert total >= minimum, (cls, total)
+
+
+# ---------------------------------------------------------------------- 1. spec values
+@fuzz("spec values")
+@given(target=st.sampled_from(VALUE_TARGETS), value=NASTY)
+# the named cases of the issue, always run beside the generated ones
+@example(target=("run", "dt"), value=1e-300)  # below a femtosecond: refused by the model
+@example(target=("run", "dt"), value=1e-14)  # absurd dt: 2e12 steps, refused by the estimate
+@example(target=("run", "dt_safety"), value=2.225073858507203e-309)  # subnormal: overflowed the estimate
+@example(target=("run", "dt"), value=1e300)
+@example(target=("run", "t_end"), value=1e300)
+@example(target=("run", "output_interval"), value=1e-300)
+@example(target=("sweep.grid", "prestrain"), value=1.0)  # prestrain >= 1
+@example(target=("sweep.fixed", "prestrain"), value=1.5)
+@example(target=("sweep.grid", "base_rigidity"), value=1.0000001)  # base rigidity outside [0, 1]
+@example(target=("sweep.grid", "base_rigidity"), value=-1e-300)
+@example(target=("scene", "n_prisms"), value=10**9)  # huge scene: planning would not fit
+@example(target=("scene", "n_prisms"), value=0)
+@example(target=("sweep.grid", "v0"), value=float("nan"))
+@example(target=("sweep.grid", "cable_EA"), value=float("inf"))
+def _spec_values(work, target, value):
+    """One key of a valid spec set to a wrong type, negative, zero, NaN, inf, huge or tiny value."""
+    section, key = target
+    if section == "scene" and HUGE_SCENE.get(key, lambda x: False)(value):
+        value = value  # kept: planning must refuse it from the estimate, not hang
+    judge_spec("spec values", work, _with(section, key, value), key=key, value=value)
+
+
+def test_fuzz_spec_values(work):
+    COUNTS.pop("spec values", None)
+    _spec_values(work)
+    _report("spec values", int(0.9 * QUOTAS["spec values"]))
+
+
+# ---------------------------------------------------------------------- 2. spec structure
+IDENT = st.text(alphabet="abcdefghijklmnopqrstuvwxyz_0123456789", min_size=1, max_size=12)
+
+
+@st.composite
+def structures(draw):
+    data = json.loads(json.dumps(BASE))
+    kind = draw(st.sampled_from(["unknown", "missing", "grid", "cases", "range", "both", "types", "typo"]))
+    if kind == "unknown":
+        where = draw(st.sampled_from(["", "scene", "run", "sweep", "sweep.grid", "sweep.fixed"]))
+        name = draw(IDENT)
+        t = data
+        for part in [p for p in where.split(".") if p]:
+            t = t[part]
+        if name in t or (where == "" and name in ("title", "description")):
+            name = name + "_x"
+        t[name] = draw(NASTY)
+    elif kind == "missing":
+        for sec in draw(st.lists(st.sampled_from(["scene", "sweep", "run", "title"]), min_size=1, unique=True)):
+            data.pop(sec, None)
+    elif kind == "grid":
+        data["sweep"]["grid"] = draw(st.one_of(
+            st.just({}), st.just({"v0": []}),
+            st.dictionaries(st.sampled_from(["v0", "prestrain", "base_rigidity", "n_prisms", "vo"]),
+                            st.lists(st.floats(-0.5, 1.5), max_size=5), max_size=3)))
+        data["sweep"]["fixed"] = {}
+    elif kind == "cases":
+        data["sweep"] = {"cases": draw(st.one_of(
+            st.just([]), st.just({}),
+            st.lists(st.dictionaries(st.sampled_from(["v0", "prestrain", "label", "x"]),
+                                     st.one_of(st.floats(-1, 2), st.text(max_size=3)), max_size=3), max_size=4)))}
+    elif kind == "range":
+        rng = draw(st.dictionaries(st.sampled_from(["start", "stop", "num", "spacing", "step"]),
+                                   st.one_of(st.floats(-1, 1e12), st.integers(-5, 10**12), st.sampled_from(["log", "linear", "lg"])),
+                                   max_size=5))
+        data["sweep"]["grid"] = {"v0": rng}
+    elif kind == "both":
+        data["sweep"]["cases"] = [{"v0": 0.001}]
+    elif kind == "types":
+        sec = draw(st.sampled_from(["scene", "sweep", "run", "title", "description"]))
+        data[sec] = draw(st.one_of(st.integers(), st.text(max_size=4), st.lists(st.integers(), max_size=2)))
+    else:  # typo of a real key
+        sec = draw(st.sampled_from(["scene", "run"]))
+        key = draw(st.sampled_from(sorted(SCENE_RULES) if sec == "scene" else sorted(RUN_RULES)))
+        i = draw(st.integers(0, len(key) - 1))
+        typo = key[:i] + key[i + 1:] if len(key) > 2 else key + "x"
+        if typo not in SCENE_RULES and typo not in RUN_RULES:
+            data[sec][typo] = 1.0
+    return data
+
+
+def structure_ok(data) -> bool:
+    """The oracle's structural rules: known tables and keys, one non-empty grid or case list."""
+    if set(data) - {"title", "description", "scene", "sweep", "run"}:
+        return False
+    if any(not isinstance(data.get(k, ""), str) for k in ("title", "description")):
+        return False
+    if not all(isinstance(data.get(k, {}), dict) for k in ("scene", "sweep", "run")) or "sweep" not in data:
+        return False
+    sw = data["sweep"]
+    if set(sw) - {"grid", "cases", "fixed"} or ("grid" in sw) == ("cases" in sw):
+        return False
+    if "grid" in sw:
+        g = sw["grid"]
+        if not isinstance(g, dict) or not g:
+            return False
+        for k, v in g.items():
+            if isinstance(v, dict):
+                if set(v) - {"start", "stop", "num", "spacing"} or not {"start", "stop", "num"} <= set(v):
+                    return False
+                if not (_integral(v["num"]) and v["num"] >= 1) or v.get("spacing", "linear") not in ("linear", "log"):
+                    return False
+                if k not in PARAM_RULES or not (PARAM_RULES[k](v["start"]) and PARAM_RULES[k](v["stop"])):
+                    return False
+                if v.get("spacing") == "log" and not (v["start"] > 0 and v["stop"] > 0):
+                    return False
+                if v["num"] > 1 and v["start"] == v["stop"]:
+                    return False  # repeated values
+            elif not isinstance(v, list):
+                return False
+    else:
+        cs = sw["cases"]
+        if not isinstance(cs, list) or not cs:
+            return False
+        for c in cs:
+            if not isinstance(c, dict) or set(c) - set(PARAM_RULES) - {"label"}:
+                return False
+            if not isinstance(c.get("label", ""), str):
+                return False
+            if any(k != "label" and not PARAM_RULES[k](v) for k, v in c.items()):
+                return False
+            if any(k in sw.get("fixed", {}) or k in data.get("scene", {}) for k in c if k != "label"):
+                return False
+    return True
+
+
+@fuzz("spec structure")
+@given(data=structures())
+@example(data={**BASE, "sweep": {"grid": {"v0": {"start": 1e-3, "stop": 0.1, "num": 10**12}}}})  # huge grid
+@example(data={**BASE, "sweep": {"grid": {"v0": []}}})  # empty grid axis
+@example(data={**BASE, "sweep": {"grid": {}}})  # empty grid
+@example(data={"scene": {"n_prisms": 3}})  # missing [sweep] and [run]
+def _spec_structure(work, data):
+    """Unknown keys and tables, missing sections, empty and huge grids, malformed ranges and cases."""
+    rc, out, err = dry_run_spec(work, tomli_w.dumps(data).encode())
+    valid = structure_ok(data) and not physics_problems(data)
+    if not valid or rc != 0:
+        if valid:  # a structurally valid spec refused: only by the estimate (huge grid), with figures
+            assert "need about" in err or "needs about" in err or "estimate" in err or "distinct" in err, err
+        check_clear_error(rc, out, err)
+        # the message names a key path of the spec
+        assert any(s in err for s in ("scene", "sweep", "run", "title", "description", "top-level", "columns")), err
+        _count("spec structure", "clear error")
+    else:
+        assert "fits:" in out
+        _count("spec structure", "valid (dry run)")
+
+
+def test_fuzz_spec_structure(work):
+    COUNTS.pop("spec structure", None)
+    _spec_structure(work)
+    _report("spec structure", int(0.9 * QUOTAS["spec structure"]))
+
+
+# ---------------------------------------------------------------------- 3. bytes: non-UTF-8, truncated TOML
+VALID_TEXT = tomli_w.dumps(BASE).encode()
+
+
+@fuzz("spec bytes")
+@given(kind=st.sampled_from(["truncated", "binary", "latin1", "insert"]), cut=st.integers(0, len(VALID_TEXT)),
+       blob=st.binary(max_size=40))
+def _spec_bytes(work, kind, cut, blob):
+    """Truncated TOML, non-UTF-8 bytes, binary garbage spliced into a valid spec."""
+    if kind == "truncated":
+        payload = VALID_TEXT[:cut]
+    elif kind == "binary":
+        payload = blob
+    elif kind == "latin1":
+        payload = VALID_TEXT.replace(b"fuzz base", "f\u00fczz b\u00e4se".encode("latin-1"))
+    else:
+        payload = VALID_TEXT[:cut] + blob + VALID_TEXT[cut:]
+    rc, out, err = dry_run_spec(work, payload)
+    try:
+        data = tomllib.loads(payload.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        data = None
+    if data is None:
+        check_clear_error(rc, out, err)
+        assert "UTF-8" in err or "not valid TOML" in err, err
+        _count("spec bytes", "clear error (not UTF-8 / not TOML)")
+    elif rc == 0:
+        assert structure_ok(data) and not physics_problems(data), data
+        _count("spec bytes", "valid (dry run)")
+    else:
+        check_clear_error(rc, out, err)
+        assert not structure_ok(data) or physics_problems(data), (data, err)
+        _count("spec bytes", "clear error")
+
+
+def test_fuzz_spec_bytes(work):
+    COUNTS.pop("spec bytes", None)
+    _spec_bytes(work)
+    _report("spec bytes", int(0.9 * QUOTAS["spec bytes"]))
+
+
+# ---------------------------------------------------------------------- 4. command-line arguments
+ARG_WORDS = ["run", "resume", "status", "combine", "--dry-run", "-o", "--device", "--shard-size", "--set",
+             "--time-limit", "--ignore-estimate", "--dask", "--scheduler", "--overwrite", "--json", "--no-progress",
+             "cpu", "cuda:7", "gpu", "auto", "0", "-1", "3", "nan", "inf", "1e309", "run.t_end=0.01",
+             "run.t_end=-1", "run.t_ned=1", "scene.n_prisms=0", "scene.n_prisms=2", "run.method=rk5", "x=1", "run.",
+             "SPEC", "OUT", "MISSING", "DIR", "", "--", "-h"]
+
+
+OPTION_VALUES = ["cpu", "cuda:7", "gpu", "auto", "0", "-1", "3", "nan", "inf", "1e309", "0.5", "", "x", "SPEC", "OUT",
+                 "MISSING", "DIR"]
+SET_KEYS = [f"run.{k}" for k in RUN_RULES] + [f"scene.{k}" for k in SCENE_RULES] + ["run.t_ned", "scen.x", "run", ""]
+SET_VALUES = ["0.01", "-1", "0", "nan", "inf", "-inf", "1e308", "true", "false", "auto", "rk4", "rk5", "fp16", "3",
+              "2.5", "[1, 2]", "{a = 1}", '"cpu"', "cuda:0", "", "=", "0x10", "1_000"]
+
+
+@st.composite
+def argvs(draw):
+    """Mostly well-formed commands with fuzzed option values; sometimes a random word salad."""
+    if draw(st.integers(0, 9)) == 0:
+        return draw(st.lists(st.sampled_from(ARG_WORDS), max_size=8))
+    cmd = draw(st.sampled_from(["run", "run", "run", "resume", "status", "combine"]))
+    argv = [cmd]
+    if cmd == "run":
+        argv += [draw(st.sampled_from(["SPEC", "SPEC", "SPEC", "MISSING", "DIR"])), "-o", "OUT"]
+    elif cmd == "resume":
+        argv += draw(st.sampled_from([["OUT"], ["SPEC", "-o", "OUT"], ["SPEC"], ["MISSING"]]))
+    else:
+        argv += [draw(st.sampled_from(["OUT", "MISSING", "DIR"]))]
+    for _ in range(draw(st.integers(0, 4))):
+        opt = draw(st.sampled_from(["--device", "--shard-size", "--set", "--set", "--set", "--time-limit",
+                                    "--ignore-estimate", "--overwrite", "--no-progress", "--json", "--verbose"]))
+        argv.append(opt)
+        if opt == "--set":
+            argv.append(f"{draw(st.sampled_from(SET_KEYS))}={draw(st.sampled_from(SET_VALUES))}")
+        elif opt in ("--device", "--shard-size", "--time-limit"):
+            argv.append(draw(st.sampled_from(OPTION_VALUES)))
+    return argv
+
+
+@fuzz("cli arguments")
+@given(words=argvs())
+def _cli_arguments(work, words):
+    """Commands with fuzzed options and --set overrides (and some word salad): every one ends in a
+    usage error, a clear error naming the option, or a dry run; never a traceback, never a real run
+    (``run``/``resume`` are forced to --dry-run)."""
+    spec = work / "ok.toml"
+    spec.write_bytes(VALID_TEXT)
+    subs = {"SPEC": spec, "OUT": work / "o.nc", "MISSING": work / "missing.toml", "DIR": work}
+    argv = [subs.get(w, w) for w in words]
+    if argv and argv[0] in ("run", "resume") and "--dry-run" not in argv:
+        argv.append("--dry-run")
+    rc, out, err = run_cli(argv)
+    assert "Traceback" not in err and "Traceback" not in out, (argv, err)
+    sets = [a for a in argv if isinstance(a, str) and "=" in a and a.split("=")[0] in SET_KEYS]
+    if rc == 0:
+        assert out.strip(), argv
+        for a in sets:  # an accepted override was a valid one
+            key, _, val = a.partition("=")
+            sec, _, name = key.partition(".")
+            rules = RUN_RULES if sec == "run" else SCENE_RULES
+            assert name in rules, (argv, out)
+        _count("cli arguments", "ok (dry run / help / status)")
+    else:
+        assert err.strip() or rc == 3, (argv, rc)
+        assert "error" in err or rc == 3, (argv, err)
+        _count("cli arguments", "usage error (exit 2)" if rc == 2 else "clear error")
+
+
+def test_fuzz_cli_arguments(work):
+    COUNTS.pop("cli arguments", None)
+    _cli_arguments(work)
+    _report("cli arguments", int(0.9 * QUOTAS["cli arguments"]))
+
+
+# ---------------------------------------------------------------------- 5. Python API
+API_KEYS = {
+    RunSettings: sorted(RUN_RULES),
+    ColumnConfig: sorted(SCENE_RULES),
+}
+
+
+def _param_ok(k, v) -> bool:
+    """A per-column parameter given to the API: a number or a non-empty list of numbers, each valid."""
+    vals = v if isinstance(v, list) and v else [v]
+    return all(PARAM_RULES[k](x) for x in vals)
+
+
+@fuzz("python api")
+@given(cls=st.sampled_from([RunSettings, ColumnConfig, "params"]),
+       kw=st.dictionaries(st.sampled_from(sorted(set(RUN_RULES) | set(SCENE_RULES) | set(PARAM_RULES) | {"t_ned", "x"})),
+                          NASTY, max_size=3))
+def _python_api(cls, kw):
+    """RunSettings(**kw), ColumnConfig(**kw) and the per-column parameter check: a valid object
+    or an OptionError naming the key; never another exception."""
+    if cls == "params":
+        kw = {k: v for k, v in kw.items() if k in PARAM_RULES}
+        outcome = "valid"
+        for k, v in kw.items():
+            arr_ok = isinstance(v, (int, float)) and not isinstance(v, bool)
+            try:
+                check_column_param(k, [0.5 if k != "v0" else 0.0, v] if arr_ok else v)
+            except OptionError as e:
+                assert k in str(e) and not _param_ok(k, v), (k, v, e)
+                outcome = "clear error"
+                continue
+            assert _param_ok(k, v), (k, v)
+        _count("python api", outcome)
+        return
+    data = {"run": kw} if cls is RunSettings else {"scene": kw}
+    if cls is ColumnConfig and "device" in kw:
+        pass
+    try:
+        obj = cls(**kw)
+    except (OptionError, NetworkError) as e:
+        msg = str(e)
+        bad = [k for k in kw if k not in API_KEYS[cls]] or [p.split(".")[-1] for p in physics_problems(data)]
+        assert bad, (kw, msg)  # refused although the oracle finds nothing wrong
+        assert any(b in msg for b in bad), (bad, msg)
+        _count("python api", "clear error")
+        return
+    unknown = [k for k in kw if k not in API_KEYS[cls]]
+    if cls is RunSettings:
+        # the API accepts any device string the engine may know (cuda:N) and None for 'auto'
+        data["run"] = {k: v for k, v in kw.items() if k != "device"}
+    assert not unknown and not physics_problems(data), (kw, obj)
+    _count("python api", "valid")
+
+
+def test_fuzz_python_api():
+    COUNTS.pop("python api", None)
+    _python_api()
+    _report("python api", int(0.9 * QUOTAS["python api"]))
+
+
+
+
+# ---------------------------------------------------------------------- subprocess checks and tiny real runs
+def _python_m(args, cwd, timeout=120):
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "warp_tensegrity", *map(str, args)], capture_output=True, text=True,
+                          env=env, cwd=cwd, timeout=timeout)
+
+
+def test_subprocess_clear_errors_and_refusals(tmp_path):
+    """As a user sees it: one clear message, exit 1, no traceback; a run that would not finish
+    (or does not fit) is refused up front by the estimate with its figures, never started."""
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes(VALID_TEXT.replace(b"fuzz base", b"fuzz \xff base"))
+    r = _python_m(["run", bad, "-o", tmp_path / "o.nc", "--device", "cpu"], tmp_path)
+    assert r.returncode == 1 and "not UTF-8" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+    slow = _with("run", "dt", 1e-9)
+    slow["run"]["allow_unstable_dt"] = True
+    (tmp_path / "slow.toml").write_text(tomli_w.dumps(slow))
+    r = _python_m(["run", tmp_path / "slow.toml", "-o", tmp_path / "slow.nc", "--device", "cpu", "--time-limit", "60"],
+                  tmp_path, timeout=120)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "does not fit" in r.stderr and "time limit is 1 min" in r.stderr and "20,000,000 steps" in r.stderr, r.stderr
+    assert not (tmp_path / "slow.nc").exists()
+
+    never = _with("run", "dt", 1e-12)
+    never["run"]["allow_unstable_dt"] = True
+    (tmp_path / "never.toml").write_text(tomli_w.dumps(never))
+    r = _python_m(["run", tmp_path / "never.toml", "-o", tmp_path / "n.nc", "--device", "cpu", "--ignore-estimate"],
+                  tmp_path)
+    assert r.returncode == 1 and "2e+10 steps" in r.stderr and "step counter" in r.stderr, r.stderr
+
+    huge = json.loads(json.dumps(BASE))
+    huge["sweep"]["grid"] = {"v0": {"start": 0.001, "stop": 0.1, "num": 10**6},
+                             "base_rigidity": {"start": 0.0, "stop": 1.0, "num": 10**6}}
+    (tmp_path / "huge.toml").write_text(tomli_w.dumps(huge))
+    r = _python_m(["run", tmp_path / "huge.toml", "-o", tmp_path / "h.nc", "--device", "cpu", "--dry-run"], tmp_path)
+    assert r.returncode == 1 and "1,000,000,000,000 columns" in r.stderr and "host memory" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("overrides", [[], ["--set", "run.method=rk4", "--set", "run.precision=fp32"]])
+def test_tiny_real_runs(tmp_path, overrides):
+    """The other end of the oracle: a valid spec really runs (in process) and its dataset holds
+    every column, ok."""
+    import xarray as xr
+
+    spec = tmp_path / "ok.toml"
+    spec.write_bytes(VALID_TEXT)
+    out = tmp_path / "ok.nc"
+    rc, o, err = run_cli(["run", spec, "-o", out, "--device", "cpu", "--no-progress", *overrides])
+    assert rc == 0, err
+    with xr.open_dataset(out) as ds:
+        assert ds.sizes["v0"] == 2 and (ds.status.values == 0).all()
+        assert ds.attrs["method"] == ("rk4" if overrides else "rattle")
+
+
+def test_budget_names_every_shortfall_with_figures(tmp_path):
+    from warp_tensegrity.sweep import budget, plan_sweep
+    from warp_tensegrity.sweep.spec import parse_spec
+
+    plan = plan_sweep(parse_spec(tomli_w.dumps(BASE)), tmp_path / "o.nc", device="cpu")
+    need = budget.needs(plan)
+    assert budget.problems(plan) == [] and budget.hard_problems(plan) == []
+    found = budget.problems(plan, device_bytes=need["device_bytes_per_column"] - 1, host_bytes=need["host_bytes_per_shard"] - 1,
+                            disk_bytes=need["output_bytes"] - 1, time_limit=need["seconds"] / 2)
+    assert len(found) == 4, found
+    assert "one column does not fit" in found[0] and "use --shard-size 1 or less" in found[1]
+    assert "free on" in found[2] and "time limit" in found[3]
+    with pytest.raises(budget.BudgetError, match="--ignore-estimate"):
+        budget.check_run(plan, time_limit=need["seconds"] / 2)
+    budget.check_run(plan, ignore=True, time_limit=need["seconds"] / 2)  # the override
+    with pytest.raises(budget.BudgetError, match=r"planning it needs about .* of host memory and 1 kB is available"):
+        budget.check_plan(plan.spec, available=1000)

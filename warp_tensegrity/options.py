@@ -1,0 +1,554 @@
+"""Every option of a scene and a run, declared once: name, type, default, unit, bounds and doc.
+
+Three pydantic (v2) dataclasses hold them; everything else is generated from them:
+
+* :class:`~warp_tensegrity.scene.columns.ColumnConfig` - ``[scene]``: the fixed scene (geometry,
+  material, masses, conventions), declared in the scene package with the :class:`Opt` below;
+* :class:`ColumnParameters` - the per-column parameters a sweep varies (``[sweep]``);
+* :class:`RunSettings` - ``[run]``: how a batch or a sweep is integrated and stored.
+
+Each field is ``name: Annotated[type, Opt(...)] = default`` followed by its docstring: the
+:class:`Opt` carries the unit, the bounds and the accepted special strings, and validates.
+The sweep spec parser (:mod:`warp_tensegrity.sweep.spec`), the command line's ``--set
+section.key=value`` (:func:`parse_set`), the Python constructors and the docs tables
+(:func:`options_table`) all read these declarations; there is no other list of options.
+
+Errors name the key, the value and what was expected (``t_end = -1.0: must be > 0 [s]``),
+with a did-you-mean for unknown keys. Nothing here imports Warp, nor any module of the package (a leaf of the import graph).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import functools
+import math
+import numbers
+import re
+import tomllib
+from dataclasses import dataclass as _std_dataclass
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import ConfigDict, ValidationError
+from pydantic.dataclasses import dataclass as _pydantic_dataclass
+from pydantic_core import PydanticCustomError, core_schema
+
+METHODS = ("rattle", "rk4", "yoshida4", "symplectic_euler")
+"""The values of :class:`warp_tensegrity.types.Method` (a leaf cannot import it; a test checks)."""
+PRECISIONS = ("fp32", "fp64")
+"""The values of :class:`warp_tensegrity.types.Precision`."""
+# Physical ranges of the per-column parameters (the scene's are in scene.columns): wide enough for
+# any laboratory or built tensegrity column, narrow enough that derived quantities stay normal floats.
+MASS = (1e-15, 1e6)  # kg: unit and bar masses
+MAX_EA = 1e20  # N
+# Times (s): a femtosecond to ~30 years. Outside, step and output counts overflow float64 in the
+# estimate; inside, the estimate refuses what will not finish (sweep.budget).
+MIN_TIME, MAX_TIME = 1e-15, 1e9
+
+
+# ---------------------------------------------------------------------- errors
+class OptionError(ValueError):
+    """An option outside its type or bounds. ``errors`` lists one message per problem, each
+    starting with the key (``t_end = -1.0: must be > 0 [s]``)."""
+
+    def __init__(self, errors):
+        self.errors = [errors] if isinstance(errors, str) else list(errors)
+        super().__init__(self.errors[0] if len(self.errors) == 1 else "; ".join(self.errors))
+
+
+class SettingsError(OptionError):
+    """Invalid run setting; the message names the field and the value."""
+
+
+def fmt(value) -> str:
+    """A value as the messages quote it (repr, long containers cut)."""
+    s = repr(value)
+    return s if len(s) < 80 else s[:77] + "..."
+
+
+def suggest(key, allowed) -> str:
+    """'; did you mean 'x'?' for the closest allowed name, or ''."""
+    names = [str(a) for a in allowed]
+    key = str(key)
+    match = difflib.get_close_matches(key, names, n=1, cutoff=0.6)
+    if not match and len(key) <= 4:  # short keys: one wrong character is half the key
+        match = difflib.get_close_matches(key, [n for n in names if len(n) <= 4], n=1, cutoff=0.5)
+    if not match:
+        low = {n.lower(): n for n in names}
+        match = [low[m] for m in difflib.get_close_matches(key.lower(), list(low), n=1, cutoff=0.6)]
+    return f"; did you mean {match[0]!r}?" if match else ""
+
+
+def unknown_key(path: str, key, allowed, what: str = "key", hint: str = "") -> str:
+    return f"{path}: unknown {what}{suggest(key, allowed)}{hint} (allowed: {', '.join(map(str, allowed))})"
+
+
+# ---------------------------------------------------------------------- one option
+def _num(x) -> str:
+    return format(x, "g") if isinstance(x, float) else str(x)
+
+
+@_std_dataclass(frozen=True)
+class Opt:
+    """How one option is typed, bounded and documented (pydantic field metadata).
+
+    kind: 'real' (finite float), 'int', 'bool', 'choice' (one of ``choices``) or 'str'.
+    Bounds ``gt/ge/lt/le`` apply to reals and ints. ``special`` maps accepted strings to the
+    value they stand for (``{"auto": None}``); ``optional``: None is accepted.
+    """
+
+    kind: str
+    unit: str = ""
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    choices: tuple = ()
+    special: tuple = ()
+    """(string, value) pairs accepted in place of a value."""
+    optional: bool = False
+    pattern: str | None = None
+    rule_text: str | None = None
+    """The rule as written in docs and errors, when the bounds alone would read badly."""
+    why: str = ""
+    """Appended to the error when the bounds are broken."""
+    default_text: str | None = None
+    """The default as the docs show it, when it is not a plain value (e.g. the scene's EA)."""
+
+    # -- the rule in words, shared by errors and the docs table
+    def bounds(self) -> str:
+        lo = ("(" if self.gt is not None else "[") if (self.gt, self.ge) != (None, None) else None
+        hi = (")" if self.lt is not None else "]") if (self.lt, self.le) != (None, None) else None
+        a = self.gt if self.gt is not None else self.ge
+        b = self.lt if self.lt is not None else self.le
+        if lo and hi:
+            return f"in {lo}{_num(a)}, {_num(b)}{hi}"
+        if lo:
+            return f"{'>' if lo == '(' else '>='} {_num(a)}"
+        if hi:
+            return f"{'<' if hi == ')' else '<='} {_num(b)}"
+        return ""
+
+    def rule(self) -> str:
+        if self.rule_text:
+            base = self.rule_text
+        elif self.kind == "bool":
+            base = "true or false"
+        elif self.kind == "choice":
+            base = ", ".join(f'"{c}"' for c in self.choices)
+        elif self.kind == "int":
+            base = "integer >= 1" if (self.ge == 1 and self.le is None) else f"integer {self.bounds()}".strip()
+        elif self.kind == "real":
+            base = self.bounds() or "finite"
+        else:
+            base = "string"
+        extra = [f'"{s}"' for s, _ in self.special]
+        return base + (f", or {' or '.join(extra)}" if extra else "")
+
+    def _expected(self, x=None) -> str:
+        unit = f" [{self.unit}]" if self.unit and self.unit != "1" else ""
+        sp = f" (or {' or '.join(repr(s) for s, _ in self.special)})" if self.special else ""
+        if self.kind == "int" and self.ge == 1 and (self.le is None or (x is not None and x < 1)):
+            return f"must be a positive integer{sp}"
+        b = self.rule_text or self.bounds()
+        verb = "must lie " if b.startswith("in ") else "must be "
+        return f"{verb}{b}{unit}{sp}{': ' + self.why if self.why else ''}"
+
+    # -- validation
+    def check(self, x):
+        if x is None and self.optional:
+            return None
+        if isinstance(x, str):
+            for s, v in self.special:
+                if x == s:
+                    return v
+        sp = f" or {' or '.join(repr(s) for s, _ in self.special)}" if self.special else ""
+        if self.kind == "bool":
+            if isinstance(x, (bool, np.bool_)):
+                return bool(x)
+            raise _err(f"must be true or false{sp}")
+        if self.kind == "choice":
+            if isinstance(x, str) and x in self.choices:
+                return x
+            hint = suggest(x, self.choices) if isinstance(x, str) else ""
+            raise _err(f"choose one of {', '.join(map(repr, self.choices))}{sp}{hint}")
+        if self.kind == "str":
+            if not isinstance(x, str) or (self.pattern and not re.fullmatch(self.pattern, x)):
+                raise _err(f"give {self.rule_text}{sp}" if self.rule_text else f"must be a string{sp}")
+            return x
+        if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real):
+            raise _err(f"must be {'an integer' if self.kind == 'int' else 'a number'}{sp}")
+        if self.kind == "int":
+            if isinstance(x, numbers.Integral):
+                x = int(x)
+            else:
+                f = float(x)
+                if not f.is_integer():  # NaN and inf are not integers either
+                    raise _err(f"must be an integer{sp}")
+                x = int(f)
+        else:
+            x = float(x)
+            if not math.isfinite(x):
+                raise _err(f"must be finite{sp}")
+        ok = (
+            (self.gt is None or x > self.gt)
+            and (self.ge is None or x >= self.ge)
+            and (self.lt is None or x < self.lt)
+            and (self.le is None or x <= self.le)
+        )
+        if not ok:
+            raise _err(self._expected(x))
+        return x
+
+    def problem(self, x) -> tuple[Any, str | None]:
+        """(validated value, None), or (None, what was expected)."""
+        try:
+            return self.check(x), None
+        except PydanticCustomError as e:
+            return None, e.message()
+
+    def check_array(self, name: str, values, error: type[ValueError] = OptionError) -> None:
+        """Vectorised bounds check of a real option over many columns; ``error`` names the first
+        bad entry (``prestrain[3] = -0.1: ...``)."""
+        try:
+            arr = np.asarray(values)
+        except (TypeError, ValueError):  # ragged nesting
+            arr = np.asarray(None)
+        if arr.dtype.kind not in "iuf" or arr.size == 0:  # strings, bools, None, ragged or empty lists
+            raise error(f"{name} = {fmt(values)}: must be a number or an array of numbers [{self.unit}]")
+        arr = arr.astype(np.float64).ravel()
+        good = np.isfinite(arr)
+        for bound, op in ((self.gt, np.greater), (self.ge, np.greater_equal), (self.lt, np.less), (self.le, np.less_equal)):
+            if bound is not None:
+                good &= op(arr, bound)
+        if not good.all():
+            i = int(np.argmin(good))
+            where = f"[{i}]" if arr.size > 1 else ""
+            why = "must be finite" if not np.isfinite(arr[i]) else self._expected()
+            raise error(f"{name}{where} = {float(arr[i])!r}: {why}")
+
+    def __get_pydantic_core_schema__(self, source, handler):
+        return core_schema.no_info_plain_validator_function(self.check)
+
+
+def _err(msg: str) -> PydanticCustomError:
+    return PydanticCustomError("option", msg)
+
+
+def opt_of(cls, name: str) -> Opt:
+    """The :class:`Opt` of field ``name`` of an options class."""
+    return next(m for m in cls.__pydantic_fields__[name].metadata if isinstance(m, Opt))
+
+
+# ---------------------------------------------------------------------- error translation
+def messages(exc: ValidationError, cls, prefix: str = "") -> list[str]:
+    """One line per problem: ``{prefix}{key} = {value}: {what was expected}``."""
+    out = []
+    fields = list(cls.__pydantic_fields__)
+    for e in exc.errors():
+        loc = [str(x) for x in e["loc"]]
+        key = ".".join(loc)
+        if e["type"] == "option":
+            out.append(f"{prefix}{key} = {fmt(e['input'])}: {e['msg']}")
+        elif e["type"] == "unexpected_keyword_argument":
+            out.append(unknown_key(f"{prefix}{key}", key, fields))
+        elif e["type"] == "unexpected_positional_argument":
+            out.append(f"{prefix}{key}: too many positional arguments (fields: {', '.join(fields)})")
+        elif e["type"] == "value_error" and isinstance(e.get("ctx", {}).get("error"), ValueError):
+            err = e["ctx"]["error"]  # a cross-field check of __post_init__
+            out += [f"{prefix}{m}" for m in getattr(err, "errors", [str(err)])]
+        else:  # pragma: no cover - every field is an Opt; kept so nothing is ever swallowed
+            out.append(f"{prefix}{key or cls.__name__}: {e['msg']}")
+    return out
+
+
+SECTIONS: dict = {}
+"""The options classes by the spec table their options live in ('scene', 'sweep', 'run'); each
+class registers itself here when it is defined (:func:`options_class`), so this leaf module
+imports nothing of the package and the docs and --set still see every option."""
+SECTION_ORDER = ("scene", "sweep", "run")
+
+
+def options_class(error: type[ValueError], *, frozen: bool = False, section: str | None = None):
+    """A pydantic dataclass whose constructor raises ``error`` (which takes a list of messages)
+    with :func:`messages`; registered in :data:`SECTIONS` under ``section``."""
+
+    def wrap(cls):
+        cls = _pydantic_dataclass(
+            cls, frozen=frozen, config=ConfigDict(extra="forbid", use_attribute_docstrings=True)
+        )
+        init = cls.__init__
+
+        @functools.wraps(init)
+        def __init__(self, *args, **kwargs):
+            try:
+                init(self, *args, **kwargs)
+            except ValidationError as exc:
+                raise error(messages(exc, cls)) from None
+
+        cls.__init__ = __init__
+        if section is not None:
+            SECTIONS[section] = cls
+        return cls
+
+    return wrap
+
+
+def build(cls, values: dict, prefix: str = ""):
+    """``cls(**values)``, or raise OptionError whose messages start with ``prefix`` (e.g.
+    ``"run."``). Every problem of the table is reported."""
+    try:
+        return cls(**values)
+    except ValueError as e:
+        if not hasattr(e, "errors"):
+            raise
+        raise OptionError([f"{prefix}{m}" for m in e.errors]) from None
+
+
+# ---------------------------------------------------------------------- per-column parameters
+@options_class(OptionError, frozen=True, section="sweep")
+class ColumnParameters:
+    """The per-column parameters of a batch or a sweep (each column may have its own)."""
+
+    prestrain: Annotated[float, Opt("real", "1", ge=0, lt=1, why="the cross-cable prestrain p; 1 would put the cables' rest length at zero")] = 0.0
+    """Cross-cable prestrain p [1]."""
+    v0: Annotated[float, Opt("real", "m s-1", ge=0, why="v0 is the compressive impact speed of the free end")] = 0.0
+    """Compressive impact speed of the free end [m s-1]."""
+    base_rigidity: Annotated[float, Opt("real", "1", ge=0, le=1, why="0 flexible bases (FB), 1 rigid bases (RB)")] = 0.0
+    """Base rigidity beta [1]: 0 flexible bases (FB), 1 rigid bases (RB), elastic in between."""
+    cable_EA: Annotated[float | None, Opt("real", "N", gt=0, le=MAX_EA, optional=True,
+                                          default_text="scene's E_s pi r_s^2")] = None
+    """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2."""
+    unit_mass: Annotated[float | None, Opt("real", "kg", ge=MASS[0], le=MASS[1], optional=True,
+                                           default_text="scene's unit_mass")] = None
+    """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
+
+
+COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in ColumnParameters.__pydantic_fields__}
+"""Swept per-column parameters and their units."""
+
+
+def check_column_param(name: str, values, error: type[ValueError] = OptionError) -> None:
+    """``error`` naming the first entry of ``values`` outside the bounds of parameter ``name``."""
+    opt_of(ColumnParameters, name).check_array(name, values, error)
+
+
+# ---------------------------------------------------------------------- [run]
+@options_class(SettingsError, section="run")
+class RunSettings:
+    """How to integrate a batch, and (sweeps) how to store it (SI units)."""
+
+    t_end: Annotated[float, Opt("real", "s", gt=0, le=MAX_TIME, why="about 30 years of simulated time")] = 1.0
+    """Simulated time [s]."""
+    dt: Annotated[float | Literal["auto"], Opt("real", "s", ge=MIN_TIME, special=(("auto", "auto"),))] = "auto"
+    """Time step [s], <= t_end; 'auto': the largest step <= dt_safety x the method's stability limit
+    that divides the output interval."""
+    method: Annotated[str, Opt("choice", choices=METHODS)] = "rattle"
+    """'rattle' (default: velocity Verlet + position/velocity projection), 'rk4' (the paper's
+    RK4 with projection), 'yoshida4' (RATTLE triple-jump composition), 'symplectic_euler'."""
+    precision: Annotated[str, Opt("choice", choices=PRECISIONS)] = "fp64"
+    """Floating point of the state: 'fp32' or 'fp64'."""
+    output_interval: Annotated[float | None, Opt("real", "s", ge=MIN_TIME, optional=True, special=(("auto", None),))] = None
+    """Time between recorded outputs [s], <= t_end; None ('auto'): t_end / 200."""
+    record_strain: Annotated[bool, Opt("bool")] = True
+    """Keep the prism strain history (n_out x n_prisms per column) in the result and the dataset
+    (sweeps compute it either way: the measurements need it)."""
+    record_energy: Annotated[bool, Opt("bool")] = True
+    """Store the kinetic and elastic energy histories in a sweep's dataset."""
+    device: Annotated[str | None, Opt("str", pattern=r"cpu|cuda|cuda:\d+", optional=True, special=(("auto", None),),
+                                      rule_text='"cpu", "cuda", "cuda:N"', default_text='"auto"')] = None
+    """Warp device ('cpu', 'cuda:0'); None ('auto'): the GPU if there is one, else the CPU."""
+    shard_size: Annotated[int, Opt("int", "1", ge=1)] = 256
+    """Columns per shard of a sweep (one engine batch, one file); not part of the fingerprint."""
+    dt_safety: Annotated[float | None, Opt("real", "1", ge=1e-6, le=0.5, optional=True, default_text="from the default accuracy",
+                                           why="strong impacts lower the stability limit to ~0.45 of the prediction")] = None
+    """Fraction of the predicted stability limit used when dt = 'auto'; None (not given, and no
+    accuracy): the fraction the error model gives for :data:`~warp_tensegrity.engine.DEFAULT_ACCURACY`
+    (1e-3) on the pulse measures (:func:`~warp_tensegrity.engine.default_dt_safety`), recorded as
+    ``dt_safety_used`` and ``accuracy_target``."""
+    # dt_safety, measured (analysis/work_precision.md): strong impacts stiffen the prisms and lower
+    # the real limit to ~0.45 of 2/omega_max; the default 0.25 keeps a margin of >= 2.5x
+    allow_unstable_dt: Annotated[bool, Opt("bool")] = False
+    """Accept an explicit dt above the stability limit (for stability studies)."""
+    projection_tol: Annotated[float | None, Opt("real", "1", gt=0, lt=1e-2, optional=True,
+                                                default_text="1e-13 (fp64), 3e-7 (fp32)")] = None
+    """Relative bar-length tolerance of the projection; None: 1e-13 (fp64) or 3e-7 (fp32, just above
+    the ~2.4e-7 round-off floor of a fp32 bar length: a tighter one only buys stalled iterations)."""
+    max_projection_iters: Annotated[int, Opt("int", "1", ge=1)] = 25
+    """Newton iterations allowed per projection before a column is flagged."""
+    failure_bar_error: Annotated[float, Opt("real", "1", gt=0)] = 1e-3
+    """Relative bar-length error above which a column is frozen and flagged."""
+    steps_per_graph: Annotated[int, Opt("int", "1", ge=1)] = 50
+    """Steps captured in one CUDA graph."""
+    fused: Annotated[bool | Literal["auto"], Opt("bool", special=(("auto", "auto"),))] = "auto"
+    """RATTLE as one fused kernel, a thread block per column and several steps per launch
+    (:mod:`warp_tensegrity.kernels.fused`); False: one kernel per stage (the only path of the other
+    methods). 'auto': for RATTLE on a GPU the fastest measured of the fused step (constraint
+    solve by block cyclic reduction or serially on lane 0) and the staged kernels for the band,
+    precision and batch (:func:`~warp_tensegrity.engine.choose_path`); the fused step on the CPU;
+    staged for Gram bands wider than ``FUSED_MAX_BANDWIDTH`` (generic networks). True: the faster
+    fused variant. The paths give the same numbers to round-off (not part of the fingerprint)."""
+    accuracy: Annotated[float | None, Opt("real", "1", ge=1e-15, lt=1, optional=True,
+                                          why="the relative error wanted on pulse speed and amplitude, "
+                                              "not below fp64 round-off")] = None
+    """Target relative error of the pulse measures (speed, amplitude). When given, the engine
+    chooses method, precision and dt from the measured work-precision curves
+    (:mod:`warp_tensegrity.engine`) and says what it chose in ``BatchResult.info['choices']``."""
+    truncate: Annotated[bool, Opt("bool")] = True
+    """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
+    column there; results are padded back to the full column (the far prisms stay at rest).
+    Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.engine`)."""
+    measure: Annotated[str, Opt("choice", choices=("device", "host", "none"))] = "device"
+    """Pulse measures (``BatchResult.measurements``) of :func:`~warp_tensegrity.engine.simulate_batch`:
+    'device' (Warp kernels on the device record; only the measures cross to the host), 'host'
+    (NumPy reference on a host copy) or 'none'. Except with 'none', the strain record is kept on
+    the device (n_out x n_prisms per column) even when record_strain is False."""
+
+    def __post_init__(self):
+        errors = []
+        if self.dt != "auto" and self.dt > self.t_end:
+            errors.append(f"dt = {self.dt!r}: must be <= t_end = {self.t_end!r} s")
+        if self.output_interval is not None and self.output_interval > self.t_end:
+            errors.append(f"output_interval = {self.output_interval!r}: must be <= t_end = {self.t_end!r} s")
+        if self.fused is True and self.method != "rattle":
+            errors.append(f"fused = True: the fused step is RATTLE's; needs method = 'rattle' (got {self.method!r})")
+        if errors:
+            raise SettingsError(errors)
+
+    @property
+    def tolerance(self) -> float:
+        if self.projection_tol is not None:
+            return self.projection_tol
+        return 1e-13 if self.precision == "fp64" else 3e-7
+
+
+EXECUTION_KEYS = ("device", "shard_size", "fused")
+"""[run] keys that say where/how a sweep runs, not what it computes: left out of the fingerprint."""
+
+
+# ---------------------------------------------------------------------- command-line overrides
+def parse_value(text: str) -> Any:
+    """A command-line value typed as TOML would type it (``2.0``, ``true``, ``"rk4"``); a bare
+    word that is not TOML is taken as a string (``rk4``, ``auto``)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def sections() -> dict:
+    """{'scene': ColumnConfig, 'sweep': ColumnParameters, 'run': RunSettings}, in that order
+    (ColumnConfig registers when :mod:`warp_tensegrity.scene.columns` is imported, which importing
+    the package does)."""
+    missing = [s for s in SECTION_ORDER if s not in SECTIONS]
+    if missing:
+        raise RuntimeError(f"options sections {missing} not registered: import warp_tensegrity first")
+    return {s: SECTIONS[s] for s in SECTION_ORDER}
+
+
+def set_keys() -> dict:
+    """The keys ``--set`` accepts, by section: [scene] fields and per-column scalars, [run] fields."""
+    sec = sections()
+    scene = tuple(sec["scene"].__pydantic_fields__)
+    return {"scene": scene + tuple(k for k in sec["sweep"].__pydantic_fields__ if k not in scene),
+            "run": tuple(sec["run"].__pydantic_fields__)}
+
+
+def parse_set(items) -> dict:
+    """``["run.t_end=2.0", "scene.n_prisms=8"]`` -> ``{"run": {"t_end": 2.0}, "scene": {"n_prisms": 8}}``.
+
+    Keys are checked here (did you mean); values are typed like TOML and validated with the
+    rest of the spec, so an override is held to the same rules as the file."""
+    out: dict = {}
+    errors = []
+    SET_SECTIONS = set_keys()
+    for item in items or ():
+        key, eq, value = str(item).partition("=")
+        key = key.strip()
+        section, dot, name = key.partition(".")
+        if not eq or not dot or not name:
+            errors.append(f"--set {item!r}: give SECTION.KEY=VALUE, e.g. run.t_end=2.0")
+            continue
+        if section not in SET_SECTIONS:
+            errors.append(unknown_key(f"--set {key}", section, tuple(SET_SECTIONS), what="section"))
+            continue
+        if name not in SET_SECTIONS[section]:
+            errors.append(unknown_key(f"--set {key}", name, SET_SECTIONS[section]))
+            continue
+        out.setdefault(section, {})[name] = parse_value(value.strip())
+    if errors:
+        raise OptionError(errors)
+    return out
+
+
+# ---------------------------------------------------------------------- docs
+def _default_text(default, o: Opt) -> str:
+    if o.default_text is not None:
+        return o.default_text
+    for s, v in o.special:
+        if default == v and type(default) is type(v):
+            return f'"{s}"'
+    if isinstance(default, bool):
+        return str(default).lower()
+    if isinstance(default, str):
+        return f'"{default}"'
+    if default is None:
+        return "none"
+    return _num(default)
+
+
+_TYPES = {"real": "number", "int": "integer", "bool": "bool", "choice": "string", "str": "string"}
+
+
+def options_table(section: str | None = None) -> list[dict]:
+    """One row per option (of one section, or all): section, key, type, unit, default, rule, doc.
+    The docs tables (:func:`options_markdown`) are these rows."""
+    rows = []
+    for sec, cls in sections().items():
+        if section is not None and sec != section:
+            continue
+        for f in dataclasses.fields(cls):
+            o = opt_of(cls, f.name)
+            doc = " ".join((cls.__pydantic_fields__[f.name].description or "").split())
+            doc = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", doc).replace("``", "`")  # Sphinx roles -> markdown
+            rows.append({
+                "section": sec, "key": f.name, "type": _TYPES[o.kind], "unit": o.unit,
+                "default": _default_text(f.default, o), "rule": o.rule(), "doc": doc,
+            })
+    return rows
+
+
+def options_markdown(section: str) -> str:
+    """The markdown table of one section's options (docs/sweeps.md embeds these)."""
+    lines = ["| key | units | default | rule | meaning |", "|---|---|---|---|---|"]
+    for r in options_table(section):
+        doc = r["doc"].replace("|", "\\|")
+        lines.append(f"| `{r['key']}` | {r['unit']} | {r['default']} | {r['rule']} | {doc} |")
+    return "\n".join(lines)
+
+
+DOCS_BEGIN = "<!-- options:{} begin (generated by warp_tensegrity.options.options_markdown; do not edit) -->"
+DOCS_END = "<!-- options:{} end -->"
+
+
+def render_docs(text: str) -> str:
+    """``text`` with every generated options table between its markers replaced by the current one."""
+    for sec in SECTION_ORDER:
+        begin, end = DOCS_BEGIN.format(sec), DOCS_END.format(sec)
+        i, j = text.find(begin), text.find(end)
+        if i >= 0 and j > i:
+            text = text[: i + len(begin)] + "\n" + options_markdown(sec) + "\n" + text[j:]
+    return text
+
+
+def update_docs(path) -> bool:
+    """Rewrite the generated tables in ``path`` (docs/sweeps.md); True if it changed."""
+    from pathlib import Path
+
+    p = Path(path)
+    old = p.read_text()
+    new = render_docs(old)
+    if new != old:
+        p.write_text(new)
+    return new != old

@@ -1,0 +1,203 @@
+"""Refuse up front, with the figures, a sweep the machine cannot hold or finish.
+
+Two checks, both before any kernel runs:
+
+* :func:`check_plan` (hard; :func:`warp_tensegrity.sweep.plan.plan_sweep` calls it): the host memory
+  that planning itself needs (the per-column parameters and the engine's estimate, which builds
+  every column of the sweep once) against the memory available.
+* :func:`check_run` (the CLI calls it before a run; ``--ignore-estimate`` skips it): the
+  estimate's device memory and host memory per shard, the output size against the free disk,
+  the step count against the device's int32 step counter, and the estimated time against a
+  time limit.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from pathlib import Path
+
+from .errors import SweepError
+
+MAX_STEPS = 2**31 - 1
+"""The device's step counter is a Warp ``int`` (int32)."""
+DEFAULT_TIME_LIMIT = 7 * 86400.0
+"""Seconds a run may be estimated to take before it is refused (CLI ``--time-limit``)."""
+PLAN_BYTES_PER_LEVEL = 720
+"""Host bytes per column and per base level that planning needs: tracemalloc peak of
+``estimate_batch`` measured at 5.9 kB per column for 8 prisms and 35 kB for 50 prisms."""
+PARAM_BYTES = 8 * 5
+"""Five float64 per-column parameters."""
+
+
+class BudgetError(SweepError):
+    """The estimate says the sweep does not fit the machine; the message gives the figures."""
+
+
+def fmt_bytes(b: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
+        if abs(b) < 1000 or unit == "PB":
+            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.3g} {unit}"
+        b /= 1000.0
+    return f"{b:.3g} PB"  # pragma: no cover
+
+
+def _fmt_time(s: float) -> str:
+    if not math.isfinite(s):
+        return str(s)
+    for unit, size in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
+        if s >= size:
+            return f"{s / size:.3g} {unit}"
+    return f"{s:.3g} s"
+
+
+def host_memory_available() -> int:
+    """Bytes of host memory available now (MemAvailable; total physical memory elsewhere)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:  # pragma: no cover - not Linux
+        pass
+    try:  # pragma: no cover
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return 2**63
+
+
+def device_memory(device: str | None) -> tuple[str, int]:
+    """(device name, bytes of memory a shard may use) for a Warp device; the CPU uses host memory."""
+    if device in (None, "auto") or str(device).startswith("cuda"):
+        import warp as wp  # only a run on a GPU gets here
+
+        name = device if device not in (None, "auto") else ("cuda:0" if wp.get_cuda_device_count() else "cpu")
+        if name != "cpu":
+            dev = wp.get_device(name)
+            free = getattr(dev, "free_memory", None) or dev.total_memory
+            return name, int(free)
+    return "cpu", host_memory_available()
+
+
+def plan_bytes(n_columns: int, n_prisms: int) -> int:
+    """Host bytes that planning a sweep of ``n_columns`` columns needs (see PLAN_BYTES_PER_LEVEL)."""
+    return int(n_columns) * (PARAM_BYTES + PLAN_BYTES_PER_LEVEL * (int(n_prisms) + 1))
+
+
+DENSE_IMPACT_SECONDS = 2.5e-8
+"""Seconds per (3 (n_prisms + 1))^3 and column of the 'rigid_members' impact velocity, a dense
+least-squares solve (scene/impact.py), measured on the 2-core CPU: 44 s per column at 400 prisms."""
+PLAN_TIME_LIMIT = 600.0
+"""Seconds planning may be estimated to take before a sweep is refused."""
+
+
+def plan_seconds(n_columns: int, n_prisms: int, impact: str) -> float:
+    """Seconds the estimate needs to build the sweep's columns (the dense impact solve dominates)."""
+    if impact != "rigid_members":
+        return 0.0
+    return float(n_columns) * DENSE_IMPACT_SECONDS * (3.0 * (int(n_prisms) + 1)) ** 3
+
+
+def check_plan(spec, available: int | None = None) -> None:
+    """Refuse a sweep whose planning alone would not fit in host memory or would take longer than
+    PLAN_TIME_LIMIT (before any array of the sweep's size is made)."""
+    need = plan_bytes(spec.n_columns, spec.scene.n_prisms)
+    have = host_memory_available() if available is None else int(available)
+    if need > have:
+        raise BudgetError(
+            f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms: planning it needs about "
+            f"{fmt_bytes(need)} of host memory and {fmt_bytes(have)} is available; split the sweep "
+            "into several specs (fewer grid values per spec)"
+        )
+    secs = plan_seconds(spec.n_columns, spec.scene.n_prisms, spec.scene.impact_admissibility)
+    if secs > PLAN_TIME_LIMIT:
+        raise BudgetError(
+            f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms with impact_admissibility = "
+            f"'rigid_members': planning builds every column's impact velocity by a dense solve, about "
+            f"{_fmt_time(secs)} here (limit {_fmt_time(PLAN_TIME_LIMIT)}); use fewer prisms or columns, or "
+            "scene.impact_admissibility = \"end_twist\""
+        )
+
+
+def needs(plan) -> dict:
+    """What a planned run needs, from the engine's estimate (the figures :func:`dry_run` prints)."""
+    spec, est = plan.spec, plan.estimate
+    r = spec.run
+    n = plan.n_columns
+    n_steps = int(est.get("n_steps", 0))
+    n_out = int(est.get("n_out", 0)) or n_steps + 1
+    P = spec.scene.n_prisms
+    per_col_out = 8 * (5 + 2 + P) + (8 * 2 * n_out if r["record_energy"] else 0)
+    per_col_strain = 8 * n_out * P
+    shard = max((b - a for a, b in plan.shards), default=0)
+    spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
+    return {
+        "n_steps": n_steps,
+        "device_bytes_per_shard": int(est.get("bytes_per_column", 0)) * shard,
+        "host_bytes_per_shard": (per_col_out + per_col_strain) * shard,
+        "output_bytes": n * (per_col_out + (per_col_strain if r["record_strain"] else 0)),
+        "seconds": spc * n_steps * n,
+        "shard": shard,
+        "device_bytes_per_column": int(est.get("bytes_per_column", 0)),
+        "host_bytes_per_column": per_col_out + per_col_strain,
+    }
+
+
+def hard_problems(plan) -> list[str]:
+    """What no override can run: more steps than the device's int32 step counter holds."""
+    n_steps = needs(plan)["n_steps"]
+    if n_steps > MAX_STEPS:
+        return [f"{n_steps:.3g} steps (t_end = {plan.spec.run['t_end']!r} s at dt = {plan.dt:.3g} s) exceed the "
+                f"device's step counter ({MAX_STEPS:,} steps); raise run.dt or lower run.t_end"]
+    return []
+
+
+def problems(plan, *, time_limit: float = DEFAULT_TIME_LIMIT, device_bytes: int | None = None,
+             host_bytes: int | None = None, disk_bytes: int | None = None) -> list[str]:
+    """Every way the planned run exceeds this machine, one line each with the figures ([] if it fits;
+    :func:`hard_problems` are listed apart)."""
+    need = needs(plan)
+    out = []
+    if device_bytes is None:
+        dev_name, device_bytes = device_memory(plan.device)
+    else:
+        dev_name = plan.device or "device"
+    if need["device_bytes_per_shard"] > device_bytes:
+        fit = device_bytes // max(need["device_bytes_per_column"], 1)
+        out.append(f"a shard of {need['shard']:,} columns needs {fmt_bytes(need['device_bytes_per_shard'])} of "
+                   f"{dev_name} memory and {fmt_bytes(device_bytes)} is available; "
+                   + (f"use --shard-size {fit:,} or less" if fit >= 1 else "one column does not fit: "
+                      "raise run.output_interval or set record_strain = false"))
+    host = host_memory_available() if host_bytes is None else int(host_bytes)
+    if need["host_bytes_per_shard"] > host:
+        fit = host // max(need["host_bytes_per_column"], 1)
+        out.append(f"a shard of {need['shard']:,} columns needs {fmt_bytes(need['host_bytes_per_shard'])} of "
+                   f"host memory for its results and {fmt_bytes(host)} is available; "
+                   + (f"use --shard-size {fit:,} or less" if fit >= 1 else "raise run.output_interval"))
+    if plan.out is not None:
+        if disk_bytes is None:
+            d = Path(plan.out).parent
+            while not d.exists() and d != d.parent:
+                d = d.parent
+            disk_bytes = shutil.disk_usage(d).free
+        if need["output_bytes"] > disk_bytes:
+            out.append(f"the output needs up to {fmt_bytes(need['output_bytes'])} (uncompressed) and "
+                       f"{fmt_bytes(disk_bytes)} is free on {Path(plan.out).parent}")
+    if math.isfinite(need["seconds"]) and need["seconds"] > time_limit:
+        out.append(f"the estimate is {_fmt_time(need['seconds'])} ({plan.n_columns:,} columns x "
+                   f"{need['n_steps']:,} steps) and the time limit is {_fmt_time(time_limit)} "
+                   "(--time-limit SECONDS)")
+    return out
+
+
+def check_run(plan, *, ignore: bool = False, **kw) -> None:
+    """Raise :class:`BudgetError` listing every way the planned run does not fit; with ``ignore``
+    only what cannot run at all (:func:`hard_problems`)."""
+    hard = hard_problems(plan)
+    if hard:
+        raise BudgetError("the run cannot be done:\n  - " + "\n  - ".join(hard))
+    found = [] if ignore else problems(plan, **kw)
+    if found:
+        raise BudgetError("the run does not fit this machine (by the engine's estimate; "
+                          "--ignore-estimate runs it anyway):\n  - " + "\n  - ".join(found))
