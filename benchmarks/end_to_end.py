@@ -44,7 +44,7 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
     from warp_tensegrity import cli, engine, integrate  # noqa: F401 - the modules a run imports
     from warp_tensegrity import io as D
     from warp_tensegrity.measure import device as _measure_device  # noqa: F401
-    from warp_tensegrity.sweep import plan as sweep_plan, run as sweep_run, shard as sweep_shard
+    from warp_tensegrity.sweep import plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
 
     wp.init()
     wp.get_device(device)
@@ -92,19 +92,21 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
     timed(sweep_shard, "measure_columns", "measurement")
     timed(D, "shard_dataset", "write")
     timed(D, "write_netcdf", lambda: None if phase["finalise"] else "write")
-    timed(sweep_run, "check_shard", lambda: None if phase["finalise"] else "finalise")
-    orig_combine = sweep_run.combine
+    # the streaming store: a shard's chunk write (writer thread, overlapping the next shard's
+    # stepping) is "write"; the export of OUT.nc from the store is "finalise"
+    timed(sweep_store.SweepStore, "write_shard", "write")
+    orig_export = sweep_run.export_netcdf
 
-    def combine(*a, **k):
+    def export(*a, **k):
         phase["finalise"] = True
         t0 = time.perf_counter()
         try:
-            return orig_combine(*a, **k)
+            return orig_export(*a, **k)
         finally:
             st["finalise"] += time.perf_counter() - t0
             phase["finalise"] = False
 
-    sweep_run.combine = combine
+    sweep_run.export_netcdf = export
     rc = cli.main(["run", spec, "-o", out, "--device", device, "--overwrite", "--no-progress"])
     wall = time.perf_counter() - t_ref
     if rc != 0:
