@@ -68,5 +68,14 @@ def warp_facts(device: str | None = None) -> dict:
         "warp_version": str(wp.config.version),
         "device": str(dev.alias),
         "device_name": str(dev.name),
-        "cuda_driver": f"{drv // 1000}.{(drv % 1000) // 10}" if drv else "none",
+        "cuda_driver": _driver_text(drv),
     }
+
+
+def _driver_text(drv) -> str:
+    """'13.0' from Warp's CUDA driver version: a (major, minor) tuple (Warp 1.19) or an int 13000."""
+    if not drv:
+        return "none"
+    if isinstance(drv, tuple):
+        return ".".join(str(int(x)) for x in drv[:2])
+    return f"{int(drv) // 1000}.{(int(drv) % 1000) // 10}"
