@@ -275,6 +275,33 @@ def work(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz")
 
 
+_PROBE = {}
+
+
+@pytest.fixture(autouse=True)
+def one_probe(monkeypatch, tmp_path_factory):
+    """The dry run's calibration probe (seconds of stepping plus a fresh process, cached per
+    scene) would run for every valid fuzzed scene: far too long (a fuzzed 200-prism column on the
+    CPU alone takes minutes). The harness judges input handling, not the estimate
+    (tests/test_calibrate.py does), so every dry run here reuses ONE real probe, of ci_small's
+    scene; the prediction from it (calibrate.predict) still runs on each fuzzed plan."""
+    from warp_tensegrity import calibrate
+    from warp_tensegrity.sweep import plan as sweep_plan
+    from warp_tensegrity.sweep.spec import load_spec
+
+    real = calibrate.probe
+
+    def probe_once(config, params, settings, shard_size, use_cache=True):
+        if "cal" not in _PROBE:
+            plan = sweep_plan.plan_sweep(load_spec(Path(__file__).resolve().parents[1] / "sweeps" / "ci_small.toml"),
+                                         tmp_path_factory.mktemp("probe") / "ci_small.nc", device="cpu")
+            shard = max(b - a for a, b in plan.shards)
+            _PROBE["cal"] = real(plan.spec.scene, plan.params, plan.settings, shard, use_cache=use_cache)
+        return _PROBE["cal"]
+
+    monkeypatch.setattr(calibrate, "probe", probe_once)
+
+
 def _report(cls: str, minimum: int):
     c = COUNTS.get(cls, Counter())
     total = sum(c.values())
