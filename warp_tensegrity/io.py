@@ -34,11 +34,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import xarray as xr
 
-from .measure.nan_reasons import FLAG_MEANINGS, FLAG_VALUES, measurement_flags
-from .measure.pulse import measure_pulse
 from .scene.impact import kinematic_lock_strain
 from .options import COLUMN_PARAMETERS  # declared once, with units and bounds: options.ColumnParameters
-from .types import STATUS_MEANINGS, TIME
+from .types import MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME
 
 if TYPE_CHECKING:
     from .sweep.spec import SweepSpec
@@ -113,8 +111,8 @@ VAR_ATTRS = {
     "measurement_flag": {
         "standard_name": "status_flag",
         "long_name": "why the pulse measures of the column are NaN (ok: all defined; docs/measurements.md)",
-        "flag_values": FLAG_VALUES,
-        "flag_meanings": FLAG_MEANINGS,
+        "flag_values": np.arange(len(MEASUREMENT_FLAGS), dtype=np.int8),
+        "flag_meanings": " ".join(MEASUREMENT_FLAGS),
     },
     "status": flag_attrs("column status at the end of the run", STATUS_NAMES),
     "fail_step": {"units": "1", "long_name": "time step at which a failed column was frozen (-1: never failed)"},
@@ -237,37 +235,6 @@ def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int,
     return coords
 
 
-def measure_columns(result, prism_height: float) -> dict:
-    """Leading-pulse measurements per column (:func:`warp_tensegrity.measure.measure_pulse`);
-    NaN where undefined and for every column whose status is not ok. ``prism_height`` [m]."""
-    status = np.asarray(result.status)
-    m = getattr(result, "measurements", None)  # taken by the engine (on the device by default)
-    if m is None:
-        with np.errstate(all="ignore"):
-            m = measure_pulse(result.strain, result.time, prism_height)
-    bad = status != 0
-    out = {
-        "amplitude": m["amplitude"],
-        "speed": m["speed"],
-        "width": m["width_fwhm"],
-        "width_10": m["width_10"],
-        "prisms_measured": m["prisms_measured"],
-        "arrival_time": m["arrival_time"],
-    }
-    out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
-    for v in out.values():
-        v[bad] = np.nan
-    stats = None
-    if result.strain is not None:
-        with np.errstate(invalid="ignore"):
-            out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
-    else:  # the record stayed on the device: its statistics came with the measures
-        out["max_compression"] = np.array(m["max_compression"], dtype=np.float64, copy=True)
-        stats = {k: m[k] for k in ("record_finite", "max_compression_finite")}
-    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
-    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out, stats)  # why a measure is NaN
-    return out
-
 
 def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
                   record_energy: bool = True, record_strain: bool | None = None) -> xr.Dataset:
@@ -323,19 +290,13 @@ def result_attrs(result) -> dict:
     return a
 
 
-def result_dataset(result, config=None, measure: bool = True, attrs: dict | None = None) -> xr.Dataset:
+def result_dataset(result, config=None, measurements: dict | None = None, attrs: dict | None = None) -> xr.Dataset:
     """:meth:`BatchResult.to_xarray`: the case-stacked layout the CLI writes for a case list.
-    ``config`` (the ColumnConfig) gives the prism height for the measurements and the scene
-    attributes; without it the height recorded by :func:`simulate_batch` is used. ``attrs``: the
+    ``config`` (the ColumnConfig) gives the scene attributes; ``measurements``: the per-column
+    measures (:func:`warp_tensegrity.measure.nan_reasons.measure_columns`) or None. ``attrs``: the
     caller's provenance (:func:`warp_tensegrity.provenance.provenance_attrs`) and anything else."""
     n_prisms = int(result.strain.shape[-1]) if result.strain is not None else (
         int(config.n_prisms) if config is not None else 0)
-    height = float(config.height) if config is not None else result.info.get("prism_height")
-    meas = None
-    if measure and (result.strain is not None or getattr(result, "measurements", None) is not None):
-        if height is None:
-            raise ValueError("to_xarray(measure=True) needs the column's config (prism height)")
-        meas = measure_columns(result, height)
     attrs = dict(attrs or {})
     a = {"Conventions": CONVENTIONS, "title": "warp_tensegrity batch",
          "source": f"warp_tensegrity {attrs.get('package_version', 'unknown')} on NVIDIA Warp",
@@ -346,7 +307,7 @@ def result_dataset(result, config=None, measure: bool = True, attrs: dict | None
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
     a.update(attrs)
     coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
-    return batch_dataset(result, meas, coords, a, record_energy=result.kinetic_energy is not None)
+    return batch_dataset(result, measurements, coords, a, record_energy=result.kinetic_energy is not None)
 
 
 def shard_dataset(

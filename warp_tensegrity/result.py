@@ -67,8 +67,15 @@ class BatchResult:
         strain was kept. ``config``: the ColumnConfig (default: the prism height recorded by
         :func:`simulate_batch`). Built by :func:`warp_tensegrity.io.result_dataset`."""
         from .io import result_dataset  # xarray loads here, not with the package
+        from .measure.nan_reasons import measure_columns
         from .provenance import provenance_attrs
         from .runtime import warp_facts
 
+        height = float(config.height) if config is not None else self.info.get("prism_height")
+        meas = None
+        if measure and (self.strain is not None or self.measurements is not None):
+            if height is None:
+                raise ValueError("to_xarray(measure=True) needs the column's config (prism height)")
+            meas = measure_columns(self, height)
         attrs = {**provenance_attrs(), "cuda_driver": warp_facts(self.device)["cuda_driver"]}
-        return result_dataset(self, config=config, measure=measure, attrs=attrs)
+        return result_dataset(self, config=config, measurements=meas, attrs=attrs)

@@ -61,6 +61,20 @@ TIME = "t"
 coordinate named time as calendar time, which needs "seconds since <date>" (io.py)."""
 
 
+MEASUREMENT_FLAGS = (
+    "ok",
+    "non_finite",
+    "constraint_failure",
+    "no_leading_pulse",
+    "pulse_not_reached_window_by_t_end",
+    "record_too_short_for_width",
+    "speed_undefined",
+    "measurement_undefined",
+)
+"""Values 0.. of the datasets' ``measurement_flag`` (CF flag_values/flag_meanings): why a
+column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tells each case)."""
+
+
 class Method(StrEnum):
     """Time integrators (see :mod:`warp_tensegrity.integrate`)."""
 

@@ -1,4 +1,5 @@
-"""Why a pulse measurement is NaN: one CF flag per column, and the end-of-run summary.
+"""Per-column pulse measures of a BatchResult, why a measure is NaN (one CF flag per column), and
+the end-of-run summary.
 
 Every NaN in ``amplitude``, ``speed``, ``width``, ``width_10`` and ``prisms_measured`` of a column
 carries a flag other than ``ok`` in ``measurement_flag`` (the first reason, in the order of the
@@ -34,22 +35,11 @@ import math
 
 import numpy as np
 
+from ..types import MEASUREMENT_FLAGS as FLAGS
 from ..types import TIME
-from .pulse import measurement_window
+from .pulse import measure_pulse, measurement_window
 
-FLAGS = (
-    "ok",
-    "non_finite",
-    "constraint_failure",
-    "no_leading_pulse",
-    "pulse_not_reached_window_by_t_end",
-    "record_too_short_for_width",
-    "speed_undefined",
-    "measurement_undefined",
-)
 FLAG = {name: i for i, name in enumerate(FLAGS)}
-FLAG_VALUES = np.arange(len(FLAGS), dtype=np.int8)
-FLAG_MEANINGS = " ".join(FLAGS)
 FLAGGED = ("amplitude", "speed", "width", "width_10", "prisms_measured", "max_compression")
 """Per-column measures that are NaN only where measurement_flag is not ok."""
 
@@ -59,10 +49,41 @@ reference state is ~1e-14)."""
 # prisms beyond the window's far end the front must pass for the last peak to be over
 _PEAK_CLEARANCE = 4
 
+def measure_columns(result, prism_height: float) -> dict:
+    """Leading-pulse measurements per column (:func:`~warp_tensegrity.measure.pulse.measure_pulse`, or the engine's device measures);
+    NaN where undefined and for every column whose status is not ok. ``prism_height`` [m]."""
+    status = np.asarray(result.status)
+    m = getattr(result, "measurements", None)  # taken by the engine (on the device by default)
+    if m is None:
+        with np.errstate(all="ignore"):
+            m = measure_pulse(result.strain, result.time, prism_height)
+    bad = status != 0
+    out = {
+        "amplitude": m["amplitude"],
+        "speed": m["speed"],
+        "width": m["width_fwhm"],
+        "width_10": m["width_10"],
+        "prisms_measured": m["prisms_measured"],
+        "arrival_time": m["arrival_time"],
+    }
+    out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
+    for v in out.values():
+        v[bad] = np.nan
+    stats = None
+    if result.strain is not None:
+        with np.errstate(invalid="ignore"):
+            out["max_compression"] = np.max(-np.asarray(result.strain, dtype=np.float64), axis=(1, 2))
+    else:  # the record stayed on the device: its statistics came with the measures
+        out["max_compression"] = np.array(m["max_compression"], dtype=np.float64, copy=True)
+        stats = {k: m[k] for k in ("record_finite", "max_compression_finite")}
+    out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
+    out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out, stats)
+    return out
+
 
 def measurement_flags(status, strain, time, meas: dict, record_stats: dict | None = None) -> np.ndarray:
     """(B,) int8 flag per column from the engine status, the strain record (B, T, P) (None if not
-    recorded) and the measures of :func:`warp_tensegrity.sweep.shard.measure_columns`.
+    recorded) and the measures of :func:`measure_columns`.
     ``record_stats``: when the record stayed on the device, its ``record_finite`` (B,) and
     ``max_compression_finite`` (B,) (:func:`warp_tensegrity.measure.device.measure_record`)."""
     status = np.asarray(status)

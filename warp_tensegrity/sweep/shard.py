@@ -11,15 +11,13 @@ import numpy as np
 
 from .. import io as D
 from ..engine import simulate_batch
+from ..measure.nan_reasons import measure_columns  # shared with BatchResult.to_xarray
 from ..provenance import provenance_attrs
 from ..runtime import warp_facts
 from .store import SweepStore, time_coord
 
 if TYPE_CHECKING:
     from .plan import SweepPlan
-
-
-measure_columns = D.measure_columns  # leading-pulse measures of a BatchResult (io.py, shared with to_xarray)
 
 
 def _num(x):
