@@ -150,7 +150,7 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
 def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float, output_every: int = 100,
                 steps_per_launch: int = 16, rows_in_shared: bool = True, solver: str = "cr") -> dict:
     """{part: (bytes, flops)} per column-step of the fused step with the block-cyclic-reduction
-    solve (warp_tensegrity/kernels/fused.py), counted from its loops.
+    solve (warp_tensegrity/kernels/fused.py, the CR in kernels/coop.py), counted from their loops.
 
     Flops (S = max(bw, 1), nb = nc / S blocks): kick-drift 9n; per Newton iteration the residual
     (bar vector 6, |b|^2 5, r and e 6: 17 nc), the CR solve (forward: kept blocks two S x S

@@ -1,4 +1,4 @@
-"""The fused step's lane-parallel constraint solve (block cyclic reduction, kernels/fused.py).
+"""The fused step's lane-parallel constraint solve (block cyclic reduction, kernels/coop.py).
 
 Warp's CPU device runs a block's lanes only with ``wp.config.enable_cpu_blocks``; every test here
 switches it on, so the lane split and the barriers of the GPU kernel run in CI.
@@ -9,7 +9,7 @@ import pytest
 import warp as wp
 
 from warp_tensegrity import ColumnConfig, RunSettings, integrate, simulate_batch
-from warp_tensegrity.kernels.fused import block_sync, make_cr_funcs
+from warp_tensegrity.kernels.coop import block_sync, make_cr_funcs
 
 
 @pytest.fixture

@@ -6,11 +6,14 @@
   constraint solves); every method;
 * :mod:`.fused`: RATTLE as one kernel, a thread block per column, several steps per launch,
   the constraint solve by block cyclic reduction across the block's lanes or (``solver="serial"``)
-  by lane 0 with the staged threads' banded Cholesky (:func:`.common.make_band_funcs`).
+  by lane 0 with the staged threads' banded Cholesky (:func:`.common.make_band_funcs`);
+* :mod:`.coop`: the fused step's in-block pieces: barrier, shared buffers, lane reduction, the
+  block cyclic reduction and the size of a column's solver rows.
 """
 
 from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK
-from .fused import FusedStep, make_fused_kernels, shared_plan, solver_reals
+from .coop import solver_reals
+from .fused import FusedStep, make_fused_kernels, shared_plan
 from .staged import make_kernels, make_solver_kernels
 
 __all__ = [
