@@ -151,10 +151,10 @@ def make_node_funcs(real):
 
 
 @functools.cache
-def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
-    """The fused step's constraint pieces over the model struct ``ColumnModel``: Gram assembly with
-    the factor (CR: into blocks, all lanes; serial: into the band, lane 0), and the position and
-    velocity projections. ``band``: the serial solver's band (nc, bw+1, 1); unused by CR."""
+def make_factor_funcs(real, bandwidth: int, solver: str = "cr"):
+    """The fused step's factor and solve over the model struct ``ColumnModel``: Gram assembly with
+    the factor (CR: into blocks, all lanes; serial: into the band, lane 0), and the solve with the
+    stored factor. ``band``: the serial solver's band (nc, bw+1, 1); unused by CR."""
     serial = solver == "serial"
     vec = wp.types.vector(3, real)
     BW = int(bandwidth)
@@ -164,9 +164,8 @@ def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
     gram_row, rowvec = make_gram_row(real, BW)
     cr = make_cr_funcs(real, S)
     sb = make_band_funcs(real, BW)
-
     nf = make_node_funcs(real)
-    ColumnModel, block_max, apply_impulse = nf.ColumnModel, nf.block_max, nf.apply_impulse
+    ColumnModel, block_max = nf.ColumnModel, nf.block_max
 
     @wp.func
     def rows(nc: int):
@@ -249,6 +248,19 @@ def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
         else:
             return factor_blocks(m, q, x, red, w, lane, bd)
 
+    return SimpleNamespace(rows=rows, solve=solve, factor_gram=factor_gram)
+
+
+@functools.cache
+def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
+    """The fused step's constraint pieces over the model struct ``ColumnModel``: the factor of A(U)
+    (:func:`make_factor_funcs`) and the position and velocity projections."""
+    vec = wp.types.vector(3, real)
+    ff = make_factor_funcs(real, bandwidth, solver)
+    rows, solve = ff.rows, ff.solve
+    nf = make_node_funcs(real)
+    ColumnModel, block_max, apply_impulse = nf.ColumnModel, nf.block_max, nf.apply_impulse
+
     @wp.func
     def project_velocities(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real),
                            band: wp.array3d(dtype=real), red: int, w: int, lane: int, bd: int):
@@ -303,7 +315,7 @@ def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
             it += 1
         return err, it
 
-    return SimpleNamespace(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=factor_gram,
+    return SimpleNamespace(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=ff.factor_gram,
                            project_velocities=project_velocities, project_positions=project_positions, vec=vec)
 
 
