@@ -22,7 +22,7 @@ LAYERS = [
     {"types", "options", "scene.network", "scene.impact", "measure.pulse", "sweep.errors", "sweep.budget",
      "sweep.progress", "provenance", "runtime", "_version", "lens.host", "lens.design"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.fused", "kernels",
-     "model", "measure", "measure.nan_reasons", "io", "measure.device"},
+     "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs", "measure.device"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},

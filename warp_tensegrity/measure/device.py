@@ -20,8 +20,9 @@ Passes (one launch each; ``(P, B)`` = one thread per prism of each column, ``B``
 6. ``snapshots`` (T, B): spatial peak of every snapshot the time-of-flight fit points at;
 7. ``snapshot_fit`` (B): least-squares speed of those peaks.
 
-Sums are numpy's pairwise summation, reproduced (``_pw_sum``), so the fits round as the reference
-does; medians are rank selections (no scratch, n <= a few hundred prisms).
+Sums are numpy's pairwise summation, reproduced (``pw_sum``), so the fits round as the reference
+does; medians are rank selections (no scratch, n <= a few hundred prisms). The shared ``@wp.func``
+helpers live in :mod:`.device_funcs`; here the kernels and the host side.
 Columns with ``n_valid < n_time`` (the engine's failed columns, whose record ends at the failure)
 count as non-finite, as the NaN-padded host record does; prisms ``j < cut`` (the far end a
 truncated run did not simulate) read as zero strain, as the padded host record does.
@@ -29,13 +30,25 @@ truncated run did not simulate) read as zero strain, as the padded host record d
 
 from __future__ import annotations
 
-import math
 import time as _time
 from typing import Any
 
 import numpy as np
 import warp as wp
 
+from .device_funcs import (
+    NAN,
+    f64,
+    finite_at,
+    median,
+    parabola_offset,
+    parabola_value,
+    pw_sum,
+    q_at,
+    reached,
+    spatial_peak_index,
+    width_at,
+)
 from .pulse import (
     DEFAULT_END_FRACTION,
     DEFAULT_THRESHOLD_FRACTION,
@@ -47,261 +60,8 @@ from .pulse import (
 
 __all__ = ["measure_pulse_device", "measure_record", "TRIAL_SCALES"]
 
-f64 = wp.float64
-NAN = wp.constant(f64(math.nan))
-INF = wp.constant(f64(math.inf))
-PW_BLOCK = wp.constant(128)  # numpy's PW_BLOCKSIZE
 TRIAL_SCALES = (1.0, 0.1, 0.01)
 """measure_pulse's threshold trials, as fractions of the default threshold."""
-_vec32i = wp.types.vector(32, wp.int32)
-_vec32d = wp.types.vector(32, wp.float64)
-
-
-# ---------------------------------------------------------------------- shared @wp.func
-@wp.func
-def q_at(strain: Any, k: int, j: int, b: int, cut: int, n_valid: int) -> f64:
-    """Compressive magnitude -strain[k, j] of column b [-]; 0 where non-finite (and for samples
-    k >= n_valid, NaN in the host record) as measure._as_history; prisms j < cut read 0 strain."""
-    s = f64(0.0)
-    if j >= cut:
-        if k >= n_valid:
-            return f64(0.0)
-        s = f64(strain[k, j - cut, b])
-        if not wp.isfinite(s):
-            return f64(0.0)
-    return -s
-
-
-@wp.func
-def finite_at(strain: Any, k: int, j: int, b: int, cut: int, n_valid: int) -> int:
-    if j < cut:
-        return 1
-    if k >= n_valid:
-        return 0
-    if wp.isfinite(f64(strain[k, j - cut, b])):
-        return 1
-    return 0
-
-
-@wp.func
-def parabola_offset(y0: f64, y1: f64, y2: f64, h1: f64, h2: f64) -> f64:
-    """measure._parabola_peak: vertex offset of the parabola through (-h1, y0), (0, y1), (h2, y2); NaN unless a < 0."""
-    d0 = (y0 - y1) / h1
-    d2 = (y2 - y1) / h2
-    a = (d0 + d2) / (h1 + h2)
-    bb = (d2 * h1 - d0 * h2) / (h1 + h2)
-    if a < f64(0.0):
-        return -bb / (f64(2.0) * a)
-    return NAN
-
-
-@wp.func
-def parabola_value(y0: f64, y1: f64, y2: f64, h1: f64, h2: f64) -> f64:
-    """measure._parabola_peak: vertex value; NaN unless a < 0."""
-    d0 = (y0 - y1) / h1
-    d2 = (y2 - y1) / h2
-    a = (d0 + d2) / (h1 + h2)
-    bb = (d2 * h1 - d0 * h2) / (h1 + h2)
-    if a < f64(0.0):
-        return y1 - bb * bb / (f64(4.0) * a)
-    return NAN
-
-
-@wp.func
-def pw_term(mode: int, x: wp.array2d(dtype=f64), y: wp.array2d(dtype=f64), w: wp.array2d(dtype=f64),
-            e: int, b: int, xm: f64, ym: f64) -> f64:
-    """Terms of measure._linfit's sums (0/1 weights): w x, w y, w dx dx, w dx (y - ym)."""
-    if w[e, b] == f64(0.0):
-        return f64(0.0)
-    if mode == 0:
-        return x[e, b]
-    if mode == 1:
-        return y[e, b]
-    dx = x[e, b] - xm
-    if mode == 2:
-        return dx * dx
-    return dx * (y[e, b] - ym)
-
-
-@wp.func
-def pw_block(mode: int, x: wp.array2d(dtype=f64), y: wp.array2d(dtype=f64), w: wp.array2d(dtype=f64),
-             b: int, s: int, n: int, xm: f64, ym: f64) -> f64:
-    """numpy's pairwise_sum for n <= 128: eight running sums, then the rest in order."""
-    if n < 8:
-        res = f64(-0.0)
-        for i in range(n):
-            res += pw_term(mode, x, y, w, s + i, b, xm, ym)
-        return res
-    r0 = pw_term(mode, x, y, w, s + 0, b, xm, ym)
-    r1 = pw_term(mode, x, y, w, s + 1, b, xm, ym)
-    r2 = pw_term(mode, x, y, w, s + 2, b, xm, ym)
-    r3 = pw_term(mode, x, y, w, s + 3, b, xm, ym)
-    r4 = pw_term(mode, x, y, w, s + 4, b, xm, ym)
-    r5 = pw_term(mode, x, y, w, s + 5, b, xm, ym)
-    r6 = pw_term(mode, x, y, w, s + 6, b, xm, ym)
-    r7 = pw_term(mode, x, y, w, s + 7, b, xm, ym)
-    i = int(8)
-    while i < n - n % 8:
-        r0 += pw_term(mode, x, y, w, s + i + 0, b, xm, ym)
-        r1 += pw_term(mode, x, y, w, s + i + 1, b, xm, ym)
-        r2 += pw_term(mode, x, y, w, s + i + 2, b, xm, ym)
-        r3 += pw_term(mode, x, y, w, s + i + 3, b, xm, ym)
-        r4 += pw_term(mode, x, y, w, s + i + 4, b, xm, ym)
-        r5 += pw_term(mode, x, y, w, s + i + 5, b, xm, ym)
-        r6 += pw_term(mode, x, y, w, s + i + 6, b, xm, ym)
-        r7 += pw_term(mode, x, y, w, s + i + 7, b, xm, ym)
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += pw_term(mode, x, y, w, s + i, b, xm, ym)
-        i += 1
-    return res
-
-
-@wp.func
-def pw_half(n: int) -> int:
-    h = n / 2
-    return h - h % 8
-
-
-@wp.func
-def pw_sum(mode: int, x: wp.array2d(dtype=f64), y: wp.array2d(dtype=f64), w: wp.array2d(dtype=f64),
-           b: int, start: int, n: int, xm: f64, ym: f64) -> f64:
-    """Sum of pw_term over rows start..start+n-1 of column b, in numpy's pairwise order
-    (pw(a, n) = pw(a, n2) + pw(a + n2, n - n2) above 128 terms), so the fits round as the
-    reference's. Hand-written: the recursion, which Warp functions cannot do, kept on an explicit stack."""
-    if n <= PW_BLOCK:
-        return pw_block(mode, x, y, w, b, start, n, xm, ym)
-    ss = _vec32i()
-    ms = _vec32i()
-    st = _vec32i()
-    acc = _vec32d()
-    sp = int(0)
-    ss[0] = wp.int32(start)
-    ms[0] = wp.int32(n)
-    st[0] = wp.int32(0)
-    ret = f64(0.0)
-    up = int(0)  # 1: a child has just returned its sum in ret
-    while sp >= 0:
-        if up == 1:
-            if st[sp] == 1:  # left half done: keep it, descend into the right half
-                acc[sp] = ret
-                st[sp] = wp.int32(2)
-                m2 = pw_half(int(ms[sp]))
-                ss[sp + 1] = wp.int32(int(ss[sp]) + m2)
-                ms[sp + 1] = wp.int32(int(ms[sp]) - m2)
-                st[sp + 1] = wp.int32(0)
-                sp += 1
-                up = 0
-            else:
-                ret = acc[sp] + ret
-                sp -= 1
-        else:
-            m = int(ms[sp])
-            if m <= PW_BLOCK:
-                ret = pw_block(mode, x, y, w, b, int(ss[sp]), m, xm, ym)
-                sp -= 1
-                up = 1
-            else:
-                st[sp] = wp.int32(1)
-                ss[sp + 1] = ss[sp]
-                ms[sp + 1] = wp.int32(pw_half(m))
-                st[sp + 1] = wp.int32(0)
-                sp += 1
-    return ret
-
-
-@wp.func
-def kth_smallest(v: wp.array2d(dtype=f64), b: int, start: int, n: int, kk: int) -> f64:
-    """The kk-th smallest (0-based) of v[start:start+n, b], by ranks (n small: no scratch, no sort)."""
-    for i in range(n):
-        x = v[start + i, b]
-        less = int(0)
-        eq = int(0)
-        for m in range(n):
-            u = v[start + m, b]
-            if u < x:
-                less += 1
-            elif u == x:
-                eq += 1
-        if less <= kk and kk < less + eq:
-            return x
-    return NAN
-
-
-@wp.func
-def median(v: wp.array2d(dtype=f64), b: int, start: int, n: int) -> f64:
-    """np.median of v[start:start+n, b] (mean of the two middle values for even n)."""
-    if n < 1:
-        return NAN
-    if n % 2 == 1:
-        return kth_smallest(v, b, start, n, n / 2)
-    return (kth_smallest(v, b, start, n, n / 2 - 1) + kth_smallest(v, b, start, n, n / 2)) / f64(2.0)
-
-
-@wp.func
-def reached(tp_time: wp.array2d(dtype=f64), b: int, lo: int, hi: int) -> int:
-    """measure._reached: window prisms with a leading peak, contiguous from hi - 1 downward."""
-    n = int(0)
-    j = hi - 1
-    while j >= lo:
-        if not wp.isfinite(tp_time[j, b]):
-            return n
-        n += 1
-        j -= 1
-    return n
-
-
-@wp.func
-def spatial_peak_index(strain: Any, k: int, b: int, cut: int, n_valid: int, P: int, c: int, search: int) -> int:
-    """First argmax of q[k, j] over |j - c| <= search, 0 <= j < P (measure._spatial_peak); -1 if none."""
-    i = int(-1)
-    best = -INF
-    for j in range(wp.max(c - search, 0), wp.min(c + search + 1, P)):
-        qj = q_at(strain, k, j, b, cut, n_valid)
-        if qj > best or i < 0:
-            best = qj
-            i = j
-    return i
-
-
-@wp.func
-def width_at(strain: Any, k: int, b: int, cut: int, n_valid: int, P: int, near: f64, search: int, level: f64) -> f64:
-    """measure._width of snapshot k of column b with the peak searched within `search` of rint(near)."""
-    i = spatial_peak_index(strain, k, b, cut, n_valid, P, int(wp.rint(near)), search)
-    if i < 1 or i > P - 2:
-        return NAN
-    y0 = q_at(strain, k, i - 1, b, cut, n_valid)
-    y1 = q_at(strain, k, i, b, cut, n_valid)
-    y2 = q_at(strain, k, i + 1, b, cut, n_valid)
-    if not (y0 < y1 and y2 <= y1 and y1 > f64(0.0)):
-        return NAN
-    off = parabola_offset(y0, y1, y2, f64(1.0), f64(1.0))
-    val = parabola_value(y0, y1, y2, f64(1.0), f64(1.0))
-    if not wp.isfinite(f64(i) + off):
-        return NAN
-    L = level * val
-    if not (y1 >= L):
-        return NAN
-    il = int(-1)
-    for j in range(i):
-        if q_at(strain, k, j, b, cut, n_valid) < L:
-            il = j
-    ir = int(-1)
-    j = i + 1
-    while j < P and ir < 0:
-        if q_at(strain, k, j, b, cut, n_valid) < L:
-            ir = j
-        j += 1
-    if il < 0 or ir < 0:
-        return NAN
-    a0 = q_at(strain, k, il, b, cut, n_valid)
-    a1 = q_at(strain, k, il + 1, b, cut, n_valid)
-    b0 = q_at(strain, k, ir - 1, b, cut, n_valid)
-    b1 = q_at(strain, k, ir, b, cut, n_valid)
-    xl = f64(il) + (L - a0) / (a1 - a0)
-    xr = f64(ir - 1) + (b0 - L) / (b0 - b1)
-    return xr - xl
 
 
 # ---------------------------------------------------------------------- kernels
