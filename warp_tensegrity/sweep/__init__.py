@@ -11,7 +11,8 @@ from .progress import ProgressBar
 from .run import combine, execute, load_plan_from_manifest, open_sweep, resume_sweep, run_sweep, sweep_status
 from .shard import compute_and_write, compute_shard, measure_columns, template_dataset
 from .spec import SweepSpec, load_spec, parse_spec
-from .store import MANIFEST, SPEC_COPY, SweepLock, SweepStore, shard_dir_for
+from .manifest import MANIFEST, SPEC_COPY, SweepLock, shard_dir_for
+from .store import SweepStore
 
 __all__ = [
     "MANIFEST",

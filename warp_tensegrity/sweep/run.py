@@ -18,10 +18,9 @@ from .plan import SweepPlan, apply_memory_limit, plan_sweep, resolve_dt
 from .progress import ProgressBar
 from .shard import compute_and_write, compute_shard, template_dataset
 from .spec import SweepSpec, load_spec
-from .store import (
-    STORE, ShardWriter, StoreError, SweepLock, SweepStore, _log, export_netcdf, fault, read_run, shard_states, status,
-    status_from_output, time_coord,
-)
+from .manifest import STORE, StoreError, SweepLock, fault
+from .status import read_run, shard_states, status, status_from_output
+from .store import ShardWriter, SweepStore, _log, export_netcdf, time_coord
 
 log = logging.getLogger(__name__)
 
