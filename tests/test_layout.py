@@ -22,7 +22,7 @@ LAYERS = [
     {"types", "options", "scene.network", "scene.impact", "measure.pulse", "sweep.errors", "sweep.budget",
      "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version", "lens.host", "lens.design"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.staged", "kernels.fused", "kernels", "model", "measure",
-     "measure.nan_reasons", "io", "measure.device"},
+     "measure.nan_reasons", "io", "measure.device", "sweep.parse"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "sweep.status", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import options as O
+from warp_tensegrity.sweep import parse as P
 from warp_tensegrity.sweep import spec as S
 from warp_tensegrity.scene import ColumnConfig, NetworkError
 from warp_tensegrity.settings import RunSettings
@@ -33,7 +34,7 @@ def _doc_keys(section: str) -> list[str]:
 def test_each_run_option_defined_once_and_everywhere_the_same():
     settings_fields = [f.name for f in dataclasses.fields(RunSettings)]
     model_fields = list(O.RunSettings.__pydantic_fields__)
-    spec_keys = list(S.RUN_KEYS)
+    spec_keys = list(P.RUN_KEYS)
     table_rows = [r["key"] for r in O.options_table("run")]
     doc_rows = _doc_keys("run")
     set_keys = list(O.set_keys()["run"])
@@ -63,12 +64,12 @@ def test_mkdocs_options_page_rows_are_the_model():
     run = [k[4:] for k in keys if k.startswith("run.")]
     assert sorted(run) == sorted(f.name for f in dataclasses.fields(RunSettings))
     scene = {k[6:] for k in keys if k.startswith("scene.")}
-    assert scene == set(S.SCENE_FIELDS) | set(S.SCENE_PARAMS)
+    assert scene == set(P.SCENE_FIELDS) | set(P.SCENE_PARAMS)
 
 
 def test_scene_and_parameter_options_same_set_in_model_spec_and_docs():
     scene = [f.name for f in dataclasses.fields(ColumnConfig)]
-    assert set(S.SCENE_FIELDS) == set(scene) == set(_doc_keys("scene")) == {r["key"] for r in O.options_table("scene")}
+    assert set(P.SCENE_FIELDS) == set(scene) == set(_doc_keys("scene")) == {r["key"] for r in O.options_table("scene")}
     params = [f.name for f in dataclasses.fields(O.ColumnParameters)]
     assert set(O.COLUMN_PARAMETERS) == set(params) == set(_doc_keys("sweep"))
 
