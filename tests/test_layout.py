@@ -19,8 +19,9 @@ MAX_CHAIN = 7  # issue 15
 
 # Lowest layer first; a module may import lower layers and its own layer's modules (acyclic).
 LAYERS = [
-    {"types", "options", "scene.network", "scene.impact", "measure.pulse", "sweep.errors", "sweep.budget",
-     "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version", "lens.host", "lens.design"},  # leaves
+    {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse", "sweep.errors",
+     "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version", "lens.host",
+     "lens.design"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.staged", "kernels.fused", "kernels", "model", "measure",
      "measure.nan_reasons", "io", "measure.device", "sweep.parse"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},

@@ -1,8 +1,8 @@
 """MkDocs hook: the options table of ``docs/options.md``, generated from the options model.
 
 Every key the spec parser accepts gets a row with its units, default, rule and meaning, read from
-the one place it is declared: ``warp_tensegrity.options.options_table()`` (the pydantic options
-model: ``ColumnConfig``, ``ColumnParameters``, ``RunSettings``) for the options, and
+the one place it is declared: ``warp_tensegrity.options_docs.options_table()`` (the pydantic
+options model: ``ColumnConfig``, ``ColumnParameters``, ``RunSettings``) for the options, and
 ``warp_tensegrity.sweep.spec.KEY_DOCS`` for the structural keys (tables, grid ranges, case
 labels; the key tables of ``warp_tensegrity.sweep.parse``). The page holds the marker
 ``<!-- options-table -->``; ``tests/test_docs.py`` checks every key appears in the built site.
@@ -15,10 +15,10 @@ MARKER = "<!-- options-table -->"
 
 def option_rows() -> list[tuple[str, str, str, str, str]]:
     """(key path, units, default, rule, meaning) for every key a spec may hold. The options come
-    from their one declaration (:func:`warp_tensegrity.options.options_table`: ColumnConfig,
+    from their one declaration (:func:`warp_tensegrity.options_docs.options_table`: ColumnConfig,
     ColumnParameters, RunSettings); the structural keys from ``spec.KEY_DOCS``."""
     import warp_tensegrity  # noqa: F401  (registers every options section)
-    from warp_tensegrity.options import options_table
+    from warp_tensegrity.options_docs import options_table
     from warp_tensegrity.sweep import parse as P
     from warp_tensegrity.sweep import spec as S
 

@@ -62,7 +62,7 @@ KEY_DOCS = {
     "sweep.cases[i].label": "case label, stored as the `case_label` coordinate",
 }
 """What each structural spec key means (the options themselves are documented where they are
-declared: :func:`warp_tensegrity.options.options_table`; the docs' hook reads both)."""
+declared: :func:`warp_tensegrity.options_docs.options_table`; the docs' hook reads both)."""
 
 
 # ---------------------------------------------------------------------- the spec
