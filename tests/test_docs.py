@@ -27,16 +27,17 @@ def build(config: Path, site: Path) -> subprocess.CompletedProcess:
 
 def spec_keys() -> list[str]:
     """Every key path a spec may hold, from the parser's own tables."""
+    from warp_tensegrity.sweep import parse as P
     from warp_tensegrity.sweep import spec as S
     from warp_tensegrity.settings import COLUMN_PARAMETERS
 
     keys = list(S.TOP_KEYS)
-    keys += [f"scene.{k}" for k in S.SCENE_FIELDS + S.SCENE_PARAMS]
-    keys += [f"sweep.{k}" for k in S.SWEEP_KEYS]
+    keys += [f"scene.{k}" for k in P.SCENE_FIELDS + P.SCENE_PARAMS]
+    keys += [f"sweep.{k}" for k in P.SWEEP_KEYS]
     keys += [f"sweep.{t}.{p}" for p in COLUMN_PARAMETERS for t in ("grid", "fixed")]
-    keys += [f"sweep.cases[i].{p}" for p in tuple(COLUMN_PARAMETERS) + S.CASE_EXTRA_KEYS]
-    keys += [f"sweep.grid.<param>.{k}" for k in S.RANGE_KEYS]
-    keys += [f"run.{k}" for k in S.RUN_KEYS]
+    keys += [f"sweep.cases[i].{p}" for p in tuple(COLUMN_PARAMETERS) + P.CASE_EXTRA_KEYS]
+    keys += [f"sweep.grid.<param>.{k}" for k in P.RANGE_KEYS]
+    keys += [f"run.{k}" for k in P.RUN_KEYS]
     return keys
 
 

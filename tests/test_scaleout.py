@@ -81,7 +81,7 @@ def test_dask_resume_runs_only_missing_shards(tmp_path, client):
     m.pop("sha256")
     del m["shards"]["2"]
     store = sweep.SweepStore(out)
-    from warp_tensegrity.sweep.store import Manifest
+    from warp_tensegrity.sweep.manifest import Manifest
 
     Manifest(store.manifest_path, m).save()
     ref = open_sweep(out)

@@ -24,6 +24,7 @@ import xarray as xr
 from warp_tensegrity import cli, sweep
 from warp_tensegrity.io import drop_run_dependent
 from warp_tensegrity.io import open_sweep as open_nc
+from warp_tensegrity.sweep import manifest as zmanifest
 from warp_tensegrity.sweep import run as sweep_run
 from warp_tensegrity.sweep import store as zstore
 
@@ -91,7 +92,7 @@ def assert_bitwise(a: xr.Dataset, b: xr.Dataset, extra=()):
 
 def subprocess_env(**extra) -> dict:
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    env.pop(zstore.FAULT_ENV, None)
+    env.pop(zmanifest.FAULT_ENV, None)
     env.update(extra)
     return env
 
@@ -127,7 +128,7 @@ def test_store_is_chunked_per_shard_and_opens_lazily(tmp_path):
     for i, (a, b) in enumerate([(0, 2), (2, 3)]):
         rec = manifest["shards"][str(i)]
         assert (rec["case_start"], rec["case_stop"]) == (a, b)
-        assert rec["sha256"]["strain"] == zstore.array_sha256(exported["strain"].values[a:b])
+        assert rec["sha256"]["strain"] == zmanifest.array_sha256(exported["strain"].values[a:b])
     # open_sweep also takes the work directory, and a bare netCDF file (lazily)
     assert_bitwise(sweep.open_sweep(store.dir).load(), exported)
     nc = sweep.open_sweep(tmp_path / "cases.nc.sweep" / ".." / "cases.nc")
@@ -239,7 +240,7 @@ def test_second_run_into_the_same_output_is_locked_out(tmp_path, capsys):
     marker = tmp_path / "paused"
     proc = subprocess.Popen(
         [sys.executable, "-m", "warp_tensegrity", "run", str(spec), "-o", str(out), "--no-progress"],
-        env=subprocess_env(**{zstore.FAULT_ENV: "after-mark@1:pause", zstore.FAULT_FILE_ENV: str(marker)}),
+        env=subprocess_env(**{zmanifest.FAULT_ENV: "after-mark@1:pause", zmanifest.FAULT_FILE_ENV: str(marker)}),
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         _wait_for(marker, proc)
@@ -253,7 +254,7 @@ def test_second_run_into_the_same_output_is_locked_out(tmp_path, capsys):
         proc.wait()
         proc.stderr.close()
     assert run_cli("resume", out) == 0  # the lock died with its holder
-    with zstore.SweepLock(out):  # held here: the CLI refuses
+    with zmanifest.SweepLock(out):  # held here: the CLI refuses
         assert run_cli("combine", out) == 1
     assert "being written by another run" in capsys.readouterr().err
 
@@ -283,7 +284,7 @@ def _kill_run(args, point: str, hit: int, action: str, delay: float, tmp_path: P
     marker = tmp_path / f"mark-{point}-{hit}-{time.monotonic_ns()}"
     proc = subprocess.Popen(
         [sys.executable, "-m", "warp_tensegrity", *map(str, args), "--no-progress"],
-        env=subprocess_env(**{zstore.FAULT_ENV: f"{point}@{hit}:{action}", zstore.FAULT_FILE_ENV: str(marker)}),
+        env=subprocess_env(**{zmanifest.FAULT_ENV: f"{point}@{hit}:{action}", zmanifest.FAULT_FILE_ENV: str(marker)}),
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         if action == "mark":

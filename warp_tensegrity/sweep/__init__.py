@@ -1,17 +1,19 @@
-"""Parameter sweeps: a TOML spec (:mod:`.spec`), planned into shards (:mod:`.plan`), each shard run
-and measured (:mod:`.shard`) here or on Dask workers (:mod:`.dask`), streamed into one Zarr store and
-exported to netCDF (:mod:`.store`), with a progress bar (:mod:`.progress`); :mod:`.run` drives a
-whole sweep.
+"""Parameter sweeps: a TOML spec (:mod:`.spec`, its tables checked by :mod:`.parse`), planned into
+shards (:mod:`.plan`), each shard run and measured (:mod:`.shard`) here or on Dask workers
+(:mod:`.dask`), streamed into one Zarr store and exported to netCDF (:mod:`.store`; its manifest,
+checksums and lock in :mod:`.manifest`), with a progress bar (:mod:`.progress`); :mod:`.run`
+drives a whole sweep, :mod:`.status` reports on one.
 Reading and validating a spec does not import Warp."""
 
 from .dask import local_cluster, run_shards_dask
 from .errors import SpecError, SweepError
+from .manifest import MANIFEST, SPEC_COPY, SweepLock, shard_dir_for
 from .plan import SweepPlan, apply_memory_limit, dry_run, plan_sweep, resolve_dt
 from .progress import ProgressBar
 from .run import combine, execute, load_plan_from_manifest, open_sweep, resume_sweep, run_sweep, sweep_status
 from .shard import compute_and_write, compute_shard, measure_columns, template_dataset
 from .spec import SweepSpec, load_spec, parse_spec
-from .store import MANIFEST, SPEC_COPY, SweepLock, SweepStore, shard_dir_for
+from .store import SweepStore
 
 __all__ = [
     "MANIFEST",

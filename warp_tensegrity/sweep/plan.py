@@ -15,7 +15,8 @@ from ..settings import RunSettings
 from .progress import fmt_seconds
 from .budget import check_plan
 from .errors import SpecError
-from .store import limit_shard_size, parse_bytes, shard_dir_for
+from .manifest import shard_dir_for
+from .store import limit_shard_size, parse_bytes
 
 if TYPE_CHECKING:
     from .spec import SweepSpec

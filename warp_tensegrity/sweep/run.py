@@ -14,14 +14,13 @@ import xarray as xr
 from ..types import ShardState
 from .dask import run_shards_dask
 from .errors import SweepError
+from .manifest import STORE, StoreError, SweepLock, fault
 from .plan import SweepPlan, apply_memory_limit, plan_sweep, resolve_dt
 from .progress import ProgressBar
 from .shard import compute_and_write, compute_shard, template_dataset
 from .spec import SweepSpec, load_spec
-from .store import (
-    STORE, ShardWriter, StoreError, SweepLock, SweepStore, _log, export_netcdf, fault, read_run, shard_states, status,
-    status_from_output, time_coord,
-)
+from .status import read_run, shard_states, status, status_from_output
+from .store import ShardWriter, SweepStore, _log, export_netcdf, time_coord
 
 log = logging.getLogger(__name__)
 

@@ -1,5 +1,6 @@
 """The streaming sweep store: shards write into one chunked Zarr store as they finish; no combine pass.
-(:mod:`.run` drives it; :mod:`.shard` writes one shard from a Dask worker.)
+(:mod:`.run` drives it; :mod:`.shard` writes one shard from a Dask worker; :mod:`.manifest` holds
+the manifest, checksums, lock and atomic writes; :mod:`.status` reports a run from them.)
 
 Files for ``OUT.nc``::
 
@@ -24,7 +25,6 @@ import json
 import os
 import queue
 import shutil
-import signal
 import sys
 import threading
 import time as _time
@@ -35,186 +35,18 @@ import xarray as xr
 
 from .. import io as D
 from ..provenance import warp_version
-from ..types import ShardState, Status
-from .errors import SweepError
+from ..types import ShardState
+from .manifest import (
+    FORMAT, MANIFEST, SPEC_COPY, STORE, Manifest, StoreError, _atomic_write_text, _fsync_path, array_sha256, fault,
+    work_dir_for,
+)
 
-STORE = "store.zarr"
-MANIFEST = "manifest.json"
-SPEC_COPY = "spec.toml"
-FORMAT = "warp_tensegrity-store-1"
 IN_FLIGHT = 2
 """Shards alive on the host at once in a serial run: one stepping, one being written."""
 HOST_COPIES = 4
 """Host bytes a shard needs while stepping and measuring, in units of its output bytes
 (engine arrays, their float64 copies, measurement temporaries); calibrated by
 tests/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
-
-FAULT_ENV = "WARP_TENSEGRITY_FAULT"
-FAULT_FILE_ENV = "WARP_TENSEGRITY_FAULT_FILE"
-FAULT_POINTS = ("stepping", "write-begin", "mid-write", "before-mark", "after-mark", "finalise", "mid-export",
-                "before-replace")
-
-
-class StoreError(SweepError):
-    """The store cannot be used as asked; the message says what to do."""
-
-
-# ---------------------------------------------------------------------- fault hook (tests)
-_fault_hits: dict = {}
-
-
-def fault(point: str) -> None:
-    """Test hook: with ``WARP_TENSEGRITY_FAULT=POINT[@HIT][:ACTION]`` the HIT-th (default 1st)
-    arrival at POINT kills this process with SIGKILL (ACTION ``kill``), or touches
-    ``$WARP_TENSEGRITY_FAULT_FILE`` and waits to be killed (``pause``) or goes on (``mark``:
-    the test then kills after a random delay). Unset: does nothing."""
-    spec = os.environ.get(FAULT_ENV)
-    if not spec:
-        return
-    name, _, action = spec.partition(":")
-    name, _, hit = name.partition("@")
-    if name != point:
-        return
-    _fault_hits[point] = _fault_hits.get(point, 0) + 1
-    if _fault_hits[point] != int(hit or 1):
-        return
-    action = action or "kill"
-    marker = os.environ.get(FAULT_FILE_ENV)
-    if marker and action in ("pause", "mark"):
-        Path(marker).write_text(point)
-    if action == "kill":
-        os.kill(os.getpid(), signal.SIGKILL)
-    elif action == "pause":
-        while True:
-            _time.sleep(1.0)
-
-
-# ---------------------------------------------------------------------- paths
-def work_dir_for(out) -> Path:
-    out = Path(out)
-    return out.with_name(out.name + ".sweep")
-
-
-def lock_path_for(out) -> Path:
-    out = Path(out)
-    return out.with_name(f".{out.name}.lock")
-
-
-def _fsync_path(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    """Temporary file in the same directory, fsync, os.replace, fsync of the directory."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_path(path.parent)
-
-
-# ---------------------------------------------------------------------- locking
-class SweepLock:
-    """An exclusive lock on an output (filelock): a second run into the same output fails at once."""
-
-    def __init__(self, out):
-        from filelock import FileLock
-
-        self.out = Path(out)
-        self.path = lock_path_for(out)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({e.filename})") from None
-        self._lock = FileLock(str(self.path), timeout=0)
-
-    def __enter__(self):
-        from filelock import Timeout
-
-        try:
-            self._lock.acquire()
-        except Timeout:
-            raise StoreError(
-                f"{self.out} is being written by another run (lock {self.path} is held); wait for that "
-                f"run to finish, or give another output"
-            ) from None
-        except OSError as e:  # a directory we may not write (Timeout is an OSError too: caught above)
-            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({self.path})") from None
-        return self
-
-    def __exit__(self, *exc):
-        self._lock.release()
-        return False
-
-
-# ---------------------------------------------------------------------- checksums
-def _canonical(a: np.ndarray) -> np.ndarray:
-    """NaN payloads canonicalised (the CF encoding may rewrite them), C order."""
-    a = np.ascontiguousarray(a)
-    if a.dtype.kind == "f" and np.isnan(a).any():
-        a = np.where(np.isnan(a), np.nan, a).astype(a.dtype)
-    return a
-
-
-def array_sha256(a) -> str:
-    a = np.asarray(a)
-    h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
-    if a.dtype.kind == "O":
-        h.update("\x00".join(map(str, a.ravel())).encode())
-    else:
-        h.update(_canonical(a).tobytes())
-    return h.hexdigest()
-
-
-def _content_sha(content: dict) -> str:
-    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
-
-
-# ---------------------------------------------------------------------- manifest
-class Manifest:
-    """The store's header and done-shard records; rewritten atomically on every change."""
-
-    def __init__(self, path: Path, content: dict):
-        self.path = path
-        self.content = content
-        self._lock = threading.Lock()
-
-    @property
-    def shards(self) -> dict:
-        return self.content["shards"]
-
-    def save(self) -> None:
-        with self._lock:
-            body = json.dumps({**self.content, "sha256": _content_sha(self.content)}, indent=1, sort_keys=True)
-            _atomic_write_text(self.path, body + "\n")
-
-    def mark_done(self, index: int, record: dict) -> None:
-        self.shards[str(index)] = record
-        self.save()
-
-    @staticmethod
-    def read(path: Path) -> tuple[dict | None, str]:
-        """(content, '') or (None, why it cannot be used)."""
-        try:
-            raw = json.loads(path.read_text())
-        except FileNotFoundError:
-            return None, "no manifest"
-        except (OSError, ValueError, UnicodeDecodeError) as e:
-            return None, f"manifest does not parse ({type(e).__name__}: {e})"
-        if not isinstance(raw, dict) or "sha256" not in raw:
-            return None, "manifest has no checksum"
-        sha = raw.pop("sha256")
-        if _content_sha(raw) != sha:
-            return None, "manifest checksum does not match its contents"
-        if raw.get("format") != FORMAT:
-            return None, f"manifest format {raw.get('format')!r}, expected {FORMAT!r}"
-        return raw, ""
 
 
 # ---------------------------------------------------------------------- layout
@@ -639,113 +471,3 @@ class ShardWriter:
 def _log(msg: str, stream=None) -> None:
     print(f"warp-tensegrity: {msg}", file=stream or sys.stderr)
 
-
-# ---------------------------------------------------------------------- whole sweeps
-def shard_states(store: SweepStore, plan, verify: bool = True) -> list[tuple[int, str, str]]:
-    """(index, state, reason) per shard: state 'done', 'missing', 'stale' or 'corrupt'."""
-    group = None
-    if verify and store.manifest is not None and store.manifest.shards:
-        import zarr
-
-        try:
-            group = zarr.open_group(str(store.zarr), mode="r")
-        except Exception:
-            group = None
-    out = []
-    for i in range(plan.n_shards):
-        if not verify:
-            recorded = str(i) in (store.manifest.shards if store.manifest else {})
-            out.append((i, ShardState.DONE if recorded else ShardState.MISSING, ""))
-            continue
-        state, why = store.verify_shard(plan, i, group)
-        out.append((i, state, why))
-    return out
-
-
-def status(plan, time: np.ndarray) -> dict:
-    """Columns done, diverged and remaining; shards verified against their checksums (``time``:
-    the plan's output times, those of :func:`~warp_tensegrity.sweep.shard.template_dataset`)."""
-    store = SweepStore(plan.out)
-    manifest = None
-    why = "no store"
-    if store.exists():
-        manifest, why = store.open(plan, time)
-    if manifest is None:
-        states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
-        if store.exists():  # a readable manifest of another spec/code/layout: stale; else corrupt
-            kind = ShardState.STALE if Manifest.read(store.manifest_path)[0] is not None else ShardState.CORRUPT
-            states = [(i, kind, why) for i in range(plan.n_shards)]
-    else:
-        states = shard_states(store, plan)
-    done = [i for i, s, _ in states if s == ShardState.DONE]
-    cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in done)
-    exported = False
-    if plan.out.exists():
-        try:
-            with xr.open_dataset(plan.out, engine="netcdf4") as ds:
-                exported = ds.attrs.get("fingerprint") == plan.fingerprint
-        except Exception:
-            exported = False
-    return {
-        "output": str(plan.out),
-        "store": str(store.dir),
-        "spec": plan.spec.source,
-        "columns": plan.n_columns,
-        "shards": plan.n_shards,
-        "shard_size": plan.shard_size,
-        "shards_done": len(done),
-        "cases_done": cols,
-        "cases_diverged": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done) if manifest else 0,
-        "cases_remaining": plan.n_columns - cols,
-        "shards_missing": [i for i, s, _ in states if s == ShardState.MISSING],
-        "shards_stale": [(i, r) for i, s, r in states if s == ShardState.STALE],
-        "shards_corrupt": [(i, r) for i, s, r in states if s == ShardState.CORRUPT],
-        "combined": exported and len(done) == plan.n_shards,
-        "fingerprint": plan.fingerprint,
-    }
-
-
-def read_run(out) -> dict:
-    """What ``resume OUT.nc`` needs: the spec text and the manifest header (if it checks out)."""
-    store = SweepStore(out)
-    if not store.dir.is_dir():
-        raise SweepError(f"no run found for {out}: {store.dir}/ does not exist "
-                         f"(start one with `warp-tensegrity run SPEC -o {out}`)")
-    try:
-        text = (store.dir / SPEC_COPY).read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise SweepError(f"{store.dir} has no readable {SPEC_COPY} ({e}); give the spec: resume SPEC -o {out}") from None
-    content, _ = Manifest.read(store.manifest_path)
-    if content is None:  # the manifest is gone or damaged: the spec's path is also in the store's attributes
-        try:
-            src = xr.open_zarr(store.zarr, consolidated=False).attrs.get("spec_source", "none")
-            content = {"spec_file": None if src == "none" else src,
-                       "spec_sha256": hashlib.sha256(text.encode()).hexdigest()}
-        except Exception:
-            content = None
-    content = dict(content or {})
-    if content and content.get("spec_sha256") != hashlib.sha256(text.encode()).hexdigest():
-        content = {}  # the spec copy is not the one the manifest recorded: trust neither header nor shards
-    content["spec_text"] = text
-    return content
-
-
-def shard_dir_for(out) -> Path:
-    """The run's work directory (store, manifest, spec copy)."""
-    return work_dir_for(out)
-
-
-def status_from_output(out) -> dict:
-    """Status of an exported netCDF output whose store is gone (deleted after the run)."""
-    try:
-        ds = D.open_sweep(out)
-    except Exception as e:
-        raise SweepError(f"{out} does not open ({type(e).__name__}: {e}) and has no store") from None
-    n = int(ds.attrs.get("n_columns", ds["status"].size))
-    return {
-        "output": str(out), "store": None, "spec": ds.attrs.get("spec_file"), "columns": n, "shards": 0,
-        "shard_size": 0, "shards_done": 0, "cases_done": n,
-        "cases_diverged": int((ds["status"].values != Status.OK).sum()), "cases_remaining": 0,
-        "shards_missing": [], "shards_stale": [], "shards_corrupt": [], "combined": True,
-        "fingerprint": ds.attrs.get("fingerprint"),
-    }

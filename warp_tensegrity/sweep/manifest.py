@@ -1,0 +1,198 @@
+"""The sweep store's durable bookkeeping: file names and paths, atomic writes, the output's lock,
+array checksums and the manifest that records the done shards (with its own sha256); and the
+fault hook the crash tests arm. :mod:`.store` writes the Zarr store on top of it.
+
+Nothing here imports xarray, Zarr or Warp.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import threading
+import time as _time
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SweepError
+
+STORE = "store.zarr"
+MANIFEST = "manifest.json"
+SPEC_COPY = "spec.toml"
+FORMAT = "warp_tensegrity-store-1"
+
+# the fault hook's environment and the points the code passes it
+FAULT_ENV = "WARP_TENSEGRITY_FAULT"
+FAULT_FILE_ENV = "WARP_TENSEGRITY_FAULT_FILE"
+FAULT_POINTS = ("stepping", "write-begin", "mid-write", "before-mark", "after-mark", "finalise", "mid-export",
+                "before-replace")
+
+
+class StoreError(SweepError):
+    """The store cannot be used as asked; the message says what to do."""
+
+
+# ---------------------------------------------------------------------- fault hook (tests)
+_fault_hits: dict = {}
+
+
+def fault(point: str) -> None:
+    """Test hook: with ``WARP_TENSEGRITY_FAULT=POINT[@HIT][:ACTION]`` the HIT-th (default 1st)
+    arrival at POINT kills this process with SIGKILL (ACTION ``kill``), or touches
+    ``$WARP_TENSEGRITY_FAULT_FILE`` and waits to be killed (``pause``) or goes on (``mark``:
+    the test then kills after a random delay). Unset: does nothing."""
+    spec = os.environ.get(FAULT_ENV)
+    if not spec:
+        return
+    name, _, action = spec.partition(":")
+    name, _, hit = name.partition("@")
+    if name != point:
+        return
+    _fault_hits[point] = _fault_hits.get(point, 0) + 1
+    if _fault_hits[point] != int(hit or 1):
+        return
+    action = action or "kill"
+    marker = os.environ.get(FAULT_FILE_ENV)
+    if marker and action in ("pause", "mark"):
+        Path(marker).write_text(point)
+    if action == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    elif action == "pause":
+        while True:
+            _time.sleep(1.0)
+
+
+# ---------------------------------------------------------------------- paths
+def work_dir_for(out) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".sweep")
+
+
+def lock_path_for(out) -> Path:
+    out = Path(out)
+    return out.with_name(f".{out.name}.lock")
+
+
+def shard_dir_for(out) -> Path:
+    """The run's work directory (store, manifest, spec copy)."""
+    return work_dir_for(out)
+
+
+def _fsync_path(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    """Temporary file in the same directory, fsync, os.replace, fsync of the directory."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_path(path.parent)
+
+
+# ---------------------------------------------------------------------- locking
+class SweepLock:
+    """An exclusive lock on an output (filelock): a second run into the same output fails at once."""
+
+    def __init__(self, out):
+        from filelock import FileLock
+
+        self.out = Path(out)
+        self.path = lock_path_for(out)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({e.filename})") from None
+        self._lock = FileLock(str(self.path), timeout=0)
+
+    def __enter__(self):
+        from filelock import Timeout
+
+        try:
+            self._lock.acquire()
+        except Timeout:
+            raise StoreError(
+                f"{self.out} is being written by another run (lock {self.path} is held); wait for that "
+                f"run to finish, or give another output"
+            ) from None
+        except OSError as e:  # a directory we may not write (Timeout is an OSError too: caught above)
+            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({self.path})") from None
+        return self
+
+    def __exit__(self, *exc):
+        self._lock.release()
+        return False
+
+
+# ---------------------------------------------------------------------- checksums
+def _canonical(a: np.ndarray) -> np.ndarray:
+    """NaN payloads canonicalised (the CF encoding may rewrite them), C order."""
+    a = np.ascontiguousarray(a)
+    if a.dtype.kind == "f" and np.isnan(a).any():
+        a = np.where(np.isnan(a), np.nan, a).astype(a.dtype)
+    return a
+
+
+def array_sha256(a) -> str:
+    a = np.asarray(a)
+    h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+    if a.dtype.kind == "O":
+        h.update("\x00".join(map(str, a.ravel())).encode())
+    else:
+        h.update(_canonical(a).tobytes())
+    return h.hexdigest()
+
+
+def _content_sha(content: dict) -> str:
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+
+# ---------------------------------------------------------------------- manifest
+class Manifest:
+    """The store's header and done-shard records; rewritten atomically on every change."""
+
+    def __init__(self, path: Path, content: dict):
+        self.path = path
+        self.content = content
+        self._lock = threading.Lock()
+
+    @property
+    def shards(self) -> dict:
+        return self.content["shards"]
+
+    def save(self) -> None:
+        with self._lock:
+            body = json.dumps({**self.content, "sha256": _content_sha(self.content)}, indent=1, sort_keys=True)
+            _atomic_write_text(self.path, body + "\n")
+
+    def mark_done(self, index: int, record: dict) -> None:
+        self.shards[str(index)] = record
+        self.save()
+
+    @staticmethod
+    def read(path: Path) -> tuple[dict | None, str]:
+        """(content, '') or (None, why it cannot be used)."""
+        try:
+            raw = json.loads(path.read_text())
+        except FileNotFoundError:
+            return None, "no manifest"
+        except (OSError, ValueError, UnicodeDecodeError) as e:
+            return None, f"manifest does not parse ({type(e).__name__}: {e})"
+        if not isinstance(raw, dict) or "sha256" not in raw:
+            return None, "manifest has no checksum"
+        sha = raw.pop("sha256")
+        if _content_sha(raw) != sha:
+            return None, "manifest checksum does not match its contents"
+        if raw.get("format") != FORMAT:
+            return None, f"manifest format {raw.get('format')!r}, expected {FORMAT!r}"
+        return raw, ""
