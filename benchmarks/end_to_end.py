@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -137,6 +138,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="JSON output (default benchmarks/results/end_to_end_<device>.json)")
     p.add_argument("--repeat", type=int, default=1, help="runs per spec (each a record)")
     p.add_argument("--append", action="store_true", help="keep the records already in the output file")
+    p.add_argument("--keep", default=None, help="copy each spec's output netCDF into this folder")
     p.add_argument("--child", nargs=3, metavar=("SPEC", "OUT_NC", "RECORD"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.child:
@@ -199,6 +201,9 @@ def main(argv=None) -> int:
                 record["tail_over_stepping"] = tail / st["stepping"] if st["stepping"] else None
                 records.append(record)
                 out_path.write_text(json.dumps(records, indent=1, default=str) + "\n")  # after every run
+                if a.keep:
+                    Path(a.keep).mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(out, Path(a.keep) / Path(out).name)
                 print(f"{spec}: wall {rec['wall_s']:.2f} s (estimate {est['seconds']:.2f} s, "
                       f"{100 * record['estimate_error']:+.0f} %); " + ", ".join(f"{k} {v:.3g}" for k, v in st.items())
                       + f"; other {rec['other_s']:.3g}; peak RSS {rec['peak_rss_bytes'] / 1e6:.0f} MB", flush=True)
