@@ -108,12 +108,8 @@ VAR_ATTRS = {
     },
     "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism",
                      "comment": "NaN at the prisms the pulse had not reached by t_end"},
-    "measurement_flag": {
-        "standard_name": "status_flag",
-        "long_name": "why the pulse measures of the column are NaN (ok: all defined; docs/measurements.md)",
-        "flag_values": np.arange(len(MEASUREMENT_FLAGS), dtype=np.int8),
-        "flag_meanings": " ".join(MEASUREMENT_FLAGS),
-    },
+    "measurement_flag": flag_attrs("why the pulse measures of the column are NaN (ok: all defined; "
+                                   "docs/measurements.md)", dict(enumerate(MEASUREMENT_FLAGS))),
     "status": flag_attrs("column status at the end of the run", STATUS_NAMES),
     "fail_step": {"units": "1", "long_name": "time step at which a failed column was frozen (-1: never failed)"},
     "energy_error": {
@@ -233,7 +229,6 @@ def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int,
         else:
             coords[p] = _var(p, (), np.float64(v[0]), COORD_ATTRS[p])
     return coords
-
 
 
 def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,

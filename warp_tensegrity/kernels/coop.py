@@ -92,7 +92,6 @@ def make_block_max(real):
 def make_block_funcs(real, S: int):
     """S x S block helpers over a column's solver rows x (row-major blocks at an offset):
     loads and stores of blocks, vectors and columns, streamed mat-vecs, the SPD block inverse."""
-    SS = S * S
     mat = wp.types.matrix((S, S), real)
     vecS = wp.types.vector(S, real)
 

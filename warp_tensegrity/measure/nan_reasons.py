@@ -49,9 +49,11 @@ reference state is ~1e-14)."""
 # prisms beyond the window's far end the front must pass for the last peak to be over
 _PEAK_CLEARANCE = 4
 
+
 def measure_columns(result, prism_height: float) -> dict:
-    """Leading-pulse measurements per column (:func:`~warp_tensegrity.measure.pulse.measure_pulse`, or the engine's device measures);
-    NaN where undefined and for every column whose status is not ok. ``prism_height`` [m]."""
+    """Leading-pulse measurements per column: the engine's device measures, else
+    :func:`~warp_tensegrity.measure.pulse.measure_pulse` on the record; NaN where undefined and for
+    every column whose status is not ok, with the flag saying why. ``prism_height`` [m]."""
     status = np.asarray(result.status)
     m = getattr(result, "measurements", None)  # taken by the engine (on the device by default)
     if m is None:
