@@ -23,7 +23,8 @@ LAYERS = [
      "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version", "lens.host",
      "lens.design"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.fused", "kernels",
-     "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs", "measure.device", "sweep.parse"},
+     "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs", "measure.device_kernels",
+     "measure.device", "sweep.parse"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "sweep.status", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},
