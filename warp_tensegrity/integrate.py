@@ -23,7 +23,8 @@ import numpy as np
 import warp as wp
 
 from .kernels.fused import FusedStep
-from .kernels.staged import make_kernels, make_solver_kernels
+from .kernels.staged import make_kernels
+from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
 from .settings import RunSettings, SettingsError
 from .types import Method, Path, RKStage

@@ -3,7 +3,7 @@
 * :mod:`.common`: the ``@wp.func`` bodies both paths share (cable law, per-column reads, Gram
   rows, impulses, status codes, the serial banded Cholesky), each written once;
 * :mod:`.staged`: one kernel per stage (per-node kernels and one thread per column for the
-  constraint solves); every method;
+  constraint solves, the latter in :mod:`.staged_solver`); every method;
 * :mod:`.fused`: RATTLE as one kernel, a thread block per column, several steps per launch,
   the constraint solve by block cyclic reduction across the block's lanes or (``solver="serial"``)
   by lane 0 with the staged threads' banded Cholesky (:func:`.common.make_band_funcs`);
@@ -14,7 +14,8 @@
 from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK
 from .coop import solver_reals
 from .fused import FusedStep, make_fused_kernels, shared_plan
-from .staged import make_kernels, make_solver_kernels
+from .staged import make_kernels
+from .staged_solver import make_solver_kernels
 
 __all__ = [
     "STATUS_CONSTRAINT", "STATUS_NONFINITE", "STATUS_OK", "FusedStep", "make_fused_kernels",

@@ -46,7 +46,7 @@ from .device_kernels import (
     snapshots,
     track,
 )
-from .pulse import (
+from .pulse_core import (
     DEFAULT_END_FRACTION,
     DEFAULT_THRESHOLD_FRACTION,
     REFINED_THRESHOLD_FRACTION,
@@ -184,7 +184,7 @@ def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact
 def measure_host(result, prism_height, keep_strain: bool = True) -> None:
     """The fallback (RunSettings.measure = 'host'): NumPy reference on the host copy of the record;
     sets ``result.measurements`` and the ``measurement`` stage seconds; drops the strain unless kept."""
-    from .pulse import measure_pulse
+    from .pulse_core import measure_pulse
 
     t0 = _time.perf_counter()
     if result.strain is not None:

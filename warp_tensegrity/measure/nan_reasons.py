@@ -37,7 +37,7 @@ import numpy as np
 
 from ..types import MEASUREMENT_FLAGS as FLAGS
 from ..types import TIME
-from .pulse import measure_pulse, measurement_window
+from .pulse_core import measure_pulse, measurement_window
 
 FLAG = {name: i for i, name in enumerate(FLAGS)}
 FLAGGED = ("amplitude", "speed", "width", "width_10", "prisms_measured", "max_compression")

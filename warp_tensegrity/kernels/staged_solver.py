@@ -1,0 +1,351 @@
+"""Per-column constraint-solver kernels of the staged step (one thread per column), generated once
+per precision and Gram half-bandwidth: position projection (SHAKE / RATTLE), factor-and-project
+velocities, factor only, and the index-1 constrained acceleration.
+
+Each thread assembles its column's Gram matrix G M^-1 G^T row by row and factors it as a banded
+Cholesky (:func:`.common.make_band_funcs`), which handles bars sharing nodes and rigid-link loops
+alike. Layout and argument grouping as in :mod:`.staged` (the per-node kernels and the records).
+"""
+
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+from .common import (
+    STATUS_CONSTRAINT,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    bar_residual,
+    finite3,
+    make_band_funcs,
+    make_gram_row,
+    member_vec,
+    node_impulse,
+    set_failure,
+)
+
+wp.set_module_options({"enable_backward": False})
+
+
+@functools.cache
+def _assemble_funcs(real, bandwidth: int, bar_window: bool):
+    """Gram assembly of one column thread, each row factored as it is assembled: from
+    common.gram_row (reload) or with the last bandwidth + 1 bar vectors in registers (window)."""
+    vec = wp.types.vector(3, real)
+    BW = int(bandwidth)
+    LD = BW + 1
+    gram_row, rowvec = make_gram_row(real, BW)
+    factor_store_row = make_band_funcs(real, bandwidth).factor_store_row
+
+    @wp.func
+    def assemble_factor_reload(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
+    ):
+        """Assemble each row k of A = G M^-1 G^T at u in registers (common.gram_row), factor it
+        and store it. Returns False on a non-positive pivot."""
+        wa = w % con_active.shape[1]  # column w's index into per-column parameters (hoisted)
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
+        ok = bool(True)
+        for k in range(con_i.shape[0]):
+            r = gram_row(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                         minv_self, minv_cross, u, w, k, wa, ws, wx)
+            if not factor_store_row(band, r, k, w):
+                ok = False
+        return ok
+
+    @wp.func
+    def assemble_factor_window(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), band: wp.array3d(dtype=real), w: int,
+    ):
+        """As assemble_factor_reload, with the bar vectors of rows k-BW..k kept in registers (zero
+        for an inactive row): each is loaded once instead of once per coupling term (possible
+        only because this thread assembles the rows in order)."""
+        nc = con_i.shape[0]
+        wa = w % con_active.shape[1]
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
+        bx = rowvec()  # bx[e], by[e], bz[e]: bar vector of row k - e
+        by = rowvec()
+        bz = rowvec()
+        ok = bool(True)
+        for k in range(nc):
+            for e in range(BW):
+                bx[BW - e] = bx[BW - 1 - e]
+                by[BW - e] = by[BW - 1 - e]
+                bz[BW - e] = bz[BW - 1 - e]
+            r = rowvec()
+            # zero for an inactive row (no branch: a generic function's vector type must not
+            # replace a variable declared as another vector class inside an if)
+            on = wp.where(con_active[k, wa] > real(0.0), real(1.0), real(0.0))
+            bk = member_vec(con_dref, con_i, con_j, u, k, w) * on
+            bx[0] = bk[0]
+            by[0] = bk[1]
+            bz[0] = bk[2]
+            if con_active[k, wa] > real(0.0):
+                for t in range(cpl_start[k], cpl_start[k + 1]):
+                    na = cpl_a[t]
+                    m = minv_self[na, ws]
+                    if cpl_cross[t] != 0:
+                        m = minv_cross[na, wx]
+                    sm = cpl_sign[t] * m
+                    d = k - cpl_l[t]
+                    for e in range(LD):
+                        if d == e:
+                            r[e] += sm * (bk[0] * bx[e] + bk[1] * by[e] + bk[2] * bz[e])
+            else:
+                r[0] = real(1.0)
+            if not factor_store_row(band, r, k, w):
+                ok = False
+        return ok
+
+    return assemble_factor_window if bar_window else assemble_factor_reload
+
+
+@functools.cache
+def _projection_funcs(real, bandwidth: int):
+    """Impulse application and the rate projection of one column thread."""
+    vec = wp.types.vector(3, real)
+    band_solve = make_band_funcs(real, bandwidth).band_solve
+
+    @wp.func
+    def apply_impulse(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        ug: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        scale: real, y: wp.array2d(dtype=vec), scale2: real, y2: wp.array2d(dtype=vec), w: int,
+    ):
+        """y -= scale * M^-1 G(ug)^T lam and y2 -= scale2 * M^-1 G(ug)^T lam. A node whose M^-1
+        row is its own (partner -1) is updated at once; a massive bar's two free nodes go
+        through imp, then M^-1 couples them."""
+        nn = imp.shape[0]
+        ws = w % minv_self.shape[1]
+        wx = w % minv_cross.shape[1]
+        n_coupled = int(0)
+        for n in range(nn):
+            g = node_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, ug, w, lam, w, n)
+            if partner[n] < 0:
+                d = g * minv_self[n, ws]
+                y[n, w] = y[n, w] - d * scale
+                if scale2 != real(0.0):
+                    y2[n, w] = y2[n, w] - d * scale2
+            else:
+                imp[n, w] = g
+                n_coupled += 1
+        if n_coupled > 0:
+            for n in range(nn):
+                p = partner[n]
+                if p >= 0:
+                    d = imp[n, w] * minv_self[n, ws] + imp[p, w] * minv_cross[n, wx]
+                    y[n, w] = y[n, w] - d * scale
+                    if scale2 != real(0.0):
+                        y2[n, w] = y2[n, w] - d * scale2
+
+    @wp.func
+    def project_rates(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec),
+        with_bdot: int, band: wp.array3d(dtype=real), y: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real),
+        imp: wp.array2d(dtype=vec), w: int,
+    ):
+        """With the band holding the factor of A(u): solve A lam = G(u) y (+ |b'|^2 if with_bdot, the
+        index-1 acceleration term) and set y -= M^-1 G(u)^T lam. y = v: velocity projection; y = a:
+        constrained acceleration."""
+        wa = w % con_active.shape[1]
+        for k in range(con_i.shape[0]):
+            r = real(0.0)
+            if con_active[k, wa] > real(0.0):
+                b = member_vec(con_dref, con_i, con_j, u, k, w)
+                r = wp.dot(b, y[con_j[k], w] - y[con_i[k], w])
+                if with_bdot != 0:
+                    bd = v[con_j[k], w] - v[con_i[k], w]
+                    r += wp.dot(bd, bd)
+            lam[k, w] = r
+        band_solve(band, lam, lam.shape[0], w)
+        apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, u, lam,
+                      imp, real(1.0), y, real(0.0), y, w)
+
+    return SimpleNamespace(apply_impulse=apply_impulse, project_rates=project_rates)
+
+
+@functools.cache
+def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
+    """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
+    the Gram-matrix half-bandwidth ``bandwidth`` compiled in (see :func:`.common.make_band_funcs`).
+    ``max_registers`` caps the registers per CUDA thread (``__maxnreg__``; None: the compiler's
+    choice). ``bar_window`` keeps the bar vectors of the last ``bandwidth`` + 1 rows in registers
+    while the Gram matrix is assembled (None: for fp32 only; fp64 spills them at 64 registers)."""
+    if bar_window is None:
+        bar_window = real == wp.float32
+    kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
+    ns = SimpleNamespace(real=real, bandwidth=int(bandwidth))
+    ns.project_positions = _position_kernel(real, bandwidth, bar_window, kopts)
+    ns.__dict__.update(vars(_factor_kernels(real, bandwidth, bar_window, kopts)))
+    return ns
+
+
+def _position_kernel(real, bandwidth, bar_window, kopts):
+    vec = wp.types.vector(3, real)
+    fb = make_band_funcs(real, bandwidth)
+    band_solve, apply_impulse = fb.band_solve, _projection_funcs(real, bandwidth).apply_impulse
+
+    @wp.kernel(**kopts)
+    def project_positions(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_L: wp.array(dtype=real), con_active: wp.array2d(dtype=real),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        tol: real, max_iter: int, fail_tol: real, inv_dt: real,
+        # Data in:
+        band: wp.array3d(dtype=real), ug: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Simplified Newton onto |b_k| = L_k along M^-1 G(ug)^T, with the band holding the factor of
+        G(ug) M^-1 G(ug)^T. v -= inv_dt * du (RATTLE's velocity update; 0 for plain projection)."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        nc = con_i.shape[0]
+        wa = w % con_active.shape[1]
+        err = real(0.0)
+        prev = real(0.0)
+        it = int(0)
+        while True:
+            prev = err
+            err = real(0.0)
+            for k in range(nc):
+                r = real(0.0)
+                if con_active[k, wa] > real(0.0):
+                    r, e = bar_residual(member_vec(con_dref, con_i, con_j, u, k, w), con_L[k])
+                    if not (e <= err):  # also catches NaN
+                        err = e
+                lam[k, w] = r
+            if err <= tol or it >= max_iter:
+                break
+            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
+                break  # stalled at round-off just above tol: more iterations cannot help
+            band_solve(band, lam, lam.shape[0], w)
+            apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, ug,
+                          lam, imp, real(1.0), u, inv_dt, v, w)
+            it += 1
+        iters[w] = wp.max(iters[w], it)
+        if not wp.isfinite(err):
+            set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
+        elif err > fail_tol:
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        if err > bar_err[w]:
+            bar_err[w] = err
+
+    return project_positions
+
+
+def _factor_kernels(real, bandwidth, bar_window, kopts):
+    vec = wp.types.vector(3, real)
+    assemble_factor = _assemble_funcs(real, bandwidth, bar_window)
+    project_rates = _projection_funcs(real, bandwidth).project_rates
+
+    @wp.func
+    def factor_or_flag(
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real), u: wp.array2d(dtype=vec),
+        step: wp.array(dtype=int), band: wp.array3d(dtype=real), status: wp.array(dtype=int),
+        fail_step: wp.array(dtype=int), w: int,
+    ):
+        """Factor A(u) into the band; False (and column w flagged) if it is not positive definite."""
+        ok = assemble_factor(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                             minv_self, minv_cross, u, band, w)
+        if not ok:
+            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        return ok
+
+    @wp.kernel(**kopts)
+    def factor_project_velocities(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        # Data in:
+        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Factor A(u) (kept for the next position projection) and project v onto G(u) v = 0."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                              minv_self, minv_cross, u, step, band, status, fail_step, w):
+            return
+        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                      u, v, 0, band, v, lam, imp, w)
+        for n in range(u.shape[0]):
+            if not finite3(v[n, w]):
+                set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
+                return
+
+    @wp.kernel(**kopts)
+    def factor_only(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        # Data in:
+        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                       minv_self, minv_cross, u, step, band, status, fail_step, w)
+
+    @wp.kernel(**kopts)
+    def constrained_accel(
+        # Model:
+        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
+        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
+        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
+        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
+        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        # Data in:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        band: wp.array3d(dtype=real), a: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
+        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+    ):
+        """Index-1 multipliers: A lam = G a_free + |b'|^2; a -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
+        w = wp.tid()
+        if status[w] != STATUS_OK:
+            return
+        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
+                              minv_self, minv_cross, u, step, band, status, fail_step, w):
+            return
+        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                      u, v, 1, band, a, lam, imp, w)
+
+    return SimpleNamespace(factor_project_velocities=factor_project_velocities, factor_only=factor_only,
+                           constrained_accel=constrained_accel)
