@@ -423,13 +423,15 @@ def test_peak_rss_stays_under_the_memory_limit(tmp_path):
     """A sweep whose output is > 4x the memory limit: the host memory the sweep adds to the process
     (peak RSS minus the RSS after imports, kernel loads and a 2-column warm-up run) stays under it."""
     cap = 32_000_000
-    n_v0, n_pre = 50, 40  # 2000 columns x 1001 outputs x (6 prisms + 2 energies) x 8 B = 128 MB
+    # 3100 columns x 101 outputs x (50 prisms + 2 energies) x 8 B = 132 MB; truncated runs (18 prisms
+    # stepped, padded to 50), so the plan's and the template's estimates see 3100 full columns at once
+    n_v0, n_pre = 62, 50
     spec = GRID_SPEC.replace(
         "grid = { prestrain = [0.0, 0.002], v0 = [0.003, 0.006], base_rigidity = [0.0, 1.0] }",
         f"grid = {{ v0 = {[round(0.002 + 1e-4 * i, 6) for i in range(n_v0)]}, "
         f"prestrain = {[round(5e-5 * i, 7) for i in range(n_pre)]} }}",
-    ).replace("t_end = 0.2", "t_end = 0.4").replace("output_interval = 0.005", "output_interval = 0.0004").replace(
-        "shard_size = 3", "shard_size = 100000")
+    ).replace("t_end = 0.2", "t_end = 0.04").replace("output_interval = 0.005", "output_interval = 0.0004").replace(
+        "shard_size = 3", "shard_size = 100000").replace("n_prisms = 6", "n_prisms = 50")
     out = tmp_path / "big.nc"
     r = subprocess.run([sys.executable, "-c", RSS_SCRIPT, spec, str(out), str(cap)], env=subprocess_env(),
                        capture_output=True, text=True, timeout=900)

@@ -375,8 +375,32 @@ def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings
         # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
         # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
         return n
-    probe = column_batch(_far_end(config, 4), params)  # the omega bound is a local property
-    return reachable_prisms(float(omega_max_bound(probe).max()), settings.t_end, n)
+    omega = _omega_bound(_far_end(config, 4), params)  # the omega bound is a local property
+    return reachable_prisms(omega, settings.t_end, n)
+
+
+ESTIMATE_CHUNK_BYTES = 4_000_000
+"""Host bytes of the column batches built at a time where all of a sweep's columns are only bounded
+(omega_max), at ~400 B per prism and column (measured: 2,048 50-prism columns took ~39 MB): a plan
+or an estimate does not grow with the sweep's size."""
+
+
+def _omega_bound(config: ColumnConfig, params: dict) -> float:
+    """Largest omega_max bound [rad s-1] over the columns of ``params``, a few MB of columns at a time
+    (each column's bound depends on its own parameters only)."""
+    p = column_params(config, params)
+    B, chunk = p["prestrain"].size, max(16, ESTIMATE_CHUNK_BYTES // (400 * config.n_prisms))
+    return max(float(omega_max_bound(column_batch(config, {k: v[i:i + chunk] for k, v in p.items()})).max())
+               for i in range(0, B, chunk))
+
+
+def _topology_batch(config: ColumnConfig, params: dict):
+    """A batch with the members of the whole one (rigid links only when some column has them),
+    from its first column and its first rigid-base column; and the whole batch's column count."""
+    p = column_params(config, params)
+    rigid = np.flatnonzero(p["base_rigidity"] >= Base.RIGID)
+    rows = [0] + ([int(rigid[0])] if rigid.size and rigid[0] != 0 else [])
+    return column_batch(config, {k: v[rows] for k, v in p.items()}), int(p["prestrain"].size)
 
 
 def _far_end(config: ColumnConfig, n_sim: int) -> ColumnConfig:
@@ -415,8 +439,8 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     from .model import constraint_coupling, mass_entries
 
     settings, choices = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
-    batch = column_batch(config, params)
-    omega = float(omega_max_bound(batch).max())
+    batch, B = _topology_batch(config, params)
+    omega = _omega_bound(config, params)
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     n_out = n_steps // every + 1
     r = 4 if settings.precision == "fp32" else 8
@@ -433,9 +457,9 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     if device.is_cuda:
         step_latency = 1e-4 * (nc / 150.0) * ((bw + 1) / 4.0) ** 2
         rate = 6e11 if settings.precision == "fp32" else 3e11
-        seconds = n_steps * max(step_latency, flops * batch.n_columns / rate)
+        seconds = n_steps * max(step_latency, flops * B / rate)
     else:
-        seconds = n_steps * batch.n_columns * flops * 1e-9
+        seconds = n_steps * B * flops * 1e-9
     return {
         "dt": dt,
         "dt_limit": limit,
@@ -446,9 +470,9 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "flops_per_column_step": int(flops),
         "omega_max_bound": omega,
         "bandwidth": int(bw),
-        "step_path": str(choose_path(settings, device.is_cuda, batch.n_columns, int(bw)).value),
+        "step_path": str(choose_path(settings, device.is_cuda, B, int(bw)).value),
         "on_gpu": bool(device.is_cuda),
-        "seconds_per_column_step_estimate": seconds / max(n_steps * batch.n_columns, 1),
+        "seconds_per_column_step_estimate": seconds / max(n_steps * B, 1),
         "seconds_estimate": seconds,
         "dt_safety": settings.dt_safety,
         "accuracy_target": choices.get("accuracy"),
