@@ -303,7 +303,7 @@ def integrator_bytes(integ) -> dict:
             out["data"] += sum(_array_bytes(x) for x in v.values())
         else:
             out["data"] += _array_bytes(v)
-    fk = getattr(integ, "fk", None)  # the fused step's own rows (kernels.fused.FusedStep)
+    fk = getattr(integ, "fk", None)  # the fused step's own rows (integrate.FusedStep)
     if fk is not None:
         out["data"] += _array_bytes(fk.sx) + _array_bytes(fk.sq)
     for name in ("strain", "kinetic", "elastic"):

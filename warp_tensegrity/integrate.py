@@ -16,13 +16,16 @@ Methods (one force evaluation = one ``gather_accel`` launch):
 from __future__ import annotations
 
 import gc
+from dataclasses import dataclass
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
-from .kernels.fused import FusedStep
+from .kernels.common import NQ
+from .kernels.coop import band_reals, solver_reals
+from .kernels.fused import make_fused_kernels, shared_plan
 from .kernels.staged import make_kernels
 from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
@@ -355,3 +358,66 @@ STEPS = {
     Method.SYMPLECTIC_EULER: Integrator._symplectic_euler,
 }
 """One staged step of each method: ``STEPS[method](integrator, dt)``."""
+
+
+@dataclass
+class FusedStep:
+    """Scratch and launches of the fused step for one model on one device; the Integrator calls
+    :meth:`launch` (n_sub steps or the initialisation) and :meth:`advance_counter`."""
+
+    model: object  # warp_tensegrity.model.Model
+    device: object  # wp.context.Device
+    block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
+    shared: bool = True  # solver / node rows in block shared memory where they fit
+    solver: str = "cr"  # constraint solver: "cr" (lanes in parallel) or "serial" (lane 0)
+
+    def __post_init__(self):
+        m = self.model
+        real = wp.float64 if m.precision == "fp64" else wp.float32
+        rb = 8 if real == wp.float64 else 4
+        sv = self.solver
+        self.x_cap, self.q_cap = (shared_plan(m.n_nodes, m.n_constraints, m.bandwidth, self.block_dim, rb, solver=sv)
+                                  if self.shared else (0, 0))
+        nbr = band_reals(m.n_constraints, m.bandwidth, sv)
+        self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap, sv,
+                                          max(m.n_constraints, 1) if nbr else 0)
+        k, B, d = self.kernels, m.n_columns, m.device
+        nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim, sv) - nbr
+        self.sx = wp.zeros((1, 1, 1) if self.x_cap else (B, nx, 1), dtype=real, device=d)
+        self.sb = wp.zeros((B, max(m.n_constraints, 1), m.bandwidth + 1, 1) if nbr and not self.x_cap else (1, 1, 1, 1),
+                           dtype=real, device=d)
+        self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
+        cm = k.ColumnModel()
+        for name in _STRUCT_FIELDS:
+            setattr(cm, name, getattr(m, name))
+        self.cm = cm
+        self.real = real
+
+    @property
+    def description(self) -> str:
+        where = ("shared" if self.x_cap else "global") + "/" + ("shared" if self.q_cap else "global")
+        how = "block cyclic reduction" if self.solver == "cr" else "serial banded Cholesky on lane 0"
+        name = "fused" if self.solver == "cr" else "fused-serial"
+        return f"{name} ({how}, {self.block_dim} lanes per column; solver/node rows {where})"
+
+    def load(self):
+        self.kernels.rattle_columns.module.load(self.device, self.block_dim)
+        self.kernels.advance_counter_by.module.load(self.device, 1 if not self.device.is_cuda else 256)
+
+    def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
+        r = self.real
+        wp.launch_tiled(self.kernels.rattle_columns, dim=[self.model.n_columns], block_dim=self.block_dim,
+                        device=self.device, inputs=[
+                            self.cm, r(settings.tolerance), int(settings.max_projection_iters),
+                            r(settings.failure_bar_error), r(dt), int(n_sub), int(init), data.step,
+                            data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
+                            self.sq, self.sx, self.sb])
+
+    def advance_counter(self, data, n: int):
+        wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device,
+                  block_dim=1 if not self.device.is_cuda else 256)
+
+
+_STRUCT_FIELDS = ("con_i", "con_j", "con_dref", "con_L", "con_active", "cpl_start", "cpl_l", "cpl_a", "cpl_cross",
+                  "cpl_sign", "ncon_start", "ncon_member", "cab_EA", "cab_EAc", "cab_L", "node_start", "node_member",
+                  "node_other", "node_dref", "partner", "minv_self", "minv_cross")

@@ -249,7 +249,7 @@ class Data:
 def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = False) -> Data:
     """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused`` the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders; the fused step keeps its own
-    rows, :class:`warp_tensegrity.kernels.FusedStep`)."""
+    rows, :class:`warp_tensegrity.integrate.FusedStep`)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d = model.device

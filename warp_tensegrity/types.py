@@ -116,7 +116,7 @@ class Base(float, Enum):
 
 
 class Slot(IntEnum):
-    """Slots of a node's row in the fused step's scratch (``kernels.fused.FusedStep``: rows (n, NQ) per column)."""
+    """Slots of a node's row in the fused step's scratch (``integrate.FusedStep``: rows (n, NQ) per column)."""
 
     U = 0
     """displacement [m]"""

@@ -13,11 +13,11 @@
 
 from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK
 from .coop import solver_reals
-from .fused import FusedStep, make_fused_kernels, shared_plan
+from .fused import make_fused_kernels, shared_plan
 from .staged import make_kernels
 from .staged_solver import make_solver_kernels
 
 __all__ = [
-    "STATUS_CONSTRAINT", "STATUS_NONFINITE", "STATUS_OK", "FusedStep", "make_fused_kernels",
+    "STATUS_CONSTRAINT", "STATUS_NONFINITE", "STATUS_OK", "make_fused_kernels",
     "shared_plan", "solver_reals", "make_kernels", "make_solver_kernels",
 ]
