@@ -119,10 +119,7 @@ def test_t_end_needed_extrapolates_the_front():
 
 
 @pytest.mark.slow
-def test_paper_2017_nans_are_flagged(tmp_path):
-    out = tmp_path / "paper.nc"
-    assert cli_main(["run", str(ROOT / "sweeps" / "paper_2017.toml"), "-o", str(out), "--device", "cpu",
-                     "--no-progress"]) == 0
-    ds = open_sweep(out)
+def test_paper_2017_nans_are_flagged(paper_2017_nc):
+    ds = open_sweep(paper_2017_nc)
     _check_every_nan_flagged(ds)
     assert dataset_summary(ds) == [] or all("of 12 cases" in s for s in dataset_summary(ds))
