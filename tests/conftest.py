@@ -27,7 +27,8 @@ def paper_2017_nc(tmp_path_factory):
     """The README's main job on the CPU (``warp-tensegrity run sweeps/paper_2017.toml``), run once per
     test session: the first xdist worker to need it runs it under a lock in the session's shared
     temporary directory, the others wait and read it (pytest-xdist's recipe for session data; fcntl
-    from the standard library instead of the filelock package)."""
+    from the standard library instead of the filelock package). With ``WT_TEST_SHARE`` (set by
+    .ci/test) it goes there, and .ci/notebooks gives it to the paper notebook."""
     import fcntl
     from pathlib import Path
 
@@ -36,8 +37,10 @@ def paper_2017_nc(tmp_path_factory):
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # shared by the workers of this session
-    out = root / "paper_2017_shared" / "paper_2017.nc"
-    out.parent.mkdir(exist_ok=True)
+    if os.environ.get("WT_TEST_SHARE"):  # .ci/test: the notebook step reads it too
+        root = Path(os.environ["WT_TEST_SHARE"])
+    out = root / "paper_2017" / "paper_2017.nc"
+    out.parent.mkdir(parents=True, exist_ok=True)
     spec = Path(__file__).resolve().parents[1] / "sweeps" / "paper_2017.toml"
     with open(out.parent / "lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)

@@ -3,10 +3,11 @@
 Here, in the normal test run: each .ipynb is paired with its .py (jupytext percent format) and
 has the same code.
 
-Their execution is CI's own step, ``bash .ci/notebooks`` (nbmake, both notebooks in parallel):
-each runs in a fresh kernel with its inputs pointed at files that do not exist yet, so the notebook
-makes them itself by running the command line (sweeps/paper_2017.toml, ~15 s on the CPU;
-sweeps/ci_small.toml for the phase diagrams, seconds). Figures and CSVs go to a temporary directory
+Their execution is CI's own step, ``bash .ci/notebooks`` (nbmake, two at a time): each runs in a
+fresh kernel with its inputs pointed at files that do not exist yet, so the notebook makes them
+itself by running the command line (sweeps/paper_2017.toml, ~15 s on the CPU, unless .ci/test's
+pytest step already ran that command and the step passes its output on; sweeps/ci_small.toml for
+the phase diagrams, seconds). Figures and CSVs go to a temporary directory
 (``WT_NOTEBOOK_OUT``); nothing in the repository is written. That step then runs the ``notebook``
 tests below (deselected otherwise), which check what the notebooks made.
 """
