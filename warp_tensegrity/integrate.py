@@ -388,10 +388,22 @@ class FusedStep:
                            dtype=real, device=d)
         self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
         cm = k.ColumnModel()
+        self._column_major = []  # the copies the struct's views point into (kept alive here)
         for name in _STRUCT_FIELDS:
-            setattr(cm, name, getattr(m, name))
+            a = getattr(m, name)
+            if a.ndim == 2 and a.shape[1] > 1:
+                a = self._column_view(a)
+            setattr(cm, name, a)
         self.cm = cm
         self.real = real
+
+    def _column_view(self, a):
+        """The (n, B) per-column parameter ``a`` as a view with the same shape and indexing over a
+        (B, n) copy: a block's lanes read one column's n values from adjacent addresses (coalesced),
+        where the model's layout, made for one thread per column, puts them B apart."""
+        t = wp.array(np.ascontiguousarray(a.numpy().T), dtype=a.dtype, device=a.device)
+        self._column_major.append(t)
+        return t.transpose()
 
     @property
     def description(self) -> str:
