@@ -161,7 +161,7 @@ def test_fused_node_slots_are_the_types_slots():
     from warp_tensegrity.types import Slot
 
     assert common.NQ == len(Slot)
-    assert [int(c) for c in (common.U, common.V, common.A, common.P, common.I)] == [int(s) for s in Slot]
+    assert [int(c) for c in (common.U, common.V, common.P, common.I)] == [int(s) for s in Slot]
 
 
 def test_auto_path_policy_picks_the_fastest_measured_path():

@@ -387,6 +387,7 @@ class FusedStep:
         self.sb = wp.zeros((B, max(m.n_constraints, 1), m.bandwidth + 1, 1) if nbr and not self.x_cap else (1, 1, 1, 1),
                            dtype=real, device=d)
         self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
+        self.sa = wp.zeros((B, m.n_nodes), dtype=k.vec, device=d)  # accelerations, a row per column
         cm = k.ColumnModel()
         self._column_major = []  # the copies the struct's views point into (kept alive here)
         for name in _STRUCT_FIELDS:
@@ -423,7 +424,7 @@ class FusedStep:
                             self.cm, r(settings.tolerance), int(settings.max_projection_iters),
                             r(settings.failure_bar_error), r(dt), int(n_sub), int(init), data.step,
                             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
-                            self.sq, self.sx, self.sb])
+                            self.sq, self.sx, self.sb, self.sa])
 
     def advance_counter(self, data, n: int):
         wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device,

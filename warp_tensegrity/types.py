@@ -29,7 +29,8 @@ lam            (nc, B)          --        multipliers / right-hand sides
 status         (B,) int32       --        :class:`Status`
 fail_step      (B,) int32       --        step at which the column froze, -1 if none
 bar_err        (B,)             1         max relative bar-length error after projection
-fused.nodes    (B, 5 n) vec3    --        node rows, slot :class:`Slot` s of node i at 5 i + s
+fused.nodes    (B, 4 n) vec3    --        node rows, slot :class:`Slot` s of node i at 4 i + s
+fused.accel    (B, n) vec3      m s-2     accelerations, one global row per column (not in shared memory)
 =============  ===============  ========  ============================================
 """
 
@@ -116,17 +117,16 @@ class Base(float, Enum):
 
 
 class Slot(IntEnum):
-    """Slots of a node's row in the fused step's scratch (``integrate.FusedStep``: rows (n, NQ) per column)."""
+    """Slots of a node's row in the fused step's scratch (``integrate.FusedStep``: rows (n, NQ) per column;
+    the accelerations have a row of their own, ``fused.accel``)."""
 
     U = 0
     """displacement [m]"""
     V = 1
     """velocity [m s-1]"""
-    A = 2
-    """acceleration [m s-2]"""
-    P = 3
+    P = 2
     """displacement at the start of the step [m]"""
-    I = 4  # noqa: E741
+    I = 3  # noqa: E741
     """G^T lambda (impulse or force of the multipliers)"""
 
 

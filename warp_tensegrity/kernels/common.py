@@ -22,8 +22,8 @@ STATUS_CONSTRAINT = wp.constant(2)
 
 # slots of a node's row in the fused step (the values of types.Slot; not imported, to keep the
 # import chains short: tests/test_layout.py, test_parallel_solve.py checks they agree)
-NQ = 5
-U, V, A, P, I = (wp.constant(i) for i in range(NQ))
+NQ = 4
+U, V, P, I = (wp.constant(i) for i in range(NQ))
 
 
 @wp.func

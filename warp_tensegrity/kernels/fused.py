@@ -15,7 +15,8 @@ Newton / RATTLE semantics and tolerances as the staged path.
 
 On chip: the column's CR storage and node rows live in block shared memory when they fit
 (:func:`shared_plan`), else in per-column global rows (contiguous, so they stay in L1/L2); the
-canonical ``(n, B)`` state is read once and written once per launch. On the CPU a block has one
+canonical ``(n, B)`` state is read once and written once per launch; the accelerations, used twice
+a step, keep a global row per column (``sa[w]``). On the CPU a block has one
 lane unless ``wp.config.enable_cpu_blocks`` emulates the lanes (the tests do).
 """
 
@@ -29,7 +30,6 @@ from .common import (
     STATUS_CONSTRAINT,
     STATUS_NONFINITE,
     STATUS_OK,
-    A,
     I,
     P,
     U,
@@ -110,8 +110,9 @@ def make_node_funcs(real):
         return dn
 
     @wp.func
-    def gather_kick(m: ColumnModel, q: wp.array2d(dtype=vec), kick: real, w: int, lane: int, bd: int):
-        """A = M^-1 f(U); V += kick A. Forces go through slot I first, so each is evaluated once."""
+    def gather_kick(m: ColumnModel, q: wp.array2d(dtype=vec), qa: wp.array(dtype=vec), kick: real, w: int, lane: int,
+                    bd: int):
+        """qa = M^-1 f(U); V += kick qa. Forces go through slot I first, so each is evaluated once."""
         nn = m.partner.shape[0]
         wE = w % m.cab_EA.shape[1]
         wC = w % m.cab_EAc.shape[1]
@@ -124,7 +125,7 @@ def make_node_funcs(real):
         block_sync()
         for n in range(lane, nn, bd):
             acc = minv_apply(m, q, n, ws, wx)
-            q[n, A] = acc
+            qa[n] = acc
             q[n, V] = q[n, V] + acc * kick
         block_sync()
 
@@ -325,7 +326,7 @@ def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
     vec, ColumnModel = f.vec, f.ColumnModel
 
     @wp.func
-    def first_factor(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real),
+    def first_factor(m: ColumnModel, q: wp.array2d(dtype=vec), qa: wp.array(dtype=vec), x: wp.array2d(dtype=real),
                      band: wp.array3d(dtype=real), red: int, init: int,
                      s0: int, status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
         """init = 1: make V admissible and compute A(U), returns 0 steps to take; else factor A(U)
@@ -339,11 +340,11 @@ def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
             if init != 0:
                 f.project_velocities(m, q, x, band, red, w, lane, bd)
         if init != 0:
-            f.gather_kick(m, q, real(0.0), w, lane, bd)
+            f.gather_kick(m, q, qa, real(0.0), w, lane, bd)
         return True
 
     @wp.func
-    def rattle_steps(m: ColumnModel, q: wp.array2d(dtype=vec), x: wp.array2d(dtype=real),
+    def rattle_steps(m: ColumnModel, q: wp.array2d(dtype=vec), qa: wp.array(dtype=vec), x: wp.array2d(dtype=real),
                      band: wp.array3d(dtype=real), red: int,
                      tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, s0: int,
                      status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, lane: int, bd: int):
@@ -356,7 +357,7 @@ def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
         most = int(0)
         for sub in range(n_sub):
             for n in range(lane, nn, bd):  # kick and drift
-                vn = q[n, V] + q[n, A] * half
+                vn = q[n, V] + qa[n] * half
                 q[n, V] = vn
                 un = q[n, U]
                 q[n, P] = un
@@ -372,7 +373,7 @@ def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
             elif err > fail_tol:
                 code = STATUS_CONSTRAINT
             else:
-                f.gather_kick(m, q, half, w, lane, bd)  # force, second half kick
+                f.gather_kick(m, q, qa, half, w, lane, bd)  # force, second half kick
                 if nc > 0:  # velocity projection at the new positions
                     if not f.factor_gram(m, q, x, band, red, w, lane, bd):
                         code = STATUS_CONSTRAINT
@@ -418,6 +419,7 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0, sol
         status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
         # Scratch, one row per column unless in shared memory:
         sq: wp.array3d(dtype=vec), sx: wp.array3d(dtype=real), sb: wp.array4d(dtype=real),
+        sa: wp.array2d(dtype=vec),
     ):
         """n_sub RATTLE steps of size h for column w (init = 1: make v admissible and compute a(u)
         instead)."""
@@ -437,20 +439,21 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0, sol
             q = wp.array(ptr=qptr(), shape=(q_cap // NQ, NQ), dtype=vec)
         else:
             q = sq[w]
+        qa = sa[w]  # accelerations: a global row per column, used twice a step (keeps shared memory for the rest)
         red = x.shape[0] - bd
         nn = u.shape[0]
         for n in range(lane, nn, bd):
             q[n, U] = u[n, w]
             q[n, V] = v[n, w]
-            q[n, A] = a[n, w]
+            qa[n] = a[n, w]
         block_sync()
         s0 = step[0]
         if init == 0 and n_sub == 0:
             return
-        if not st.first_factor(m, q, x, band, red, init, s0, status, fail_step, w, lane, bd):
+        if not st.first_factor(m, q, qa, x, band, red, init, s0, status, fail_step, w, lane, bd):
             return
         if init == 0:
-            worst, most = st.rattle_steps(m, q, x, band, red, tol, max_iter, fail_tol, h, n_sub, s0, status, fail_step,
+            worst, most = st.rattle_steps(m, q, qa, x, band, red, tol, max_iter, fail_tol, h, n_sub, s0, status, fail_step,
                                           w, lane, bd)
             if lane == 0:
                 iters[w] = wp.max(iters[w], most)
@@ -459,7 +462,7 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0, sol
         for n in range(lane, nn, bd):
             u[n, w] = q[n, U]
             v[n, w] = q[n, V]
-            a[n, w] = q[n, A]
+            a[n, w] = qa[n]
         block_sync()  # CPU fibers may start the next block as lanes finish: its loads must wait for our stores
 
     @wp.kernel(enable_backward=False, module="unique")
