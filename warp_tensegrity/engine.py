@@ -62,20 +62,21 @@ from .types import FORCE_EVALS, STABILITY, Base, Method, Path
 # fused='auto' on a GPU: the fastest measured of the fused step with its constraint solve by block
 # cyclic reduction ("fused"), the fused step with lane 0's serial banded Cholesky ("fused-serial")
 # and the staged kernels, per (band, precision, columns). H100, 50 prisms, RATTLE, column-steps/s
-# (benchmarks/results/throughput_h100_solver.json; tests/test_parallel_solve.py checks this table
-# against it): {band: {precision: {B: (fused, fused-serial, staged)}}}; band 3 = FB, 6 = RB. RB's
-# fused-serial figures are from runs with its node rows in global rows, as it runs for bands > 3
-# (kernels.fused.SERIAL_SHARED_NODES_MAX_BANDWIDTH): throughput_h100_solver_globalnodes.json up to
-# 16,384 columns, throughput_h100_solver_head.json at 65,536.
+# (benchmarks/results/throughput_h100_solver.json, commit 0ac0606; tests/test_parallel_solve.py checks
+# this table against it): {band: {precision: {B: (fused, fused-serial, staged)}}}; band 3 = FB, 6 = RB.
 MEASURED_H100 = {
-    3: {"fp32": {1024: (6.56e6, 5.40e6, 9.83e5), 4096: (7.71e6, 8.43e6, 3.27e6),
-                 16384: (1.18e7, 1.10e7, 8.04e6), 65536: (1.16e7, 1.11e7, 2.08e7)},
-        "fp64": {1024: (2.96e6, 3.62e6, 4.82e5), 4096: (5.61e6, 5.23e6, 1.25e6),
-                 16384: (6.03e6, 5.83e6, 3.86e6), 65536: (6.14e6, 6.00e6, 8.92e6)}},
-    6: {"fp32": {1024: (2.56e6, 2.74e6, 3.95e5), 4096: (2.65e6, 4.15e6, 1.13e6),
-                 16384: (2.38e6, 4.33e6, 3.67e6), 65536: (2.26e6, 4.39e6, 1.01e7)},
-        "fp64": {1024: (7.02e5, 1.25e6, 1.85e5), 4096: (7.99e5, 1.57e6, 5.27e5),
-                 16384: (7.79e5, 1.70e6, 1.83e6), 65536: (7.26e5, 1.75e6, 4.14e6)}},
+    3: {
+        "fp32": {1024: (9.3e6, 6.55e6, 9.76e5), 4096: (1.19e7, 1.08e7, 3.28e6), 16384: (1.63e7, 1.45e7, 8.06e6),
+                 65536: (1.71e7, 1.54e7, 2.08e7), 131072: (1.74e7, 1.45e7, 2.56e7)},
+        "fp64": {1024: (3.7e6, 4.1e6, 4.81e5), 4096: (5.23e6, 4.35e6, 1.27e6), 16384: (6.59e6, 6.15e6, 3.95e6),
+                 65536: (6.53e6, 6.34e6, 9.08e6), 131072: (6.51e6, 6.37e6, 8.65e6)},
+    },
+    6: {
+        "fp32": {1024: (1.58e6, 2.26e6, 3.93e5), 4096: (1.93e6, 4.16e6, 1.14e6), 16384: (1.74e6, 4.39e6, 3.71e6),
+                 65536: (1.68e6, 4.44e6, 1.02e7), 131072: (1.67e6, 4.44e6, 1.28e7)},
+        "fp64": {1024: (7.07e5, 1.04e6, 1.83e5), 4096: (8.2e5, 1.6e6, 5.2e5), 16384: (8e5, 1.75e6, 1.77e6),
+                 65536: (7.46e5, 1.81e6, 4.08e6), 131072: (7.38e5, 1.82e6, 4.03e6)},
+    },
 }
 MEASURED_PATHS = (Path.FUSED, Path.FUSED_SERIAL, Path.STAGED)
 # widest Gram band the fused step takes at all (its S x S blocks live in registers); wider generic
