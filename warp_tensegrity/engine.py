@@ -439,7 +439,8 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     from .integrate import resolve_device
     from .model import constraint_coupling, mass_entries
 
-    settings, choices = apply_accuracy(settings, prisms_to_simulate(config, params, settings))
+    n_sim = prisms_to_simulate(config, params, settings)
+    settings, choices = apply_accuracy(settings, n_sim)
     batch, B = _topology_batch(config, params)
     omega = _omega_bound(config, params)
     dt, limit, n_steps, every = choose_timestep(settings, omega)
@@ -477,4 +478,5 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "seconds_estimate": seconds,
         "dt_safety": settings.dt_safety,
         "accuracy_target": choices.get("accuracy"),
+        "prisms_simulated": n_sim,
     }

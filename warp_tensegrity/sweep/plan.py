@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..engine import choose_path, estimate_batch, prisms_to_simulate
+from ..engine import choose_path, estimate_batch
 from ..provenance import code_version
 from ..settings import RunSettings
 from .progress import fmt_seconds
@@ -111,7 +111,7 @@ def resolve_dt(plan: SweepPlan) -> SweepPlan:
     spec.check_dt(float(est["dt_limit"]))
     dt = float(est["dt"]) if isinstance(spec.run["dt"], str) else float(spec.run["dt"])
     plan.settings = spec.run_settings(device=plan.device, dt=dt)
-    plan.prisms_simulated = prisms_to_simulate(spec.scene, plan.params, plan.settings)
+    plan.prisms_simulated = int(est["prisms_simulated"])  # depends on t_end and truncate only, as the probe's
     return plan
 
 

@@ -64,14 +64,16 @@ def template_dataset(plan: SweepPlan):
     before any shard runs. Nothing is stepped."""
     from types import SimpleNamespace
 
-    from ..engine import estimate_batch, output_times
+    from ..engine import apply_accuracy, choose_timestep, output_times
 
     if plan.settings is None:
         plan.resolve()
     spec = plan.spec
-    est = estimate_batch(spec.scene, plan.params, plan.settings)
-    steps = np.arange(int(est["n_out"]), dtype=np.int64) * int(est["output_every"])
-    time = output_times(steps, float(est["dt"]))
+    # as the engine times each shard, from the plan's bound (no second pass over every column)
+    settings, _ = apply_accuracy(plan.settings, plan.prisms_simulated)
+    dt, _, n_steps, every = choose_timestep(settings, float(plan.estimate["omega_max_bound"]))
+    steps = np.arange(n_steps // every + 1, dtype=np.int64) * every
+    time = output_times(steps, dt)
     P, T = spec.scene.n_prisms, len(time)
     z = lambda *shape: np.zeros(shape)  # noqa: E731
     result = SimpleNamespace(
