@@ -45,12 +45,17 @@ def finite_at(strain: Any, k: int, j: int, b: int, cut: int, n_valid: int) -> in
 
 
 @wp.func
-def parabola_offset(y0: f64, y1: f64, y2: f64, h1: f64, h2: f64) -> f64:
-    """measure._parabola_peak: vertex offset of the parabola through (-h1, y0), (0, y1), (h2, y2); NaN unless a < 0."""
+def parabola_coeffs(y0: f64, y1: f64, y2: f64, h1: f64, h2: f64):
+    """(a, b) of y = a x^2 + b x + y1 through (-h1, y0), (0, y1), (h2, y2) (measure._parabola_peak)."""
     d0 = (y0 - y1) / h1
     d2 = (y2 - y1) / h2
-    a = (d0 + d2) / (h1 + h2)
-    bb = (d2 * h1 - d0 * h2) / (h1 + h2)
+    return (d0 + d2) / (h1 + h2), (d2 * h1 - d0 * h2) / (h1 + h2)
+
+
+@wp.func
+def parabola_offset(y0: f64, y1: f64, y2: f64, h1: f64, h2: f64) -> f64:
+    """Vertex offset of that parabola; NaN unless a < 0."""
+    a, bb = parabola_coeffs(y0, y1, y2, h1, h2)
     if a < f64(0.0):
         return -bb / (f64(2.0) * a)
     return NAN
@@ -58,11 +63,8 @@ def parabola_offset(y0: f64, y1: f64, y2: f64, h1: f64, h2: f64) -> f64:
 
 @wp.func
 def parabola_value(y0: f64, y1: f64, y2: f64, h1: f64, h2: f64) -> f64:
-    """measure._parabola_peak: vertex value; NaN unless a < 0."""
-    d0 = (y0 - y1) / h1
-    d2 = (y2 - y1) / h2
-    a = (d0 + d2) / (h1 + h2)
-    bb = (d2 * h1 - d0 * h2) / (h1 + h2)
+    """Vertex value of that parabola; NaN unless a < 0."""
+    a, bb = parabola_coeffs(y0, y1, y2, h1, h2)
     if a < f64(0.0):
         return y1 - bb * bb / (f64(4.0) * a)
     return NAN
