@@ -26,6 +26,7 @@ import warp as wp
 from .kernels.common import NQ
 from .kernels.coop import band_reals, solver_reals
 from .kernels.fused import make_fused_kernels, shared_plan
+from .kernels.lane_step import LaneStep
 from .kernels.staged import make_kernels
 from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
@@ -72,7 +73,7 @@ class Integrator:
                  path: Path):
         """``path``: staged or fused launches (:func:`warp_tensegrity.engine.choose_path`); the
         fused path runs RATTLE only."""
-        if path in (Path.FUSED, Path.FUSED_SERIAL) and settings.method != Method.RATTLE:
+        if path in (Path.FUSED, Path.FUSED_SERIAL, Path.LANES) and settings.method != Method.RATTLE:
             raise SettingsError(f"the fused path needs method = 'rattle' (got method = {settings.method!r})")
         self.settings = settings
         self.path = Path(path)
@@ -83,7 +84,7 @@ class Integrator:
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
             self.model: Model = build_model(batch, settings.precision, self.device)
-            self.fused = self.path in (Path.FUSED, Path.FUSED_SERIAL)
+            self.fused = self.path in (Path.FUSED, Path.FUSED_SERIAL, Path.LANES)
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
@@ -100,8 +101,12 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
-            self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU,
-                                "serial" if self.path == Path.FUSED_SERIAL else "cr") if self.fused else None
+            self.fk = None
+            if self.path == Path.LANES:
+                self.fk = LaneStep(m, batch, self.device)
+            elif self.fused:
+                self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU,
+                                    "serial" if self.path == Path.FUSED_SERIAL else "cr")
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)
@@ -182,7 +187,7 @@ class Integrator:
         """n RATTLE steps as fused launches of at most FUSED_STEPS, each followed by the counter and
         the (step-gated) records."""
         while n > 0:
-            k = min(FUSED_STEPS, n)
+            k = min(self.fk.steps_per_launch, n)
             self._fused(k)
             self.fk.advance_counter(self.data, k)
             self._record()
@@ -370,6 +375,10 @@ class FusedStep:
     block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
     shared: bool = True  # solver / node rows in block shared memory where they fit
     solver: str = "cr"  # constraint solver: "cr" (lanes in parallel) or "serial" (lane 0)
+
+    @property
+    def steps_per_launch(self) -> int:
+        return FUSED_STEPS
 
     def __post_init__(self):
         m = self.model

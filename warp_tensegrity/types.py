@@ -105,6 +105,9 @@ class Path(StrEnum):
     """Fused, constraint solve by block cyclic reduction across the block's lanes."""
     FUSED_SERIAL = "fused-serial"
     """Fused, constraint solve by a serial banded Cholesky on lane 0."""
+    LANES = "lanes"
+    """Fused, one warp per column: state in registers, the bar chains solved by cyclic reduction
+    over warp shuffles, no shared memory and no barriers (flexible or elastic bases)."""
 
 
 class Base(float, Enum):

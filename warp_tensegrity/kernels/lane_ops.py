@@ -1,0 +1,125 @@
+"""Warp-level primitives of the one-warp-per-column step (:mod:`.lanes`): shuffles within a
+segment of ``g`` lanes (a power of two dividing 32), a segment max and a whole-warp vote.
+
+On CUDA they are the ``__shfl_*_sync`` / ``__ballot_sync`` intrinsics over the full warp (the
+step keeps its control flow warp-uniform, so every lane reaches every call). On the CPU they
+emulate the warp with Warp's CPU blocks (``wp.config.enable_cpu_blocks``, one fiber per lane,
+``block_dim = 32``): a lane writes its value to a static buffer, the block syncs, each lane reads
+its source. The CPU runs one block at a time on one thread, so one static buffer per function is
+enough. The same kernel text runs on both, so CI checks the lane logic.
+
+``wl`` is the lane's index in its warp (thread index mod 32). Imports Warp only.
+"""
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+_CUDA_SCALAR = {
+    "float": "return {op}(0xffffffffu, v, {arg}, g);",
+    # 64-bit values go as two 32-bit halves (Warp's CUDA header has no double overloads)
+    "double": """union {{ double d; int i[2]; }} x; x.d = v;
+    x.i[0] = {op}(0xffffffffu, x.i[0], {arg}, g);
+    x.i[1] = {op}(0xffffffffu, x.i[1], {arg}, g);
+    return x.d;""",
+}
+
+
+def _shuffle3_snippet(ctype: str, op: str, arg: str, cpu_src: str, name: str) -> str:
+    """Native body of a vec3 shuffle: on CUDA three scalar shuffles of ``op``; on the CPU the
+    lane reads ``buf[base + src]`` (``src`` a C expression of ``i`` = lane in segment, ``d``, ``g``),
+    or keeps its own value where the source lies outside the segment."""
+    one = _CUDA_SCALAR[ctype].format(op=op, arg=arg)
+    return f"""
+#if defined(__CUDA_ARCH__)
+    auto sh = [&](const {ctype} v) -> {ctype} {{ {one} }};
+    return wp::vec_t<3, {ctype}>(sh(v.c[0]), sh(v.c[1]), sh(v.c[2]));
+#else
+    static {ctype} {name}[32][3];
+    {name}[wl][0] = v.c[0]; {name}[wl][1] = v.c[1]; {name}[wl][2] = v.c[2];
+    WP_TILE_SYNC();
+    const int base = wl & ~(g - 1);
+    const int i = wl - base;
+    const int src = {cpu_src};
+    wp::vec_t<3, {ctype}> r = v;
+    if (src >= 0 && src < g) r = wp::vec_t<3, {ctype}>({name}[base + src][0], {name}[base + src][1], {name}[base + src][2]);
+    WP_TILE_SYNC();
+    return r;
+#endif
+"""
+
+
+def _segment_max_snippet(ctype: str) -> str:
+    """Max over the segment's lanes, NaN wins, the same on every lane of the segment."""
+    one = _CUDA_SCALAR[ctype].format(op="__shfl_xor_sync", arg="m")
+    return f"""
+#if defined(__CUDA_ARCH__)
+    auto sh = [&](const {ctype} v, const int m) -> {ctype} {{ {one} }};
+    {ctype} r = v;
+    for (int m = 1; m < g; m <<= 1) {{
+        const {ctype} y = sh(r, m);
+        if (isnan(y) || y > r) r = y;
+    }}
+    return r;
+#else
+    static {ctype} wt_segmax[32];
+    wt_segmax[wl] = v;
+    WP_TILE_SYNC();
+    const int base = wl & ~(g - 1);
+    {ctype} r = wt_segmax[base];
+    for (int t = 1; t < g; ++t) {{
+        const {ctype} y = wt_segmax[base + t];
+        if (isnan(y) || y > r) r = y;
+    }}
+    WP_TILE_SYNC();
+    return r;
+#endif
+"""
+
+
+_ANY = """
+#if defined(__CUDA_ARCH__)
+    return __ballot_sync(0xffffffffu, p) != 0u ? 1 : 0;
+#else
+    static int wt_vote[32];
+    wt_vote[wl] = p;
+    WP_TILE_SYNC();
+    int r = 0;
+    for (int t = 0; t < 32; ++t) r |= (wt_vote[t] != 0);
+    WP_TILE_SYNC();
+    return r;
+#endif
+"""
+
+
+@wp.func_native(_ANY)
+def warp_any(p: int, wl: int) -> int:
+    """1 if ``p`` is non-zero on any lane of the warp (every lane gets the same answer)."""
+    ...
+
+
+@functools.cache
+def make_lane_ops(real):
+    """Shuffles of vec3 over the segment and the segment max, for scalar type ``real``."""
+    ctype = "double" if real == wp.float64 else "float"
+    vec = wp.types.vector(3, real)
+    # Warp keys native functions by name: one name per precision
+    tag = "64" if ctype == "double" else "32"
+
+    @wp.func_native(_shuffle3_snippet(ctype, "__shfl_up_sync", "(unsigned)d", "i - d", f"wt_up{tag}"))
+    def shfl_up3(v: vec, d: int, g: int, wl: int) -> vec:
+        """The value of lane i - d of the segment (own value where i < d)."""
+        ...
+
+    @wp.func_native(_shuffle3_snippet(ctype, "__shfl_down_sync", "(unsigned)d", "i + d", f"wt_dn{tag}"))
+    def shfl_down3(v: vec, d: int, g: int, wl: int) -> vec:
+        """The value of lane i + d of the segment (own value where i + d >= g)."""
+        ...
+
+    @wp.func_native(_segment_max_snippet(ctype))
+    def segment_max(v: real, g: int, wl: int) -> real:
+        """Max over the segment's g lanes (NaN wins)."""
+        ...
+
+    return SimpleNamespace(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max, vec=vec)
