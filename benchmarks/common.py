@@ -305,7 +305,9 @@ def integrator_bytes(integ) -> dict:
             out["data"] += _array_bytes(v)
     fk = getattr(integ, "fk", None)  # the fused step's own rows (integrate.FusedStep)
     if fk is not None:
-        out["data"] += _array_bytes(fk.sx) + _array_bytes(fk.sq)
+        for name in ("sx", "sq", "sa", "sb", "xy", "hz", "hand"):  # FusedStep's rows or LaneStep's lane arrays
+            if getattr(fk, name, None) is not None:
+                out["data"] += _array_bytes(getattr(fk, name))
     for name in ("strain", "kinetic", "elastic"):
         out["outputs"] += _array_bytes(getattr(integ, name, None))
     out["total"] = out["model"] + out["data"] + out["outputs"]
@@ -437,9 +439,8 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
         spg = int(max(1, min(steps_per_graph, math.floor(seg / 3.0 / max(probe, 1e-9)))))
         if path != "staged":
             # whole fused launches: each launch factors A(u) once, so short launches would over-count it
-            from warp_tensegrity import integrate
-
-            spg = max(integrate.FUSED_STEPS, spg - spg % integrate.FUSED_STEPS)
+            q = integ.fk.steps_per_launch
+            spg = max(q, spg - spg % q)
         integ.settings.steps_per_graph = spg
         integ.advance(spg)  # capture + first replay
         wp.synchronize_device(device)

@@ -190,14 +190,43 @@ def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float,
     }
 
 
+def lanes_costs(n_prisms: int, r: int, it: float, output_every: int = 100, steps_per_launch: int = 64) -> dict:
+    """{part: (bytes, flops)} per column-step of the warp-per-column step (kernels/lanes.py,
+    flexible bases), counted from its loops. nn = 3 n free nodes, nc = 3 n bars, ne = 6 n + 3
+    cables; P levels per lane and G lanes (kernels.lanes.lane_shape). A bar row of a chain solve
+    costs the lane's Thomas sweep (5 (P - 1) / P), its reduced row (4 / P), 2 log2 G PCR FMAs per
+    lane (4 log2 G / P per row) and the back substitution (4 (P - 1) / P); the factor about twice
+    that plus 14 per row for the Gram entries. Bars: vector 8, residual 12; impulse 18 per node;
+    a cable 21 + 6 accumulation. DRAM: u, v, a read and written once per launch, the rest
+    lengths read once per launch, the outputs."""
+    n = int(n_prisms)
+    P = -(-n // 32)
+    lanes = -(-n // P)
+    LG = max(lanes - 1, 0).bit_length()
+    nn, nc, ne = 3 * n, 3 * n, 6 * n + 3
+    V = 3 * r
+    row = (5 * (P - 1) + 4 + 4 * LG + 4 * (P - 1)) / P
+    solve = row * nc
+    impulse = 18 * nn
+    return {
+        "launch_io": (6 * V * nn / steps_per_launch + ne * r / steps_per_launch, 0.0),
+        "outputs": ((2 * r) / output_every, 0.0),
+        "kick_drift": (0.0, 12 * nn),
+        "newton": (0.0, it * (20 * nc + solve + impulse)),
+        "forces": (0.0, 27 * ne + 3 * nn),
+        "factor": (0.0, (14 + 2 * row) * nc),
+        "velocity_projection": (0.0, 8 * nc + solve + impulse),
+    }
+
+
 def bound(n_prisms: int = 50, base="FB", precision: str = "fp64", device_kind: str = "h100",
           it: float | None = None, output_every: int = 100, per_column_params: str = "rest_length",
           B: int | None = None, path: str = "staged") -> dict:
     """Bytes, flops and the roofline bound (column-steps/s) of one RATTLE column-step of the
     staged kernels (path='staged') or of the fused step (path='fused'; see fused_costs)."""
-    if path in ("fused", "fused-serial"):
+    if path in ("fused", "fused-serial", "lanes"):
         return _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B,
-                            "serial" if path == "fused-serial" else "cr")
+                            path if path == "lanes" else "serial" if path == "fused-serial" else "cr")
     lab = base_label(base)
     if precision not in ("fp32", "fp64"):
         raise ValueError(f"precision = {precision!r}")
@@ -245,15 +274,20 @@ def _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B, so
     c = column_counts(int(n_prisms), lab)
     r = 4 if precision == "fp32" else 8
     it = DEFAULT_ITERS[(lab, precision)] if it is None else float(it)
-    k = fused_costs(c["n_nodes"], c["n_cables"], c["n_constraints"], c["bandwidth"], c["n_coupling"], r, it,
-                    output_every, solver=solver)
+    if solver == "lanes":
+        if lab != "FB":
+            raise ValueError("the lane step takes flexible bases only")
+        k = lanes_costs(int(n_prisms), r, it, output_every)
+    else:
+        k = fused_costs(c["n_nodes"], c["n_cables"], c["n_constraints"], c["bandwidth"], c["n_coupling"], r, it,
+                        output_every, solver=solver)
     byts = sum(b for b, _ in k.values())
     flops = sum(f for _, f in k.values())
     peak = dev[precision]
     mem = dev["bw_measured"] / byts
     comp = peak / flops
     out = {
-        "path": "fused" if solver == "cr" else "fused-serial", "n_prisms": int(n_prisms), "base": lab, "precision": precision, "device_kind": device_kind,
+        "path": {"cr": "fused", "serial": "fused-serial"}.get(solver, solver), "n_prisms": int(n_prisms), "base": lab, "precision": precision, "device_kind": device_kind,
         **c, "real_bytes": r, "newton_iters": it, "output_every": output_every,
         "parts": {name: {"bytes": float(b), "flops": float(f)} for name, (b, f) in k.items()},
         "bytes_per_column_step": float(byts), "flops_per_column_step": float(flops),

@@ -240,10 +240,10 @@ def main(argv=None):
     ap.add_argument("--budget-s", dest="budget_s", type=float, default=None,
                     help="stop starting new points after this many seconds of sweeping (compile excluded)")
     ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--paths", nargs="+", default=["fused", "staged"], choices=["fused", "fused-serial", "staged"],
+    ap.add_argument("--paths", nargs="+", default=["fused", "staged"], choices=["lanes", "fused", "fused-serial", "staged"],
                     help="step implementations: fused (block per column; its solve by block cyclic reduction), "
                          "fused-serial (the same, lane 0's serial banded Cholesky) and/or staged (kernel per stage)")
-    ap.add_argument("--prism-paths", dest="prism_paths", nargs="+", default=["fused"], choices=["fused", "staged"],
+    ap.add_argument("--prism-paths", dest="prism_paths", nargs="+", default=["fused"], choices=["lanes", "fused", "staged"],
                     help="paths measured in the prism sweep")
     ap.add_argument("--max-steps", dest="max_steps", type=int, default=200_000)
     ap.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
