@@ -77,14 +77,17 @@ def main(argv=None):
             ref = run(a.device, "fp64", "staged", cfg, params, a.t_end)
             lan = run(a.device, "fp64", "lanes", cfg, params, a.t_end)
             l32 = run(a.device, "fp32", "lanes", cfg, params, a.t_end)
+            f32 = run(a.device, "fp32", "fused", cfg, params, a.t_end)  # the fp32 yardstick: another fp32 path
             peak = np.abs(ref.strain).max(axis=(1, 2))
             rel = np.abs(lan.strain - ref.strain).max(axis=(1, 2)) / peak
             rel32 = np.abs(l32.strain - ref.strain).max(axis=(1, 2)) / peak
+            relf32 = np.abs(f32.strain - ref.strain).max(axis=(1, 2)) / peak
             case = {"n_prisms": n, "handedness": hand, "t_end": a.t_end, "columns": int(p.size),
                     "fp64_max_rel_strain_vs_staged": float(rel.max()),
                     "fp64_bar_error_max": float(lan.bar_length_error.max()),
                     "fp32_max_rel_strain_vs_staged_fp64": float(rel32.max()),
                     "fp32_bar_error_max": float(l32.bar_length_error.max()),
+                    "fp32_fused_max_rel_strain_vs_staged_fp64": float(relf32.max()),
                     "status_ok": bool(np.all(ref.status == 0) and np.all(lan.status == 0) and np.all(l32.status == 0)),
                     "wall_s": time.perf_counter() - t0}
             doc["cases"].append(case)

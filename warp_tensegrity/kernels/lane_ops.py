@@ -1,8 +1,8 @@
 """Warp-level primitives of the one-warp-per-column step (:mod:`.lanes`): shuffles within a
 segment of ``g`` lanes (a power of two dividing 32), a segment max and a whole-warp vote.
 
-On CUDA they are the ``__shfl_*_sync`` / ``__ballot_sync`` intrinsics over the full warp (the
-step keeps its control flow warp-uniform, so every lane reaches every call). On the CPU they
+On CUDA they are ``shfl.sync`` (PTX) and ``__ballot_sync`` over the full warp (the step keeps
+its control flow warp-uniform, so every lane reaches every call). On the CPU they
 emulate the warp with Warp's CPU blocks (``wp.config.enable_cpu_blocks``, one fiber per lane,
 ``block_dim = 32``): a lane writes its value to a static buffer, the block syncs, each lane reads
 its source. The CPU runs one block at a time on one thread, so one static buffer per function is
@@ -16,23 +16,30 @@ from types import SimpleNamespace
 
 import warp as wp
 
+# One 32-bit shuffle as PTX. Not ``asm volatile`` (Warp's own __shfl_*_sync are): the compiler
+# may then schedule the shuffles like other arithmetic, which is safe because the step's control
+# flow is warp-uniform. ``mode``: up, down or bfly; ``c`` packs the segment width (PTX ISA, shfl.sync).
 _CUDA_SCALAR = {
-    "float": "return {op}(0xffffffffu, v, {arg}, g);",
-    # 64-bit values go as two 32-bit halves (Warp's CUDA header has no double overloads)
-    "double": """union {{ double d; int i[2]; }} x; x.d = v;
-    x.i[0] = {op}(0xffffffffu, x.i[0], {arg}, g);
-    x.i[1] = {op}(0xffffffffu, x.i[1], {arg}, g);
-    return x.d;""",
+    "float": """float r; asm("shfl.sync.{mode}.b32 %0, %1, %2, %3, 0xffffffff;" : "=f"(r) : "f"(v), "r"({arg}), "r"(c));
+    return r;""",
+    # 64-bit values go as two 32-bit halves
+    "double": """int lo, hi; asm("mov.b64 {{%0, %1}}, %2;" : "=r"(lo), "=r"(hi) : "d"(v));
+    asm("shfl.sync.{mode}.b32 %0, %0, %1, %2, 0xffffffff;" : "+r"(lo) : "r"({arg}), "r"(c));
+    asm("shfl.sync.{mode}.b32 %0, %0, %1, %2, 0xffffffff;" : "+r"(hi) : "r"({arg}), "r"(c));
+    double r; asm("mov.b64 %0, {{%1, %2}};" : "=d"(r) : "r"(lo), "r"(hi));
+    return r;""",
 }
+_CLAMP = {"up": "((32 - g) << 8)", "down": "(((32 - g) << 8) | 0x1f)", "bfly": "(((32 - g) << 8) | 0x1f)"}
 
 
 def _shuffle3_snippet(ctype: str, op: str, arg: str, cpu_src: str, name: str) -> str:
     """Native body of a vec3 shuffle: on CUDA three scalar shuffles of ``op``; on the CPU the
     lane reads ``buf[base + src]`` (``src`` a C expression of ``i`` = lane in segment, ``d``, ``g``),
     or keeps its own value where the source lies outside the segment."""
-    one = _CUDA_SCALAR[ctype].format(op=op, arg=arg)
+    one = _CUDA_SCALAR[ctype].format(mode=op, arg=arg)
     return f"""
 #if defined(__CUDA_ARCH__)
+    const int c = {_CLAMP[op]};
     auto sh = [&](const {ctype} v) -> {ctype} {{ {one} }};
     return wp::vec_t<3, {ctype}>(sh(v.c[0]), sh(v.c[1]), sh(v.c[2]));
 #else
@@ -52,9 +59,10 @@ def _shuffle3_snippet(ctype: str, op: str, arg: str, cpu_src: str, name: str) ->
 
 def _segment_max_snippet(ctype: str) -> str:
     """Max over the segment's lanes, NaN wins, the same on every lane of the segment."""
-    one = _CUDA_SCALAR[ctype].format(op="__shfl_xor_sync", arg="m")
+    one = _CUDA_SCALAR[ctype].format(mode="bfly", arg="m")
     return f"""
 #if defined(__CUDA_ARCH__)
+    const int c = {_CLAMP["bfly"]};
     auto sh = [&](const {ctype} v, const int m) -> {ctype} {{ {one} }};
     {ctype} r = v;
     for (int m = 1; m < g; m <<= 1) {{
@@ -107,12 +115,12 @@ def make_lane_ops(real):
     # Warp keys native functions by name: one name per precision
     tag = "64" if ctype == "double" else "32"
 
-    @wp.func_native(_shuffle3_snippet(ctype, "__shfl_up_sync", "(unsigned)d", "i - d", f"wt_up{tag}"))
+    @wp.func_native(_shuffle3_snippet(ctype, "up", "d", "i - d", f"wt_up{tag}"))
     def shfl_up3(v: vec, d: int, g: int, wl: int) -> vec:
         """The value of lane i - d of the segment (own value where i < d)."""
         ...
 
-    @wp.func_native(_shuffle3_snippet(ctype, "__shfl_down_sync", "(unsigned)d", "i + d", f"wt_dn{tag}"))
+    @wp.func_native(_shuffle3_snippet(ctype, "down", "d", "i + d", f"wt_dn{tag}"))
     def shfl_down3(v: vec, d: int, g: int, wl: int) -> vec:
         """The value of lane i + d of the segment (own value where i + d >= g)."""
         ...

@@ -78,7 +78,7 @@ def make_lane_funcs(real, P: int, G: int):
     zero = real(0.0)
     one = real(1.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def extend(U: Nodes, below: Nodes, lane: int, g: int, wl: int):
         """The lane's nodes with the level below first (lane l - 1's top level; level 0 is clamped)."""
         X = Ext()
@@ -91,7 +91,7 @@ def make_lane_funcs(real, P: int, G: int):
             X[3 + r] = U[r]
         return X
 
-    @wp.func
+    @wp.func(inline=True)
     def bars(U: Nodes, xy: XY, hz: Pv, lane: int, g: int, wl: int):
         """Bar vectors [m] of the lane's prisms at displacement U: row 3 q + k = node (q+1, k) - (q, k)."""
         X = extend(U, U, lane, g, wl)
@@ -103,7 +103,7 @@ def make_lane_funcs(real, P: int, G: int):
                 Bm[r0] = vec(xy[r1, 0] - xy[r0, 0], xy[r1, 1] - xy[r0, 1], hz[q]) + X[r1] - X[r0]
         return Bm
 
-    @wp.func
+    @wp.func(inline=True)
     def node_rows(Bm: Nodes, s: Rows):
         """G^T s: for node (q+1, k) the vector s[q]_k b(q, k) - s[q+1]_k b(q+1, k), without the next
         lane's first bar (added by :func:`impulse`)."""
@@ -113,7 +113,7 @@ def make_lane_funcs(real, P: int, G: int):
                 out[3 * q + k] = Bm[3 * q + k] * s[q, k]
         return out
 
-    @wp.func
+    @wp.func(inline=True)
     def impulse(Bm: Nodes, lam: Rows, minv: Lv, lane: int, g: int, wl: int):
         """M^-1 G^T lam per node of the lane [m or m s-1 per unit of lam's scale]."""
         gq = node_rows(Bm, lam)
@@ -129,7 +129,7 @@ def make_lane_funcs(real, P: int, G: int):
                 d[3 * q + k] = (gq[3 * q + k] - up) * minv[q + 1, k]
         return d
 
-    @wp.func
+    @wp.func(inline=True)
     def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, cross_L: Rows, base_ea: vec, base_L: Rows,
                lane: int, g: int, wl: int):
         """Cable forces [N] on the lane's nodes: base members of its levels and cross cables of
@@ -177,7 +177,7 @@ def make_lane_funcs(real, P: int, G: int):
             out[r] = f[3 + r]
         return out
 
-    @wp.func
+    @wp.func(inline=True)
     def accelerations(f: Nodes, minv: Lv):
         a = Nodes()
         for q in range(P):
@@ -185,7 +185,7 @@ def make_lane_funcs(real, P: int, G: int):
                 a[3 * q + k] = f[3 * q + k] * minv[q + 1, k]
         return a
 
-    @wp.func
+    @wp.func(inline=True)
     def gram(Bm: Nodes, minv: Lv, ex: Pv, lane: int, g: int, wl: int):
         """Rows of the three chains' tridiagonal Gram matrices at the bars Bm: diagonal d, upper e
         (to the next row), lower l, each (P, 3). Padding rows past the column are identity."""
@@ -223,7 +223,7 @@ def make_lane_funcs(real, P: int, G: int):
             l[q] = e[wp.max(q - 1, 0)]
         return d, e, l
 
-    @wp.func
+    @wp.func(inline=True)
     def factor(d: Rows, e: Rows, l: Rows, lane: int, g: int, wl: int):
         """Factor the three chains (see the module docstring). Returns (factor, ok): ok = 0 if a
         pivot is not positive (the constraints are singular) on this lane."""
@@ -298,7 +298,7 @@ def make_lane_funcs(real, P: int, G: int):
         Fm[F_IB] = wp.cw_div(vec(one, one, one), b)
         return Fm, ok
 
-    @wp.func
+    @wp.func(inline=True)
     def solve(Fm: Fac, r: Rows, lane: int, g: int, wl: int):
         """x with A x = r for the three chains (rows (P, 3)), with the stored factor."""
         y = Rows()
@@ -334,7 +334,7 @@ def make_lane_funcs(real, P: int, G: int):
                 x[i] = y[i] - wp.cw_mul(Fm[F_S + i], xm) - wp.cw_mul(Fm[F_T + i], xk)
         return x
 
-    @wp.func
+    @wp.func(inline=True)
     def residuals(Bm: Nodes, Lb: Rows, ex: Pv):
         """(r, e): the Newton residuals (|b|^2 - L^2)/2 [m2] per bar, and this lane's largest
         relative bar-length error (NaN wins)."""
@@ -351,7 +351,7 @@ def make_lane_funcs(real, P: int, G: int):
                     emax = ee
         return r, emax
 
-    @wp.func
+    @wp.func(inline=True)
     def velocity_rows(Bm: Nodes, V: Nodes, ex: Pv, lane: int, g: int, wl: int):
         """G V per bar: b . (v_top - v_bottom) [m2 s-1]."""
         X = extend(V, V, lane, g, wl)
@@ -364,7 +364,7 @@ def make_lane_funcs(real, P: int, G: int):
                 r[q, k] = rr
         return r
 
-    @wp.func
+    @wp.func(inline=True)
     def finite_nodes(V: Nodes):
         ok = int(1)
         for r in range(3 * P):
@@ -390,7 +390,7 @@ def make_lane_kernel(real, P: int, G: int):
     zero = real(0.0)
     vec2 = wp.types.vector(2, real)
 
-    @wp.func
+    @wp.func(inline=True)
     def seg_ok(ok: int, g: int, wl: int):
         """1 if ok is 1 on every lane of the segment."""
         return ops.segment_max(real(1 - ok), g, wl) < real(0.5)
