@@ -35,7 +35,7 @@ never by the engine. Derivations (``docs/validation.md``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -131,6 +131,9 @@ class SolitonConstants:
     spread: float
     """Largest relative change of c*, a* and width between the first and second half of the
     measured sites (the pulse is steady when this is at round-off)."""
+    profile: tuple = field(default=(), repr=False, compare=False)
+    """(xi, delta/delta_max): the pulse against xi = (t - t_peak) x speed [sites] at a middle site
+    (xi < 0: the front, which passes first)."""
 
 
 def _chain_rhs(n: int):
@@ -195,4 +198,8 @@ def power_chain_soliton(n_sites: int = 60, first: int = 15, rtol: float = 1e-11)
     h = len(sites) // 2
     halves = [np.array([np.mean(q[:h]), np.mean(q[h:])]) for q in (c, dm, w)]
     spread = max(abs(q[1] / q[0] - 1.0) for q in halves)
-    return SolitonConstants(float(np.mean(c)), float(np.mean(dm)), float(np.mean(w)), float(spread))
+    mid = h  # a middle site: its pulse against (t - t_peak) x speed
+    xi = np.linspace(-4.0, 4.0, 401)
+    y = sol.sol(tp[mid] + xi / speed)
+    profile = (xi, (y[sites[mid]] - y[sites[mid] + 1]) / dm[mid])
+    return SolitonConstants(float(np.mean(c)), float(np.mean(dm)), float(np.mean(w)), float(spread), profile)
