@@ -244,8 +244,13 @@ def _column_scene(ds, sel: dict | None):
     extra = [d for d in col.dims if d not in (TIME, "prism")]
     if extra:
         raise PlotError(f"pick one column first: give a value for {', '.join(map(str, extra))} (e.g. --sel {extra[0]}=...)")
-    cfg = ColumnConfig(**{**kw, "n_prisms": 1, "handedness": kw["handedness"] if len(kw["handedness"]) != kw["n_prisms"]
-                          else kw["handedness"][0], "bar_mass": 0.0})
+    hand = kw["handedness"]
+    if hand not in ("right", "left"):
+        letters = set(hand.upper()) if len(hand) == kw["n_prisms"] else set()
+        if letters not in ({"R"}, {"L"}):
+            raise PlotError(f"handedness = {hand!r}: a band diagram needs prisms of one handedness")
+        hand = "right" if letters == {"R"} else "left"
+    cfg = ColumnConfig(**{**kw, "n_prisms": 1, "handedness": hand, "bar_mass": 0.0})
     par = {p: float(col[p]) if p in col.coords else None for p in ("prestrain", "base_rigidity", "cable_EA", "unit_mass")}
     if par["prestrain"] is None or par["base_rigidity"] is None:
         raise PlotError("the dataset has no prestrain or base_rigidity coordinate")

@@ -109,6 +109,8 @@ def _leading_pulses(q, t, lo, hi):
         off = 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)
         ym = y1 - 0.25 * (y0 - y2) * off
         half = 0.5 * ym
+        if not (0 < k < len(t) - 1 and (y[:k] < half).any() and (y[k:] < half).any()):
+            raise RuntimeError(f"prism {j}: the leading pulse is not whole in the record")
         a = k - int(np.argmax(y[k::-1] < half))  # last sample below half before the peak
         b = k + int(np.argmax(y[k:] < half))  # first sample below half after it
         ta = t[a] + (half - y[a]) / (y[a + 1] - y[a]) * (t[a + 1] - t[a])
@@ -121,7 +123,7 @@ def _soliton_run(cfg, ch, sol, A, dt, device):
     n = cfg.n_prisms
     v0 = (A * cfg.height / sol.amplitude_constant) ** 2 * np.sqrt(ch.k3 / ch.m_eff)
     v_sites = sol.speed_constant * ch.soliton_scale * A / cfg.height
-    t_end = (n - 5) / v_sites
+    t_end = (n - 2) / v_sites  # the pulse has passed prism lo; the clamp's echo has not come back to it
     r = _run(cfg, {"prestrain": 0.0, "v0": v0, "base_rigidity": 1.0}, t_end, t_end / 2000, device, dt=dt)
     q = -r.strain[0]
     delta = q / (1.0 + q)  # (h0 - h)/h0: the chain's delta/h0 ((h - h0)/h = -delta/(h0 - delta))
