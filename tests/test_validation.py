@@ -142,7 +142,7 @@ def test_bessel_check_fails_for_the_wrong_mass_convention():
     v0 = 0.005 * 0.002 * ch.c0 / V.J1_MAX
     r = V._run(cfg, {"prestrain": 0.002, "v0": v0, "base_rigidity": 1.0}, 4.0, 0.01, "cpu")
     ref = -bessel_compression(r.time, 12, v0, ch)
-    assert np.abs(r.strain[0] - ref).max() > 0.05 * np.abs(ref).max()
+    assert np.abs(r.strain[0] - ref).max() > 0.3 * np.abs(ref).max()  # 0.75: far outside 1e-4
 
 
 def test_soliton():
