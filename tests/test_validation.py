@@ -178,6 +178,10 @@ def test_bands_against_the_column_modes():
     lw = long_wave_speed(build_column(ColumnConfig(n_prisms=20), prestrain=0.002, base_rigidity=0.0))
     np.testing.assert_allclose(fb.omega_symmetric[0] / fb.k[0], lw.c_branches_homogenised, rtol=1e-4)
     assert np.all(rb.omega >= -1e-6 * rb.omega.max())  # prestressed: stable
+    left = bands(ColumnConfig(handedness="left"), 0.002, 1.0, n_k=9)  # the mirror image: the same bands
+    np.testing.assert_allclose(left.omega, rb.omega, rtol=1e-9, atol=1e-7 * rb.omega.max())  # k = 0: round-off
+    with pytest.raises(ValueError, match="one handedness"):
+        bands(ColumnConfig(handedness="alternating"), 0.002, 1.0, n_k=3)
 
 
 def test_ringing_frequency_of_a_bessel_record():

@@ -11,9 +11,10 @@ w_n = w exp(i k n h0) gives the 9 x 9 Hermitian problem
 
 R the level-to-level turn (block diagonal over the nodes). The rigid members of one cell (its
 three bars; with rigid bases also its three base links) are constraints G(k) w = 0, handled by
-projecting onto the null space of G(k) (where a rigid motion adds a null vector, as a rigid turn
-of every level does at k = 0, k is moved by 1e-9 pi/h0, so every k has the same branches). Long axial-torsional waves sit at k -> 0 in these frames
-(a rigid translation across the axis shows up at k h0 = twist instead).
+projecting onto the null space of G(k). Where a rigid motion adds a null vector (a rigid turn of
+every level does at k = 0), k is moved by 1e-9 pi/h0, so every k has the same branches. Long
+axial-torsional waves sit at k -> 0 in these frames (a rigid translation across the axis shows up
+at k h0 = twist instead).
 
 The axial impact excites only the 3-fold symmetric motion (each node's displacement the turn of
 its neighbour's), so the **symmetric sector** (3 coordinates per level) is returned on its own:
@@ -71,7 +72,7 @@ def bloch_cell(config: ColumnConfig, prestrain: float, base_rigidity: float, cab
     """The Bloch cell of the column ``config`` describes (its n_prisms is ignored; one handedness)."""
     if config.handedness not in ("right", "left") and len(set(config.handedness.upper())) > 1:
         raise ValueError(f"handedness = {config.handedness!r}: a one-level cell needs one handedness")
-    hand = 1.0 if config.handedness in ("right",) or config.handedness.upper().startswith("R") else -1.0
+    hand = 1.0 if config.handedness.upper().startswith("R") else -1.0  # 'right' or 'RR...R'; else left
     cfg = replace(config, n_prisms=2 * _CELL_LEVEL, handedness="right" if hand > 0 else "left", bar_mass=0.0)
     scene = build_column(cfg, prestrain=prestrain, base_rigidity=base_rigidity, cable_EA=cable_EA, unit_mass=unit_mass)
     net, topo = scene.network, scene.topology
@@ -131,7 +132,8 @@ def bands(config: ColumnConfig, prestrain: float, base_rigidity: float, k=None, 
     cell = bloch_cell(config, prestrain, base_rigidity, cable_EA, unit_mass)
     k = np.linspace(0.0, np.pi / cell.height, n_k) if k is None else np.atleast_1d(np.asarray(k, dtype=float))
     S = cell.sym
-    generic = [_rank(G) for G in (cell.dynamic(1.0 / cell.height)[1],) for G in (G, G @ S)]
+    G_any = cell.dynamic(1.0 / cell.height)[1]  # k h0 = 1: no rigid motion there
+    generic = [_rank(G_any), _rank(G_any @ S)]
     full, sym = [], []
     for kk in k:
         D, G = cell.dynamic(kk)
