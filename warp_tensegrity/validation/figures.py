@@ -80,8 +80,10 @@ def figure_soliton(g):
         j = d.shape[1] // 2
         k = int(np.argmax(d[:, j]))
         x = (t - t[k]) * r["speed_sites"]
-        keep = np.abs(x) <= 4
-        ax0.plot(x[keep], d[keep, j] / d[k, j], "o", ms=2.5, color=f"C{i}", label=f"engine, A = {r['A']:.4f}")
+        keep = np.flatnonzero(np.abs(x) <= 4)
+        keep = keep[:: max(1, len(keep) // 40)]  # about 40 markers a pulse
+        ax0.plot(x[keep], d[keep, j] / d[k, j], "o" if i == 0 else "x", ms=4, mfc="none", color=f"C{i}",
+                 label=f"engine, A = {r['A']:.4f}")
     ax0.set_xlabel(r"$(t - t_{peak})\,V$ [prisms] at a middle prism")
     ax0.set_ylabel(r"$\delta / \delta_{max}$ [-]")
     ax0.legend(fontsize=7)
@@ -94,9 +96,12 @@ def figure_soliton(g):
         ax1.plot(A, ratios, "o", color=f"C{i}", label=f"{labels[key]}: {x0:.4f} at A = 0 (tolerance {c.tolerance:.0%})")
         ax1.plot(np.r_[0.0, A], np.r_[x0, ratios], "-", color=f"C{i}", lw=0.8)
         ax1.plot([0.0], [x0], "*", ms=9, color=f"C{i}")
-    ax1.axhspan(0.99, 1.01, color="0.9", zorder=0)
+    ax1.axhspan(0.99, 1.01, color="0.9", zorder=0, label="+-1 %")
     ax1.axhline(1.0, color="k", lw=0.6)
     ax1.set_xlim(left=0.0)
+    from matplotlib.ticker import MaxNLocator
+
+    ax1.xaxis.set_major_locator(MaxNLocator(5))
     ax1.set_xlabel(r"amplitude $A = \delta_{max}/h_0$ [-]")
     ax1.set_ylabel("engine / cubic chain [-]")
     ax1.legend(fontsize=7)
