@@ -25,9 +25,11 @@ LAYERS = [
     {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
      "measure.device_kernels", "measure.device", "sweep.parse"},
-    {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
+    {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "checks.closed_forms",
+     "checks.dispersion", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "sweep.status", "lens.io"},
-    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},
+    {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run", "validation.checks",
+     "validation.figures", "validation"},
     {"sweep.run", "sweep", "lens", "lens.command"},
     {"cli", "__main__"},
 ]

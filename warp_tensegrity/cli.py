@@ -7,6 +7,7 @@
     warp-tensegrity plot OUT.nc KIND [-o FIG.png]      (phase, spacetime, profile, work-precision)
     warp-tensegrity --version
     warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N]   (acoustic lens, docs/lens.md)
+    warp-tensegrity validate [-o FIGDIR] [--only NAME ...]   (closed-form gallery, docs/validation.md)
 
 Messages go through :mod:`logging` on stderr (``-v``: debug and Warp's own start-up lines,
 ``-q``: warnings only, no progress bar); command results (status, dry run) go to stdout.
@@ -143,7 +144,38 @@ def build_parser() -> argparse.ArgumentParser:
     from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
 
     add_lens_parser(sub)
+    _add_validate_parser(sub)
     return parser
+
+
+def _add_validate_parser(sub) -> None:
+    p = sub.add_parser("validate", help="check the engine against closed forms (docs/validation.md)",
+                       description="Run the validation gallery (fp64): the Bessel impact, the sonic-vacuum "
+                                   "solitary wave, the Bloch dispersion and the FB modal sum; print every number "
+                                   "against its tolerance; exit 1 if one fails.")
+    p.add_argument("-o", "--output", default=None, metavar="FIGDIR", help="write one figure per check into FIGDIR")
+    p.add_argument("--only", nargs="+", default=None, metavar="NAME",
+                   help="run these checks only: bessel, soliton, dispersion, fb_modal")
+    p.add_argument("--device", type=_device, default="cpu", help="Warp device (default: cpu)")
+
+
+def _validate(args) -> int:
+    from .runtime import init_warp
+    from .validation import report, run_validation
+
+    init_warp(verbose=bool(args.verbose))
+    try:
+        groups = run_validation(args.only, device=None if args.device == "auto" else args.device)
+    except ValueError as e:
+        log.error("error: %s", e)
+        return EXIT_ERROR
+    print(report(groups))
+    if args.output:
+        from .validation.figures import write_figures
+
+        for path in write_figures(groups, args.output):
+            log.info("wrote %s", path)
+    return EXIT_OK if all(g.passed for g in groups) else EXIT_ERROR
 
 
 def _report_status(st: dict, as_json: bool) -> str:
@@ -221,6 +253,8 @@ def main(argv=None) -> int:
 
 
 def _dispatch(args) -> int:
+    if args.command == "validate":
+        return _validate(args)
     if args.command == "lens":
         from .lens.command import run_lens_command
         from .runtime import init_warp

@@ -1,4 +1,5 @@
-"""Figures of sweep datasets: phase diagrams, space-time maps, pulse profiles, work-precision charts.
+"""Figures of sweep datasets: phase diagrams, space-time maps, pulse profiles, work-precision charts,
+band diagrams.
 
 Each function takes a dataset (or DataArray) in the layout the CLI writes (``warp-tensegrity run``,
 :meth:`BatchResult.to_xarray`), draws on ``ax`` (a new figure when None) and returns the Axes.
@@ -20,6 +21,7 @@ KINDS = {
     "spacetime": "strain over prism and time, one column",
     "profile": "strain against prism at a few times, one column",
     "work-precision": "error against cost of a work-precision study (benchmarks/work_precision.py)",
+    "dispersion": "band diagram omega(k) of one column's periodic prism, with its measured speed and ringing",
 }
 
 STRAIN_LABEL = r"axial strain $\varepsilon = (h - h_0)/h$ [-]"
@@ -226,6 +228,82 @@ def work_precision(ds, measure: str = "speed", case=None, cost: str = "cost_devi
     return ax
 
 
+def _column_scene(ds, sel: dict | None):
+    """(ColumnConfig, prestrain, base_rigidity, cable_EA, unit_mass, column) of one column of a dataset."""
+    import dataclasses
+
+    from .scene.columns import ColumnConfig
+
+    kw = {}
+    for f in dataclasses.fields(ColumnConfig):
+        key = f"scene_{f.name}"
+        if key not in ds.attrs:
+            raise PlotError(f"the dataset has no {key!r} attribute: not written by warp-tensegrity")
+        kw[f.name] = type(f.default)(ds.attrs[key]) if not isinstance(f.default, str) else str(ds.attrs[key])
+    col = _select(ds, sel)
+    extra = [d for d in col.dims if d not in (TIME, "prism")]
+    if extra:
+        raise PlotError(f"pick one column first: give a value for {', '.join(map(str, extra))} (e.g. --sel {extra[0]}=...)")
+    hand = kw["handedness"]
+    if hand not in ("right", "left"):
+        letters = set(hand.upper()) if len(hand) == kw["n_prisms"] else set()
+        if letters not in ({"R"}, {"L"}):
+            raise PlotError(f"handedness = {hand!r}: a band diagram needs prisms of one handedness")
+        hand = "right" if letters == {"R"} else "left"
+    cfg = ColumnConfig(**{**kw, "n_prisms": 1, "handedness": hand, "bar_mass": 0.0})
+    par = {p: float(col[p]) if p in col.coords else None for p in ("prestrain", "base_rigidity", "cable_EA", "unit_mass")}
+    if par["prestrain"] is None or par["base_rigidity"] is None:
+        raise PlotError("the dataset has no prestrain or base_rigidity coordinate")
+    return cfg, par, col
+
+
+def dispersion(data, ax=None, sel: dict | None = None, speed: float | None = None, cutoff: float | None = None,
+               n_k: int = 121, omega_max: float | None = None):
+    """Band diagram of the periodic column: omega [rad s-1] against the Bloch wavenumber k h0 [rad]
+    (:func:`warp_tensegrity.checks.dispersion.bands`). Every branch in grey, the 3-fold symmetric
+    (axial-torsional) branches an axial impact excites in colour; a measured front ``speed`` [m s-1]
+    as the line omega = speed k (dashed) and a measured ``cutoff`` [rad s-1] as a horizontal line
+    (dotted). ``data``: a :class:`~warp_tensegrity.checks.dispersion.Bands`, or a dataset with
+    ``sel`` picking one column: its scene, prestrain and base rigidity give the bands, its
+    ``speed`` measure and the ringing of its struck prism (``checks.dispersion.ringing_frequency``,
+    when the strain is recorded) the speed and cut-off, unless given. ``omega_max``: upper limit of
+    the axis (default: 1.1 x the highest branch). Returns the Axes; ``ax.lines`` keep the numbers
+    (symmetric branches labelled ``symmetric branch i``)."""
+    from .checks.dispersion import Bands, bands, ringing_frequency
+
+    title = None
+    if isinstance(data, Bands):
+        b = data
+    else:
+        cfg, par, col = _column_scene(data, sel)
+        b = bands(cfg, par["prestrain"], par["base_rigidity"], n_k=n_k, cable_EA=par["cable_EA"], unit_mass=par["unit_mass"])
+        if speed is None and "speed" in col:
+            speed = float(col["speed"])
+        if cutoff is None and "strain" in col:
+            cutoff = ringing_frequency(col["strain"].transpose(TIME, "prism").values, col[TIME].values)
+        title = f"p = {par['prestrain']:g}, base rigidity = {par['base_rigidity']:g}"
+    ax = _axes(ax)
+    x = b.k * b.height
+    for i in range(b.omega.shape[1]):
+        ax.plot(x, b.omega[:, i], color="0.75", lw=0.8, label="all branches" if i == 0 else None)
+    for i in range(b.omega_symmetric.shape[1]):
+        ax.plot(x, b.omega_symmetric[:, i], color=f"C{i}", lw=1.6, label=f"symmetric branch {i + 1}")
+    top = float(np.nanmax(b.omega_symmetric))
+    if speed is not None and np.isfinite(speed):
+        xs = x[x * speed / b.height <= 1.3 * (top if omega_max is None else omega_max)]
+        ax.plot(xs, speed / b.height * xs, "k--", lw=0.9, label=f"measured speed {speed:.4g} m/s")
+    if cutoff is not None and np.isfinite(cutoff):
+        ax.axhline(cutoff, color="k", ls=":", lw=0.9, label=f"measured ringing {cutoff:.4g} rad/s")
+    ax.set_xlim(0.0, np.pi)
+    ax.set_ylim(0.0, 1.1 * float(np.nanmax(b.omega)) if omega_max is None else float(omega_max))
+    ax.set_xlabel(r"Bloch wavenumber $k h_0$ [rad]")
+    ax.set_ylabel(r"$\omega$ [rad s$^{-1}$]")
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+    return ax
+
+
 # ---------------------------------------------------------------------- the CLI's entry
 def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None):
     """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure."""
@@ -244,6 +322,8 @@ def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | N
         ax = spacetime(ds, sel=sel)
     elif kind == "profile":
         ax = pulse_profile(ds, times=times, sel=sel)
+    elif kind == "dispersion":
+        ax = dispersion(ds, sel=sel)
     else:
         ax = work_precision(ds, measure=var, case=sel.pop("case", None))
     title = ds.attrs.get("title")

@@ -1,0 +1,149 @@
+"""One figure per validation check (:mod:`.checks`), drawn with matplotlib.
+
+Each ``figure_*`` takes the :class:`~warp_tensegrity.validation.checks.CheckGroup` its check
+returned and returns a Figure; :data:`FIGURES` maps a group's name to its function.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..plot import PRISM_LABEL, dispersion
+
+__all__ = ["FIGURES", "write_figures", "figure_bessel", "figure_soliton", "figure_dispersion", "figure_fb_modal"]
+
+
+def _figure(ncols: int, width: float = 10.0, height: float = 4.0, nrows: int = 1):
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(nrows, ncols, figsize=(width, height), layout="constrained", squeeze=False)
+
+
+def _stamp(ax, check, x: float = 0.02, y: float = 0.98):
+    ax.text(x, y, f"{check.name}: {check.error:.2e} (tolerance {check.tolerance:g})", transform=ax.transAxes,
+            va="top" if y > 0.5 else "bottom", ha="left" if x < 0.5 else "right", fontsize=8,
+            bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
+
+
+def _record_vs_reference(g, ref_key: str, ref_label: str, prisms):
+    """Histories of a few prisms (engine solid, reference dashed) and the error map."""
+    from matplotlib import colors
+
+    t, eng, ref = g.data["time"], g.data["engine"], g.data[ref_key]
+    peak = float(np.abs(ref).max())
+    fig, axes = _figure(2)
+    ax0, ax1 = axes[0]
+    n = eng.shape[1]
+    for i, j in enumerate(prisms):
+        ax0.plot(t, -eng[:, j] / peak, color=f"C{i}", lw=1.4, label=f"engine, prism {n - 1 - j} from the struck end")
+        ax0.plot(t, -ref[:, j] / peak, "k--", lw=0.8, label=ref_label if i == 0 else None)
+    ax0.set_xlabel("time t [s]")
+    ax0.set_ylabel("compression / reference peak [-]")
+    ax0.legend(fontsize=7, loc="lower right")
+    _stamp(ax0, g.checks[0])
+    err = (eng - ref) / peak
+    v = max(float(np.abs(err).max()), 1e-12)
+    mesh = ax1.pcolormesh(np.arange(n), t, err, cmap="RdBu_r", shading="nearest", rasterized=True,
+                          norm=colors.TwoSlopeNorm(vcenter=0.0, vmin=-v, vmax=v))
+    cb = fig.colorbar(mesh, ax=ax1, pad=0.01)
+    cb.set_label("(engine - reference) / reference peak [-]")
+    cb.formatter.set_powerlimits((-2, 2))
+    ax1.set_xlabel(PRISM_LABEL)
+    ax1.set_ylabel("time t [s]")
+    return fig
+
+
+def figure_bessel(g):
+    n = g.data["engine"].shape[1]
+    fig = _record_vs_reference(g, "bessel", "Bessel form (v0/c0) J_2n+1(omega_c t), images", [n - 1, n - 4, n - 7, n - 10])
+    fig.suptitle("RB, p = 0.002: the engine's strain against the linear chain's Bessel form", fontsize=10)
+    return fig
+
+
+def figure_fb_modal(g):
+    n = g.data["engine"].shape[1]
+    fig = _record_vs_reference(g, "modal", "modal sum (checks.linear)", [n - 1, n // 2, 0])
+    fig.suptitle("FB, p = 0.002: the engine's strain against the modal sum", fontsize=10)
+    return fig
+
+
+def figure_soliton(g):
+    sol, runs = g.data["soliton"], g.data["runs"]
+    fig, axes = _figure(2)
+    ax0, ax1 = axes[0]
+    xi, y = sol.profile
+    ax0.plot(xi, y, "k-", lw=1.2, label="cubic chain (own integration)")
+    for i, r in enumerate(runs):
+        d, t = r["delta"], r["time"]
+        j = d.shape[1] // 2
+        k = int(np.argmax(d[:, j]))
+        x = (t - t[k]) * r["speed_sites"]
+        keep = np.flatnonzero(np.abs(x) <= 4)
+        keep = keep[:: max(1, len(keep) // 40)]  # about 40 markers a pulse
+        ax0.plot(x[keep], d[keep, j] / d[k, j], "o" if i == 0 else "x", ms=4, mfc="none", color=f"C{i}",
+                 label=f"engine, A = {r['A']:.4f}")
+    ax0.set_xlabel(r"$(t - t_{peak})\,V$ [prisms] at a middle prism")
+    ax0.set_ylabel(r"$\delta / \delta_{max}$ [-]")
+    ax0.legend(fontsize=7)
+    A = np.array([r["A"] for r in runs])
+    refs = {"c": sol.speed_constant, "a": sol.amplitude_constant, "w": sol.width_fwhm}
+    labels = {"c": "speed constant c/c*", "a": "amplitude law a/a*", "w": "width w/w*"}
+    for i, (key, c) in enumerate(zip(("c", "a", "w"), g.checks)):
+        ratios = np.array([r[key] for r in runs]) / refs[key]
+        x0 = c.value / c.reference
+        ax1.plot(A, ratios, "o", color=f"C{i}", label=f"{labels[key]}: {x0:.4f} at A = 0 (tolerance {c.tolerance:.0%})")
+        ax1.plot(np.r_[0.0, A], np.r_[x0, ratios], "-", color=f"C{i}", lw=0.8)
+        ax1.plot([0.0], [x0], "*", ms=9, color=f"C{i}")
+    ax1.axhspan(0.99, 1.01, color="0.9", zorder=0, label="+-1 %")
+    ax1.axhline(1.0, color="k", lw=0.6)
+    ax1.set_xlim(left=0.0)
+    from matplotlib.ticker import MaxNLocator
+
+    ax1.xaxis.set_major_locator(MaxNLocator(5))
+    ax1.set_xlabel(r"amplitude $A = \delta_{max}/h_0$ [-]")
+    ax1.set_ylabel("engine / cubic chain [-]")
+    ax1.legend(fontsize=7)
+    fig.suptitle("RB, p = 0: the solitary wave against the cubic chain's (extrapolated linearly to A = 0)", fontsize=10)
+    return fig
+
+
+def figure_dispersion(g):
+    d = g.data
+    fig, axes = _figure(2, height=7.0, nrows=2)
+    for col, (key, name) in enumerate((("rb", "RB (beta = 1)"), ("fb", "FB (beta = 0)"))):
+        dispersion(d[key], ax=axes[0, col], speed=d["speed"][col], cutoff=d["cutoff"][col])
+        axes[0, col].set_title(f"{name}, p = 0.002: every branch", fontsize=9)
+        ax = dispersion(d[key], ax=axes[1, col], speed=d["speed"][col], cutoff=d["cutoff"][col],
+                        omega_max=1.6 * d["omega_c"])
+        ax.set_title(f"{name}: acoustic branch, simulated speed and ringing", fontsize=9)
+    x = np.linspace(0.0, np.pi, 200)
+    axes[1, 0].plot(x, d["omega_c"] * np.abs(np.sin(x / 2)), "w:", lw=1.0, label=r"$\omega_c |\sin(k h_0/2)|$")
+    axes[1, 0].plot(x, d["c0"] / d["rb"].height * x, "C3-.", lw=0.8, label=f"closed-form c0 = {d['c0']:.5g} m/s")
+    axes[1, 0].legend(fontsize=7)
+    _stamp(axes[1, 0], g.checks[0], 0.98, 0.03)
+    _stamp(axes[1, 0], g.checks[2], 0.98, 0.12)
+    return fig
+
+
+FIGURES = {"bessel": figure_bessel, "soliton": figure_soliton, "dispersion": figure_dispersion,
+           "fb_modal": figure_fb_modal}
+
+
+def write_figures(groups, directory) -> list[Path]:
+    """One PNG per check group, ``validation_<name>.png`` in ``directory`` (made if missing)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for g in groups:
+        fig = FIGURES[g.name](g)
+        paths.append(out / f"validation_{g.name}.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+    return paths
