@@ -35,7 +35,7 @@ if [[ " $SECTIONS " == *" ncu "* ]]; then
   "$NCU" --import "$rep.ncu-rep" --csv --page raw --metrics smsp__inst_executed.sum,smsp__issue_active.avg.pct_of_peak_sustained_active,l1tex__t_bytes_pipe_lsu_mem_local_op_ld.sum,launch__registers_per_thread,sm__warps_active.avg.pct_of_peak_sustained_active,gpu__time_duration.sum > "$OUT/ncu_lanes_raw_$tag.csv"
   echo "== SASS of the lane kernels (barriers, local memory)"
   {
-    for f in $(find /tmp/wcache -path "*lanes*" -name "*.cubin" 2>/dev/null); do
+    for f in $(find /tmp/wcache -path "*lane_steps*" -name "*.cubin" 2>/dev/null); do
       echo "## $f"
       cuobjdump -res-usage "$f" 2>&1 | grep -A1 lane_steps | head -4
       echo "BAR: $(cuobjdump -sass "$f" | grep -cE '\bBAR\b|BAR\.') LDL: $(cuobjdump -sass "$f" | grep -c LDL) STL: $(cuobjdump -sass "$f" | grep -c STL) SHFL: $(cuobjdump -sass "$f" | grep -c SHFL) instructions: $(cuobjdump -sass "$f" | grep -cE '^\s+/\*[0-9a-f]+\*/')"

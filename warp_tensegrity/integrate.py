@@ -26,7 +26,7 @@ import warp as wp
 from .kernels.common import NQ
 from .kernels.coop import band_reals, solver_reals
 from .kernels.fused import make_fused_kernels, shared_plan
-from .kernels.lane_step import LaneStep
+from .kernels.lanes import LaneStep
 from .kernels.staged import make_kernels
 from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data

@@ -1,390 +1,34 @@
-"""RATTLE with one warp per column: state in registers, no shared memory, no barriers.
+"""The one-warp-per-column RATTLE step: the kernel (its pieces in :mod:`.lane_funcs`, the lane map
+there too), which batches it takes, its lane arrays and its launches. The Integrator drives
+:class:`LaneStep` like the fused step (same ``launch`` / ``advance_counter`` / ``load``).
 
-Lane map (P levels per lane, a segment of G lanes per column, G a power of two, 32/G columns
-per warp)::
-
-    level   0      1 .. P     P+1 .. 2P    ...   n            (level 0 clamped)
-    lane           0          1                  ceil(n/P)-1  (lanes past the column: padding)
-    chain k        node (L, k) for L = 0..n: the bars (L-1, k) -> (L, k) form three chains
-
-Lane ``l`` owns levels ``L = P l + 1 .. P l + P`` (their 3 nodes: u, v, a in registers) and the
-prisms below them (``m = L - 1``: 3 bars, 3 cross cables) and the base members of its levels.
-The level below its first (``P l``) belongs to lane ``l - 1`` and arrives by a shuffle; the
-forces its cross cables put on that level go back by a shuffle.
-
-Constraint solve: with flexible bases the Gram matrix G M^-1 G^T is three independent scalar
-tridiagonal chains (``../shared/notes/warp-per-column.md``), one row per bar. Each chain is held
-as a vec3 over the chains, so the three solves run side by side. A lane eliminates its first
-P - 1 rows (Thomas, in registers) in terms of the neighbouring lanes' last rows, which leaves a
-tridiagonal system of one row per lane (its last); parallel cyclic reduction over shuffles
-solves that (log2 G levels), and the lane back-substitutes. The factor (Thomas pivots, spikes,
-PCR coefficients) is kept in registers and reused by every Newton iteration and the velocity
-projection. All control flow is warp-uniform (votes), so the shuffles always run converged.
-
-Same RATTLE, Newton and failure semantics as :mod:`.fused` and the staged kernels; the cable
-law and the bar residual are the shared bodies of :mod:`.common`.
+It takes T3 columns with flexible or elastic bases (every base member a cable, beta < 1), lumped
+masses and a column that fits a warp (at most :data:`MAX_LEVELS_PER_LANE` levels per lane, so
+128 prisms). Rigid bases (their ring links couple the three bar chains into a 6 x 6 block chain),
+massive bars and other networks run the other paths; :func:`lane_support` says why.
 """
 
 import functools
 from types import SimpleNamespace
+from typing import TYPE_CHECKING
 
+import numpy as np
 import warp as wp
 
 from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_force, set_failure
+from .lane_funcs import WARP, lane_shape, make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
 
-WARP = 32
-
-
-def lane_shape(n_prisms: int, max_levels: int = 4) -> tuple[int, int] | None:
-    """(P levels per lane, G lanes per column) for a column of ``n_prisms``; None if it needs more
-    than ``max_levels`` levels per lane (a warp holds at most 32 P levels)."""
-    n = max(int(n_prisms), 1)
-    P = -(-n // WARP)
-    if P > max_levels:
-        return None
-    lanes = -(-n // P)
-    G = 1
-    while G < lanes:
-        G *= 2
-    return P, G
-
-
-@functools.cache
-def make_lane_funcs(real, P: int, G: int):
-    """The lane pieces for scalar type ``real``, P levels per lane and G lanes per column."""
-    ops = make_lane_ops(real)
-    vec = ops.vec
-    NI = P - 1  # interior rows a lane eliminates itself
-    LG = G.bit_length() - 1  # PCR levels
-    # factor rows (each a vec3 over the chains): Thomas multipliers, inverse pivots, upper
-    # couplings and the two spikes of the interior rows; the last row's couplings; PCR alpha,
-    # gamma per level; the reduced pivot's inverse
-    F_M, F_IP, F_E = 0, max(NI - 1, 0), max(NI - 1, 0) + NI
-    F_S = F_E + max(NI - 1, 0)
-    F_T = F_S + NI
-    F_LW = F_T + NI  # l[P-1] (to the last interior row)
-    F_EW = F_LW + 1  # e[P-1] (to the next lane's first row)
-    F_PCR = F_EW + 1
-    F_IB = F_PCR + 2 * LG
-    NF = F_IB + 1
-    Nodes = wp.types.matrix((3 * P, 3), real)  # row 3 q + k: node k of level P l + 1 + q (or bar k of prism q)
-    Ext = wp.types.matrix((3 * P + 3, 3), real)  # the same with the level below first
-    XY = wp.types.matrix((3 * P + 3, 2), real)  # reference x, y of levels P l .. P l + P
-    Lv = wp.types.matrix((P + 1, 3), real)  # per level j = 0..P: a vec3 over the 3 nodes (inverse masses)
-    Rows = wp.types.matrix((P, 3), real)  # per bar row q: a vec3 over the chains
-    Fac = wp.types.matrix((NF, 3), real)
-    Pv = wp.types.vector(P, real)  # per prism of the lane
-    zero = real(0.0)
-    one = real(1.0)
-
-    @wp.func(inline=True)
-    def extend(U: Nodes, below: Nodes, lane: int, g: int, wl: int):
-        """The lane's nodes with the level below first (lane l - 1's top level; level 0 is clamped)."""
-        X = Ext()
-        for k in range(3):
-            w = ops.shfl_up3(below[3 * P - 3 + k], 1, g, wl)
-            if lane == 0:
-                w = vec()
-            X[k] = w
-        for r in range(3 * P):
-            X[3 + r] = U[r]
-        return X
-
-    @wp.func(inline=True)
-    def bars(U: Nodes, xy: XY, hz: Pv, lane: int, g: int, wl: int):
-        """Bar vectors [m] of the lane's prisms at displacement U: row 3 q + k = node (q+1, k) - (q, k)."""
-        X = extend(U, U, lane, g, wl)
-        Bm = Nodes()
-        for q in range(P):
-            for k in range(3):
-                r0 = 3 * q + k
-                r1 = r0 + 3
-                Bm[r0] = vec(xy[r1, 0] - xy[r0, 0], xy[r1, 1] - xy[r0, 1], hz[q]) + X[r1] - X[r0]
-        return Bm
-
-    @wp.func(inline=True)
-    def node_rows(Bm: Nodes, s: Rows):
-        """G^T s: for node (q+1, k) the vector s[q]_k b(q, k) - s[q+1]_k b(q+1, k), without the next
-        lane's first bar (added by :func:`impulse`)."""
-        out = Nodes()
-        for q in range(P):
-            for k in range(3):
-                out[3 * q + k] = Bm[3 * q + k] * s[q, k]
-        return out
-
-    @wp.func(inline=True)
-    def impulse(Bm: Nodes, lam: Rows, minv: Lv, lane: int, g: int, wl: int):
-        """M^-1 G^T lam per node of the lane [m or m s-1 per unit of lam's scale]."""
-        gq = node_rows(Bm, lam)
-        d = Nodes()
-        for k in range(3):
-            nxt = ops.shfl_down3(gq[k], 1, g, wl)
-            if lane == g - 1:
-                nxt = vec()
-            for q in range(P):
-                up = nxt
-                if q < P - 1:
-                    up = gq[wp.min(3 * q + 3 + k, 3 * P - 1)]
-                d[3 * q + k] = (gq[3 * q + k] - up) * minv[q + 1, k]
-        return d
-
-    @wp.func(inline=True)
-    def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, cross_L: Rows, base_ea: vec, base_L: Rows,
-               lane: int, g: int, wl: int):
-        """Cable forces [N] on the lane's nodes: base members of its levels and cross cables of
-        its prisms; what the cross cables of its first prism put on the level below goes to lane
-        l - 1. ``cross`` = (EA, EA_c, -) of the cross cables, ``base_ea`` of the base members;
-        rest lengths per member."""
-        X = extend(U, U, lane, g, wl)
-        f = Ext()
-        for q in range(P):
-            j = 3 * q + 3  # rows of level q + 1 in X, f, xy
-            for k in range(3):
-                kn = (k + 1) % 3
-                b = vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero) + X[j + kn] - X[j + k]
-                F = cable_force(b, base_ea[0], base_ea[1], base_L[q, k])
-                if ex[q] == zero:
-                    F = vec()
-                f[j + k] = f[j + k] + F
-                f[j + kn] = f[j + kn] - F
-            for k in range(3):
-                # right-handed: bottom k -> top (k + 2) % 3; left-handed: top (k + 1) % 3
-                kr = (k + 2) % 3
-                kl = (k + 1) % 3
-                xt = xy[j + kl]
-                ut = X[j + kl]
-                if hand[q] > zero:
-                    xt = xy[j + kr]
-                    ut = X[j + kr]
-                i = j - 3 + k
-                b = vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]) + ut - X[i]
-                F = cable_force(b, cross[0], cross[1], cross_L[q, k])
-                if ex[q] == zero:
-                    F = vec()
-                f[i] = f[i] + F
-                if hand[q] > zero:
-                    f[j + kr] = f[j + kr] - F
-                else:
-                    f[j + kl] = f[j + kl] - F
-        out = Nodes()
-        for k in range(3):
-            nxt = ops.shfl_down3(f[k], 1, g, wl)
-            if lane == g - 1:
-                nxt = vec()
-            out[3 * P - 3 + k] = f[3 * P + k] + nxt
-        for r in range(3 * P - 3):
-            out[r] = f[3 + r]
-        return out
-
-    @wp.func(inline=True)
-    def accelerations(f: Nodes, minv: Lv):
-        a = Nodes()
-        for q in range(P):
-            for k in range(3):
-                a[3 * q + k] = f[3 * q + k] * minv[q + 1, k]
-        return a
-
-    @wp.func(inline=True)
-    def gram(Bm: Nodes, minv: Lv, ex: Pv, lane: int, g: int, wl: int):
-        """Rows of the three chains' tridiagonal Gram matrices at the bars Bm: diagonal d, upper e
-        (to the next row), lower l, each (P, 3). Padding rows past the column are identity."""
-        bnext = Nodes()
-        for k in range(3):
-            bnext[3 * P - 3 + k] = ops.shfl_down3(Bm[k], 1, g, wl)
-        for r in range(3 * P - 3):
-            bnext[r] = Bm[r + 3]
-        ex_next = ops.shfl_down3(vec(ex[0], zero, zero), 1, g, wl)[0]  # next lane's first prism exists
-        if lane == g - 1:
-            ex_next = zero
-        d = Rows()
-        e = Rows()
-        for q in range(P):
-            exn = ex_next
-            if q < P - 1:
-                exn = ex[wp.min(q + 1, P - 1)]
-            for k in range(3):
-                b = Bm[3 * q + k]
-                dd = (minv[q, k] + minv[q + 1, k]) * wp.dot(b, b)
-                ee = -minv[q + 1, k] * wp.dot(b, bnext[3 * q + k])
-                if ex[q] == zero:
-                    dd = one
-                    ee = zero
-                if exn == zero:
-                    ee = zero
-                d[q, k] = dd
-                e[q, k] = ee
-        l = Rows()
-        up = ops.shfl_up3(e[P - 1], 1, g, wl)
-        if lane == 0:
-            up = vec()
-        l[0] = up
-        for q in range(1, P):
-            l[q] = e[wp.max(q - 1, 0)]
-        return d, e, l
-
-    @wp.func(inline=True)
-    def factor(d: Rows, e: Rows, l: Rows, lane: int, g: int, wl: int):
-        """Factor the three chains (see the module docstring). Returns (factor, ok): ok = 0 if a
-        pivot is not positive (the constraints are singular) on this lane."""
-        Fm = Fac()
-        ok = int(1)
-        # interior rows: Thomas pivots, then the spikes s (to the lane below) and t (to the own last row)
-        piv = Rows()
-        for i in range(NI):
-            p = d[i]
-            if i > 0:
-                m = wp.cw_div(l[i], piv[wp.max(i - 1, 0)])
-                Fm[F_M + wp.max(i - 1, 0)] = m
-                p = p - wp.cw_mul(m, e[wp.max(i - 1, 0)])
-            piv[i] = p
-            for k in range(3):
-                if not (p[k] > zero):
-                    ok = 0
-            Fm[F_IP + i] = wp.cw_div(vec(one, one, one), p)
-            if i < NI - 1:
-                Fm[F_E + i] = e[i]
-        zs = Rows()
-        zt = Rows()
-        for i in range(NI):
-            if i == 0:
-                zs[0] = l[0]
-            else:
-                zs[i] = -wp.cw_mul(Fm[F_M + wp.max(i - 1, 0)], zs[wp.max(i - 1, 0)])
-            if i == NI - 1:
-                zt[i] = e[i]
-        for ii in range(NI):
-            i = NI - 1 - ii
-            si = wp.cw_mul(zs[i], Fm[F_IP + i])
-            ti = wp.cw_mul(zt[i], Fm[F_IP + i])
-            if i < NI - 1:
-                si = si - wp.cw_mul(wp.cw_mul(e[i], Fm[F_S + i + 1]), Fm[F_IP + i])
-                ti = ti - wp.cw_mul(wp.cw_mul(e[i], Fm[F_T + i + 1]), Fm[F_IP + i])
-            Fm[F_S + i] = si
-            Fm[F_T + i] = ti
-        # the reduced row of the lane's last bar: a x(lane - 1) + b x + c x(lane + 1)
-        lw = l[P - 1]
-        ew = e[P - 1]
-        a = lw
-        b = d[P - 1]
-        c = ew
-        if NI > 0:
-            s0n = ops.shfl_down3(Fm[F_S], 1, g, wl)
-            t0n = ops.shfl_down3(Fm[F_T], 1, g, wl)
-            a = -wp.cw_mul(lw, Fm[F_S + NI - 1])
-            b = b - wp.cw_mul(lw, Fm[F_T + NI - 1]) - wp.cw_mul(ew, s0n)
-            c = -wp.cw_mul(ew, t0n)
-        Fm[F_LW] = lw
-        Fm[F_EW] = ew
-        # parallel cyclic reduction over the segment
-        for j in range(LG):
-            s = 1 << j
-            au = ops.shfl_up3(a, s, g, wl)
-            bu = ops.shfl_up3(b, s, g, wl)
-            cu = ops.shfl_up3(c, s, g, wl)
-            ad = ops.shfl_down3(a, s, g, wl)
-            bd = ops.shfl_down3(b, s, g, wl)
-            cd = ops.shfl_down3(c, s, g, wl)
-            al = -wp.cw_div(a, bu)
-            ga = -wp.cw_div(c, bd)
-            Fm[F_PCR + 2 * j] = al
-            Fm[F_PCR + 2 * j + 1] = ga
-            a = wp.cw_mul(al, au)
-            c = wp.cw_mul(ga, cd)
-            b = b + wp.cw_mul(al, cu) + wp.cw_mul(ga, ad)
-        for k in range(3):
-            if not (b[k] > zero):
-                ok = 0
-        Fm[F_IB] = wp.cw_div(vec(one, one, one), b)
-        return Fm, ok
-
-    @wp.func(inline=True)
-    def solve(Fm: Fac, r: Rows, lane: int, g: int, wl: int):
-        """x with A x = r for the three chains (rows (P, 3)), with the stored factor."""
-        y = Rows()
-        z = Rows()
-        for i in range(NI):
-            zi = r[i]
-            if i > 0:
-                zi = zi - wp.cw_mul(Fm[F_M + wp.max(i - 1, 0)], z[wp.max(i - 1, 0)])
-            z[i] = zi
-        for ii in range(NI):
-            i = NI - 1 - ii
-            yi = z[i]
-            if i < NI - 1:
-                yi = yi - wp.cw_mul(Fm[F_E + i], y[i + 1])
-            y[i] = wp.cw_mul(yi, Fm[F_IP + i])
-        rho = r[P - 1]
-        if NI > 0:
-            y0n = ops.shfl_down3(y[0], 1, g, wl)
-            rho = rho - wp.cw_mul(Fm[F_LW], y[NI - 1]) - wp.cw_mul(Fm[F_EW], y0n)
-        for j in range(LG):
-            s = 1 << j
-            ru = ops.shfl_up3(rho, s, g, wl)
-            rd = ops.shfl_down3(rho, s, g, wl)
-            rho = rho + wp.cw_mul(Fm[F_PCR + 2 * j], ru) + wp.cw_mul(Fm[F_PCR + 2 * j + 1], rd)
-        xk = wp.cw_mul(rho, Fm[F_IB])
-        x = Rows()
-        x[P - 1] = xk
-        if NI > 0:
-            xm = ops.shfl_up3(xk, 1, g, wl)
-            if lane == 0:
-                xm = vec()
-            for i in range(NI):
-                x[i] = y[i] - wp.cw_mul(Fm[F_S + i], xm) - wp.cw_mul(Fm[F_T + i], xk)
-        return x
-
-    @wp.func(inline=True)
-    def residuals(Bm: Nodes, Lb: Rows, ex: Pv):
-        """(r, e): the Newton residuals (|b|^2 - L^2)/2 [m2] per bar, and this lane's largest
-        relative bar-length error (NaN wins)."""
-        r = Rows()
-        emax = zero
-        for q in range(P):
-            for k in range(3):
-                rr, ee = bar_residual(Bm[3 * q + k], Lb[q, k])
-                if ex[q] == zero:
-                    rr = zero
-                    ee = zero
-                r[q, k] = rr
-                if wp.isnan(ee) or ee > emax:
-                    emax = ee
-        return r, emax
-
-    @wp.func(inline=True)
-    def velocity_rows(Bm: Nodes, V: Nodes, ex: Pv, lane: int, g: int, wl: int):
-        """G V per bar: b . (v_top - v_bottom) [m2 s-1]."""
-        X = extend(V, V, lane, g, wl)
-        r = Rows()
-        for q in range(P):
-            for k in range(3):
-                rr = wp.dot(Bm[3 * q + k], X[3 * q + 3 + k] - X[3 * q + k])
-                if ex[q] == zero:
-                    rr = zero
-                r[q, k] = rr
-        return r
-
-    @wp.func(inline=True)
-    def finite_nodes(V: Nodes):
-        ok = int(1)
-        for r in range(3 * P):
-            for c in range(3):
-                if not wp.isfinite(V[r, c]):
-                    ok = 0
-        return ok
-
-    return SimpleNamespace(Nodes=Nodes, Ext=Ext, XY=XY, Lv=Lv, Rows=Rows, Fac=Fac, Pv=Pv, vec=vec, ops=ops,
-                           bars=bars, impulse=impulse, forces=forces, accelerations=accelerations, gram=gram,
-                           factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
-                           finite_nodes=finite_nodes)
-
+if TYPE_CHECKING:
+    from ..model import Model
+    from ..scene.batch import NetworkBatch
 
 @functools.cache
 def make_lane_kernel(real, P: int, G: int):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column.
     Launch with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
-    f = make_lane_funcs(real, P, G)
-    ops = f.ops
+    ops = make_lane_ops(real)
+    f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual)
     vec = f.vec
     Nodes, XY, Lv, Rows, Pv = f.Nodes, f.XY, f.Lv, f.Rows, f.Pv
     zero = real(0.0)
@@ -444,7 +88,7 @@ def make_lane_kernel(real, P: int, G: int):
                 for k in range(3):
                     node = 3 * L + k
                     xyl[3 * j + k] = xy[node]
-                    minv[j, k] = minv_self[node, wM]
+                    minv[j] = minv_self[node, wM]
                     if j > 0:
                         rr = wp.max(3 * j - 3 + k, 0)
                         U[rr] = u[node, wc]
@@ -473,7 +117,7 @@ def make_lane_kernel(real, P: int, G: int):
                 Lb[q, k] = wp.length(B0[3 * q + k])
         s0 = step[0]
         Bm = f.bars(U, xyl, hzl, lane, g, wl)
-        d, e, l = f.gram(Bm, minv, ex, lane, g, wl)
+        d, e, l = f.gram(Bm, minv, ex, n, lane, g, wl)
         Fm, okl = f.factor(d, e, l, lane, g, wl)
         if not seg_ok(okl, g, wl):
             if alive == 1 and lane == 0:
@@ -536,7 +180,7 @@ def make_lane_kernel(real, P: int, G: int):
                         alive = 0
                 # force, second half kick, velocity projection at the new positions
                 An = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, crossL, base_ea, baseL, lane, g, wl), minv)
-                d, e, l = f.gram(Bm, minv, ex, lane, g, wl)
+                d, e, l = f.gram(Bm, minv, ex, n, lane, g, wl)
                 Fm, okl = f.factor(d, e, l, lane, g, wl)
                 fok = seg_ok(okl, g, wl)
                 Vh = V + An * half
@@ -577,3 +221,119 @@ def make_lane_kernel(real, P: int, G: int):
 
     return SimpleNamespace(lane_steps=lane_steps, advance_counter_by=advance_counter_by, vec=vec, vec2=vec2,
                            real=real, P=P, G=G)
+
+
+MAX_LEVELS_PER_LANE = 4
+LANE_STEPS = 64  # most RATTLE steps per launch (launches also end on every output step)
+LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
+
+
+def _column_members(n: int, hand: np.ndarray):
+    """Bars, cross cables and base members of an n-prism column in column_batch's order."""
+    m = np.repeat(np.arange(n), 3)
+    k = np.tile(np.arange(3), n)
+    bars = np.stack([3 * m + k, 3 * m + 3 + k], axis=1)
+    kk = np.where(np.repeat(hand, 3) > 0, (k + 2) % 3, (k + 1) % 3)
+    cross = np.stack([3 * m + k, 3 * m + 3 + kk], axis=1)
+    lv = np.repeat(np.arange(n + 1), 3)
+    kb = np.tile(np.arange(3), n + 1)
+    base = np.stack([3 * lv + kb, 3 * lv + (kb + 1) % 3], axis=1)
+    return bars, cross, base
+
+
+def _uniform(a: np.ndarray) -> bool:
+    """Every member of a kind holds the same value in each column ((Bp, k) arrays)."""
+    return a.shape[1] == 0 or bool(np.all(a == a[:, :1]))
+
+
+def lane_support(batch: "NetworkBatch") -> str | None:
+    """None if the lane step takes this batch, else why not (one sentence)."""
+    ln = batch.level_nodes
+    if ln is None:
+        return "not a T3 column (no levels)"
+    n = ln.shape[0] - 1
+    if n < 1 or not np.array_equal(ln, np.arange(3 * (n + 1)).reshape(n + 1, 3)):
+        return "the column's nodes are not numbered level by level"
+    if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
+        return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a 32-lane warp"
+    if batch.positions.shape[0] != 3 * (n + 1):
+        return "nodes other than the column's"
+    if np.any(batch.constraint_mass != 0):
+        return "massive bars (consistent bar inertia couples node pairs)"
+    fixed = np.zeros(3 * (n + 1), dtype=bool)
+    fixed[:3] = True
+    if not np.array_equal(batch.fixed, fixed):
+        return "a boundary other than the clamped level 0"
+    # handedness from the cross cables; then every member list must be column_batch's
+    if batch.cables.shape[0] != 6 * n + 3:
+        return "rigid base links or another member layout"
+    top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
+    hand = np.where(top == 2, 1, -1)
+    bars, cross, base = _column_members(n, hand)
+    if not (np.array_equal(batch.constraints, bars) and np.array_equal(batch.cables, np.concatenate([cross, base]))):
+        return "rigid base links or another member layout"
+    if np.any(batch.constraint_active != 1):
+        return "inactive bars"
+    m = batch.node_mass.reshape(batch.node_mass.shape[0], n + 1, 3)
+    if np.any(m != m[:, :, :1]):
+        return "nodes of one level with different masses"
+    z = batch.positions[:, 2].reshape(n + 1, 3)
+    if np.any(z != z[:, :1]):
+        return "a base that is not horizontal"
+    c, b = slice(0, 3 * n), slice(3 * n, None)
+    for name in ("cable_EA", "cable_EA_compression"):
+        if not _uniform(getattr(batch, name)[:, c]):
+            return f"cross cables of one column with different {name}"
+    for name in ("cable_EA", "cable_EA_compression"):
+        if not _uniform(getattr(batch, name)[:, b]):
+            return f"base members of one column with different {name}"
+    return None
+
+
+class LaneStep:
+    """Lane arrays and launches of the warp-per-column step for one model on one device."""
+
+    def __init__(self, model: "Model", batch: "NetworkBatch", device):
+        why = lane_support(batch)
+        if why is not None:
+            raise ValueError(f"the warp-per-column step does not take this batch: {why}")
+        self.model = model
+        self.device = device
+        n = batch.level_nodes.shape[0] - 1
+        self.P, self.G = lane_shape(n, MAX_LEVELS_PER_LANE)
+        real = wp.float64 if model.precision == "fp64" else wp.float32
+        npr = np.float64 if real == wp.float64 else np.float32
+        self.kernels = make_lane_kernel(real, self.P, self.G)
+        X = batch.positions
+        z = X[:, 2].reshape(n + 1, 3)[:, 0]
+        top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
+        d = device
+        self.xy = wp.array(X[:, :2].astype(npr), dtype=self.kernels.vec2, device=d)
+        self.hz = wp.array(np.diff(z).astype(npr), dtype=real, device=d)
+        self.hand = wp.array(np.where(top == 2, 1, 0).astype(np.int32), dtype=wp.int32, device=d)
+        self.real = real
+        self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
+        self.steps_per_launch = LANE_STEPS
+        B = model.n_columns
+        self.threads = -(-B * self.G // WARP) * WARP
+
+    @property
+    def description(self) -> str:
+        per = WARP // self.G
+        return (f"lanes (one warp per column: {self.P} levels per lane, {self.G} lanes per column"
+                + (f", {per} columns per warp" if per > 1 else "") + "; chains by PCR over shuffles)")
+
+    def load(self):
+        self.kernels.lane_steps.module.load(self.device, self.block_dim)
+        self.kernels.advance_counter_by.module.load(self.device, 1)
+
+    def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
+        m, r = self.model, self.real
+        wp.launch(self.kernels.lane_steps, dim=self.threads, block_dim=self.block_dim, device=self.device, inputs=[
+            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.cab_L, m.minv_self, m.n_columns,
+            r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
+            int(n_sub), int(init), data.step,
+            data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step])
+
+    def advance_counter(self, data, n: int):
+        wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device, block_dim=1)

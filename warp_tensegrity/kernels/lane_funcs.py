@@ -1,0 +1,377 @@
+"""RATTLE with one warp per column: state in registers, no shared memory, no barriers.
+
+Lane map (P levels per lane, a segment of G lanes per column, G a power of two, 32/G columns
+per warp)::
+
+    level   0      1 .. P     P+1 .. 2P    ...   n            (level 0 clamped)
+    lane           0          1                  ceil(n/P)-1  (lanes past the column: padding)
+    chain k        node (L, k) for L = 0..n: the bars (L-1, k) -> (L, k) form three chains
+
+Lane ``l`` owns levels ``L = P l + 1 .. P l + P`` (their 3 nodes: u, v, a in registers) and the
+prisms below them (``m = L - 1``: 3 bars, 3 cross cables) and the base members of its levels.
+The level below its first (``P l``) belongs to lane ``l - 1`` and arrives by a shuffle; the
+forces its cross cables put on that level go back by a shuffle.
+
+Constraint solve: with flexible bases the Gram matrix G M^-1 G^T is three independent scalar
+tridiagonal chains (``../shared/notes/warp-per-column.md``), one row per bar. Each chain is held
+as a vec3 over the chains, so the three solves run side by side. A lane eliminates its first
+P - 1 rows (Thomas, in registers) in terms of the neighbouring lanes' last rows, which leaves a
+tridiagonal system of one row per lane (its last); parallel cyclic reduction over shuffles
+solves that (log2 G levels), and the lane back-substitutes. The factor (Thomas pivots, spikes,
+PCR coefficients) is kept in registers and reused by every Newton iteration and the velocity
+projection. All control flow is warp-uniform (votes), so the shuffles always run converged.
+
+Same RATTLE, Newton and failure semantics as :mod:`.fused` and the staged kernels; the cable
+law and the bar residual are the shared bodies of :mod:`.common`.
+"""
+
+from types import SimpleNamespace
+
+import warp as wp
+
+WARP = 32
+
+
+def lane_shape(n_prisms: int, max_levels: int = 4) -> tuple[int, int] | None:
+    """(P levels per lane, G lanes per column) for a column of ``n_prisms``; None if it needs more
+    than ``max_levels`` levels per lane (a warp holds at most 32 P levels)."""
+    n = max(int(n_prisms), 1)
+    P = -(-n // WARP)
+    if P > max_levels:
+        return None
+    lanes = -(-n // P)
+    G = 1
+    while G < lanes:
+        G *= 2
+    return P, G
+
+
+def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # once per cached kernel
+    """The lane pieces for scalar type ``real``, P levels per lane and G lanes per column, over the
+    segment primitives ``ops`` (:func:`.lane_ops.make_lane_ops`) and the shared bodies ``cable_force``
+    and ``bar_residual`` (:mod:`.common`; passed in, so this module imports Warp only and the
+    import chains stay short)."""
+    vec = ops.vec
+    NI = P - 1  # interior rows a lane eliminates itself
+    LG = G.bit_length() - 1  # PCR levels
+    # factor rows (each a vec3 over the chains): Thomas multipliers, inverse pivots, upper
+    # couplings and the two spikes of the interior rows; the last row's couplings; PCR alpha,
+    # gamma per level; the reduced pivot's inverse
+    F_M, F_IP, F_E = 0, max(NI - 1, 0), max(NI - 1, 0) + NI
+    F_S = F_E + max(NI - 1, 0)
+    F_T = F_S + NI
+    F_LW = F_T + NI  # l[P-1] (to the last interior row)
+    F_EW = F_LW + 1  # e[P-1] (to the next lane's first row)
+    F_PCR = F_EW + 1
+    F_IB = F_PCR + 2 * LG
+    NF = F_IB + 1
+    Nodes = wp.types.matrix((3 * P, 3), real)  # row 3 q + k: node k of level P l + 1 + q (or bar k of prism q)
+    Ext = wp.types.matrix((3 * P + 3, 3), real)  # the same with the level below first
+    XY = wp.types.matrix((3 * P + 3, 2), real)  # reference x, y of levels P l .. P l + P
+    Lv = wp.types.vector(P + 1, real)  # per level j = 0..P (inverse node masses: equal within a level)
+    Rows = wp.types.matrix((P, 3), real)  # per bar row q: a vec3 over the chains
+    Fac = wp.types.matrix((NF, 3), real)
+    Pv = wp.types.vector(P, real)  # per prism of the lane
+    zero = real(0.0)
+    one = real(1.0)
+
+    @wp.func(inline=True)
+    def extend(U: Nodes, below: Nodes, lane: int, g: int, wl: int):
+        """The lane's nodes with the level below first (lane l - 1's top level; level 0 is clamped)."""
+        X = Ext()
+        for k in range(3):
+            w = ops.shfl_up3(below[3 * P - 3 + k], 1, g, wl)
+            if lane == 0:
+                w = vec()
+            X[k] = w
+        for r in range(3 * P):
+            X[3 + r] = U[r]
+        return X
+
+    @wp.func(inline=True)
+    def bars(U: Nodes, xy: XY, hz: Pv, lane: int, g: int, wl: int):
+        """Bar vectors [m] of the lane's prisms at displacement U: row 3 q + k = node (q+1, k) - (q, k)."""
+        X = extend(U, U, lane, g, wl)
+        Bm = Nodes()
+        for q in range(P):
+            for k in range(3):
+                r0 = 3 * q + k
+                r1 = r0 + 3
+                Bm[r0] = vec(xy[r1, 0] - xy[r0, 0], xy[r1, 1] - xy[r0, 1], hz[q]) + X[r1] - X[r0]
+        return Bm
+
+    @wp.func(inline=True)
+    def node_rows(Bm: Nodes, s: Rows):
+        """G^T s: for node (q+1, k) the vector s[q]_k b(q, k) - s[q+1]_k b(q+1, k), without the next
+        lane's first bar (added by :func:`impulse`)."""
+        out = Nodes()
+        for q in range(P):
+            for k in range(3):
+                out[3 * q + k] = Bm[3 * q + k] * s[q, k]
+        return out
+
+    @wp.func(inline=True)
+    def impulse(Bm: Nodes, lam: Rows, minv: Lv, lane: int, g: int, wl: int):
+        """M^-1 G^T lam per node of the lane [m or m s-1 per unit of lam's scale]."""
+        gq = node_rows(Bm, lam)
+        d = Nodes()
+        for k in range(3):
+            nxt = ops.shfl_down3(gq[k], 1, g, wl)
+            if lane == g - 1:
+                nxt = vec()
+            for q in range(P):
+                up = nxt
+                if q < P - 1:
+                    up = gq[wp.min(3 * q + 3 + k, 3 * P - 1)]
+                d[3 * q + k] = (gq[3 * q + k] - up) * minv[q + 1]
+        return d
+
+    @wp.func(inline=True)
+    def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, cross_L: Rows, base_ea: vec, base_L: Rows,
+               lane: int, g: int, wl: int):
+        """Cable forces [N] on the lane's nodes: base members of its levels and cross cables of
+        its prisms; what the cross cables of its first prism put on the level below goes to lane
+        l - 1. ``cross`` = (EA, EA_c, -) of the cross cables, ``base_ea`` of the base members;
+        rest lengths per member."""
+        X = extend(U, U, lane, g, wl)
+        f = Ext()
+        for q in range(P):
+            j = 3 * q + 3  # rows of level q + 1 in X, f, xy
+            for k in range(3):
+                kn = (k + 1) % 3
+                b = vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero) + X[j + kn] - X[j + k]
+                F = cable_force(b, base_ea[0], base_ea[1], base_L[q, k])
+                if ex[q] == zero:
+                    F = vec()
+                f[j + k] = f[j + k] + F
+                f[j + kn] = f[j + kn] - F
+            for k in range(3):
+                # right-handed: bottom k -> top (k + 2) % 3; left-handed: top (k + 1) % 3
+                kr = (k + 2) % 3
+                kl = (k + 1) % 3
+                xt = xy[j + kl]
+                ut = X[j + kl]
+                if hand[q] > zero:
+                    xt = xy[j + kr]
+                    ut = X[j + kr]
+                i = j - 3 + k
+                b = vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]) + ut - X[i]
+                F = cable_force(b, cross[0], cross[1], cross_L[q, k])
+                if ex[q] == zero:
+                    F = vec()
+                f[i] = f[i] + F
+                if hand[q] > zero:
+                    f[j + kr] = f[j + kr] - F
+                else:
+                    f[j + kl] = f[j + kl] - F
+        out = Nodes()
+        for k in range(3):
+            nxt = ops.shfl_down3(f[k], 1, g, wl)
+            if lane == g - 1:
+                nxt = vec()
+            out[3 * P - 3 + k] = f[3 * P + k] + nxt
+        for r in range(3 * P - 3):
+            out[r] = f[3 + r]
+        return out
+
+    @wp.func(inline=True)
+    def accelerations(f: Nodes, minv: Lv):
+        a = Nodes()
+        for q in range(P):
+            for k in range(3):
+                a[3 * q + k] = f[3 * q + k] * minv[q + 1]
+        return a
+
+    @wp.func(inline=True)
+    def gram(Bm: Nodes, minv: Lv, ex: Pv, n: int, lane: int, g: int, wl: int):
+        """Rows of the three chains' tridiagonal Gram matrices at the bars Bm: diagonal d, upper e
+        (to the next row), lower l, each (P, 3). Padding rows past the column are identity."""
+        bnext = Nodes()
+        for k in range(3):
+            bnext[3 * P - 3 + k] = ops.shfl_down3(Bm[k], 1, g, wl)
+        for r in range(3 * P - 3):
+            bnext[r] = Bm[r + 3]
+        ex_next = zero  # the next lane's first prism exists
+        if lane < g - 1 and P * lane + P + 1 <= n:
+            ex_next = one
+        d = Rows()
+        e = Rows()
+        for q in range(P):
+            exn = ex_next
+            if q < P - 1:
+                exn = ex[wp.min(q + 1, P - 1)]
+            for k in range(3):
+                b = Bm[3 * q + k]
+                dd = (minv[q] + minv[q + 1]) * wp.dot(b, b)
+                ee = -minv[q + 1] * wp.dot(b, bnext[3 * q + k])
+                if ex[q] == zero:
+                    dd = one
+                    ee = zero
+                if exn == zero:
+                    ee = zero
+                d[q, k] = dd
+                e[q, k] = ee
+        l = Rows()
+        up = ops.shfl_up3(e[P - 1], 1, g, wl)
+        if lane == 0:
+            up = vec()
+        l[0] = up
+        for q in range(1, P):
+            l[q] = e[wp.max(q - 1, 0)]
+        return d, e, l
+
+    @wp.func(inline=True)
+    def factor(d: Rows, e: Rows, l: Rows, lane: int, g: int, wl: int):
+        """Factor the three chains (see the module docstring). Returns (factor, ok): ok = 0 if a
+        pivot is not positive (the constraints are singular) on this lane."""
+        Fm = Fac()
+        ok = int(1)
+        # interior rows: Thomas pivots, then the spikes s (to the lane below) and t (to the own last row)
+        piv = Rows()
+        for i in range(NI):
+            p = d[i]
+            if i > 0:
+                m = wp.cw_div(l[i], piv[wp.max(i - 1, 0)])
+                Fm[F_M + wp.max(i - 1, 0)] = m
+                p = p - wp.cw_mul(m, e[wp.max(i - 1, 0)])
+            piv[i] = p
+            for k in range(3):
+                if not (p[k] > zero):
+                    ok = 0
+            Fm[F_IP + i] = wp.cw_div(vec(one, one, one), p)
+            if i < NI - 1:
+                Fm[F_E + i] = e[i]
+        zs = Rows()
+        zt = Rows()
+        for i in range(NI):
+            if i == 0:
+                zs[0] = l[0]
+            else:
+                zs[i] = -wp.cw_mul(Fm[F_M + wp.max(i - 1, 0)], zs[wp.max(i - 1, 0)])
+            if i == NI - 1:
+                zt[i] = e[i]
+        for ii in range(NI):
+            i = NI - 1 - ii
+            si = wp.cw_mul(zs[i], Fm[F_IP + i])
+            ti = wp.cw_mul(zt[i], Fm[F_IP + i])
+            if i < NI - 1:
+                si = si - wp.cw_mul(wp.cw_mul(e[i], Fm[F_S + i + 1]), Fm[F_IP + i])
+                ti = ti - wp.cw_mul(wp.cw_mul(e[i], Fm[F_T + i + 1]), Fm[F_IP + i])
+            Fm[F_S + i] = si
+            Fm[F_T + i] = ti
+        # the reduced row of the lane's last bar: a x(lane - 1) + b x + c x(lane + 1)
+        lw = l[P - 1]
+        ew = e[P - 1]
+        a = lw
+        b = d[P - 1]
+        c = ew
+        if NI > 0:
+            s0n = ops.shfl_down3(Fm[F_S], 1, g, wl)
+            t0n = ops.shfl_down3(Fm[F_T], 1, g, wl)
+            a = -wp.cw_mul(lw, Fm[F_S + NI - 1])
+            b = b - wp.cw_mul(lw, Fm[F_T + NI - 1]) - wp.cw_mul(ew, s0n)
+            c = -wp.cw_mul(ew, t0n)
+        Fm[F_LW] = lw
+        Fm[F_EW] = ew
+        # parallel cyclic reduction over the segment (each lane inverts its own pivot once a level)
+        for j in range(LG):
+            s = 1 << j
+            rb = wp.cw_div(vec(one, one, one), b)
+            au = ops.shfl_up3(a, s, g, wl)
+            ru = ops.shfl_up3(rb, s, g, wl)
+            cu = ops.shfl_up3(c, s, g, wl)
+            ad = ops.shfl_down3(a, s, g, wl)
+            rd = ops.shfl_down3(rb, s, g, wl)
+            cd = ops.shfl_down3(c, s, g, wl)
+            al = -wp.cw_mul(a, ru)
+            ga = -wp.cw_mul(c, rd)
+            Fm[F_PCR + 2 * j] = al
+            Fm[F_PCR + 2 * j + 1] = ga
+            a = wp.cw_mul(al, au)
+            c = wp.cw_mul(ga, cd)
+            b = b + wp.cw_mul(al, cu) + wp.cw_mul(ga, ad)
+        for k in range(3):
+            if not (b[k] > zero):
+                ok = 0
+        Fm[F_IB] = wp.cw_div(vec(one, one, one), b)
+        return Fm, ok
+
+    @wp.func(inline=True)
+    def solve(Fm: Fac, r: Rows, lane: int, g: int, wl: int):
+        """x with A x = r for the three chains (rows (P, 3)), with the stored factor."""
+        y = Rows()
+        z = Rows()
+        for i in range(NI):
+            zi = r[i]
+            if i > 0:
+                zi = zi - wp.cw_mul(Fm[F_M + wp.max(i - 1, 0)], z[wp.max(i - 1, 0)])
+            z[i] = zi
+        for ii in range(NI):
+            i = NI - 1 - ii
+            yi = z[i]
+            if i < NI - 1:
+                yi = yi - wp.cw_mul(Fm[F_E + i], y[i + 1])
+            y[i] = wp.cw_mul(yi, Fm[F_IP + i])
+        rho = r[P - 1]
+        if NI > 0:
+            y0n = ops.shfl_down3(y[0], 1, g, wl)
+            rho = rho - wp.cw_mul(Fm[F_LW], y[NI - 1]) - wp.cw_mul(Fm[F_EW], y0n)
+        for j in range(LG):
+            s = 1 << j
+            ru = ops.shfl_up3(rho, s, g, wl)
+            rd = ops.shfl_down3(rho, s, g, wl)
+            rho = rho + wp.cw_mul(Fm[F_PCR + 2 * j], ru) + wp.cw_mul(Fm[F_PCR + 2 * j + 1], rd)
+        xk = wp.cw_mul(rho, Fm[F_IB])
+        x = Rows()
+        x[P - 1] = xk
+        if NI > 0:
+            xm = ops.shfl_up3(xk, 1, g, wl)
+            if lane == 0:
+                xm = vec()
+            for i in range(NI):
+                x[i] = y[i] - wp.cw_mul(Fm[F_S + i], xm) - wp.cw_mul(Fm[F_T + i], xk)
+        return x
+
+    @wp.func(inline=True)
+    def residuals(Bm: Nodes, Lb: Rows, ex: Pv):
+        """(r, e): the Newton residuals (|b|^2 - L^2)/2 [m2] per bar, and this lane's largest
+        relative bar-length error (NaN wins)."""
+        r = Rows()
+        emax = zero
+        for q in range(P):
+            for k in range(3):
+                rr, ee = bar_residual(Bm[3 * q + k], Lb[q, k])
+                if ex[q] == zero:
+                    rr = zero
+                    ee = zero
+                r[q, k] = rr
+                if wp.isnan(ee) or ee > emax:
+                    emax = ee
+        return r, emax
+
+    @wp.func(inline=True)
+    def velocity_rows(Bm: Nodes, V: Nodes, ex: Pv, lane: int, g: int, wl: int):
+        """G V per bar: b . (v_top - v_bottom) [m2 s-1]."""
+        X = extend(V, V, lane, g, wl)
+        r = Rows()
+        for q in range(P):
+            for k in range(3):
+                rr = wp.dot(Bm[3 * q + k], X[3 * q + 3 + k] - X[3 * q + k])
+                if ex[q] == zero:
+                    rr = zero
+                r[q, k] = rr
+        return r
+
+    @wp.func(inline=True)
+    def finite_nodes(V: Nodes):
+        ok = int(1)
+        for r in range(3 * P):
+            for c in range(3):
+                if not wp.isfinite(V[r, c]):
+                    ok = 0
+        return ok
+
+    return SimpleNamespace(Nodes=Nodes, Ext=Ext, XY=XY, Lv=Lv, Rows=Rows, Fac=Fac, Pv=Pv, vec=vec, ops=ops,
+                           bars=bars, impulse=impulse, forces=forces, accelerations=accelerations, gram=gram,
+                           factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
+                           finite_nodes=finite_nodes)
