@@ -89,6 +89,12 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
         return X
 
     @wp.func(inline=True)
+    def dref(xy: XY, hz: Pv, q: int, k: int):
+        """Reference vector [m] of bar k of the lane's prism q: node (q+1, k) - (q, k)."""
+        r0 = 3 * q + k
+        return vec(xy[r0 + 3, 0] - xy[r0, 0], xy[r0 + 3, 1] - xy[r0, 1], hz[q])
+
+    @wp.func(inline=True)
     def bars(U: Nodes, xy: XY, hz: Pv, lane: int, g: int, wl: int):
         """Bar vectors [m] of the lane's prisms at displacement U: row 3 q + k = node (q+1, k) - (q, k)."""
         X = extend(U, U, lane, g, wl)
@@ -96,8 +102,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
         for q in range(P):
             for k in range(3):
                 r0 = 3 * q + k
-                r1 = r0 + 3
-                Bm[r0] = vec(xy[r1, 0] - xy[r0, 0], xy[r1, 1] - xy[r0, 1], hz[q]) + X[r1] - X[r0]
+                Bm[r0] = dref(xy, hz, q, k) + X[r0 + 3] - X[r0]
         return Bm
 
     @wp.func(inline=True)
@@ -127,20 +132,22 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
         return d
 
     @wp.func(inline=True)
-    def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, cross_L: Rows, base_ea: vec, base_L: Rows,
-               lane: int, g: int, wl: int):
+    def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, base_ea: vec,
+               rest: wp.array2d(dtype=real), wr: int, n: int, lane: int, g: int, wl: int):
         """Cable forces [N] on the lane's nodes: base members of its levels and cross cables of
         its prisms; what the cross cables of its first prism put on the level below goes to lane
-        l - 1. ``cross`` = (EA, EA_c, -) of the cross cables, ``base_ea`` of the base members;
-        rest lengths per member."""
+        l - 1. ``cross`` = (EA, EA_c, -) of the cross cables, ``base_ea`` of the base members; rest
+        lengths per member from the column's row ``rest[wr]`` (cross cables, then base members:
+        contiguous, so the lanes' loads coalesce; they stay in L1 between steps)."""
         X = extend(U, U, lane, g, wl)
         f = Ext()
         for q in range(P):
             j = 3 * q + 3  # rows of level q + 1 in X, f, xy
+            m = wp.min(P * lane + q, n - 1)  # the prism (clamped for padding lanes, whose forces are masked)
             for k in range(3):
                 kn = (k + 1) % 3
                 b = vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero) + X[j + kn] - X[j + k]
-                F = cable_force(b, base_ea[0], base_ea[1], base_L[q, k])
+                F = cable_force(b, base_ea[0], base_ea[1], rest[wr, 3 * n + 3 * m + 3 + k])
                 if ex[q] == zero:
                     F = vec()
                 f[j + k] = f[j + k] + F
@@ -156,7 +163,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
                     ut = X[j + kr]
                 i = j - 3 + k
                 b = vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]) + ut - X[i]
-                F = cable_force(b, cross[0], cross[1], cross_L[q, k])
+                F = cable_force(b, cross[0], cross[1], rest[wr, 3 * m + k])
                 if ex[q] == zero:
                     F = vec()
                 f[i] = f[i] + F
@@ -333,14 +340,14 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
         return x
 
     @wp.func(inline=True)
-    def residuals(Bm: Nodes, Lb: Rows, ex: Pv):
+    def residuals(Bm: Nodes, xy: XY, hz: Pv, ex: Pv):
         """(r, e): the Newton residuals (|b|^2 - L^2)/2 [m2] per bar, and this lane's largest
-        relative bar-length error (NaN wins)."""
+        relative bar-length error (NaN wins). L = |reference vector| (recomputed: fewer live registers)."""
         r = Rows()
         emax = zero
         for q in range(P):
             for k in range(3):
-                rr, ee = bar_residual(Bm[3 * q + k], Lb[q, k])
+                rr, ee = bar_residual(Bm[3 * q + k], wp.length(dref(xy, hz, q, k)))
                 if ex[q] == zero:
                     rr = zero
                     ee = zero

@@ -43,8 +43,8 @@ def make_lane_kernel(real, P: int, G: int):
     def lane_steps(
         # Model:
         xy: wp.array(dtype=vec2), hz: wp.array(dtype=real), hand: wp.array(dtype=int),
-        cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
-        minv_self: wp.array2d(dtype=real), n_columns: int,
+        cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
+        minv_self: wp.array2d(dtype=real), rest: wp.array2d(dtype=real), n_columns: int,
         tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, init: int, step: wp.array(dtype=int),
         # Data in/out:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
@@ -68,7 +68,6 @@ def make_lane_kernel(real, P: int, G: int):
         start = alive
         wE = wc % cab_EA.shape[1]
         wC = wc % cab_EAc.shape[1]
-        wL = wc % cab_L.shape[1]
         wM = wc % minv_self.shape[1]
         nb = 3 * n  # first base member (cross cables come first)
         # the lane's levels P lane + j, j = 0..P (j = 0: the level below, owned by lane - 1)
@@ -80,8 +79,6 @@ def make_lane_kernel(real, P: int, G: int):
         hzl = Pv()
         hnd = Pv()
         ex = Pv()
-        baseL = Rows()
-        crossL = Rows()
         for j in range(wp.static(P + 1)):
             L = wp.static(P) * lane + j
             if L <= n:
@@ -94,8 +91,6 @@ def make_lane_kernel(real, P: int, G: int):
                         U[rr] = u[node, wc]
                         V[rr] = v[node, wc]
                         A[rr] = a[node, wc]
-                        baseL[wp.max(j - 1, 0), k] = cab_L[nb + node, wL]
-                        crossL[wp.max(j - 1, 0), k] = cab_L[3 * L - 3 + k, wL]
                 if j > 0:
                     q = wp.max(j - 1, 0)
                     hzl[q] = hz[L - 1]
@@ -104,39 +99,53 @@ def make_lane_kernel(real, P: int, G: int):
             elif j > 0:
                 q = wp.max(j - 1, 0)
                 hzl[q] = real(1.0)  # padding prisms: finite, inert geometry
-                for k in range(3):
-                    baseL[q, k] = real(1.0)
-                    crossL[q, k] = real(1.0)
         cross = vec(cab_EA[0, wE], cab_EAc[0, wC], zero)
         base_ea = vec(cab_EA[nb, wE], cab_EAc[nb, wC], zero)
-        # bar lengths from the same reference vectors the kernel uses
-        Lb = Rows()
-        B0 = f.bars(Nodes(), xyl, hzl, lane, g, wl)
-        for q in range(wp.static(P)):
-            for k in range(3):
-                Lb[q, k] = wp.length(B0[3 * q + k])
         s0 = step[0]
-        Bm = f.bars(U, xyl, hzl, lane, g, wl)
-        d, e, l = f.gram(Bm, minv, ex, n, lane, g, wl)
-        Fm, okl = f.factor(d, e, l, lane, g, wl)
-        if not seg_ok(okl, g, wl):
-            if alive == 1 and lane == 0:
-                set_failure(status, fail_step, w, STATUS_CONSTRAINT, s0 + 1)
-            alive = 0
         worst = zero
         most = int(0)
         half = real(0.5) * h
+        kick = half  # the second half kick; init: none (v is only made admissible)
+        n_it = n_sub
         if init != 0:
-            lam = f.solve(Fm, f.velocity_rows(Bm, V, ex, lane, g, wl), lane, g, wl)
-            dv = f.impulse(Bm, lam, minv, lane, g, wl)
-            An = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, crossL, base_ea, baseL, lane, g, wl), minv)
+            kick = zero
+            n_it = 1
+        Bm = f.bars(U, xyl, hzl, lane, g, wl)
+        An = A
+        # iteration i: the factor of A(U) at the state after step i, the end of step i (second
+        # half kick, velocity projection), then step i + 1 up to its forces; each piece once in code
+        for i in range(n_it + 1):
+            if warp_any(alive, wl) == 0:
+                break
+            d, e, l = f.gram(Bm, minv, ex, n, lane, g, wl)
+            Fm, okl = f.factor(d, e, l, lane, g, wl)
+            fok = seg_ok(okl, g, wl)
+            Vh = V
+            Vn = V
+            vok = bool(True)
+            if i > 0:
+                Vh = V + An * kick
+                lam = f.solve(Fm, f.velocity_rows(Bm, Vh, ex, lane, g, wl), lane, g, wl)
+                Vn = Vh - f.impulse(Bm, lam, minv, lane, g, wl)
+                vok = seg_ok(f.finite_nodes(Vn), g, wl)
             if alive == 1:
-                V = V - dv
-                A = An
-        else:
-            for sub in range(n_sub):
-                if warp_any(alive, wl) == 0:
-                    break
+                code = int(STATUS_OK)
+                if i > 0:
+                    A = An
+                    V = Vh
+                if not fok:
+                    code = STATUS_CONSTRAINT
+                elif i > 0:
+                    V = Vn
+                    if not vok:
+                        code = STATUS_NONFINITE
+                if code != STATUS_OK:
+                    if lane == 0:
+                        set_failure(status, fail_step, w, code, s0 + wp.max(i, 1))
+                    alive = 0
+            if i == n_it:
+                break
+            if init == 0:
                 Bp = Bm  # bars at the start of the step: the factor's
                 if alive == 1:
                     V = V + A * half
@@ -148,7 +157,7 @@ def make_lane_kernel(real, P: int, G: int):
                 going = alive
                 while True:
                     Bm = f.bars(U, xyl, hzl, lane, g, wl)
-                    r, el = f.residuals(Bm, Lb, ex)
+                    r, el = f.residuals(Bm, xyl, hzl, ex)
                     es = ops.segment_max(el, g, wl)
                     if going == 1:
                         prev = err
@@ -176,31 +185,9 @@ def make_lane_kernel(real, P: int, G: int):
                         code = STATUS_CONSTRAINT
                     if code != STATUS_OK:
                         if lane == 0:
-                            set_failure(status, fail_step, w, code, s0 + sub + 1)
+                            set_failure(status, fail_step, w, code, s0 + i + 1)
                         alive = 0
-                # force, second half kick, velocity projection at the new positions
-                An = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, crossL, base_ea, baseL, lane, g, wl), minv)
-                d, e, l = f.gram(Bm, minv, ex, n, lane, g, wl)
-                Fm, okl = f.factor(d, e, l, lane, g, wl)
-                fok = seg_ok(okl, g, wl)
-                Vh = V + An * half
-                lam = f.solve(Fm, f.velocity_rows(Bm, Vh, ex, lane, g, wl), lane, g, wl)
-                Vn = Vh - f.impulse(Bm, lam, minv, lane, g, wl)
-                vok = seg_ok(f.finite_nodes(Vn), g, wl)
-                if alive == 1:
-                    A = An
-                    V = Vh
-                    code = int(STATUS_OK)
-                    if not fok:
-                        code = STATUS_CONSTRAINT
-                    else:
-                        V = Vn
-                        if not vok:
-                            code = STATUS_NONFINITE
-                    if code != STATUS_OK:
-                        if lane == 0:
-                            set_failure(status, fail_step, w, code, s0 + sub + 1)
-                        alive = 0
+            An = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl), minv)
         if start == 1:
             for j in range(1, wp.static(P + 1)):
                 L = wp.static(P) * lane + j
@@ -310,6 +297,8 @@ class LaneStep:
         d = device
         self.xy = wp.array(X[:, :2].astype(npr), dtype=self.kernels.vec2, device=d)
         self.hz = wp.array(np.diff(z).astype(npr), dtype=real, device=d)
+        # rest lengths with the column index first: a column's lanes read adjacent addresses
+        self.rest = wp.array(np.ascontiguousarray(model.cab_L.numpy().T), dtype=real, device=d)
         self.hand = wp.array(np.where(top == 2, 1, 0).astype(np.int32), dtype=wp.int32, device=d)
         self.real = real
         self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
@@ -330,7 +319,7 @@ class LaneStep:
     def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
         m, r = self.model, self.real
         wp.launch(self.kernels.lane_steps, dim=self.threads, block_dim=self.block_dim, device=self.device, inputs=[
-            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.cab_L, m.minv_self, m.n_columns,
+            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.n_columns,
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step])
