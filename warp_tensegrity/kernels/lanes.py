@@ -24,9 +24,10 @@ if TYPE_CHECKING:
     from ..scene.batch import NetworkBatch
 
 @functools.cache
-def make_lane_kernel(real, P: int, G: int):
-    """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column.
-    Launch with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
+def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
+    """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
+    (``max_registers``: a cap per CUDA thread, None: the compiler's choice). Launch with ``dim`` =
+    B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual)
     vec = f.vec
@@ -39,7 +40,20 @@ def make_lane_kernel(real, P: int, G: int):
         """1 if ok is 1 on every lane of the segment."""
         return ops.segment_max(real(1 - ok), g, wl) < real(0.5)
 
-    @wp.kernel(enable_backward=False, module="unique")
+    @wp.func(inline=True)
+    def store(U: Nodes, V: Nodes, A: Nodes, u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec),
+              a: wp.array2d(dtype=vec), lane: int, n: int, w: int):
+        """Write the lane's nodes of column w."""
+        for j in range(1, wp.static(P + 1)):
+            L = wp.static(P) * lane + j
+            if L <= n:
+                for k in range(3):
+                    node = 3 * L + k
+                    u[node, w] = U[3 * j - 3 + k]
+                    v[node, w] = V[3 * j - 3 + k]
+                    a[node, w] = A[3 * j - 3 + k]
+
+    @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers)
     def lane_steps(
         # Model:
         xy: wp.array(dtype=vec2), hz: wp.array(dtype=real), hand: wp.array(dtype=int),
@@ -111,45 +125,38 @@ def make_lane_kernel(real, P: int, G: int):
             kick = zero
             n_it = 1
         Bm = f.bars(U, xyl, hzl, lane, g, wl)
-        An = A
-        # iteration i: the factor of A(U) at the state after step i, the end of step i (second
-        # half kick, velocity projection), then step i + 1 up to its forces; each piece once in code
+        # iteration i: the factor of A(U) at the state after step i and the end of step i (velocity
+        # projection), then step i + 1 up to its forces and second half kick; each piece once in code
         for i in range(n_it + 1):
             if warp_any(alive, wl) == 0:
                 break
             d, e, l = f.gram(Bm, minv, ex, n, lane, g, wl)
             Fm, okl = f.factor(d, e, l, lane, g, wl)
             fok = seg_ok(okl, g, wl)
-            Vh = V
-            Vn = V
             vok = bool(True)
             if i > 0:
-                Vh = V + An * kick
-                lam = f.solve(Fm, f.velocity_rows(Bm, Vh, ex, lane, g, wl), lane, g, wl)
-                Vn = Vh - f.impulse(Bm, lam, minv, lane, g, wl)
-                vok = seg_ok(f.finite_nodes(Vn), g, wl)
-            if alive == 1:
-                code = int(STATUS_OK)
-                if i > 0:
-                    A = An
-                    V = Vh
-                if not fok:
-                    code = STATUS_CONSTRAINT
-                elif i > 0:
-                    V = Vn
-                    if not vok:
-                        code = STATUS_NONFINITE
-                if code != STATUS_OK:
-                    if lane == 0:
-                        set_failure(status, fail_step, w, code, s0 + wp.max(i, 1))
-                    alive = 0
+                lam = f.solve(Fm, f.velocity_rows(Bm, V, ex, lane, g, wl), lane, g, wl)
+                dv = f.impulse(Bm, lam, minv, lane, g, wl)
+                if fok:
+                    V = V - dv
+                vok = seg_ok(f.finite_nodes(V), g, wl)
+            code = int(STATUS_OK)
+            if not fok:
+                code = STATUS_CONSTRAINT
+            elif not vok:
+                code = STATUS_NONFINITE
+            if code != STATUS_OK and alive == 1:
+                # the column freezes here: its state is stored now, its registers run on unused
+                store(U, V, A, u, v, a, lane, n, w)
+                if lane == 0:
+                    set_failure(status, fail_step, w, code, s0 + wp.max(i, 1))
+                alive = 0
             if i == n_it:
                 break
             if init == 0:
                 Bp = Bm  # bars at the start of the step: the factor's
-                if alive == 1:
-                    V = V + A * half
-                    U = U + V * h
+                V = V + A * half
+                U = U + V * h
                 # simplified Newton onto |b| = L along M^-1 G(P)^T
                 err = zero
                 prev = zero
@@ -170,7 +177,7 @@ def make_lane_kernel(real, P: int, G: int):
                         break
                     lam = f.solve(Fm, r, lane, g, wl)
                     dn = f.impulse(Bp, lam, minv, lane, g, wl)
-                    if going == 1:
+                    if going == 1:  # (other columns of the warp may still iterate)
                         U = U - dn
                         V = V - dn * (real(1.0) / h)
                         it += 1
@@ -184,23 +191,19 @@ def make_lane_kernel(real, P: int, G: int):
                     elif err > fail_tol:
                         code = STATUS_CONSTRAINT
                     if code != STATUS_OK:
+                        store(U, V, A, u, v, a, lane, n, w)
                         if lane == 0:
                             set_failure(status, fail_step, w, code, s0 + i + 1)
                         alive = 0
-            An = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl), minv)
-        if start == 1:
-            for j in range(1, wp.static(P + 1)):
-                L = wp.static(P) * lane + j
-                if L <= n:
-                    for k in range(3):
-                        node = 3 * L + k
-                        u[node, w] = U[3 * j - 3 + k]
-                        v[node, w] = V[3 * j - 3 + k]
-                        a[node, w] = A[3 * j - 3 + k]
-            if lane == 0 and init == 0:
-                iters[w] = wp.max(iters[w], most)
-                if worst > bar_err[w]:
-                    bar_err[w] = worst
+            A = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl),
+                                minv)
+            V = V + A * kick
+        if alive == 1:
+            store(U, V, A, u, v, a, lane, n, w)
+        if start == 1 and lane == 0 and init == 0:
+            iters[w] = wp.max(iters[w], most)
+            if worst > bar_err[w]:
+                bar_err[w] = worst
 
     @wp.kernel(enable_backward=False, module="unique")
     def advance_counter_by(step: wp.array(dtype=int), n: int):
@@ -213,6 +216,7 @@ def make_lane_kernel(real, P: int, G: int):
 MAX_LEVELS_PER_LANE = 4
 LANE_STEPS = 64  # most RATTLE steps per launch (launches also end on every output step)
 LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
+LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
 
 
 def _column_members(n: int, hand: np.ndarray):
@@ -290,7 +294,7 @@ class LaneStep:
         self.P, self.G = lane_shape(n, MAX_LEVELS_PER_LANE)
         real = wp.float64 if model.precision == "fp64" else wp.float32
         npr = np.float64 if real == wp.float64 else np.float32
-        self.kernels = make_lane_kernel(real, self.P, self.G)
+        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[model.precision])
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
