@@ -68,7 +68,7 @@ def main(argv=None):
     if a.device == "cpu":
         wp.config.enable_cpu_blocks = True  # lane emulation (a check of the script; no resources there)
     doc = {"kind": "lanes_check", "meta": common.run_metadata(wp.get_device(a.device)), "cases": [], "resources": []}
-    p, v0, beta = np.meshgrid([0.0, 0.002], [0.05, 0.1, 0.15], [0.0, 0.5, 0.9], indexing="ij")
+    p, v0, beta = np.meshgrid([0.0, 0.002], [0.05, 0.1, 0.15], [0.0, 0.5, 0.9, 1.0], indexing="ij")
     params = {"prestrain": p.ravel(), "v0": v0.ravel(), "base_rigidity": beta.ravel()}
     for n in a.prisms:
         for hand in ("right", "alternating"):

@@ -192,7 +192,8 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
     @wp.func(inline=True)
     def gram(Bm: Nodes, minv: Lv, ex: Pv, n: int, lane: int, g: int, wl: int):
         """Rows of the three chains' tridiagonal Gram matrices at the bars Bm: diagonal d, upper e
-        (to the next row), lower l, each (P, 3). Padding rows past the column are identity."""
+        (to the next row), lower l, each (P, 3), and the bars above the lane's (the next lane's first
+        for its last prism). Padding rows past the column are identity."""
         bnext = Nodes()
         for k in range(3):
             bnext[3 * P - 3 + k] = ops.shfl_down3(Bm[k], 1, g, wl)
@@ -225,7 +226,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
         l[0] = up
         for q in range(1, P):
             l[q] = e[wp.max(q - 1, 0)]
-        return d, e, l
+        return d, e, l, bnext
 
     @wp.func(inline=True)
     def factor(d: Rows, e: Rows, l: Rows, lane: int, g: int, wl: int):
@@ -381,4 +382,4 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
     return SimpleNamespace(Nodes=Nodes, Ext=Ext, XY=XY, Lv=Lv, Rows=Rows, Fac=Fac, Pv=Pv, vec=vec, ops=ops,
                            bars=bars, impulse=impulse, forces=forces, accelerations=accelerations, gram=gram,
                            factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
-                           finite_nodes=finite_nodes)
+                           finite_nodes=finite_nodes, bar_residual=bar_residual)

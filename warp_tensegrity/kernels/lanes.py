@@ -2,10 +2,10 @@
 there too), which batches it takes, its lane arrays and its launches. The Integrator drives
 :class:`LaneStep` like the fused step (same ``launch`` / ``advance_counter`` / ``load``).
 
-It takes T3 columns with flexible or elastic bases (every base member a cable, beta < 1), lumped
-masses and a column that fits a warp (at most :data:`MAX_LEVELS_PER_LANE` levels per lane, so
-128 prisms). Rigid bases (their ring links couple the three bar chains into a 6 x 6 block chain),
-massive bars and other networks run the other paths; :func:`lane_support` says why.
+It takes T3 columns (column_batch's layout) with lumped masses: flexible or elastic bases up to
+:data:`MAX_LEVELS_PER_LANE` levels per lane (128 prisms), and batches with rigid-base columns
+(ring links as constraints, :mod:`.lane_rigid`) up to 2 levels per lane (64 prisms). Massive bars
+and other networks run the other paths; :func:`lane_support` says why.
 """
 
 import functools
@@ -18,18 +18,22 @@ import warp as wp
 from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_force, set_failure
 from .lane_funcs import WARP, lane_shape, make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
+from .lane_rigid import MAX_RIGID_LEVELS_PER_LANE, make_rigid_funcs
 
 if TYPE_CHECKING:
     from ..model import Model
     from ..scene.batch import NetworkBatch
 
 @functools.cache
-def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
+def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
-    (``max_registers``: a cap per CUDA thread, None: the compiler's choice). Launch with ``dim`` =
+    (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
+    has ring links, active in its rigid-base columns, :mod:`.lane_rigid`). Launch with ``dim`` =
     B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual)
+    fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
+    RFac = fr.RFac if rigid else f.Fac
     vec = f.vec
     Nodes, XY, Lv, Rows, Pv = f.Nodes, f.XY, f.Lv, f.Rows, f.Pv
     zero = real(0.0)
@@ -58,7 +62,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
         # Model:
         xy: wp.array(dtype=vec2), hz: wp.array(dtype=real), hand: wp.array(dtype=int),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
-        minv_self: wp.array2d(dtype=real), rest: wp.array2d(dtype=real), n_columns: int,
+        minv_self: wp.array2d(dtype=real), rest: wp.array2d(dtype=real), con_active: wp.array2d(dtype=real),
+        n_columns: int,
         tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, init: int, step: wp.array(dtype=int),
         # Data in/out:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
@@ -113,6 +118,9 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
             elif j > 0:
                 q = wp.max(j - 1, 0)
                 hzl[q] = real(1.0)  # padding prisms: finite, inert geometry
+        rig = con_active[wp.min(3, con_active.shape[0] - 1), wc % con_active.shape[1]]  # the column's links
+        if wp.static(not rigid):
+            rig = zero
         cross = vec(cab_EA[0, wE], cab_EAc[0, wC], zero)
         base_ea = vec(cab_EA[nb, wE], cab_EAc[nb, wC], zero)
         s0 = step[0]
@@ -125,18 +133,32 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
             kick = zero
             n_it = 1
         Bm = f.bars(U, xyl, hzl, lane, g, wl)
+        Cm = Nodes()
+        if wp.static(rigid):
+            Cm = fr.links(U, xyl, lane, g, wl)
         # iteration i: the factor of A(U) at the state after step i and the end of step i (velocity
         # projection), then step i + 1 up to its forces and second half kick; each piece once in code
         for i in range(n_it + 1):
             if warp_any(alive, wl) == 0:
                 break
-            d, e, l = f.gram(Bm, minv, ex, n, lane, g, wl)
-            Fm, okl = f.factor(d, e, l, lane, g, wl)
+            Fr = RFac()
+            Fm = f.Fac()
+            okl = int(1)
+            if wp.static(rigid):
+                Fr, okl = fr.factor(Bm, Cm, minv, ex, rig, n, lane, g, wl)
+            else:
+                d, e, l, bnext = f.gram(Bm, minv, ex, n, lane, g, wl)
+                Fm, okl = f.factor(d, e, l, lane, g, wl)
             fok = seg_ok(okl, g, wl)
             vok = bool(True)
             if i > 0:
-                lam = f.solve(Fm, f.velocity_rows(Bm, V, ex, lane, g, wl), lane, g, wl)
-                dv = f.impulse(Bm, lam, minv, lane, g, wl)
+                rb = f.velocity_rows(Bm, V, ex, lane, g, wl)
+                dv = Nodes()
+                if wp.static(rigid):
+                    beta, mu = fr.solve(Fr, rb, fr.link_velocity_rows(Cm, V, ex, rig), lane, g, wl)
+                    dv = fr.link_impulse(f.impulse(Bm, beta, minv, lane, g, wl), Cm, mu, minv)
+                else:
+                    dv = f.impulse(Bm, f.solve(Fm, rb, lane, g, wl), minv, lane, g, wl)
                 if fok:
                     V = V - dv
                 vok = seg_ok(f.finite_nodes(V), g, wl)
@@ -154,7 +176,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
             if i == n_it:
                 break
             if init == 0:
-                Bp = Bm  # bars at the start of the step: the factor's
+                Bp = Bm  # bars (and links) at the start of the step: the factor's
+                Cp = Cm
                 V = V + A * half
                 U = U + V * h
                 # simplified Newton onto |b| = L along M^-1 G(P)^T
@@ -165,6 +188,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
                 while True:
                     Bm = f.bars(U, xyl, hzl, lane, g, wl)
                     r, el = f.residuals(Bm, xyl, hzl, ex)
+                    rl = Rows()
+                    if wp.static(rigid):
+                        Cm = fr.links(U, xyl, lane, g, wl)
+                        rl, el = fr.link_residuals(Cm, xyl, ex, rig, el)
                     es = ops.segment_max(el, g, wl)
                     if going == 1:
                         prev = err
@@ -175,8 +202,12 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None):
                             going = 0  # stalled at round-off just above tol
                     if warp_any(going, wl) == 0:
                         break
-                    lam = f.solve(Fm, r, lane, g, wl)
-                    dn = f.impulse(Bp, lam, minv, lane, g, wl)
+                    dn = Nodes()
+                    if wp.static(rigid):
+                        beta, mu = fr.solve(Fr, r, rl, lane, g, wl)
+                        dn = fr.link_impulse(f.impulse(Bp, beta, minv, lane, g, wl), Cp, mu, minv)
+                    else:
+                        dn = f.impulse(Bp, f.solve(Fm, r, lane, g, wl), minv, lane, g, wl)
                     if going == 1:  # (other columns of the warp may still iterate)
                         U = U - dn
                         V = V - dn * (real(1.0) / h)
@@ -257,14 +288,29 @@ def lane_support(batch: "NetworkBatch") -> str | None:
         return "a boundary other than the clamped level 0"
     # handedness from the cross cables; then every member list must be column_batch's
     if batch.cables.shape[0] != 6 * n + 3:
-        return "rigid base links or another member layout"
+        return "a member layout other than column_batch's"
     top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
     hand = np.where(top == 2, 1, -1)
     bars, cross, base = _column_members(n, hand)
-    if not (np.array_equal(batch.constraints, bars) and np.array_equal(batch.cables, np.concatenate([cross, base]))):
-        return "rigid base links or another member layout"
-    if np.any(batch.constraint_active != 1):
-        return "inactive bars"
+    if not np.array_equal(batch.cables, np.concatenate([cross, base])):
+        return "a member layout other than column_batch's"
+    active = batch.constraint_active
+    if np.array_equal(batch.constraints, bars):
+        if np.any(active != 1):
+            return "inactive bars"
+    else:
+        # rigid base links: prism m's bars, then the links of level m + 1 (column_batch's order)
+        links = base[3:].reshape(n, 3, 2)
+        if not np.array_equal(batch.constraints, np.concatenate([bars.reshape(n, 3, 2), links], axis=1).reshape(-1, 2)):
+            return "a constraint layout other than column_batch's"
+        if n > WARP * MAX_RIGID_LEVELS_PER_LANE:
+            return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
+                    "prisms (2 levels per lane)")
+        a = active.reshape(active.shape[0], n, 6)
+        if np.any(a[:, :, :3] != 1):
+            return "inactive bars"
+        if np.any(a[:, :, 3:] != a[:, :1, 3:4]) or np.any((a[:, 0, 3] != 0) & (a[:, 0, 3] != 1)):
+            return "a column whose base links are partly rigid"
     m = batch.node_mass.reshape(batch.node_mass.shape[0], n + 1, 3)
     if np.any(m != m[:, :, :1]):
         return "nodes of one level with different masses"
@@ -294,7 +340,8 @@ class LaneStep:
         self.P, self.G = lane_shape(n, MAX_LEVELS_PER_LANE)
         real = wp.float64 if model.precision == "fp64" else wp.float32
         npr = np.float64 if real == wp.float64 else np.float32
-        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[model.precision])
+        self.rigid = batch.constraints.shape[0] == 6 * n
+        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[model.precision], self.rigid)
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
@@ -314,7 +361,8 @@ class LaneStep:
     def description(self) -> str:
         per = WARP // self.G
         return (f"lanes (one warp per column: {self.P} levels per lane, {self.G} lanes per column"
-                + (f", {per} columns per warp" if per > 1 else "") + "; chains by PCR over shuffles)")
+                + (f", {per} columns per warp" if per > 1 else "")
+                + ("; ring links folded into 3 x 3 bar blocks" if self.rigid else "") + "; chains by PCR over shuffles)")
 
     def load(self):
         self.kernels.lane_steps.module.load(self.device, self.block_dim)
@@ -323,7 +371,7 @@ class LaneStep:
     def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
         m, r = self.model, self.real
         wp.launch(self.kernels.lane_steps, dim=self.threads, block_dim=self.block_dim, device=self.device, inputs=[
-            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.n_columns,
+            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.con_active, m.n_columns,
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step])
