@@ -219,6 +219,26 @@ def lanes_costs(n_prisms: int, r: int, it: float, output_every: int = 100, steps
     }
 
 
+def lanes_rigid_costs(n_prisms: int, r: int, it: float, output_every: int = 100, steps_per_launch: int = 64) -> dict:
+    """:func:`lanes_costs` plus the ring links of rigid bases (kernels/lane_rigid.py), per lane
+    (ceil(n / P) lanes): per level the link vectors and residuals (~30 a Newton iteration), the
+    couplings (~105), the links' 3 x 3 inverse (~40) and their Schur complement (~270); the first
+    row's block inverse and spikes (~265, P = 2); block PCR ~240 a level, a final inverse; a solve
+    3 mat-vecs a level for the links' right-hand side and 3 for their multipliers (~90), ~45 for the
+    first row, 2 mat-vecs a PCR level (~36) and the back substitution (~45)."""
+    n = int(n_prisms)
+    P = -(-n // 32)
+    lanes = -(-n // P)
+    LG = max(lanes - 1, 0).bit_length()
+    k = lanes_costs(n, r, it, output_every, steps_per_launch)
+    solve = lanes * (90 * P + 45 * (P - 1) + 36 * LG + 60)
+    factor = lanes * (415 * P + 265 * (P - 1) + 240 * LG + 40)
+    k["newton"] = (0.0, k["newton"][1] + it * (solve + 30 * 3 * n))
+    k["factor"] = (0.0, k["factor"][1] + factor)
+    k["velocity_projection"] = (0.0, k["velocity_projection"][1] + solve + 8 * 3 * n)
+    return k
+
+
 def bound(n_prisms: int = 50, base="FB", precision: str = "fp64", device_kind: str = "h100",
           it: float | None = None, output_every: int = 100, per_column_params: str = "rest_length",
           B: int | None = None, path: str = "staged") -> dict:
@@ -275,9 +295,7 @@ def _bound_fused(n_prisms, base, precision, device_kind, it, output_every, B, so
     r = 4 if precision == "fp32" else 8
     it = DEFAULT_ITERS[(lab, precision)] if it is None else float(it)
     if solver == "lanes":
-        if lab != "FB":
-            raise ValueError("the lane step takes flexible bases only")
-        k = lanes_costs(int(n_prisms), r, it, output_every)
+        k = (lanes_costs if lab == "FB" else lanes_rigid_costs)(int(n_prisms), r, it, output_every)
     else:
         k = fused_costs(c["n_nodes"], c["n_cables"], c["n_constraints"], c["bandwidth"], c["n_coupling"], r, it,
                         output_every, solver=solver)
