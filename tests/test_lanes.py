@@ -114,6 +114,16 @@ def test_lane_refusal_agrees_with_lane_support(cfg, params, n_sim, words):
         assert words in on_batch and words in on_scene, (on_batch, on_scene)
 
 
+def test_the_cpu_runs_the_lane_step_only_emulated(monkeypatch):
+    """Without Warp's CPU blocks each lane would be a block of its own (shuffles and votes would
+    read nothing): the Integrator refuses rather than hang or compute garbage."""
+    from warp_tensegrity.integrate import Integrator
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", False)
+    with pytest.raises(SettingsError, match="CPU blocks"):
+        Integrator(column_batch(ColumnConfig(n_prisms=2), {}), RunSettings(device="cpu"), 1e-4, 1, 2, path=Path.LANES)
+
+
 def test_lane_support_refuses_other_networks():
     b = column_batch(ColumnConfig(n_prisms=3), {})
     assert lane_support(dataclasses.replace(b, level_nodes=None)) == "not a T3 column (no levels)"
