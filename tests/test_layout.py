@@ -26,7 +26,7 @@ LAYERS = [
      "kernels.lane_ops", "kernels.lane_funcs", "kernels.lanes",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
      "measure.device_kernels", "measure.device", "sweep.parse"},
-    {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "checks.closed_forms",
+    {"scene.batch", "scene", "integrate", "paths", "checks", "checks.reference", "checks.linear", "checks.closed_forms",
      "checks.dispersion", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "sweep.status", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run", "validation.checks",

@@ -101,6 +101,8 @@ def _key(config, params, settings, shard, device) -> tuple[str, dict]:
         "output_interval": repr(settings.output_interval), "probe_columns": len(cols),
         "params": {k: np.asarray(v, dtype=np.float64)[cols].tolist() for k, v in sorted(params.items())},
         "truncate": settings.truncate, "code": code_version(), "version": CACHE_VERSION,
+        # every column's, not only the probe's: a rigid-base column anywhere keeps the lane step away
+        "rigid_columns": bool(np.any(np.asarray(params.get("base_rigidity", 0.0), dtype=np.float64) >= 1.0)),
     }
     h = hashlib.sha256(json.dumps(desc, sort_keys=True, default=str).encode()).hexdigest()[:20]
     return h, desc
@@ -147,7 +149,7 @@ def _array_bytes(obj, B: int) -> tuple[int, int]:
     return per, fixed
 
 
-def _fresh_process_costs(device: str, config, params, settings) -> dict:
+def _fresh_process_costs(device: str, config, params, settings, lanes_refused: str | None = None) -> dict:
     """Import and warm kernel-load seconds of a fresh process (what every run pays once), with
     the probe's columns (so the kernels are the ones the probe compiled)."""
     code = (
@@ -158,8 +160,8 @@ def _fresh_process_costs(device: str, config, params, settings) -> dict:
         "wp.init(); wp.get_device(sys.argv[1])\n"
         "t1 = time.perf_counter()\n"
         "import pickle, base64\n"
-        "cfg, params, s = pickle.loads(base64.b64decode(sys.argv[2]))\n"
-        "r = engine.simulate_batch(cfg, params, s)\n"
+        "cfg, params, s, lanes = pickle.loads(base64.b64decode(sys.argv[2]))\n"
+        "r = engine.simulate_batch(cfg, params, s, lanes_refused=lanes)\n"
         "st = r.info['stages']\n"
         "print(json.dumps({'import': t1 - t0, 'compile': st['compile'], 'rss': __import__('resource').getrusage(0).ru_maxrss * 1024}))\n"
     )
@@ -168,7 +170,7 @@ def _fresh_process_costs(device: str, config, params, settings) -> dict:
 
     s = dataclasses.replace(settings, t_end=2 * float(settings.dt), output_interval=float(settings.dt),
                             record_strain=False)
-    arg = base64.b64encode(pickle.dumps((config, params, s))).decode()
+    arg = base64.b64encode(pickle.dumps((config, params, s, lanes_refused))).decode()
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
     t0 = time.perf_counter()
@@ -209,7 +211,8 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     ``settings`` must carry the resolved dt (seconds). Returns the measured rates (dict)."""
     import warp as wp
 
-    from .engine import _far_end, apply_accuracy, choose_path, choose_timestep, gram_bandwidth, prisms_to_simulate
+    from .engine import (_far_end, apply_accuracy, choose_path, choose_timestep, gram_bandwidth, lane_emulation,
+                         lane_refusal, prisms_to_simulate)
     from .integrate import Integrator
     from .measure.device import load_kernels, measure_record
     from .scene.batch import column_batch, omega_max_bound
@@ -252,51 +255,54 @@ def probe(config, params: dict, settings, shard_size: int, use_cache: bool = Tru
     # whole graph periods (as a run replays them): the fused path captures output periods
     spg = int(s.steps_per_graph)
     # the path a shard of the sweep takes (the key holds settings.fused, the shard width and the scene)
-    step_path = choose_path(s, device.is_cuda, shard_size, gram_bandwidth(batch))
-    fused = step_path in (StepPath.FUSED, StepPath.FUSED_SERIAL)
+    # (the lane step decided from all the sweep's columns, as the plan decides it for every shard)
+    lanes = lane_refusal(config, params, n_sim)
+    step_path = choose_path(s, device.is_cuda, shard_size, gram_bandwidth(batch), lanes)
+    fused = step_path in (StepPath.FUSED, StepPath.FUSED_SERIAL, StepPath.LANES)
     period = every * max(1, -(-spg // every)) if fused else spg
     seg_steps = period * max(1, -(-(PROBE_STEPS // 3) // period))
     warm_steps = period * max(1, -(-PROBE_WARM_STEPS // period))
     n_out = (warm_steps + 3 * seg_steps) // every + 1
-    t0 = time.perf_counter()
-    integ = Integrator(batch, s, dt, every, n_out, path=step_path)
-    t_integ = time.perf_counter() - t0
-    B = batch.n_columns
-    with wp.ScopedDevice(integ.device):
+    with lane_emulation(step_path, device):  # the CPU runs the lane step as fibers
         t0 = time.perf_counter()
-        integ.initialize()
-        load_kernels(integ.device)
-        wp.synchronize_device(integ.device)
-        t_init = time.perf_counter() - t0
-        integ.advance(warm_steps)  # loads, graph capture
-        wp.synchronize_device(integ.device)
-        seg = []  # three segments, median: robust to a neighbour's burst on a shared host
-        for _ in range(3):
+        integ = Integrator(batch, s, dt, every, n_out, path=step_path)
+        t_integ = time.perf_counter() - t0
+        B = batch.n_columns
+        with wp.ScopedDevice(integ.device):
             t0 = time.perf_counter()
-            integ.advance(seg_steps)
+            integ.initialize()
+            load_kernels(integ.device)
             wp.synchronize_device(integ.device)
-            seg.append((time.perf_counter() - t0) / seg_steps)
-        t_step = float(np.median(seg))
-        per_col, fixed = _array_bytes((integ.model, integ.data, integ.kinetic, integ.elastic), B)
-        # measurement of a record of the sweep's length (sech^2 pulses crossing the column)
-        T_full = int(math.ceil(float(settings.t_end) / float(dt) - 1e-9)) // every + 1
-        tt = np.arange(T_full) * every * dt
-        j = np.arange(n_sim)
-        c = max(n_sim, 4) / max(float(tt[-1]), 1e-30) * 0.8
-        rec = -1e-3 / np.cosh((j[None, :] - (n_sim - 1 + 4 - c * tt[:, None])) / 2.0) ** 2
-        real = wp.float32 if s.precision == "fp32" else wp.float64
-        rec_d = wp.empty((T_full, n_sim, B), dtype=real)
-        wp.launch(_tile_columns(real), rec_d.shape, [wp.array(rec.astype(np.float64), dtype=wp.float64), rec_d])
-        measure_record(rec_d, tt, config.height, n_prisms=n, cut=n - n_sim)  # warm
-        tm = {}
-        measure_record(rec_d, tt, config.height, n_prisms=n, cut=n - n_sim, timings=tm)
-        big = wp.zeros(1 << 21, dtype=wp.float64)
-        t0 = time.perf_counter()
-        big.numpy()
-        t_copy = (time.perf_counter() - t0) / big.size / 8
+            t_init = time.perf_counter() - t0
+            integ.advance(warm_steps)  # loads, graph capture
+            wp.synchronize_device(integ.device)
+            seg = []  # three segments, median: robust to a neighbour's burst on a shared host
+            for _ in range(3):
+                t0 = time.perf_counter()
+                integ.advance(seg_steps)
+                wp.synchronize_device(integ.device)
+                seg.append((time.perf_counter() - t0) / seg_steps)
+            t_step = float(np.median(seg))
+            per_col, fixed = _array_bytes((integ.model, integ.data, integ.kinetic, integ.elastic), B)
+            # measurement of a record of the sweep's length (sech^2 pulses crossing the column)
+            T_full = int(math.ceil(float(settings.t_end) / float(dt) - 1e-9)) // every + 1
+            tt = np.arange(T_full) * every * dt
+            j = np.arange(n_sim)
+            c = max(n_sim, 4) / max(float(tt[-1]), 1e-30) * 0.8
+            rec = -1e-3 / np.cosh((j[None, :] - (n_sim - 1 + 4 - c * tt[:, None])) / 2.0) ** 2
+            real = wp.float32 if s.precision == "fp32" else wp.float64
+            rec_d = wp.empty((T_full, n_sim, B), dtype=real)
+            wp.launch(_tile_columns(real), rec_d.shape, [wp.array(rec.astype(np.float64), dtype=wp.float64), rec_d])
+            measure_record(rec_d, tt, config.height, n_prisms=n, cut=n - n_sim)  # warm
+            tm = {}
+            measure_record(rec_d, tt, config.height, n_prisms=n, cut=n - n_sim, timings=tm)
+            big = wp.zeros(1 << 21, dtype=wp.float64)
+            t0 = time.perf_counter()
+            big.numpy()
+            t_copy = (time.perf_counter() - t0) / big.size / 8
     with tempfile.TemporaryDirectory() as tmp:
         io = _io_rates(Path(tmp))
-    fresh = _fresh_process_costs(integ.device.alias, config, pp, settings)
+    fresh = _fresh_process_costs(integ.device.alias, config, pp, settings, lanes)
     res = {
         "key": key, "describe": desc, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "device_label": desc["device"], "is_cuda": bool(device.is_cuda), "step_path": str(step_path.value),

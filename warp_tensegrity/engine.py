@@ -3,7 +3,7 @@
 * accuracy -> method, precision and dt (:func:`for_accuracy`, :func:`apply_accuracy`);
 * dt and output stride from the stability limit (:func:`choose_timestep`);
 * truncation: which prisms to simulate (:func:`prisms_to_simulate`, :func:`reachable_prisms`);
-* launch path, staged or fused (:func:`choose_path`);
+* launch path, staged, fused or lanes (:func:`choose_path`, from :mod:`warp_tensegrity.paths`);
 * the cost and memory model (:func:`estimate_batch`);
 * and the entry points that apply them: :func:`simulate_batch` (columns), :func:`run_batch`
   (any prepared batch).
@@ -56,32 +56,10 @@ from .scene.batch import (
 from .scene.columns import ColumnConfig
 from .runtime import init_warp
 from .result import BatchResult
+from .paths import (FUSED_MAX_BANDWIDTH, MEASURED_H100, MEASURED_PATHS, NOT_CHECKED, choose_path,  # noqa: F401
+                    gram_bandwidth, lane_emulation, lane_refusal, measured_rates)
 from .settings import RunSettings, SettingsError
-from .types import FORCE_EVALS, STABILITY, Base, Method, Path
-
-# fused='auto' on a GPU: the fastest measured of the fused step with its constraint solve by block
-# cyclic reduction ("fused"), the fused step with lane 0's serial banded Cholesky ("fused-serial")
-# and the staged kernels, per (band, precision, columns). H100, 50 prisms, RATTLE, column-steps/s
-# (benchmarks/results/throughput_h100_solver.json, commit 0ac0606; tests/test_parallel_solve.py checks
-# this table against it): {band: {precision: {B: (fused, fused-serial, staged)}}}; band 3 = FB, 6 = RB.
-MEASURED_H100 = {
-    3: {
-        "fp32": {1024: (9.3e6, 6.55e6, 9.76e5), 4096: (1.19e7, 1.08e7, 3.28e6), 16384: (1.63e7, 1.45e7, 8.06e6),
-                 65536: (1.71e7, 1.54e7, 2.08e7), 131072: (1.74e7, 1.45e7, 2.56e7)},
-        "fp64": {1024: (3.7e6, 4.1e6, 4.81e5), 4096: (5.23e6, 4.35e6, 1.27e6), 16384: (6.59e6, 6.15e6, 3.95e6),
-                 65536: (6.53e6, 6.34e6, 9.08e6), 131072: (6.51e6, 6.37e6, 8.65e6)},
-    },
-    6: {
-        "fp32": {1024: (1.58e6, 2.26e6, 3.93e5), 4096: (1.93e6, 4.16e6, 1.14e6), 16384: (1.74e6, 4.39e6, 3.71e6),
-                 65536: (1.68e6, 4.44e6, 1.02e7), 131072: (1.67e6, 4.44e6, 1.28e7)},
-        "fp64": {1024: (7.07e5, 1.04e6, 1.83e5), 4096: (8.2e5, 1.6e6, 5.2e5), 16384: (8e5, 1.75e6, 1.77e6),
-                 65536: (7.46e5, 1.81e6, 4.08e6), 131072: (7.38e5, 1.82e6, 4.03e6)},
-    },
-}
-MEASURED_PATHS = (Path.FUSED, Path.FUSED_SERIAL, Path.STAGED)
-# widest Gram band the fused step takes at all (its S x S blocks live in registers); wider generic
-# networks run the staged kernels
-FUSED_MAX_BANDWIDTH = 8
+from .types import FORCE_EVALS, STABILITY, Base, Method
 
 REACH_MARGIN_PRISMS = 8
 
@@ -156,44 +134,6 @@ def reachable_prisms(omega_max: float, t_end: float, n_prisms: int) -> int:
     reach = math.ceil(omega_max * t_end) + REACH_MARGIN_PRISMS
     return int(min(n_prisms, max(reach, 2)))
 
-def measured_rates(bandwidth: int, precision: str, n_columns: int) -> dict:
-    """{path: column-steps/s} of :data:`MEASURED_H100` for the nearest measured case: the band
-    measured nearest ``bandwidth`` (3 or 6), the batch nearest ``n_columns`` in log scale."""
-    band = min(MEASURED_H100, key=lambda b: (abs(b - bandwidth), b))
-    rows = MEASURED_H100[band][precision]
-    B = min(rows, key=lambda b: (abs(math.log2(b) - math.log2(max(n_columns, 1))), b))
-    return dict(zip(MEASURED_PATHS, rows[B]))
-
-
-def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int, bandwidth: int = 0) -> Path:
-    """Fused RATTLE (a block per column; constraint solve by block cyclic reduction, or serial on
-    lane 0) or staged kernels. ``settings.fused`` False: staged; True: the fused variant measured
-    faster (:func:`measured_rates`; the CR variant on the CPU); 'auto': RATTLE with a Gram
-    half-bandwidth up to :data:`FUSED_MAX_BANDWIDTH` takes the fastest measured of the three on a
-    GPU, and the CR fused step on the CPU (one lane per block there: no crossover measured)."""
-    if settings.fused is True:
-        if bandwidth > FUSED_MAX_BANDWIDTH:
-            raise SettingsError(f"fused = true: the constraint Gram band is {bandwidth} wide, above the fused "
-                                f"step's {FUSED_MAX_BANDWIDTH}; use fused = 'auto' or false (staged kernels)")
-        if not on_gpu:
-            return Path.FUSED
-        rates = measured_rates(bandwidth, settings.precision, n_columns)
-        return max((Path.FUSED, Path.FUSED_SERIAL), key=rates.get)
-    if settings.fused == "auto" and settings.method == Method.RATTLE and bandwidth <= FUSED_MAX_BANDWIDTH:
-        if not on_gpu:
-            return Path.FUSED
-        rates = measured_rates(bandwidth, settings.precision, n_columns)
-        return max(MEASURED_PATHS, key=rates.get)
-    return Path.STAGED
-
-
-def gram_bandwidth(batch: NetworkBatch) -> int:
-    """Half-bandwidth of the batch's constraint Gram matrix (host-side, no kernel)."""
-    from .model import constraint_coupling, mass_entries
-
-    return int(constraint_coupling(batch, mass_entries(batch)[0])[-1])
-
-
 def choose_timestep(settings: RunSettings, omega_max: float):
     """Returns (dt, dt_limit, n_steps, output_every) with dt dividing the output interval."""
     limit = STABILITY[settings.method] / omega_max if omega_max > 0 else math.inf
@@ -238,21 +178,27 @@ def _to_host(a):
     return None if a is None else a.numpy().astype(np.float64)
 
 
-def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: dict | None = None) -> BatchResult:
+def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: dict | None = None,
+              lanes_refused: str | None = None) -> BatchResult:
     """Integrate a prepared batch; see :func:`simulate_batch` for columns. ``pulse``: keywords of
     :func:`~warp_tensegrity.measure.device.measure_record` (prism_height, n_prisms, cut) to measure
-    the record on the device (settings.measure = 'device')."""
+    the record on the device (settings.measure = 'device'). ``lanes_refused``: a reason, decided
+    for more columns than this batch's (a sweep's), not to take the lane step (:func:`choose_path`)."""
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
+    from .kernels.lanes import lane_support
 
     omega = float(omega_max_bound(batch).max())
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     n_out = n_steps // every + 1
-    path = choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns, gram_bandwidth(batch))
+    device = resolve_device(settings.device)
+    path = choose_path(settings, device.is_cuda, batch.n_columns, gram_bandwidth(batch),
+                       lane_support(batch) or lanes_refused)
     # the measures need the record on the device, whether or not it crosses to the host
     record = settings.record_strain or settings.measure == "host" or (pulse is not None and settings.measure == "device")
-    integ = Integrator(batch, replace(settings, record_strain=record), dt, every, n_out, path=path)
-    wall, t_compile = integ.run(n_steps, progress)
+    with lane_emulation(path, device):  # the CPU runs the lane step as fibers
+        integ = Integrator(batch, replace(settings, record_strain=record), dt, every, n_out, path=path)
+        wall, t_compile = integ.run(n_steps, progress)
     stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
     measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"
     if measure_here:
@@ -331,7 +277,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: 
 
 
 def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, progress=None,
-                   prisms_simulated: int | None = None) -> BatchResult:
+                   prisms_simulated: int | None = None, lanes_refused: str | None = None) -> BatchResult:
     """Simulate B T3 columns of one topology, each with its own parameters.
 
     ``params`` maps names in :data:`~warp_tensegrity.settings.COLUMN_PARAMETERS` to arrays of
@@ -340,7 +286,8 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     With ``settings.accuracy`` the method, precision and dt are chosen from it; with
     ``settings.truncate`` only the prisms a wave can reach within t_end are simulated. Both are
     reported in ``result.info['choices']``. ``prisms_simulated`` fixes that count instead (a sweep
-    decides it once for all its columns, so no shard depends on which columns it holds).
+    decides it once for all its columns, so no shard depends on which columns it holds), as
+    ``lanes_refused`` does the lane step (a sweep's :func:`lane_refusal`; :func:`run_batch`).
     """
     n = config.n_prisms
     n_sim = prisms_to_simulate(config, params, settings) if prisms_simulated is None else int(prisms_simulated)
@@ -350,7 +297,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     batch = column_batch(sim_config, params)
     t_build = time.perf_counter() - t_build
     pulse = {"prism_height": config.height, "n_prisms": n, "cut": n - n_sim}
-    result = run_batch(batch, settings, progress, pulse=pulse)
+    result = run_batch(batch, settings, progress, pulse=pulse, lanes_refused=lanes_refused)
     result.info["stages"]["build"] += t_build
     if n_sim < n:
         _pad_to_full_column(result, config, sim_config, params, n, n_sim)
@@ -443,6 +390,7 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     settings, choices = apply_accuracy(settings, n_sim)
     batch, B = _topology_batch(config, params)
     omega = _omega_bound(config, params)
+    lanes = lane_refusal(config, params, n_sim)  # as a sweep decides it for all its shards
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     n_out = n_steps // every + 1
     r = 4 if settings.precision == "fp32" else 8
@@ -472,7 +420,8 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
         "flops_per_column_step": int(flops),
         "omega_max_bound": omega,
         "bandwidth": int(bw),
-        "step_path": str(choose_path(settings, device.is_cuda, B, int(bw)).value),
+        "step_path": str(choose_path(settings, device.is_cuda, B, int(bw), lanes).value),
+        "lane_refusal": lanes,
         "on_gpu": bool(device.is_cuda),
         "seconds_per_column_step_estimate": seconds / max(n_steps * B, 1),
         "seconds_estimate": seconds,

@@ -103,6 +103,9 @@ class Integrator:
             self.elastic = wp.zeros((n_out, B), dtype=real)
             self.fk = None
             if self.path == Path.LANES:
+                if not (self.device.is_cuda or wp.config.enable_cpu_blocks):  # each lane would be a block of its own
+                    raise SettingsError("the lane step on the CPU needs Warp's CPU blocks (wp.config.enable_cpu_blocks; "
+                                        "engine runs switch them on: paths.lane_emulation)")
                 self.fk = LaneStep(m, batch, self.device)
             elif self.fused:
                 self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU,

@@ -381,14 +381,18 @@ class RunSettings:
     """Relative bar-length error above which a column is frozen and flagged."""
     steps_per_graph: Annotated[int, Opt("int", "1", ge=1)] = 50
     """Steps captured in one CUDA graph."""
-    fused: Annotated[bool | Literal["auto"], Opt("bool", special=(("auto", "auto"),))] = "auto"
-    """RATTLE as one fused kernel, a thread block per column and several steps per launch
-    (:mod:`warp_tensegrity.kernels.fused`); False: one kernel per stage (the only path of the other
-    methods). 'auto': for RATTLE on a GPU the fastest measured of the fused step (constraint
-    solve by block cyclic reduction or serially on lane 0) and the staged kernels for the band,
-    precision and batch (:func:`~warp_tensegrity.engine.choose_path`); the fused step on the CPU;
-    staged for Gram bands wider than ``FUSED_MAX_BANDWIDTH`` (generic networks). True: the faster
-    fused variant. The paths give the same numbers to round-off (not part of the fingerprint)."""
+    fused: Annotated[bool | Literal["auto", "lanes"], Opt("bool", special=(("auto", "auto"), ("lanes", "lanes")))] = "auto"
+    """RATTLE as one fused kernel with several steps per launch; False: one kernel per stage (the only
+    path of the other methods). 'auto' and True on a GPU: the lane step (one warp per column,
+    :mod:`warp_tensegrity.kernels.lanes`) wherever it takes the columns (flexible or elastic bases,
+    massless bars, up to 128 prisms simulated; :func:`~warp_tensegrity.engine.choose_path`).
+    Otherwise 'auto': for RATTLE on a GPU the fastest measured of the fused step (a thread block per
+    column, :mod:`warp_tensegrity.kernels.fused`; constraint solve by block cyclic reduction or
+    serially on lane 0) and the staged kernels for the band, precision and batch; the fused step
+    on the CPU; staged for Gram bands wider than ``FUSED_MAX_BANDWIDTH`` (generic networks); True:
+    the faster fused variant. 'lanes': the lane step on any device (the CPU emulates its warps:
+    slow, for tests), an error where it does not take the columns. The paths give the same numbers
+    to round-off (not part of the fingerprint)."""
     accuracy: Annotated[float | None, Opt("real", "1", ge=1e-15, lt=1, optional=True,
                                           why="the relative error wanted on pulse speed and amplitude, "
                                               "not below fp64 round-off")] = None
@@ -411,8 +415,8 @@ class RunSettings:
             errors.append(f"dt = {self.dt!r}: must be <= t_end = {self.t_end!r} s")
         if self.output_interval is not None and self.output_interval > self.t_end:
             errors.append(f"output_interval = {self.output_interval!r}: must be <= t_end = {self.t_end!r} s")
-        if self.fused is True and self.method != "rattle":
-            errors.append(f"fused = True: the fused step is RATTLE's; needs method = 'rattle' (got {self.method!r})")
+        if self.fused in (True, "lanes") and self.method != "rattle":
+            errors.append(f"fused = {self.fused!r}: the fused step is RATTLE's; needs method = 'rattle' (got {self.method!r})")
         if errors:
             raise SettingsError(errors)
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..engine import choose_path, estimate_batch
+from ..engine import NOT_CHECKED, choose_path, estimate_batch
 from ..provenance import code_version
 from ..settings import RunSettings
 from .progress import fmt_seconds
@@ -184,10 +184,12 @@ def dry_run(plan: SweepPlan, costs: dict | None = None) -> str:
 
 
 def _step_path(plan: SweepPlan) -> str:
-    """The launch path (engine.choose_path) a shard takes: 'fused', 'fused-serial' or 'staged'."""
+    """The launch path (engine.choose_path) a shard takes: 'lanes', 'fused', 'fused-serial' or
+    'staged' (whether the lane step takes the columns is decided once for the whole sweep)."""
     est = plan.estimate
     shard = max(b - a for a, b in plan.shards)
-    return str(choose_path(plan.settings, bool(est.get("on_gpu")), shard, int(est.get("bandwidth", 0))).value)
+    return str(choose_path(plan.settings, bool(est.get("on_gpu")), shard, int(est.get("bandwidth", 0)),
+                           est.get("lane_refusal", NOT_CHECKED)).value)
 
 
 def _fmt_bytes(b: float) -> str:

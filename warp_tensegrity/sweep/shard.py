@@ -33,7 +33,9 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
     settings = plan.settings if device is None else dataclasses.replace(plan.settings, device=device)
-    result = simulate_batch(spec.scene, params, settings, progress=progress, prisms_simulated=plan.prisms_simulated)
+    # prisms simulated and the lane step decided once for all the sweep's columns (the plan's)
+    result = simulate_batch(spec.scene, params, settings, progress=progress, prisms_simulated=plan.prisms_simulated,
+                            lanes_refused=plan.estimate.get("lane_refusal"))
     meas = measure_columns(result, spec.scene.height)
     attrs = {
         "Conventions": D.CONVENTIONS,

@@ -1,0 +1,199 @@
+"""The lane step (one warp per column, kernels/lanes.py; on the CPU each warp is emulated by 32
+fibers) against the staged kernels, an independent implementation of the same RATTLE: same numbers
+to round-off, same flags; which batches it takes (``lane_support`` on a batch, ``lane_refusal`` on a
+scene: they agree); and the policy that picks it (GPU decisions are pure functions of the inputs)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import warp as wp
+
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, engine, simulate_batch
+from warp_tensegrity.kernels.lane_funcs import lane_shape
+from warp_tensegrity.kernels.lanes import MAX_LEVELS_PER_LANE, lane_support
+from warp_tensegrity.paths import NOT_CHECKED, choose_path, lane_refusal
+from warp_tensegrity.scene.batch import column_batch
+from warp_tensegrity.sweep import parse_spec
+from warp_tensegrity.sweep.plan import _step_path, plan_sweep
+from warp_tensegrity.sweep.shard import compute_shard
+from warp_tensegrity.types import Path
+
+# flexible, elastic and nearly rigid bases in one batch; slack and prestressed impacts
+MIXED = {"prestrain": [0.0, 0.002, 0.002], "v0": [0.005, 0.1, 0.05], "base_rigidity": [0.0, 0.5, 0.95]}
+
+
+def _run(cfg, params, fused, device, precision="fp64", **kw):
+    kw = {"t_end": 0.05, "dt": 5e-4, "output_interval": 0.01, **kw}
+    s = RunSettings(precision=precision, device=device, truncate=False, fused=fused, **kw)
+    return simulate_batch(cfg, params, s)
+
+
+def _rel(a, b, axis=(1, 2)):
+    return np.abs(a - b).max(axis=axis) / np.abs(b).max(axis=axis)
+
+
+@pytest.mark.parametrize("n, hand, shape", [
+    (1, "right", (1, 1)),
+    (2, "left", (1, 2)),
+    (7, "RRLRLLR", (1, 8)),  # 4 columns per warp
+    (50, "alternating", (2, 32)),
+    (100, "right", (4, 32)),
+])
+def test_lanes_match_staged_fp64(n, hand, shape, device):
+    assert lane_shape(n, MAX_LEVELS_PER_LANE) == shape
+    cfg = ColumnConfig(n_prisms=n, handedness=hand)
+    before = wp.config.enable_cpu_blocks
+    staged = _run(cfg, MIXED, False, device)
+    lanes = _run(cfg, MIXED, "lanes", device)
+    assert wp.config.enable_cpu_blocks == before  # the CPU emulation is on only while the lane step runs
+    P, G = shape
+    assert lanes.info["step_path"].startswith(f"lanes (one warp per column: {P} levels per lane, {G} lanes per column")
+    assert staged.info["step_path"].startswith("staged")
+    assert np.all(staged.status == 0) and np.all(lanes.status == 0)
+    assert np.all(np.abs(staged.strain).max(axis=(1, 2)) > 1e-3)  # every column moves
+    assert np.all(_rel(lanes.strain, staged.strain) <= 1e-11), _rel(lanes.strain, staged.strain)
+    # the whole state at t_end (the strain alone does not see a mirrored twist)
+    for name in ("final_displacement", "final_velocity"):
+        rel = _rel(getattr(lanes, name), getattr(staged, name))
+        assert np.all(rel <= 1e-11), (name, rel)
+    assert np.all(lanes.bar_length_error <= 1e-12), lanes.bar_length_error
+    assert lanes.info["max_projection_iterations"] <= RunSettings().max_projection_iters
+
+
+def test_lanes_fp32_hold_the_bars(device):
+    """fp32, 64-step launches that end on every output step (100 steps per output)."""
+    cfg = ColumnConfig(n_prisms=7, handedness="left")
+    kw = {"t_end": 0.1, "dt": 5e-4, "output_interval": 0.05}
+    lanes = _run(cfg, MIXED, "lanes", device, "fp32", **kw)
+    ref = _run(cfg, MIXED, False, device, "fp64", **kw)
+    assert lanes.info["output_every"] == 100 and np.all(lanes.status == 0)
+    assert np.all(lanes.bar_length_error <= 3e-7), lanes.bar_length_error
+    assert np.all(_rel(lanes.strain, ref.strain) < 1e-4), _rel(lanes.strain, ref.strain)
+
+
+def test_lanes_flag_diverging_columns_and_spare_the_rest(device):
+    """Columns 1 and 3 get cables 1e6 and 250 times stiffer: dt is then far (or ~2x) above their
+    stability limit. Column 1 fails at once, column 3 after the first 64-step launch; the others
+    (sharing their warp: 16 two-prism columns per warp) are bit for bit those of a batch without them."""
+    cfg = ColumnConfig(n_prisms=2)
+    cab = cfg.cable_EA
+    params = {"prestrain": [0.002] * 4, "v0": [0.05] * 4, "base_rigidity": [0.0, 0.0, 0.5, 0.0],
+              "cable_EA": [cab, cab * 1e6, cab, cab * 250]}
+    kw = {"t_end": 0.1, "dt": 1e-3, "output_interval": 0.1, "allow_unstable_dt": True}
+    r = _run(cfg, params, "lanes", device, **kw)
+    alone = _run(cfg, {k: np.asarray(v)[[0, 2]] for k, v in params.items()}, "lanes", device, **kw)
+    staged = _run(cfg, params, False, device, **kw)
+    assert r.status[1] != 0 and r.fail_step[1] == staged.fail_step[1] == 1
+    assert r.status[3] != 0 and 1 < r.fail_step[3] <= r.n_steps
+    assert np.all(r.status[[0, 2]] == 0) and np.all(r.fail_step[[0, 2]] == -1)
+    for name in ("strain", "final_displacement", "final_velocity", "bar_length_error"):
+        np.testing.assert_array_equal(getattr(r, name)[[0, 2]], getattr(alone, name), err_msg=name)
+
+
+SCENES = [  # (config, params, simulated prisms, words of the refusal or None)
+    (ColumnConfig(n_prisms=7, handedness="alternating"), MIXED, None, None),
+    (ColumnConfig(n_prisms=7), {"base_rigidity": [0.0, 1.0]}, None, "rigid base links"),
+    (ColumnConfig(n_prisms=1, bar_mass=0.01), {}, None, "massive bars"),
+    (ColumnConfig(n_prisms=1), {"base_rigidity": [1.0]}, None, "rigid base links"),
+    # long columns (their impact velocity is not what is checked: the cheaper 'end_twist' one)
+    (ColumnConfig(n_prisms=128, impact_admissibility="end_twist"), {"base_rigidity": [0.3]}, None, None),
+    (ColumnConfig(n_prisms=129, impact_admissibility="end_twist"), {}, None, "levels per lane"),
+    (ColumnConfig(n_prisms=129, handedness="alternating", impact_admissibility="end_twist"), {}, 100, None),
+]  # the last: truncated to the 100 prisms at the impacted end
+
+
+@pytest.mark.parametrize("cfg, params, n_sim, words", SCENES)
+def test_lane_refusal_agrees_with_lane_support(cfg, params, n_sim, words):
+    sim = engine._far_end(cfg, n_sim) if n_sim else cfg
+    on_batch = lane_support(column_batch(sim, params))
+    on_scene = lane_refusal(cfg, params, n_sim)
+    if words is None:
+        assert on_batch is None and on_scene is None, (on_batch, on_scene)
+    else:
+        assert words in on_batch and words in on_scene, (on_batch, on_scene)
+
+
+def test_the_cpu_runs_the_lane_step_only_emulated(monkeypatch):
+    """Without Warp's CPU blocks each lane would be a block of its own (shuffles and votes would
+    read nothing): the Integrator refuses rather than hang or compute garbage."""
+    from warp_tensegrity.integrate import Integrator
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", False)
+    with pytest.raises(SettingsError, match="CPU blocks"):
+        Integrator(column_batch(ColumnConfig(n_prisms=2), {}), RunSettings(device="cpu"), 1e-4, 1, 2, path=Path.LANES)
+
+
+def test_lane_support_refuses_other_networks():
+    b = column_batch(ColumnConfig(n_prisms=3), {})
+    assert lane_support(dataclasses.replace(b, level_nodes=None)) == "not a T3 column (no levels)"
+    # one column of the batch with stiffer cross cables on one side: not a uniform column
+    ea = np.array(b.cable_EA, dtype=np.float64, copy=True)
+    ea[:, 0] *= 2
+    assert "cross cables" in lane_support(dataclasses.replace(b, cable_EA=ea))
+
+
+def test_policy_picks_the_lane_step_on_a_gpu():
+    for prec in ("fp32", "fp64"):
+        for B in (1, 1536, 16384, 131072):
+            for fused in ("auto", True, "lanes"):
+                assert choose_path(RunSettings(precision=prec, fused=fused), True, B, 3, None) == Path.LANES
+            # a batch it does not take (or one nobody checked): the measured policy as before
+            for why in ("rigid base links", NOT_CHECKED):
+                for fused in ("auto", True):
+                    s = RunSettings(precision=prec, fused=fused)
+                    assert choose_path(s, True, B, 3, why) == choose_path(s, True, B, 3) != Path.LANES
+    assert choose_path(RunSettings(fused=False), True, 4096, 3, None) == Path.STAGED
+    assert choose_path(RunSettings(method="rk4"), True, 4096, 3, None) == Path.STAGED
+    # the CPU: never chosen (fiber emulation is slow), only asked for
+    assert choose_path(RunSettings(), False, 4, 3, None) == Path.FUSED
+    assert choose_path(RunSettings(fused=True), False, 4, 3, None) == Path.FUSED
+    assert choose_path(RunSettings(fused="lanes"), False, 4, 3, None) == Path.LANES
+    for on_gpu in (True, False):
+        with pytest.raises(SettingsError, match="fused = 'lanes'.*massive bars"):
+            choose_path(RunSettings(fused="lanes"), on_gpu, 4, 3, "massive bars (consistent bar inertia)")
+    with pytest.raises(SettingsError, match="not checked"):
+        choose_path(RunSettings(fused="lanes"), True, 4, 3)
+    with pytest.raises(SettingsError, match="rattle"):
+        RunSettings(fused="lanes", method="rk4")
+    with pytest.raises(SettingsError, match="fused"):
+        RunSettings(fused="lane")
+
+
+def test_estimate_plan_and_run_name_the_same_path(device):
+    cfg = ColumnConfig(n_prisms=4)
+    params = {"v0": [0.01, 0.02], "base_rigidity": [0.0, 0.5]}
+    s = RunSettings(t_end=0.01, dt=5e-4, device=device, truncate=False, fused="lanes")
+    est = engine.estimate_batch(cfg, params, s)
+    assert est["step_path"] == "lanes" and est["lane_refusal"] is None
+    auto = engine.estimate_batch(cfg, params, dataclasses.replace(s, fused="auto"))
+    assert auto["step_path"] == str(choose_path(RunSettings(), auto["on_gpu"], 2, auto["bandwidth"], None).value)
+    with pytest.raises(SettingsError, match="rigid base links"):
+        engine.estimate_batch(cfg, {"base_rigidity": [0.0, 1.0]}, s)
+    with pytest.raises(SettingsError, match="rigid base links"):
+        simulate_batch(cfg, {"base_rigidity": [0.0, 1.0]}, s)
+    # a sweep: the plan names the path, and its shards take it (decided once for all columns)
+    spec = parse_spec('[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01, 0.02] }\n[run]\nt_end = 0.01\n'
+                      f'dt = 5e-4\ntruncate = false\nfused = "lanes"\ndevice = "{device}"\n')
+    plan = plan_sweep(spec, shard_size=1)
+    assert _step_path(plan) == "lanes"
+    assert compute_shard(plan, 1).attrs["step_path"].startswith("lanes")
+    plan.estimate["lane_refusal"] = "a column of another shard has rigid base links"
+    with pytest.raises(SettingsError, match="another shard"):
+        compute_shard(plan, 0)
+
+
+def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
+    """The dry run on a GPU (a stand-in device: CI has none) names the lane step for an FB/elastic
+    sweep, and the measured table's path once any column has rigid bases (decided per sweep)."""
+    from types import SimpleNamespace
+
+    from warp_tensegrity import integrate
+
+    monkeypatch.setattr(integrate, "resolve_device", lambda name: SimpleNamespace(is_cuda=True))
+    text = '[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
+           '[run]\nt_end = 0.01\nprecision = "fp32"\n'
+    plan = plan_sweep(parse_spec(text % "0.5"), shard_size=2)
+    assert plan.estimate["lane_refusal"] is None and _step_path(plan) == "lanes"
+    plan = plan_sweep(parse_spec(text % "1.0"), shard_size=2)
+    assert "rigid base links" in plan.estimate["lane_refusal"] and _step_path(plan) == "fused-serial"
