@@ -21,6 +21,9 @@ from warp_tensegrity.types import Path
 
 # flexible, elastic and nearly rigid bases in one batch; slack and prestressed impacts
 MIXED = {"prestrain": [0.0, 0.002, 0.002], "v0": [0.005, 0.1, 0.05], "base_rigidity": [0.0, 0.5, 0.95]}
+# the same with rigid bases (ring links as constraints: kernels/lane_rigid.py), slack and prestressed
+RIGID = {"prestrain": [0.0, 0.002, 0.002, 0.0, 0.002], "v0": [0.005, 0.1, 0.05, 0.005, 0.1],
+         "base_rigidity": [0.0, 0.5, 0.95, 1.0, 1.0]}
 
 
 def _run(cfg, params, fused, device, precision="fp64", **kw):
@@ -33,19 +36,19 @@ def _rel(a, b, axis=(1, 2)):
     return np.abs(a - b).max(axis=axis) / np.abs(b).max(axis=axis)
 
 
-@pytest.mark.parametrize("n, hand, shape", [
-    (1, "right", (1, 1)),
-    (2, "left", (1, 2)),
-    (7, "RRLRLLR", (1, 8)),  # 4 columns per warp
-    (50, "alternating", (2, 32)),
-    (100, "right", (4, 32)),
+@pytest.mark.parametrize("n, hand, shape, params", [
+    (1, "right", (1, 1), RIGID),
+    (2, "left", (1, 2), MIXED),
+    (7, "RRLRLLR", (1, 8), RIGID),  # 4 columns per warp
+    (50, "alternating", (2, 32), RIGID),
+    (100, "right", (4, 32), MIXED),
 ])
-def test_lanes_match_staged_fp64(n, hand, shape, device):
+def test_lanes_match_staged_fp64(n, hand, shape, params, device):
     assert lane_shape(n, MAX_LEVELS_PER_LANE) == shape
     cfg = ColumnConfig(n_prisms=n, handedness=hand)
     before = wp.config.enable_cpu_blocks
-    staged = _run(cfg, MIXED, False, device)
-    lanes = _run(cfg, MIXED, "lanes", device)
+    staged = _run(cfg, params, False, device)
+    lanes = _run(cfg, params, "lanes", device)
     assert wp.config.enable_cpu_blocks == before  # the CPU emulation is on only while the lane step runs
     P, G = shape
     assert lanes.info["step_path"].startswith(f"lanes (one warp per column: {P} levels per lane, {G} lanes per column")
@@ -93,9 +96,13 @@ def test_lanes_flag_diverging_columns_and_spare_the_rest(device):
 
 SCENES = [  # (config, params, simulated prisms, words of the refusal or None)
     (ColumnConfig(n_prisms=7, handedness="alternating"), MIXED, None, None),
-    (ColumnConfig(n_prisms=7), {"base_rigidity": [0.0, 1.0]}, None, "rigid base links"),
+    (ColumnConfig(n_prisms=7), {"base_rigidity": [0.0, 1.0]}, None, None),
     (ColumnConfig(n_prisms=1, bar_mass=0.01), {}, None, "massive bars"),
-    (ColumnConfig(n_prisms=1), {"base_rigidity": [1.0]}, None, "rigid base links"),
+    (ColumnConfig(n_prisms=1), {"base_rigidity": [1.0]}, None, None),
+    (ColumnConfig(n_prisms=64, impact_admissibility="end_twist"), {"base_rigidity": [1.0]}, None, None),
+    (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [0.0, 1.0]}, None,
+     "rigid bases with 65 prisms"),
+    (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [1.0]}, 64, None),
     # long columns (their impact velocity is not what is checked: the cheaper 'end_twist' one)
     (ColumnConfig(n_prisms=128, impact_admissibility="end_twist"), {"base_rigidity": [0.3]}, None, None),
     (ColumnConfig(n_prisms=129, impact_admissibility="end_twist"), {}, None, "levels per lane"),
@@ -139,7 +146,7 @@ def test_policy_picks_the_lane_step_on_a_gpu():
             for fused in ("auto", True, "lanes"):
                 assert choose_path(RunSettings(precision=prec, fused=fused), True, B, 3, None) == Path.LANES
             # a batch it does not take (or one nobody checked): the measured policy as before
-            for why in ("rigid base links", NOT_CHECKED):
+            for why in ("rigid bases with 65 prisms", NOT_CHECKED):
                 for fused in ("auto", True):
                     s = RunSettings(precision=prec, fused=fused)
                     assert choose_path(s, True, B, 3, why) == choose_path(s, True, B, 3) != Path.LANES
@@ -168,32 +175,36 @@ def test_estimate_plan_and_run_name_the_same_path(device):
     assert est["step_path"] == "lanes" and est["lane_refusal"] is None
     auto = engine.estimate_batch(cfg, params, dataclasses.replace(s, fused="auto"))
     assert auto["step_path"] == str(choose_path(RunSettings(), auto["on_gpu"], 2, auto["bandwidth"], None).value)
-    with pytest.raises(SettingsError, match="rigid base links"):
-        engine.estimate_batch(cfg, {"base_rigidity": [0.0, 1.0]}, s)
-    with pytest.raises(SettingsError, match="rigid base links"):
-        simulate_batch(cfg, {"base_rigidity": [0.0, 1.0]}, s)
+    long = ColumnConfig(n_prisms=65, impact_admissibility="end_twist")
+    with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
+        engine.estimate_batch(long, {"base_rigidity": [0.0, 1.0]}, s)
+    with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
+        simulate_batch(long, {"base_rigidity": [0.0, 1.0]}, s)
     # a sweep: the plan names the path, and its shards take it (decided once for all columns)
     spec = parse_spec('[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01, 0.02] }\n[run]\nt_end = 0.01\n'
                       f'dt = 5e-4\ntruncate = false\nfused = "lanes"\ndevice = "{device}"\n')
     plan = plan_sweep(spec, shard_size=1)
     assert _step_path(plan) == "lanes"
     assert compute_shard(plan, 1).attrs["step_path"].startswith("lanes")
-    plan.estimate["lane_refusal"] = "a column of another shard has rigid base links"
+    plan.estimate["lane_refusal"] = "a column of another shard has massive bars"
     with pytest.raises(SettingsError, match="another shard"):
         compute_shard(plan, 0)
 
 
 def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
-    """The dry run on a GPU (a stand-in device: CI has none) names the lane step for an FB/elastic
-    sweep, and the measured table's path once any column has rigid bases (decided per sweep)."""
+    """The dry run on a GPU (a stand-in device: CI has none) names the lane step for a sweep with
+    flexible, elastic or rigid bases up to 64 prisms, and the measured table's path for a rigid-base
+    sweep of longer columns (decided per sweep)."""
     from types import SimpleNamespace
 
     from warp_tensegrity import integrate
 
     monkeypatch.setattr(integrate, "resolve_device", lambda name: SimpleNamespace(is_cuda=True))
-    text = '[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
-           '[run]\nt_end = 0.01\nprecision = "fp32"\n'
-    plan = plan_sweep(parse_spec(text % "0.5"), shard_size=2)
-    assert plan.estimate["lane_refusal"] is None and _step_path(plan) == "lanes"
-    plan = plan_sweep(parse_spec(text % "1.0"), shard_size=2)
-    assert "rigid base links" in plan.estimate["lane_refusal"] and _step_path(plan) == "fused-serial"
+    text = '[scene]\nn_prisms = %d\nimpact_admissibility = "end_twist"\n' \
+           '[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
+           '[run]\nt_end = 0.01\nprecision = "fp32"\ntruncate = false\n'
+    for n, beta in ((4, "0.5"), (4, "1.0"), (64, "1.0")):
+        plan = plan_sweep(parse_spec(text % (n, beta)), shard_size=2)
+        assert plan.estimate["lane_refusal"] is None and _step_path(plan) == "lanes", (n, beta)
+    plan = plan_sweep(parse_spec(text % (65, "1.0")), shard_size=2)
+    assert "rigid bases with 65" in plan.estimate["lane_refusal"] and _step_path(plan) == "fused-serial"

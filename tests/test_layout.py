@@ -23,7 +23,7 @@ LAYERS = [
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
      "lens.host", "lens.design"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
-     "kernels.lane_ops", "kernels.lane_funcs", "kernels.lanes",
+     "kernels.lane_ops", "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
      "measure.device_kernels", "measure.device", "sweep.parse"},
     {"scene.batch", "scene", "integrate", "paths", "checks", "checks.reference", "checks.linear", "checks.closed_forms",

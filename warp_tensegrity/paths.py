@@ -63,15 +63,18 @@ NOT_CHECKED = "the batch was not checked for the lane step"
 def lane_refusal(config, params: dict, n_prisms: int | None = None) -> str | None:
     """Why the lane step would not take T3 columns of scene ``config`` with the per-column ``params``
     when ``n_prisms`` of their prisms are simulated (default: all); None if it takes them. The
-    scene-level form of :func:`~warp_tensegrity.kernels.lanes.lane_support`: no rigid base links
-    (no column with base_rigidity = 1), massless bars, and at most ``MAX_LEVELS_PER_LANE`` levels
-    per lane of a 32-lane warp."""
+    scene-level form of :func:`~warp_tensegrity.kernels.lanes.lane_support`: massless bars, at most
+    ``MAX_LEVELS_PER_LANE`` levels per lane of a 32-lane warp, and at most
+    ``MAX_RIGID_LEVELS_PER_LANE`` once a column has rigid bases (base_rigidity = 1)."""
     from .kernels.lane_funcs import WARP, lane_shape
+    from .kernels.lane_rigid import MAX_RIGID_LEVELS_PER_LANE
     from .kernels.lanes import MAX_LEVELS_PER_LANE
 
     n = config.n_prisms if n_prisms is None else int(n_prisms)
-    if np.any(np.asarray(params.get("base_rigidity", ColumnParameters.base_rigidity), dtype=np.float64) >= Base.RIGID):
-        return "rigid base links (a column with base_rigidity = 1: its links couple the three bar chains)"
+    rigid = np.any(np.asarray(params.get("base_rigidity", ColumnParameters.base_rigidity), dtype=np.float64) >= Base.RIGID)
+    if rigid and n > WARP * MAX_RIGID_LEVELS_PER_LANE:
+        return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
+                "prisms (2 levels per lane)")
     if config.bar_mass > 0:
         return "massive bars (consistent bar inertia couples node pairs)"
     if lane_shape(n, MAX_LEVELS_PER_LANE) is None:

@@ -107,7 +107,8 @@ class Path(StrEnum):
     """Fused, constraint solve by a serial banded Cholesky on lane 0."""
     LANES = "lanes"
     """Fused, one warp per column: state in registers, the bar chains solved by cyclic reduction
-    over warp shuffles, no shared memory and no barriers (flexible or elastic bases)."""
+    over warp shuffles, no shared memory and no barriers (rigid bases: ring links folded into
+    3 x 3 bar blocks first)."""
 
 
 class Base(float, Enum):
