@@ -44,8 +44,8 @@ def run(device, precision, method, t_end, out, fused="auto"):
     r = simulate_batch(cfg, PAPER_CASES, s, progress=lambda d, n, f: print(f"\r{d}/{n} steps, {f} failed", end="", file=sys.stderr))
     print(file=sys.stderr)
     m = measure_pulse(r.strain, r.time, cfg.height)
-    tag = f"paper_cases_{r.device.replace(':', '')}_{precision}_{method}" + ("" if fused == "auto" else
-                                                                         "_fused" if fused else "_staged")
+    tag = f"paper_cases_{r.device.replace(':', '')}_{precision}_{method}" + (
+        "" if fused == "auto" else "_lanes" if fused == "lanes" else "_fused" if fused else "_staged")
     np.savez_compressed(os.path.join(out, tag + ".npz"), time=r.time, strain=r.strain.astype(np.float64),
                         kinetic=r.kinetic_energy, elastic=r.elastic_energy, **{k: v for k, v in PAPER_CASES.items()})
     summary = {
@@ -92,8 +92,8 @@ def main(argv=None):
     ap.add_argument("--method", default="rattle")
     ap.add_argument("--t-end", type=float, default=10.0)
     ap.add_argument("--out", default="benchmarks/results")
-    ap.add_argument("--fused", default="auto", choices=["auto", "true", "false"],
-                    help="step path: auto (the engine's choice), true (fused), false (staged)")
+    ap.add_argument("--fused", default="auto", choices=["auto", "true", "false", "lanes"],
+                    help="step path: auto (the engine's choice), true (fused), false (staged), lanes (warp per column)")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"))
     ap.add_argument("--compare-out", default=None)
     args = ap.parse_args(argv)
@@ -102,7 +102,7 @@ def main(argv=None):
         return
     os.makedirs(args.out, exist_ok=True)
     run(args.device, args.precision, args.method, args.t_end, args.out,
-        fused={"auto": "auto", "true": True, "false": False}[args.fused])
+        fused={"auto": "auto", "true": True, "false": False, "lanes": "lanes"}[args.fused])
 
 
 if __name__ == "__main__":
