@@ -143,12 +143,22 @@ def _canonical(a: np.ndarray) -> np.ndarray:
     return a
 
 
+STRING_KINDS = "OUT"
+"""dtype kinds of text: object, fixed-width unicode and NumPy 2's variable-width StringDType ('T').
+The same labels come back as any of them (xarray keeps object arrays; Zarr 3 under NumPy 2 reads
+StringDType; NumPy 1 reads fixed-width or object), so they are hashed as text, whatever the kind."""
+
+
 def array_sha256(a) -> str:
+    """sha256 of an array's dtype, shape and contents. Text arrays (:data:`STRING_KINDS`) hash as
+    their strings under one header, so a label written as object and read back as StringDType (or
+    fixed-width unicode) has the same checksum; other arrays hash their canonical bytes."""
     a = np.asarray(a)
-    h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
-    if a.dtype.kind == "O":
+    if a.dtype.kind in STRING_KINDS:
+        h = hashlib.sha256(f"|O{a.shape}".encode())  # '|O' is the object dtype's str: old manifests still match
         h.update("\x00".join(map(str, a.ravel())).encode())
     else:
+        h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
         h.update(_canonical(a).tobytes())
     return h.hexdigest()
 
