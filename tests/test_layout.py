@@ -21,10 +21,10 @@ MAX_CHAIN = 7  # issue 15
 LAYERS = [
     {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse_core", "measure.pulse",
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
-     "lens.host", "lens.design"},  # leaves
+     "lens.host", "lens.design", "tomlread"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
-     "measure.device_kernels", "measure.device", "sweep.parse"},
+     "measure.device_kernels", "measure.device", "sweep.parse", "overrides"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "sweep.status", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},

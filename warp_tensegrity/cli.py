@@ -238,7 +238,7 @@ def _dispatch(args) -> int:
         init_warp(verbose=bool(args.verbose))
         device = None if args.device == "auto" else args.device
         if args.command == "run":
-            from .options import parse_set
+            from .overrides import parse_set
 
             spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)

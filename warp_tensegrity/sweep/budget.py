@@ -36,6 +36,10 @@ class BudgetError(SweepError):
 
 
 def fmt_bytes(b: float) -> str:
+    try:
+        b = float(b)
+    except OverflowError:  # an integer count beyond float range
+        b = math.inf
     for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
         if abs(b) < 1000 or unit == "PB":
             return f"{b:.0f} {unit}" if unit == "B" else f"{b:.3g} {unit}"
