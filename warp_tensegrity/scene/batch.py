@@ -16,6 +16,7 @@ import numpy as np
 
 from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 from . import columns as col
+from . import sparse
 from .network import Network, NetworkError
 
 
@@ -257,9 +258,18 @@ def equilibrium_residuals(batch: NetworkBatch) -> np.ndarray:
     f = f.reshape(B, -1)[:, free]
     active = np.broadcast_to(batch.constraint_active, (B, batch.constraints.shape[0]))
     out = np.zeros(B)
-    for pattern in np.unique(active, axis=0):
-        sel = np.all(active == pattern, axis=1)
+    groups: dict = {}  # columns by their pattern of active constraints (np.unique(axis=0) is slow on long rows)
+    if batch.constraint_active.shape[0] == 1:
+        groups[b""] = list(range(B))
+    for b in range(B if batch.constraint_active.shape[0] > 1 else 0):
+        groups.setdefault(active[b].tobytes(), []).append(b)
+    for cols in groups.values():
+        pattern, sel = active[cols[0]], np.array(cols)
         rows = batch.constraints[pattern > 0]
+        if not sparse.use_dense(int(free.sum())):  # a long column: O(n) (scene/sparse.py)
+            J = sparse.jacobian(X, rows, batch.fixed)[:, np.flatnonzero(free)]
+            out[sel] = sparse.lsq_residual(J, f[sel].T)
+            continue
         J = np.zeros((len(rows), 3 * n))
         for k, (i, j) in enumerate(rows):
             b = X[j] - X[i]
