@@ -21,7 +21,7 @@ MAX_CHAIN = 7  # issue 15
 LAYERS = [
     {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse_core", "measure.pulse",
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
-     "lens.host", "lens.design", "tomlread", "scene.sparse"},  # leaves
+     "lens.host", "lens.design", "tomlread", "scene.sparse", "arguments"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
      "measure.device_kernels", "measure.device", "sweep.parse", "overrides"},

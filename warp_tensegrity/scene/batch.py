@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..arguments import expect, expect_params
 from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 from . import columns as col
 from . import sparse
@@ -67,6 +68,9 @@ def _shrink(a: np.ndarray) -> np.ndarray:
 
 def network_batch(networks: list[Network], velocities: list[np.ndarray] | None = None) -> NetworkBatch:
     """Batch arbitrary networks with identical topology and reference positions."""
+    expect("network_batch", "networks", networks, (list, tuple))
+    for b, net in enumerate(networks):
+        expect("network_batch", f"networks[{b}]", net, Network)
     if not networks:
         raise NetworkError("network_batch: empty list of networks")
     first = networks[0].validate()
@@ -102,6 +106,8 @@ def network_batch(networks: list[Network], velocities: list[np.ndarray] | None =
 
 def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarray]:
     """Fill defaults and broadcast the per-column parameters to a common length B; validate."""
+    expect("column_batch", "config", config, col.ColumnConfig)
+    params = expect_params("column_batch", params)
     unknown = sorted(set(params) - set(COLUMN_PARAMETERS))
     if unknown:
         raise NetworkError(f"unknown column parameter(s) {unknown}; known: {sorted(COLUMN_PARAMETERS)}")

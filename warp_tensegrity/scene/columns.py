@@ -192,7 +192,14 @@ def prism_self_stress(positions: np.ndarray, bars, cross, bottom, top) -> tuple[
     return t[:nb], t[nb : 2 * nb], t[2 * nb : 3 * nb], t[3 * nb :]
 
 
+def _expect_config(func: str, config) -> None:
+    if not isinstance(config, ColumnConfig):
+        raise TypeError(f"{func}: config = {' '.join(fmt(config).split())} ({type(config).__name__}): give a ColumnConfig")
+
+
 def column_topology(config: ColumnConfig) -> ColumnTopology:
+    """The column's nodes, members and unit self-stress (shared by every column of a scene)."""
+    _expect_config("column_topology", config)
     n = config.n_prisms
     hand = config.prism_handedness()
     a, h0, phi = config.radius, config.height, config.twist
@@ -314,7 +321,13 @@ def build_column(
 ) -> ColumnScene:
     """Build one column: rest lengths from the self-stress at cross prestrain ``p``, masses,
     the impact velocity ``v0`` (compressive, along -z at the free end) and the equilibrium check."""
-    config = config or ColumnConfig()
+    config = ColumnConfig() if config is None else config
+    _expect_config("build_column", config)
+    for name, val in (("prestrain", prestrain), ("v0", v0), ("base_rigidity", base_rigidity), ("cable_EA", cable_EA),
+                      ("unit_mass", unit_mass)):
+        if val is not None and (isinstance(val, (bool, np.bool_)) or not isinstance(val, (int, float, np.number))):
+            raise TypeError(f"build_column: {name} = {' '.join(fmt(val).split())}: give one number (one column; "
+                            "column_batch takes arrays)")
     topo = topology or column_topology(config)
     EA = config.cable_EA if cable_EA is None else float(cable_EA)
     mu = config.unit_mass if unit_mass is None else float(unit_mass)
