@@ -512,3 +512,14 @@ def test_memory_limit_sets_the_shard_size_and_refuses_nonsense(tmp_path, capsys)
         err = capsys.readouterr().err
         assert msg in err and "Traceback" not in err, err
         assert not out.exists() and not zstore.SweepStore(out).dir.exists()
+
+
+def test_status_of_a_netcdf_that_is_not_a_sweep_is_a_clear_error(tmp_path, capsys):
+    """`status lens.nc` (any netCDF without a sweep's status and fingerprint) said KeyError (issue 23)."""
+    other = tmp_path / "lens.nc"
+    xr.Dataset({"exit_time": ("column", np.arange(3.0))}, attrs={"title": "a lens"}).to_netcdf(other)
+    assert run_cli("status", other) == 1
+    err = capsys.readouterr().err
+    assert "lens.nc is not the output of a sweep" in err and "Traceback" not in err, err
+    with pytest.raises(sweep.SweepError, match="status variable"):
+        sweep.sweep_status(other)
