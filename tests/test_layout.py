@@ -28,7 +28,7 @@ LAYERS = [
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "sweep.status", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run"},
-    {"sweep.run", "sweep", "lens", "lens.command"},
+    {"sweep.run", "sweep", "lens", "lens.command", "init_spec"},
     {"cli", "__main__"},
 ]
 LAYER = {m: i for i, layer in enumerate(LAYERS) for m in layer}

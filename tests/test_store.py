@@ -259,6 +259,32 @@ def test_second_run_into_the_same_output_is_locked_out(tmp_path, capsys):
     assert "being written by another run" in capsys.readouterr().err
 
 
+def test_lock_file_exists_only_while_a_run_holds_it(tmp_path):
+    """`.OUT.nc.lock` stayed next to every output (issue 23): removed when its run ends; one left
+    by a killed run (unlocked) is taken over; a run that locked a file just removed tries again."""
+    out = tmp_path / "o.nc"
+    lock = zmanifest.lock_path_for(out)
+    assert run_cli("run", write(tmp_path, CASES_SPEC), "-o", out) == 0
+    assert out.exists() and not lock.exists()
+    with zmanifest.SweepLock(out):
+        assert lock.exists()
+        with pytest.raises(zmanifest.StoreError, match="being written by another run"):
+            zmanifest.SweepLock(out).__enter__()
+    assert not lock.exists()
+    lock.write_text("")  # left by a SIGKILLed run: nobody holds it
+    with zmanifest.SweepLock(out):
+        stale_fd = os.open(lock, os.O_RDWR)  # a second run opens the file before the first lets go ...
+    import fcntl
+
+    fcntl.flock(stale_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ... and locks the removed file: not the lock
+    try:
+        with zmanifest.SweepLock(out):  # the path's file is free: a third run may write
+            assert lock.exists() and os.stat(lock).st_ino != os.fstat(stale_fd).st_ino
+    finally:
+        os.close(stale_fd)
+    assert not lock.exists()
+
+
 def _wait_for(marker: Path, proc, timeout=180.0):
     deadline = time.monotonic() + timeout
     while not marker.exists():
