@@ -243,10 +243,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: 
     """Integrate a prepared batch; see :func:`simulate_batch` for columns. ``pulse``: keywords of
     :func:`~warp_tensegrity.measure.device.measure_record` (prism_height, n_prisms, cut) to measure
     the record on the device (settings.measure = 'device')."""
-    expect("run_batch", "batch", batch, NetworkBatch)
-    expect("run_batch", "settings", settings, RunSettings)
-    expect_callable("run_batch", "progress", progress)
-    expect("run_batch", "pulse", pulse, dict, optional=True)
+    expect("run_batch", "batch", batch, NetworkBatch), expect("run_batch", "settings", settings, RunSettings)
+    expect_callable("run_batch", "progress", progress), expect("run_batch", "pulse", pulse, dict, optional=True)
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
 
@@ -377,8 +375,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
 def check_batch_arguments(func: str, config, params, settings, progress=None) -> dict:
     """The arguments of a batch of columns checked (ArgumentError naming the parameter); the
     per-column parameters as a plain dict (masked arrays refused)."""
-    expect(func, "config", config, ColumnConfig)
-    expect(func, "settings", settings, RunSettings)
+    expect(func, "config", config, ColumnConfig), expect(func, "settings", settings, RunSettings)
     expect_callable(func, "progress", progress)
     return expect_params(func, params)
 
