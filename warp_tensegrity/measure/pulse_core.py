@@ -338,9 +338,10 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     _check_fraction("end_fraction", end_fraction)
     s, t = _float_array("strain", strain), _float_array("time", time)
     _check_history(s, t)
-    if isinstance(prism_height, (bool, np.bool_)) or not isinstance(prism_height, (int, float, np.number)) \
-            or not (np.isfinite(prism_height) and prism_height > 0):
-        raise ValueError(f"prism_height = {' '.join(repr(prism_height).split())[:60]}: give the reference prism height h0 > 0 [m]")
+    h = _float_array("prism_height", prism_height)  # a number, or an array broadcastable to (...)
+    if isinstance(prism_height, (bool, np.bool_)) or not (h.size and np.all(np.isfinite(h) & (h > 0))):
+        raise ValueError(f"prism_height = {' '.join(repr(prism_height).split())[:60]}: give the reference prism "
+                         "height h0 > 0 [m] (a number, or one per record)")
     lead, (T, P) = s.shape[:-2], s.shape[-2:]
     B = int(np.prod(lead, dtype=np.int64))
     s = s.reshape(B, T, P)
