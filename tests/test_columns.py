@@ -197,3 +197,48 @@ def test_long_column_builds_in_linear_time(mode):
     assert np.all(b.equilibrium_residual < 1e-9)
     end = b.velocity[:, -3:, 2]
     assert np.allclose(end, -0.1) if mode != "project" else np.all(end < 0)
+
+
+def _coupling_by_loops(batch, partner):
+    """The members' coupling as model.py built it before it was vectorised (the oracle)."""
+    touching = {}
+    for k, (i, j) in enumerate(batch.constraints):
+        touching.setdefault(int(i), []).append((k, -1.0))
+        touching.setdefault(int(j), []).append((k, 1.0))
+    start, rows, bw = [0], [], 0
+    for k, (i, j) in enumerate(batch.constraints):
+        terms = sorted((l, a, c, sa * sb) for a, sa in ((int(i), -1.0), (int(j), 1.0)) if not batch.fixed[a]
+                       for b, c in ((a, 0), (int(partner[a]), 1)) if b >= 0 for l, sb in touching.get(b, []) if l <= k)
+        rows += terms
+        bw = max([bw] + [k - t[0] for t in terms])
+        start.append(len(rows))
+    cols = list(zip(*rows)) if rows else [[], [], [], []]
+    return [np.array(start)] + [np.array(c) for c in cols] + [bw]
+
+
+@pytest.mark.parametrize("n, mode, hand, massive", [(1, "rigid_members", "right", True), (4, "end_twist", "right", False),
+                                                    (7, "project", "alternating", False), (60, "rigid_members", "LRRL" * 15, False)])
+def test_vectorised_member_coupling_and_masses_are_the_loops(n, mode, hand, massive):
+    """model.constraint_coupling / mass_entries (vectorised for long columns, issue 23) give the
+    device exactly what the per-member loops gave, rigid links, mixed handedness and massive bars included."""
+    pytest.importorskip("warp")
+    from warp_tensegrity.model import constraint_coupling, mass_entries
+
+    cfg = ColumnConfig(n_prisms=n, impact_admissibility=mode, handedness=hand, bar_mass=0.01 if massive else 0.0)
+    for beta in ([0.0], [1.0], [0.0, 1.0, 0.5]):
+        b = column_batch(cfg, {"base_rigidity": beta, "prestrain": [0.002] * len(beta)})
+        partner, partner_dev, m_self, m_cross, minv_self, minv_cross = mass_entries(b)
+        assert (partner >= 0).any() == massive
+        free = ~b.fixed
+        for a in np.flatnonzero(free):  # M^-1 entries, node by node, as the loop computed them
+            p = partner[a]
+            if p < 0 or not free[p]:
+                assert np.array_equal(minv_self[:, a], 1.0 / m_self[:, a])
+            else:
+                det = m_self[:, a] * m_self[:, p] - m_cross[:, a] ** 2
+                assert np.array_equal(minv_self[:, a], m_self[:, p] / det)
+                assert np.array_equal(minv_cross[:, a], -m_cross[:, a] / det)
+        got, want = constraint_coupling(b, partner), _coupling_by_loops(b, partner)
+        for g, w in zip(got[:-1], want[:-1]):
+            assert np.array_equal(g, w.astype(g.dtype))
+        assert got[-1] == want[-1]

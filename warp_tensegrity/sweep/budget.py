@@ -90,12 +90,12 @@ def plan_bytes(n_columns: int, n_prisms: int) -> int:
     return int(n_columns) * (PARAM_BYTES + PLAN_BYTES_PER_LEVEL * (int(n_prisms) + 1))
 
 
-PLAN_SECONDS_PER_PRISM = 8e-5
+PLAN_SECONDS_PER_PRISM = 4e-5
 """Seconds per prism of planning one scene, whatever its column count: the topology, the members'
 coupling and masses of the engine's estimate and each impact solve, all O(n) (the impact and the
 equilibrium check by sparse solves beyond 100 prisms, scene/sparse.py); measured on the 2-core CPU
-(two 100,000-prism columns planned in 5.3-8.0 s by impact mode, FUZZ_EXPLORE=1 pytest
-tests/test_fuzz.py -k long_columns)."""
+(two 100,000-prism columns planned in 2.9-3.7 s by impact mode, FUZZ_EXPLORE=1 pytest
+tests/test_fuzz.py -k long_columns; the members' coupling and masses of model.py vectorised)."""
 PLAN_SECONDS_PER_COLUMN_PRISM = 2e-6
 """Seconds per prism and column of planning (each column's frequency bound is built, a few MB at
 a time); measured: 128 columns of 10,000 prisms plan in 3.0 s, 8 of them in 1.2 s."""
