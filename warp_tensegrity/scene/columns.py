@@ -240,7 +240,9 @@ def column_topology(config: ColumnConfig) -> ColumnTopology:
             unit_base[up] += stop
         solved[int(hand[m])] = (sb, sbot, stop)
     if not each:
-        sb, sbot, stop = (np.stack([solved[int(h)][i] for h in hand]) for i in range(3))  # (n, 3) each
+        keys = np.array(sorted(solved))
+        row = np.searchsorted(keys, hand)  # each prism's handedness in keys
+        sb, sbot, stop = (np.stack([solved[int(h)][i] for h in keys])[row] for i in range(3))  # (n, 3) each
         unit_bar[:] = sb.ravel()
         unit_base[:-3] += sbot.ravel()
         unit_base[3:] += stop.ravel()
