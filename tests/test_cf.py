@@ -56,17 +56,6 @@ def test_checker_sees_a_calendar_time_without_epoch(tmp_path):
     assert any("time" in m for _, _, m in msgs)
 
 
-def test_lens_output_is_cf_clean(tmp_path):
-    """The lens file too (issue 23: its 'time' in seconds, and x/y taken for latitude/longitude)."""
-    from warp_tensegrity.cli import main
-
-    out = tmp_path / "lens_ci.nc"
-    assert main(["lens", str(ROOT / "sweeps" / "lens_ci.toml"), "-o", str(out), "--device", "cpu", "--quiet"]) == 0
-    r, msgs = cf_messages(out, tmp_path)
-    assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)
-    assert r["scored_points"] == r["possible_points"] > 50
-
-
 def test_combine_and_resume_outputs_are_cf_clean(tmp_path):
     """The exports of `combine` and of a `resume` that recomputed a shard (every file the project writes)."""
     from warp_tensegrity.sweep.manifest import Manifest

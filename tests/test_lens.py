@@ -251,6 +251,13 @@ def test_lens_command_ci_spec(tmp_path, capsys):
     assert (ds.exit_time_match < 0.05).all()
     assert (ds.focal_gain > 1).all()
     assert ds.sizes["calibration"] == 64 and ds.sizes["focus"] == 3
+    # CF-clean as the sweeps' files (issue 23: 'time' in seconds, x/y taken for latitude/longitude)
+    pytest.importorskip("compliance_checker.runner")
+    from test_cf import cf_messages
+
+    r, msgs = cf_messages(out, tmp_path)
+    assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)
+    assert r["scored_points"] == r["possible_points"] > 50
 
 
 def test_lens_command_bad_spec_names_key(tmp_path, capsys):
