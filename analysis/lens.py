@@ -65,6 +65,8 @@ if FALLBACK:
         print("running", " ".join(cmd[1:]), flush=True)
         subprocess.run(cmd, cwd=P.repo_root(), env=env, check=True)
 ds = xr.open_dataset(NC).load()
+if "time" in ds.dims:  # lens files written before the time axis was named t (CF)
+    ds = ds.rename({"time": "t"})
 spacing = ds.attrs["column_spacing_m"]
 print(NC, "|", ds.attrs["title"], "|", ds.attrs["device_name"], "| commit", ds.attrs["git_commit"][:10])
 print(f"host c_h = {ds.attrs['host_wave_speed_m_s']} m/s, {ds.attrs['host_dimension']}D; column spacing {spacing} m")
@@ -120,7 +122,7 @@ P.save_figure(fig, "lens_prestrain")
 
 # %%
 fig, axs = plt.subplots(1, 2, figsize=(8, 3), sharey=True)
-t = ds.time
+t = ds.t
 cmap = plt.get_cmap("viridis")
 n = ds.sizes["column"]
 for i in range(n):
@@ -179,7 +181,7 @@ P.save_figure(fig, "lens_focus_moving")
 
 # %%
 pos = np.stack([ds.column_x.values, ds.column_y.values, np.zeros(ds.sizes["column"])], axis=1)
-dt_out = float(ds.time[1] - ds.time[0])
+dt_out = float(ds.t[1] - ds.t[0])
 c_h, dim = ds.attrs["host_wave_speed_m_s"], ds.attrs["host_dimension"]
 delays = ds.strike_delay.values
 axes = (ds.x.values, ds.y.values, ds.z.values)

@@ -54,3 +54,20 @@ def test_checker_sees_a_calendar_time_without_epoch(tmp_path):
     ds.to_netcdf(tmp_path / "bad.nc", encoding={"time": {"_FillValue": None}})
     _, msgs = cf_messages(tmp_path / "bad.nc", tmp_path)
     assert any("time" in m for _, _, m in msgs)
+
+
+def test_combine_and_resume_outputs_are_cf_clean(tmp_path):
+    """The exports of `combine` and of a `resume` that recomputed a shard (every file the project writes)."""
+    from warp_tensegrity.sweep.manifest import Manifest
+    from warp_tensegrity.sweep.store import SweepStore
+
+    spec = load_spec(ROOT / "sweeps" / "ci_small.toml", overrides={"run": {"t_end": 0.5}})
+    out = sweep.run_sweep(spec, tmp_path / "ci.nc", device="cpu", progress=False)
+    store = SweepStore(out)
+    content, _ = Manifest.read(store.manifest_path)
+    content["shards"].pop("1")  # as if the run had been killed before shard 1 was recorded
+    Manifest(store.manifest_path, content).save()
+    out.unlink()
+    for path in (sweep.resume_sweep(out, device="cpu", progress=False), sweep.combine(out)):
+        r, msgs = cf_messages(path, tmp_path)
+        assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)

@@ -155,3 +155,90 @@ def test_network_batch_rejects_mixed_topologies():
     b = _two_node(cables=[[0, 2]])
     with pytest.raises(NetworkError, match="network 1: cables differ"):
         network_batch([a, b])
+
+
+# ---------------------------------------------------------------------- long columns (issue 23, defect 4)
+@pytest.mark.parametrize("mode", ["rigid_members", "end_twist", "project"])
+def test_sparse_solves_agree_with_the_dense_ones(mode, monkeypatch):
+    """Beyond DENSE_MAX_DOF the scene solves sparsely (O(n)); forced on a short column, the sparse
+    impact, equilibrium residual and self-stress agree with the dense ones to round-off."""
+    from warp_tensegrity.scene import columns as C
+    from warp_tensegrity.scene import sparse
+    from warp_tensegrity.scene.batch import equilibrium_residuals
+
+    cfg = ColumnConfig(n_prisms=12, impact_admissibility=mode, handedness="alternating")
+    params = {"prestrain": [0.002, 0.0], "v0": 0.1, "base_rigidity": [0.0, 1.0]}
+    dense = [build_column(cfg, prestrain=0.002, v0=0.1, base_rigidity=b) for b in (0.0, 0.5, 1.0)]
+    dense_batch = equilibrium_residuals(column_batch(cfg, params))
+    monkeypatch.setattr(sparse, "DENSE_MAX_DOF", 0)
+    monkeypatch.setattr(C, "SELF_STRESS_EACH_MAX", 0)
+    long = [build_column(cfg, prestrain=0.002, v0=0.1, base_rigidity=b) for b in (0.0, 0.5, 1.0)]
+    for d, s in zip(dense, long):
+        np.testing.assert_allclose(s.velocity, d.velocity, rtol=0, atol=1e-12 * 0.1)
+        np.testing.assert_allclose(s.network.cable_rest_length, d.network.cable_rest_length, rtol=1e-13)
+        assert s.relative_equilibrium_residual < 1e-12 and d.relative_equilibrium_residual < 1e-12
+    np.testing.assert_allclose(equilibrium_residuals(column_batch(cfg, params)), dense_batch, rtol=0, atol=1e-15)
+    # and the sparse residual is no vacuous check either
+    net = long[0].network
+    net.cable_rest_length[-1] *= 0.99
+    assert C.equilibrium_residual(net) / long[0].cross_tension > 1e-3
+
+
+@pytest.mark.parametrize("mode", ["rigid_members", "end_twist", "project"])
+def test_long_column_builds_in_linear_time(mode):
+    """20,000 prisms (the dense solves wanted ~86 GB here and O(n^3) time): built in seconds,
+    admissible and balanced, in every impact convention."""
+    import time
+
+    cfg = ColumnConfig(n_prisms=20_000, impact_admissibility=mode)
+    t0 = time.perf_counter()
+    b = column_batch(cfg, {"prestrain": [0.002, 0.0], "v0": 0.1, "base_rigidity": [0.0, 1.0]})
+    assert time.perf_counter() - t0 < 20.0
+    assert np.all(b.equilibrium_residual < 1e-9)
+    end = b.velocity[:, -3:, 2]
+    assert np.allclose(end, -0.1) if mode != "project" else np.all(end < 0)
+
+
+def _coupling_by_loops(batch, partner):
+    """The members' coupling as model.py built it before it was vectorised (the oracle)."""
+    touching = {}
+    for k, (i, j) in enumerate(batch.constraints):
+        touching.setdefault(int(i), []).append((k, -1.0))
+        touching.setdefault(int(j), []).append((k, 1.0))
+    start, rows, bw = [0], [], 0
+    for k, (i, j) in enumerate(batch.constraints):
+        terms = sorted((l, a, c, sa * sb) for a, sa in ((int(i), -1.0), (int(j), 1.0)) if not batch.fixed[a]
+                       for b, c in ((a, 0), (int(partner[a]), 1)) if b >= 0 for l, sb in touching.get(b, []) if l <= k)
+        rows += terms
+        bw = max([bw] + [k - t[0] for t in terms])
+        start.append(len(rows))
+    cols = list(zip(*rows)) if rows else [[], [], [], []]
+    return [np.array(start)] + [np.array(c) for c in cols] + [bw]
+
+
+@pytest.mark.parametrize("n, mode, hand, massive", [(1, "rigid_members", "right", True), (4, "end_twist", "right", False),
+                                                    (7, "project", "alternating", False), (60, "rigid_members", "LRRL" * 15, False)])
+def test_vectorised_member_coupling_and_masses_are_the_loops(n, mode, hand, massive):
+    """model.constraint_coupling / mass_entries (vectorised for long columns, issue 23) give the
+    device exactly what the per-member loops gave, rigid links, mixed handedness and massive bars included."""
+    pytest.importorskip("warp")
+    from warp_tensegrity.model import constraint_coupling, mass_entries
+
+    cfg = ColumnConfig(n_prisms=n, impact_admissibility=mode, handedness=hand, bar_mass=0.01 if massive else 0.0)
+    for beta in ([0.0], [1.0], [0.0, 1.0, 0.5]):
+        b = column_batch(cfg, {"base_rigidity": beta, "prestrain": [0.002] * len(beta)})
+        partner, partner_dev, m_self, m_cross, minv_self, minv_cross = mass_entries(b)
+        assert (partner >= 0).any() == massive
+        free = ~b.fixed
+        for a in np.flatnonzero(free):  # M^-1 entries, node by node, as the loop computed them
+            p = partner[a]
+            if p < 0 or not free[p]:
+                assert np.array_equal(minv_self[:, a], 1.0 / m_self[:, a])
+            else:
+                det = m_self[:, a] * m_self[:, p] - m_cross[:, a] ** 2
+                assert np.array_equal(minv_self[:, a], m_self[:, p] / det)
+                assert np.array_equal(minv_cross[:, a], -m_cross[:, a] / det)
+        got, want = constraint_coupling(b, partner), _coupling_by_loops(b, partner)
+        for g, w in zip(got[:-1], want[:-1]):
+            assert np.array_equal(g, w.astype(g.dtype))
+        assert got[-1] == want[-1]

@@ -718,3 +718,179 @@ def test_budget_names_every_shortfall_with_figures(tmp_path):
     budget.check_run(plan, ignore=True, time_limit=need["seconds"] / 2)  # the override
     with pytest.raises(budget.BudgetError, match=r"planning it needs about .* of host memory and 1 kB is available"):
         budget.check_plan(plan.spec, available=1000)
+
+
+# ---------------------------------------------------------------------- 6. issue 23: readers, long columns, argument types
+# Our own seeded generator (no Hypothesis): every input below is one of a few kinds that ended in a
+# traceback or a hang before issue 23; each must end in a valid result or a clear error of the
+# project's own class, in a few seconds for the whole class (FUZZ_EXPLORE=N draws N x as many, at random).
+import random  # noqa: E402
+import time as _time  # noqa: E402
+
+SEED = int(os.environ.get("FUZZ_SEED", "23")) if not EXPLORE else random.SystemRandom().randrange(2**32)
+
+
+def _nasty_value(rng: random.Random) -> tuple[str, bool]:
+    """(TOML value text, True if TOML can hold it): deep arrays / inline tables (to 5,000 levels),
+    integers of up to 6,000 digits, and ordinary values."""
+    kind = rng.choice(["array", "table", "mixed", "int", "int", "float", "string"])
+    depth = rng.choice([1, 2, 15, 16, 17, 100, 450, 500, 1000, 3000, 5000])
+    if kind == "array":
+        return "[" * depth + "1" + "]" * depth, depth < 16
+    if kind == "table":
+        return "{a = " * depth + "1" + "}" * depth, depth < 16
+    if kind == "mixed":
+        return "[{a = " * (depth // 2) + "1" + "}]" * (depth // 2), 2 * (depth // 2) < 16
+    if kind == "int":
+        digits = rng.choice([1, 20, 400, 4300, 4301, 6000])
+        return rng.choice(["", "-"]) + "9" * digits, digits <= 4300
+    if kind == "float":
+        return rng.choice(["1e99999", "-0.0", "nan", "inf", "1e-320", "0.1"]), True
+    return rng.choice(['"x"', "'caf\u00e9'", '"\\u00ff"', '""']), True
+
+
+def _inputs(rng, n):
+    for _ in range(n * max(1, EXPLORE)):
+        yield _nasty_value(rng)
+
+
+def test_fuzz_every_toml_reader_answers_cleanly(tmp_path):
+    """Sweep specs, lens specs and --set values through the one reader (tomlread): nested TOML
+    (RecursionError before), integers > 4,300 digits (ValueError before), Latin-1 bytes in a lens
+    spec (UnicodeDecodeError before). The generated key is never a valid option, so every input
+    must be refused, with the project's error naming the file or the option."""
+    from warp_tensegrity.lens.spec import LensSpecError, load_lens_spec
+    from warp_tensegrity.options import OptionError
+    from warp_tensegrity.overrides import parse_set
+    from warp_tensegrity.sweep.spec import load_spec
+
+    rng = random.Random(SEED)
+    lens_text = (REPO / "sweeps" / "lens_ci.toml").read_bytes()
+    counts, t0 = Counter(), _time.perf_counter()
+    for value, holdable in _inputs(rng, 60):
+        doc = f"fuzz_key = {value}\n".encode()
+        sweep_file, lens_file = tmp_path / "s.toml", tmp_path / "l.toml"
+        sweep_file.write_bytes(doc + VALID_TEXT)
+        lens_file.write_bytes(doc + lens_text)
+        with pytest.raises(OptionError) as e:  # SpecError
+            load_spec(sweep_file)
+        assert "s.toml" in str(e.value) and ("fuzz_key" in str(e.value) or not holdable), str(e.value)[:300]
+        with pytest.raises(LensSpecError) as e:
+            load_lens_spec(lens_file)
+        assert "l.toml" in str(e.value), str(e.value)[:300]
+        with pytest.raises(OptionError) as e:  # an override is held to the file's rules (no value is a method)
+            load_spec(VALID_TEXT.decode(), overrides=parse_set([f"run.method={value}"]))
+        assert "method" in str(e.value), str(e.value)[:300]
+        counts["refused" if holdable else "refused by the reader"] += 1
+    for blob in (b"\xe9", b"\xff\xfe", b"caf\xe9 = 1", bytes(range(128, 256))):  # Latin-1 and binary
+        (tmp_path / "l.toml").write_bytes(lens_text.replace(b"title", blob + b"\ntitle", 1))
+        with pytest.raises(LensSpecError, match="not UTF-8"):
+            load_lens_spec(tmp_path / "l.toml")
+        counts["not UTF-8"] += 1
+    print(f"\nfuzz toml readers: {dict(counts)} in {_time.perf_counter() - t0:.2f} s")
+    assert sum(counts.values()) >= 64
+
+
+PUBLIC_CALLS = {  # each public function: valid arguments, and the names of those the generator spoils
+    "simulate_batch": (["config", "params", "settings"], {"progress": None, "prisms_simulated": 1}),
+    "run_batch": (["batch", "settings"], {"progress": None, "pulse": None}),
+    "estimate_batch": (["config", "params", "settings"], {}),
+    "column_batch": (["config", "params"], {}),
+    "build_column": (["config", "prestrain", "v0", "base_rigidity"], {}),
+    "column_topology": (["config"], {}),
+    "network_batch": (["networks"], {}),
+    "measure_pulse": (["strain", "time", "prism_height"], {}),
+    "ColumnConfig": ([], {"n_prisms": 2}),
+    "RunSettings": ([], {"t_end": 0.01}),
+}
+
+
+def _valid_arguments(name):
+    import warp_tensegrity as W
+
+    cfg = W.ColumnConfig(n_prisms=2)
+    rs = W.RunSettings(t_end=0.002, output_interval=0.001, device="cpu")
+    params = {"prestrain": [0.0], "v0": [0.01]}
+    return {"config": cfg, "params": params, "settings": rs, "batch": W.column_batch(cfg, params),
+            "prestrain": 0.0, "v0": 0.01, "base_rigidity": 0.0, "networks": [W.build_column(cfg).network],
+            "strain": np.zeros((1, 4, 2)), "time": np.arange(4.0), "prism_height": 0.006}
+
+
+def _wrong(rng: random.Random):
+    """A value of the wrong type (or NaN, or a masked array with a masked entry) for any parameter."""
+    return rng.choice([None, "x", object(), {}, [], (1, 2), float("nan"), 1j, b"\xff", [[1.0], [2.0, 3.0]],
+                       np.ma.masked_array([0.0, 0.001], mask=[0, 1])])
+
+
+def test_fuzz_wrong_argument_types_for_every_public_function():
+    """Every public function (warp_tensegrity.__all__) with one argument spoiled: an error that is
+    a TypeError or ValueError and names the parameter (before issue 23: AttributeError 'truncate'
+    for settings=None, 'n_prisms' for config=None, ...), never another exception, never a run."""
+    import warp_tensegrity as W
+
+    public = {n for n in W.__all__ if callable(getattr(W, n, None))}
+    containers = {"BatchResult", "ColumnScene", "Network", "NetworkBatch", "Method", "Status", "NetworkError",
+                  "SettingsError"}  # data classes, enums and exception classes: nothing to check
+    assert public - containers == set(PUBLIC_CALLS), public - containers - set(PUBLIC_CALLS)
+    valid = _valid_arguments
+    rng = random.Random(SEED)
+    args = valid(None)
+    counts = Counter()
+    for _ in range(8 * max(1, EXPLORE)):
+        for fname, (names, extra) in PUBLIC_CALLS.items():
+            f = getattr(W, fname)
+            spoil = names + list(extra)
+            k = rng.choice(spoil)
+            kw = {n: args[n] for n in names} | dict(extra)
+            bad = _wrong(rng)
+            if fname in ("ColumnConfig", "RunSettings"):
+                kw = {k: bad}
+            elif k == "params" and rng.random() < 0.5:
+                bad = {"v0": bad}  # a bad value inside the parameters
+            kw[k] = bad
+            if fname == "build_column" and k == "config" and bad is None:
+                continue  # None: the default scene (valid)
+            try:
+                f(**kw)
+            except (TypeError, ValueError) as e:  # ArgumentError, OptionError, NetworkError are both or one
+                assert k in str(e) or (k == "params" and "v0" in str(e)), (fname, k, bad, str(e)[:300])
+                counts["clear error"] += 1
+                continue
+            pytest.fail(f"{fname}({k}={bad!r:.60}) was accepted")
+    kw = {n: args[n] for n in PUBLIC_CALLS["simulate_batch"][0]}
+    for n_sim in (float("nan"), 10**9, 0, -1, 2.5, "2", True):  # the issue's NaN and huge prisms_simulated
+        with pytest.raises(ValueError, match="prisms_simulated"):
+            W.simulate_batch(**kw, prisms_simulated=n_sim)
+        counts["clear error"] += 1
+    print(f"\nfuzz public functions: {dict(counts)}")
+
+
+@pytest.mark.parametrize("mode", ["rigid_members", "end_twist", "project"])
+def test_fuzz_long_columns_plan_or_refuse(mode, tmp_path):
+    """A legal long column (up to n_prisms = 100,000, the allowed maximum) is planned, in linear
+    time, or refused up front with its figure, in every impact mode; beyond the maximum it is
+    refused when the spec is read (before issue 23: 30 s at 1,000 prisms, > 1 min at 3,000, 1.96 TiB
+    at 100,000). CI plans 5,000 prisms and bounds 100,000 by the estimate; FUZZ_EXPLORE plans 100,000."""
+    from warp_tensegrity.sweep import budget
+    from warp_tensegrity.sweep import plan as sweep_plan
+    from warp_tensegrity.sweep.spec import load_spec
+
+    rng = random.Random(SEED)
+    for n in (100_001, 10**6, rng.choice([10**9, 2**63])):
+        with pytest.raises(OptionError, match="n_prisms"):
+            load_spec(VALID_TEXT.decode(), overrides={"scene": {"n_prisms": n, "impact_admissibility": mode}})
+    big = load_spec(VALID_TEXT.decode(), overrides={"scene": {"n_prisms": 100_000, "impact_admissibility": mode}})
+    budget.check_plan(big)  # two columns of 100,000 prisms: within the planning limit, with its figure
+    assert budget.plan_seconds(big.n_columns, 100_000, mode) < budget.PLAN_TIME_LIMIT
+    huge = load_spec(VALID_TEXT.decode(), overrides={"scene": {"n_prisms": 100_000, "impact_admissibility": mode},
+                                                      "sweep": {"grid": {"v0": {"start": 0.001, "stop": 0.1,
+                                                                                "num": 20_000}}}})
+    with pytest.raises(budget.BudgetError, match=r"planning builds every column .* about .* \(limit 10 min\)"):
+        budget.check_plan(huge, available=10**15)  # (here its memory is refused first)
+    n = 100_000 if EXPLORE else 5_000
+    spec = load_spec(VALID_TEXT.decode(), overrides={"scene": {"n_prisms": n, "impact_admissibility": mode}})
+    t0 = _time.perf_counter()
+    plan = sweep_plan.plan_sweep(spec, tmp_path / "long.nc", device="cpu")
+    seconds = _time.perf_counter() - t0
+    assert plan.n_columns == 2 and seconds < 5.0 + budget.plan_seconds(2, n, mode), seconds
+    print(f"\nplanned {n:,} prisms ({mode}) in {seconds:.2f} s")

@@ -21,17 +21,17 @@ MAX_CHAIN = 7  # issue 15
 LAYERS = [
     {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse_core", "measure.pulse",
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
-     "lens.host", "lens.design"},  # leaves
+     "lens.host", "lens.design", "tomlread", "scene.sparse", "arguments"},  # leaves
     {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
      "kernels.lane_ops", "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
-     "measure.device_kernels", "measure.device", "sweep.parse"},
+     "measure.device_kernels", "measure.device", "sweep.parse", "overrides"},
     {"scene.batch", "scene", "integrate", "paths", "checks", "checks.reference", "checks.linear", "checks.closed_forms",
      "checks.dispersion", "result", "plot", "lens.spec"},
     {"engine", "sweep.store", "sweep.status", "lens.io"},
     {"sweep.spec", "sweep.plan", "sweep.shard", "sweep.dask", "calibrate", "", "lens.run", "validation.checks",
      "validation.figures", "validation"},
-    {"sweep.run", "sweep", "lens", "lens.command"},
+    {"sweep.run", "sweep", "lens", "lens.command", "init_spec"},
     {"cli", "__main__"},
 ]
 LAYER = {m: i for i, layer in enumerate(LAYERS) for m in layer}

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -251,6 +253,13 @@ def test_lens_command_ci_spec(tmp_path, capsys):
     assert (ds.exit_time_match < 0.05).all()
     assert (ds.focal_gain > 1).all()
     assert ds.sizes["calibration"] == 64 and ds.sizes["focus"] == 3
+    # CF-clean as the sweeps' files (issue 23: 'time' in seconds, x/y taken for latitude/longitude)
+    pytest.importorskip("compliance_checker.runner")
+    from test_cf import cf_messages
+
+    r, msgs = cf_messages(out, tmp_path)
+    assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)
+    assert r["scored_points"] == r["possible_points"] > 50
 
 
 def test_lens_command_bad_spec_names_key(tmp_path, capsys):
@@ -327,3 +336,22 @@ def test_calibration_that_never_exits_is_a_clear_error(tmp_path, capsys):
     assert main(["lens", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu"]) == 1
     err = capsys.readouterr().err
     assert "finite exit time" in err and "t_end" in err and "Traceback" not in err
+
+
+def test_a_calibration_that_does_not_fit_in_memory_is_refused_up_front(tmp_path, capsys):
+    """A lens of long columns (n_prisms = 100,000, legal) recorded the whole column of every
+    calibration column: 24 GB and an OOM kill after 90 s here (issue 23); refused at once, with its figures."""
+    from warp_tensegrity.cli import main
+    from warp_tensegrity.lens.run import check_memory
+    from warp_tensegrity.lens.spec import LensSpecError, load_lens_spec
+
+    text = (Path(__file__).resolve().parents[1] / "sweeps/lens_ci.toml").read_text()
+    spec = tmp_path / "long.toml"
+    spec.write_text(text.replace("n_prisms = 10", "n_prisms = 100000"))
+    check_memory(load_lens_spec(Path(__file__).resolve().parents[1] / "sweeps/lens_ci.toml"))  # the CI lens fits
+    with pytest.raises(LensSpecError, match=r"64 columns x 451 outputs x 100,000 prisms .* is available"):
+        check_memory(load_lens_spec(spec), available=10**9)
+    spec.write_text(text.replace("n_prisms = 10", "n_prisms = 100000").replace("count = 64", "count = 1048576"))
+    assert main(["lens", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu"]) == 1  # ~1 PB: on any host
+    err = capsys.readouterr().err
+    assert "1,048,576 columns x 451 outputs x 100,000 prisms" in err and "Traceback" not in err, err

@@ -13,6 +13,7 @@ import pytest
 
 from warp_tensegrity import options as O
 from warp_tensegrity import options_docs as OD
+from warp_tensegrity import overrides as OV
 from warp_tensegrity.sweep import parse as P
 from warp_tensegrity.sweep import spec as S
 from warp_tensegrity.scene import ColumnConfig, NetworkError
@@ -38,7 +39,7 @@ def test_each_run_option_defined_once_and_everywhere_the_same():
     spec_keys = list(P.RUN_KEYS)
     table_rows = [r["key"] for r in OD.options_table("run")]
     doc_rows = _doc_keys("run")
-    set_keys = list(O.set_keys()["run"])
+    set_keys = list(OV.set_keys()["run"])
     for keys in (settings_fields, model_fields, spec_keys, table_rows, doc_rows, set_keys):
         assert len(keys) == len(set(keys))  # nothing listed twice
         assert set(keys) == set(settings_fields)
@@ -126,18 +127,18 @@ def test_api_messages_name_key_value_and_rule(kw, fragment):
 
 
 def test_set_overrides_are_typed_by_the_model(tmp_path):
-    assert O.parse_set(["run.t_end=2.0", "run.method=rk4", "run.dt=auto", "scene.n_prisms=8", "run.truncate=false"]) == {
+    assert OV.parse_set(["run.t_end=2.0", "run.method=rk4", "run.dt=auto", "scene.n_prisms=8", "run.truncate=false"]) == {
         "run": {"t_end": 2.0, "method": "rk4", "dt": "auto", "truncate": False}, "scene": {"n_prisms": 8}}
     with pytest.raises(O.OptionError) as info:
-        O.parse_set(["run.t_ned=2", "scen.n_prisms=3", "t_end"])
+        OV.parse_set(["run.t_ned=2", "scen.n_prisms=3", "t_end"])
     errs = info.value.errors
     assert "--set run.t_ned: unknown key; did you mean 't_end'?" in errs[0]
     assert "did you mean 'scene'" in errs[1] and "SECTION.KEY=VALUE" in errs[2]
     # a value is held to the file's rules, with the key path
     with pytest.raises(S.SpecError, match=r"run.t_end = -1: must lie in \(0, 1e\+09\] \[s\]"):
-        S.parse_spec(_SPEC, overrides=O.parse_set(["run.t_end=-1"]))
+        S.parse_spec(_SPEC, overrides=OV.parse_set(["run.t_end=-1"]))
     # the spec text holds the overrides (a resumed run reads it) and reparses to the same spec
-    sp = S.parse_spec(_SPEC, overrides=O.parse_set(["run.t_end=0.2", "scene.n_prisms=4"]))
+    sp = S.parse_spec(_SPEC, overrides=OV.parse_set(["run.t_end=0.2", "scene.n_prisms=4"]))
     assert sp.run["t_end"] == 0.2 and sp.scene.n_prisms == 4
     again = S.parse_spec(sp.text)
     assert again.canonical() == sp.canonical()
@@ -167,3 +168,33 @@ t_end = 0.1
 output_interval = 0.01
 record_strain = true
 """
+
+
+# ---------------------------------------------------------------------- `warp-tensegrity init`
+@pytest.mark.parametrize("example", ["paper", "phase", "lens"])
+def test_init_writes_a_commented_spec_that_runs(example, tmp_path, capsys):
+    """`init --example ...` writes a starting spec generated from the options model: it lists every
+    option, parses, and (sweeps) passes a dry run; the lens spec validates (issue 23)."""
+    from warp_tensegrity import cli
+    from warp_tensegrity.init_spec import spec_text
+
+    path = tmp_path / f"{example}.toml"
+    assert cli.main(["init", "--example", example, "-o", str(path)]) == 0
+    text = path.read_text()
+    assert text == spec_text(example) and text.startswith("# warp_tensegrity")
+    if example == "lens":
+        from warp_tensegrity.lens.spec import LensSpec, load_lens_spec
+
+        spec = load_lens_spec(path)
+        assert spec.calibration.count == 64
+        for section, f in LensSpec.model_fields.items():
+            for name in getattr(f.annotation, "model_fields", {}):
+                assert f"# {name}:" in text or f"{name} =" in text, (section, name)
+        return
+    for row in OD.options_table():  # every option of every table, so the spec cannot drift
+        assert f"# {row['key']}" in text, row["key"]
+    capsys.readouterr()
+    assert cli.main(["run", str(path), "-o", str(tmp_path / "o.nc"), "--device", "cpu", "--dry-run"]) == 0
+    assert "fits:        yes" in capsys.readouterr().out
+    assert cli.main(["init", "--example", example, "-o", str(path)]) == 1  # never overwrites
+    assert "exists" in capsys.readouterr().err

@@ -93,4 +93,24 @@ def test_plot_subcommand(tmp_path, capsys):
                      "--sel", "base_rigidity=1"]) == 0
     assert (tmp_path / "g-spacetime.png").exists()
     assert cli.main(["plot", str(nc), "phase"]) == 1
-    assert "fix the other grid dimensions with sel: base_rigidity" in capsys.readouterr().err
+    err = capsys.readouterr().err  # in the CLI's own terms (issue 23: it said sel={...})
+    assert "fix the other grid dimensions: base_rigidity (--sel base_rigidity=VALUE" in err, err
+    assert cli.main(["plot", str(nc), "spacetime", "--sel", "prestrain=0"]) == 1
+    assert "--sel v0=VALUE" in capsys.readouterr().err
+
+
+def test_titles_name_the_column_and_the_fixed_parameters(tmp_path):
+    """A figure's title says which column it shows (case and label) and what a map holds fixed
+    (issue 23: `plot paper_2017.nc profile --sel case=9` did not say which case)."""
+    nc = write_netcdf(grid_dataset(), tmp_path / "g.nc")
+    fig = W.plot_file(nc, "phase", sel={"base_rigidity": 1.0})
+    assert fig.axes[0].get_title() == "test grid\nbase_rigidity = 1"
+    plt.close(fig)
+    cases = grid_dataset().stack(case=("prestrain", "v0", "base_rigidity")).reset_index("case")
+    cases = cases.assign_coords(case=np.arange(cases.sizes["case"]),
+                                case_label=("case", [f"run {i}" for i in range(cases.sizes["case"])]))
+    nc = write_netcdf(cases, tmp_path / "c.nc")
+    fig = W.plot_file(nc, "profile", sel={"case": 9})
+    title = fig.axes[0].get_title()
+    assert title.endswith("case = 9, case_label = run 9, prestrain = 0.001, v0 = 0.01, base_rigidity = 1"), title
+    plt.close(fig)

@@ -259,6 +259,32 @@ def test_second_run_into_the_same_output_is_locked_out(tmp_path, capsys):
     assert "being written by another run" in capsys.readouterr().err
 
 
+def test_lock_file_exists_only_while_a_run_holds_it(tmp_path):
+    """`.OUT.nc.lock` stayed next to every output (issue 23): removed when its run ends; one left
+    by a killed run (unlocked) is taken over; a run that locked a file just removed tries again."""
+    out = tmp_path / "o.nc"
+    lock = zmanifest.lock_path_for(out)
+    assert run_cli("run", write(tmp_path, CASES_SPEC), "-o", out) == 0
+    assert out.exists() and not lock.exists()
+    with zmanifest.SweepLock(out):
+        assert lock.exists()
+        with pytest.raises(zmanifest.StoreError, match="being written by another run"):
+            zmanifest.SweepLock(out).__enter__()
+    assert not lock.exists()
+    lock.write_text("")  # left by a SIGKILLed run: nobody holds it
+    with zmanifest.SweepLock(out):
+        stale_fd = os.open(lock, os.O_RDWR)  # a second run opens the file before the first lets go ...
+    import fcntl
+
+    fcntl.flock(stale_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ... and locks the removed file: not the lock
+    try:
+        with zmanifest.SweepLock(out):  # the path's file is free: a third run may write
+            assert lock.exists() and os.stat(lock).st_ino != os.fstat(stale_fd).st_ino
+    finally:
+        os.close(stale_fd)
+    assert not lock.exists()
+
+
 def _wait_for(marker: Path, proc, timeout=180.0):
     deadline = time.monotonic() + timeout
     while not marker.exists():
@@ -349,6 +375,57 @@ def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, referen
     shutil.rmtree(store.dir)  # the export alone still reports its status
     st = sweep.sweep_status(out)
     assert st["combined"] and st["cases_done"] == 8 and st["cases_remaining"] == 0
+
+
+def test_text_checksum_is_the_same_whatever_the_string_dtype():
+    """Labels written as an object array read back from Zarr 3 under NumPy 2 as StringDType (kind
+    'T'), under NumPy 1 as object or fixed-width unicode: one checksum for all (issue 23)."""
+    labels = ["FB soft", "RB", "mid \u00e9"]
+    kinds = [np.array(labels, dtype=object), np.array(labels)]
+    if hasattr(np.dtypes, "StringDType"):
+        kinds.append(np.array(labels, dtype=np.dtypes.StringDType()))
+    assert len({zmanifest.array_sha256(a) for a in kinds}) == 1
+    assert zmanifest.array_sha256(kinds[0]) != zmanifest.array_sha256(np.array(labels[::-1], dtype=object))
+
+
+def test_case_list_kill_and_resume_recomputes_only_missing_shards(tmp_path, capsys):
+    """A case-list spec (labels): status and combine accept its finished shards, and after a SIGKILL
+    with 2 of 3 shards done, resume recomputes only the third; the output is bit-identical to an
+    uninterrupted run (issue 23: every shard of a case-list spec was 'stale')."""
+    spec = write(tmp_path, CASES_SPEC)
+    ref_out = tmp_path / "ref.nc"
+    assert run_cli("run", spec, "-o", ref_out, "--shard-size", 1) == 0
+    st = sweep.sweep_status(ref_out)
+    assert st["shards_done"] == 3 and st["shards_stale"] == [] and st["cases_remaining"] == 0, st
+    assert run_cli("status", ref_out) == 0
+    assert run_cli("combine", ref_out) == 0
+    reference = open_nc(ref_out)
+
+    out = tmp_path / "k.nc"
+    rc = _kill_run(("run", spec, "-o", out, "--shard-size", 1), "after-mark", 2, "kill", 0.0, tmp_path)
+    assert rc == -signal.SIGKILL
+    store = zstore.SweepStore(out)
+    st = sweep.sweep_status(out)
+    assert (st["shards_done"], st["shards_missing"], st["shards_stale"], st["shards_corrupt"]) == (2, [2], [], []), st
+    kept = {i: (store.zarr / "strain" / "c" / i).stat().st_mtime_ns for i in ("0", "1")}
+    capsys.readouterr()
+    assert run_cli("resume", out) == 0
+    assert "recomputing" not in capsys.readouterr().err
+    assert {i: (store.zarr / "strain" / "c" / i).stat().st_mtime_ns for i in kept} == kept  # reused, not rewritten
+    assert_bitwise(open_nc(out), reference)
+    assert list(open_nc(out)["case_label"].values) == ["FB soft", "RB", "mid"]
+
+
+def test_paper_2017_store_checks_out(paper_2017_nc, tmp_path):
+    """The README's main job (a case-list spec): status counts every shard done and combine
+    re-exports it (on a copy, so the shared output stays as it was)."""
+    out = tmp_path / paper_2017_nc.name
+    shutil.copy2(paper_2017_nc, out)
+    shutil.copytree(zstore.SweepStore(paper_2017_nc).dir, zstore.SweepStore(out).dir)
+    st = sweep.sweep_status(out)
+    assert st["cases_done"] == 12 and st["shards_stale"] == [] and st["shards_corrupt"] == [], st
+    assert run_cli("combine", out) == 0
+    assert_bitwise(open_nc(out), open_nc(paper_2017_nc))
 
 
 def test_corrupt_truncated_chunks_and_manifest_are_detected_and_recomputed(tmp_path, reference, capsys):
@@ -461,3 +538,14 @@ def test_memory_limit_sets_the_shard_size_and_refuses_nonsense(tmp_path, capsys)
         err = capsys.readouterr().err
         assert msg in err and "Traceback" not in err, err
         assert not out.exists() and not zstore.SweepStore(out).dir.exists()
+
+
+def test_status_of_a_netcdf_that_is_not_a_sweep_is_a_clear_error(tmp_path, capsys):
+    """`status lens.nc` (any netCDF without a sweep's status and fingerprint) said KeyError (issue 23)."""
+    other = tmp_path / "lens.nc"
+    xr.Dataset({"exit_time": ("column", np.arange(3.0))}, attrs={"title": "a lens"}).to_netcdf(other)
+    assert run_cli("status", other) == 1
+    err = capsys.readouterr().err
+    assert "lens.nc is not the output of a sweep" in err and "Traceback" not in err, err
+    with pytest.raises(sweep.SweepError, match="status variable"):
+        sweep.sweep_status(other)

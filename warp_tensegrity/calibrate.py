@@ -400,8 +400,10 @@ def estimate_batch(config, params: dict, settings) -> dict:
     ``seconds_estimate``, ``stages_estimate``, ``device_bytes_estimate``, ``device_label``."""
     from dataclasses import replace
 
+    from .engine import check_batch_arguments
     from .engine import estimate_batch as engine_estimate
 
+    params = check_batch_arguments("estimate_batch", config, params, settings)
     out = dict(engine_estimate(config, params, settings))
     n_col = len(next(iter(params.values()))) if params else 1
     cal = probe(config, params, replace(settings, dt=out["dt"]), n_col)

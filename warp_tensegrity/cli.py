@@ -8,6 +8,7 @@
     warp-tensegrity --version
     warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N]   (acoustic lens, docs/lens.md)
     warp-tensegrity validate [-o FIGDIR] [--only NAME ...]   (closed-form gallery, docs/validation.md)
+    warp-tensegrity init [--example paper|phase|lens] [-o SPEC.toml]  (a commented starting spec)
 
 Messages go through :mod:`logging` on stderr (``-v``: debug and Warp's own start-up lines,
 ``-q``: warnings only, no progress bar); command results (status, dry run) go to stdout.
@@ -85,6 +86,9 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
                    help="run even when the estimate says the run exceeds this machine's memory, disk or time limit")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (it shows only when stderr is a terminal anyway)")
+    p.add_argument("--keep-store", action=argparse.BooleanOptionalAction, default=True,
+                   help="keep the Zarr store OUT.nc.sweep/ (about the output's size) after OUT.nc is written, "
+                        "for `combine` and `resume` (default); --no-keep-store removes it")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -100,8 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
                            help="more messages: debug logging and Warp's start-up lines")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only; no progress bar")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    common = _verbosity_parent()
 
-    p = sub.add_parser("run", help="run a sweep spec into a netCDF file",
+    p = sub.add_parser("run", parents=[common], help="run a sweep spec into a netCDF file",
                        description="Run SPEC: shards stream into the Zarr store OUT.sweep/ as they finish; "
                                    "OUT is exported from it (netCDF).")
     p.add_argument("spec", type=_path, metavar="SPEC", help="sweep spec (TOML)")
@@ -113,23 +118,23 @@ def build_parser() -> argparse.ArgumentParser:
                         "--set scene.n_prisms=8); repeatable; every option: docs/sweeps.md")
     _add_exec_options(p)
 
-    p = sub.add_parser("resume", help="finish an interrupted run",
+    p = sub.add_parser("resume", parents=[common], help="finish an interrupted run",
                        description="Reuse the shards that check out (same spec, code and columns), "
                                    "recompute the others, combine. Give OUT.nc, or SPEC -o OUT.nc.")
     p.add_argument("target", type=_path, metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
     p.add_argument("-o", "--output", type=_path, default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
     _add_exec_options(p)
 
-    p = sub.add_parser("status", help="cases done, diverged and remaining")
+    p = sub.add_parser("status", parents=[common], help="cases done, diverged and remaining")
     p.add_argument("output", type=_path, metavar="OUT.nc")
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
-    p = sub.add_parser("combine", help="export a finished run's store to OUT.nc again")
+    p = sub.add_parser("combine", parents=[common], help="export a finished run's store to OUT.nc again")
     p.add_argument("output", type=_path, metavar="OUT.nc")
 
     from .plot import KINDS
 
-    p = sub.add_parser("plot", help="plot a sweep's dataset (warp_tensegrity.plot)",
+    p = sub.add_parser("plot", parents=[common], help="plot a sweep's dataset (warp_tensegrity.plot)",
                        description="Draw one figure of OUT.nc with warp_tensegrity.plot and save it.")
     p.add_argument("dataset", type=_path, metavar="OUT.nc", help="a sweep's netCDF output (or a work-precision study's)")
     p.add_argument("kind", choices=sorted(KINDS), help="; ".join(f"{k}: {v}" for k, v in sorted(KINDS.items())))
@@ -141,15 +146,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sel", action="append", default=[], metavar="NAME=VALUE",
                    help="pick one value of a dimension (nearest), e.g. --sel base_rigidity=1 --sel case=3")
     p.add_argument("--times", default=None, metavar="T1,T2,...", help="profile: output times [s]")
+    from .init_spec import add_init_parser  # `init [--example ...]`: a commented starting spec
     from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
 
-    add_lens_parser(sub)
-    _add_validate_parser(sub)
+    add_lens_parser(sub, parents=[common])
+    add_init_parser(sub, parents=[common])
+    _add_validate_parser(sub, common)
     return parser
 
 
-def _add_validate_parser(sub) -> None:
-    p = sub.add_parser("validate", help="check the engine against closed forms (docs/validation.md)",
+def _add_validate_parser(sub, common) -> None:
+    p = sub.add_parser("validate", parents=[common], help="check the engine against closed forms (docs/validation.md)",
                        description="Run the validation gallery (fp64): the Bessel impact, the sonic-vacuum "
                                    "solitary wave, the Bloch dispersion and the FB modal sum; print every number "
                                    "against its tolerance; exit 1 if one fails.")
@@ -176,6 +183,18 @@ def _validate(args) -> int:
         for path in write_figures(groups, args.output):
             log.info("wrote %s", path)
     return EXIT_OK if all(g.passed for g in groups) else EXIT_ERROR
+
+
+def _verbosity_parent() -> argparse.ArgumentParser:
+    """-v/-q after the subcommand too (``run -q ...``); SUPPRESS keeps the top-level value when
+    the subcommand does not give its own."""
+    common = argparse.ArgumentParser(add_help=False)
+    g = common.add_mutually_exclusive_group()
+    g.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                   help="more messages: debug logging and Warp's start-up lines")
+    g.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help="warnings and errors only; no progress bar")
+    return common
 
 
 def _report_status(st: dict, as_json: bool) -> str:
@@ -236,7 +255,7 @@ def main(argv=None) -> int:
         print(version_text(warp_facts()))
         return EXIT_OK
     if args.command is None:
-        parser.error("give a COMMAND (run, resume, status, combine, plot, lens) or --version")
+        parser.error("give a COMMAND (run, resume, status, combine, plot, lens, init, validate) or --version")
     from .options import OptionError
     from .plot import PlotError
     from .scene.network import NetworkError
@@ -255,6 +274,10 @@ def main(argv=None) -> int:
 def _dispatch(args) -> int:
     if args.command == "validate":
         return _validate(args)
+    if args.command == "init":
+        from .init_spec import run_init
+
+        return run_init(args)
     if args.command == "lens":
         from .lens.command import run_lens_command
         from .runtime import init_warp
@@ -272,7 +295,7 @@ def _dispatch(args) -> int:
         init_warp(verbose=bool(args.verbose))
         device = None if args.device == "auto" else args.device
         if args.command == "run":
-            from .options import parse_set
+            from .overrides import parse_set
 
             spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
@@ -310,6 +333,7 @@ def _dispatch(args) -> int:
             progress=False if (args.no_progress or args.quiet) else None,  # None: on a terminal only
             dask_workers=args.dask,
             scheduler=args.scheduler,
+            keep_store=args.keep_store,
         )
         log.info("wrote %s", path)
         _log_nan_summary(path)

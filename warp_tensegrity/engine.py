@@ -53,6 +53,7 @@ from .scene.batch import (
     reference_elastic_energy,
     reference_states,
 )
+from .arguments import expect, expect_callable, expect_count, expect_params
 from .scene.columns import ColumnConfig
 from .runtime import init_warp
 from .result import BatchResult
@@ -184,6 +185,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings, progress=None, pulse: 
     :func:`~warp_tensegrity.measure.device.measure_record` (prism_height, n_prisms, cut) to measure
     the record on the device (settings.measure = 'device'). ``lanes_refused``: a reason, decided
     for more columns than this batch's (a sweep's), not to take the lane step (:func:`choose_path`)."""
+    expect("run_batch", "batch", batch, NetworkBatch), expect("run_batch", "settings", settings, RunSettings)
+    expect_callable("run_batch", "progress", progress), expect("run_batch", "pulse", pulse, dict, optional=True)
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
     from .kernels.lanes import lane_support
@@ -289,8 +292,11 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     decides it once for all its columns, so no shard depends on which columns it holds), as
     ``lanes_refused`` does the lane step (a sweep's :func:`lane_refusal`; :func:`run_batch`).
     """
+    params = check_batch_arguments("simulate_batch", config, params, settings, progress)
     n = config.n_prisms
-    n_sim = prisms_to_simulate(config, params, settings) if prisms_simulated is None else int(prisms_simulated)
+    if prisms_simulated is not None:
+        prisms_simulated = expect_count("simulate_batch", "prisms_simulated", prisms_simulated, 1, n, " (prisms)")
+    n_sim = prisms_to_simulate(config, params, settings) if prisms_simulated is None else prisms_simulated
     settings, choices = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
     sim_config = _far_end(config, n_sim) if n_sim < n else config
     t_build = time.perf_counter()
@@ -311,6 +317,14 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
     result.info["choices"] = choices
     result.info["prism_height"] = float(config.height)  # for BatchResult.to_xarray's measurements
     return result
+
+
+def check_batch_arguments(func: str, config, params, settings, progress=None) -> dict:
+    """The arguments of a batch of columns checked (ArgumentError naming the parameter); the
+    per-column parameters as a plain dict (masked arrays refused)."""
+    expect(func, "config", config, ColumnConfig), expect(func, "settings", settings, RunSettings)
+    expect_callable(func, "progress", progress)
+    return expect_params(func, params)
 
 
 def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings) -> int:
@@ -382,6 +396,7 @@ def estimate_batch(config: ColumnConfig, params: dict, settings: RunSettings) ->
     """Time step, stability limit, step count and memory of a batch, without launching kernels
     (its seconds are a rough flop count; :func:`warp_tensegrity.calibrate.estimate_batch`, the
     public ``warp_tensegrity.estimate_batch``, adds time and memory from a probe on the device)."""
+    params = check_batch_arguments("estimate_batch", config, params, settings)
     init_warp()
     from .integrate import resolve_device
     from .model import constraint_coupling, mass_entries

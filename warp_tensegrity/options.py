@@ -10,12 +10,13 @@ Three pydantic (v2) dataclasses hold them; everything else is generated from the
 Each field is ``name: Annotated[type, Opt(...)] = default`` followed by its docstring: the
 :class:`Opt` carries the unit, the bounds and the accepted special strings, and validates.
 The sweep spec parser (:mod:`warp_tensegrity.sweep.parse`), the command line's ``--set
-section.key=value`` (:func:`parse_set`), the Python constructors and the docs tables
+section.key=value`` (:func:`warp_tensegrity.overrides.parse_set`), the Python constructors and the docs tables
 (:func:`~warp_tensegrity.options_docs.options_table`) all read these declarations; there is no
 other list of options.
 
 Errors name the key, the value and what was expected (``t_end = -1.0: must be > 0 [s]``),
-with a did-you-mean for unknown keys. Nothing here imports Warp, nor any module of the package (a leaf of the import graph).
+with a did-you-mean for unknown keys. Nothing here imports Warp, nor any module of the package
+(a leaf of the import graph).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ import functools
 import math
 import numbers
 import re
-import tomllib
 from dataclasses import dataclass as _std_dataclass
 from typing import Annotated, Any, Literal
 
@@ -183,12 +183,15 @@ class Opt:
             if isinstance(x, numbers.Integral):
                 x = int(x)
             else:
-                f = float(x)
+                f = float(x)  # a Real that is not Integral: a float-like, never an overflow
                 if not f.is_integer():  # NaN and inf are not integers either
                     raise _err(f"must be an integer{sp}")
                 x = int(f)
         else:
-            x = float(x)
+            try:
+                x = float(x)
+            except OverflowError:  # an integer beyond float range (TOML has them)
+                x = math.inf
             if not math.isfinite(x):
                 raise _err(f"must be finite{sp}")
         ok = (
@@ -431,16 +434,6 @@ EXECUTION_KEYS = ("device", "shard_size", "fused")
 """[run] keys that say where/how a sweep runs, not what it computes: left out of the fingerprint."""
 
 
-# ---------------------------------------------------------------------- command-line overrides
-def parse_value(text: str) -> Any:
-    """A command-line value typed as TOML would type it (``2.0``, ``true``, ``"rk4"``); a bare
-    word that is not TOML is taken as a string (``rk4``, ``auto``)."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
 def sections() -> dict:
     """{'scene': ColumnConfig, 'sweep': ColumnParameters, 'run': RunSettings}, in that order
     (ColumnConfig registers when :mod:`warp_tensegrity.scene.columns` is imported, which importing
@@ -449,38 +442,3 @@ def sections() -> dict:
     if missing:
         raise RuntimeError(f"options sections {missing} not registered: import warp_tensegrity first")
     return {s: SECTIONS[s] for s in SECTION_ORDER}
-
-
-def set_keys() -> dict:
-    """The keys ``--set`` accepts, by section: [scene] fields and per-column scalars, [run] fields."""
-    sec = sections()
-    scene = tuple(sec["scene"].__pydantic_fields__)
-    return {"scene": scene + tuple(k for k in sec["sweep"].__pydantic_fields__ if k not in scene),
-            "run": tuple(sec["run"].__pydantic_fields__)}
-
-
-def parse_set(items) -> dict:
-    """``["run.t_end=2.0", "scene.n_prisms=8"]`` -> ``{"run": {"t_end": 2.0}, "scene": {"n_prisms": 8}}``.
-
-    Keys are checked here (did you mean); values are typed like TOML and validated with the
-    rest of the spec, so an override is held to the same rules as the file."""
-    out: dict = {}
-    errors = []
-    SET_SECTIONS = set_keys()
-    for item in items or ():
-        key, eq, value = str(item).partition("=")
-        key = key.strip()
-        section, dot, name = key.partition(".")
-        if not eq or not dot or not name:
-            errors.append(f"--set {item!r}: give SECTION.KEY=VALUE, e.g. run.t_end=2.0")
-            continue
-        if section not in SET_SECTIONS:
-            errors.append(unknown_key(f"--set {key}", section, tuple(SET_SECTIONS), what="section"))
-            continue
-        if name not in SET_SECTIONS[section]:
-            errors.append(unknown_key(f"--set {key}", name, SET_SECTIONS[section]))
-            continue
-        out.setdefault(section, {})[name] = parse_value(value.strip())
-    if errors:
-        raise OptionError(errors)
-    return out

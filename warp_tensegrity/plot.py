@@ -84,6 +84,27 @@ def _select(obj, sel: dict | None):
     return obj
 
 
+def _how_to_select(dim: str) -> str:
+    """How to pick one value of ``dim``, for the command line and for Python."""
+    return f"--sel {dim}=VALUE on the command line, sel={{{dim!r}: VALUE}} in Python"
+
+
+TITLE_COORDS = ("case", "case_label", "prestrain", "v0", "base_rigidity")
+"""Scalar coordinates a figure's title names (which column, or the fixed parameters of a map)."""
+
+
+def selection_text(ds, sel: dict | None, exclude=()) -> str:
+    """'case = 9 (Fig. 7a ...), prestrain = 0.002, ...': the parameters fixed in the figure of ``ds``
+    after ``sel`` (selected, or not swept), those on an axis (``exclude``) left out."""
+    picked = _select(ds, sel)
+    parts = []
+    for k in dict.fromkeys([*TITLE_COORDS, *(sel or {})]):
+        if k in picked.coords and picked[k].ndim == 0 and k not in exclude:
+            v = picked[k].values.item() if hasattr(picked[k].values, "item") else picked[k].values
+            parts.append(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}")
+    return ", ".join(parts)
+
+
 def _strain_of_one_column(data, sel: dict | None):
     if hasattr(data, "data_vars"):  # a Dataset
         if "strain" not in data:
@@ -93,7 +114,7 @@ def _strain_of_one_column(data, sel: dict | None):
     extra = [d for d in da.dims if d not in (TIME, "prism")]
     if extra:
         raise PlotError(f"pick one column first: give a value for {', '.join(map(str, extra))} "
-                        f"(e.g. sel={{{extra[0]!r}: ...}})")
+                        f"({_how_to_select(extra[0])})")
     return da.transpose(TIME, "prism")
 
 
@@ -123,7 +144,7 @@ def phase_diagram(data, var: str = "speed", x: str | None = None, y: str | None 
         raise PlotError(f"give x and y among the grid dimensions {dims}")
     rest = [d for d in dims if d not in (x, y)]
     if rest:
-        raise PlotError(f"fix the other grid dimensions with sel: {', '.join(rest)}")
+        raise PlotError(f"fix the other grid dimensions: {', '.join(rest)} ({_how_to_select(rest[0])})")
     d = da.transpose(y, x, ...)
     if d.ndim != 2:
         raise PlotError(f"{var} is not a per-column variable (dims {da.dims})")
@@ -326,7 +347,11 @@ def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | N
         ax = dispersion(ds, sel=sel)
     else:
         ax = work_precision(ds, measure=var, case=sel.pop("case", None))
-    title = ds.attrs.get("title")
+    title = str(ds.attrs.get("title") or "")
+    if kind != "work-precision":  # which column (or which fixed parameters) the figure shows
+        axes = {x or "", y or ""} if kind == "phase" else set()
+        shown = selection_text(ds, sel, exclude=axes | {"case"} if kind == "phase" else axes)
+        title = "\n".join(t for t in (title, shown) if t)
     if title:
-        ax.set_title(str(title), fontsize=9)
+        ax.set_title(title, fontsize=9)
     return ax.figure

@@ -6,14 +6,13 @@ import sys
 from pathlib import Path
 
 
-def add_lens_parser(sub) -> None:
-    p = sub.add_parser("lens", help="design and verify a tunable-focus acoustic lens (docs/lens.md)",
+def add_lens_parser(sub, parents=()) -> None:
+    p = sub.add_parser("lens", parents=list(parents), help="design and verify a tunable-focus acoustic lens (docs/lens.md)",
                        description="Calibrate T(p), A(p), W(p) in one batch, design the prestrains for each "
                                    "focal point, verify the array in one batch, write OUT.nc.")
     p.add_argument("spec", metavar="SPEC", help="lens spec (TOML), e.g. sweeps/lens_ci.toml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="netCDF output")
     p.add_argument("--device", default=None, help="Warp device: cpu or cuda:N (default: the spec's run.device, else the GPU if there is one)")
-    p.add_argument("--quiet", action="store_true", help="no summary lines on stderr")
 
 
 def run_lens_command(args) -> int:
@@ -22,7 +21,7 @@ def run_lens_command(args) -> int:
     from .design import CalibrationError
     from .spec import LensSpecError, load_lens_spec
 
-    log = (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    log = (lambda *a: None) if getattr(args, "quiet", False) else (lambda msg: print(msg, file=sys.stderr))
     try:
         spec = load_lens_spec(args.spec)
         from .io import write_lens

@@ -10,6 +10,7 @@ import numpy as np
 import xarray as xr
 
 from ..provenance import provenance_attrs
+from ..types import TIME
 from .spec import LensSpec
 
 CONVENTIONS = "CF-1.10"
@@ -38,10 +39,14 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
         "column": _v("column", np.arange(len(positions)), "1", "column index in the array (x fastest)"),
         "focus": _v("focus", np.arange(n_f), "1", "focal point index (0: primary; others re-targeted by prestrain only)"),
         "calibration": _v("calibration", np.arange(len(p_cal)), "1", "calibration column index"),
-        "time": _v("time", r_ver.time, "s", "time since the column was struck", standard_name="time", axis="T"),
-        "x": _v("x", x, "m", "focal map x (across the array)", axis="X"),
-        "y": _v("y", y, "m", "focal map y", axis="Y"),
-        "z": _v("z", z, "m", "focal map z (depth into the host from the exit faces)", axis="Z", positive="down"),
+        # the time since the strike in seconds, not a calendar time: named as the sweeps' ('t', no
+        # standard_name 'time' nor axis T, which CF reserves for '<unit> since <epoch>')
+        TIME: _v(TIME, r_ver.time, "s", "time since the column was struck"),
+        # map axes in metres of the host, not latitude/longitude nor a vertical: no axis X/Y/Z, no positive
+        # (CF 4.1, 4.2, 5.6; and 2.4, since a Z axis would ask y and x to be Y and X)
+        "x": _v("x", x, "m", "focal map x (across the array)"),
+        "y": _v("y", y, "m", "focal map y"),
+        "z": _v("z", z, "m", "focal map z (depth into the host, from the exit faces)"),  # no `positive`: not a vertical
         "xyz": _v("xyz", np.arange(3), "1", "Cartesian component (0: x, 1: y, 2: z)"),
         "column_x": _v("column", positions[:, 0], "m", "x of the column's exit-face centre"),
         "column_y": _v("column", positions[:, 1], "m", "y of the column's exit-face centre"),
@@ -57,7 +62,7 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
         "strike_delay": _v("column", delays, "s", "time at which the incident wave strikes the column"),
         "reachable": _v("column", d0.reachable.astype(np.int8), None, "1 if the target exit time lies in the calibrated range",
                         flag_values=np.array([0, 1], np.int8), flag_meanings="unreachable reachable"),
-        "exit_signal": _v(("column", "time"), f0["signal"], "1", "compressive strain of the exit prism (host source signal), primary design"),
+        "exit_signal": _v(("column", TIME), f0["signal"], "1", "compressive strain of the exit prism (host source signal), primary design"),
         "focal_map": _v(("z", "y", "x"), f0["map"], "1",
                         "peak over time of the host field (superposed exit signals, spreading included), primary design"),
         # every focal point
@@ -86,9 +91,9 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
                               flag_meanings=D.VAR_ATTRS["status"]["flag_meanings"]),
         "focal_map_by_focus": _v(("focus", "z", "y", "x"), stack("map"), "1", "peak over time of the host field, designed array"),
         "uniform_focal_map": _v(("focus", "z", "y", "x"), stack("uniform_map"), "1", "peak over time of the host field, uniform array"),
-        "exit_signal_by_focus": _v(("focus", "column", "time"), stack("signal").astype(np.float32), "1",
+        "exit_signal_by_focus": _v(("focus", "column", TIME), stack("signal").astype(np.float32), "1",
                                    "compressive strain of the exit prism, designed array"),
-        "uniform_exit_signal": _v(("focus", "column", "time"), stack("uniform_signal").astype(np.float32), "1",
+        "uniform_exit_signal": _v(("focus", "column", TIME), stack("uniform_signal").astype(np.float32), "1",
                                   "compressive strain of the exit prism, uniform array"),
         # calibration curves
         "calibration_exit_time": _v("calibration", m_cal["exit_time"], "s", "calibrated exit time T(p)"),

@@ -63,8 +63,31 @@ def _simulate(spec: LensSpec, prestrain: np.ndarray, settings, progress=None):
     return simulate_batch(spec.column.config(), params, settings, progress=progress)
 
 
+RECORD_COPIES = 3
+"""Host bytes of a batch's strain record, in units of the record (the engine's record on the CPU
+device, its float64 copy, the measures' temporaries)."""
+
+
+def check_memory(spec: LensSpec, available: int | None = None) -> None:
+    """Refuse up front (LensSpecError, with the figures) a calibration whose strain record would not
+    fit in host memory: the whole column is recorded at every output, count x n_out x n_prisms."""
+    from ..sweep.budget import fmt_bytes, host_memory_available
+    from .spec import LensSpecError
+
+    n_out = int(spec.run.t_end / spec.run.output_interval) + 1
+    n_prisms, count = spec.column.config().n_prisms, spec.calibration.count
+    need = RECORD_COPIES * 8 * count * n_out * n_prisms
+    have = host_memory_available() if available is None else int(available)
+    if need > have:
+        raise LensSpecError(
+            f"the calibration records {count:,} columns x {n_out:,} outputs x {n_prisms:,} prisms of strain: about "
+            f"{fmt_bytes(need)} of host memory with its working copies, and {fmt_bytes(have)} is available; lower "
+            "calibration.count or column.scene.n_prisms, or raise run.output_interval")
+
+
 def calibrate(spec: LensSpec, device: str | None = None, progress=None):
     """One batch over ``calibration.count`` prestrains: (prestrain, measures, law, result)."""
+    check_memory(spec)
     c = spec.calibration
     p = np.linspace(c.prestrain_min, c.prestrain_max, c.count)
     result = _simulate(spec, p, _settings(spec, device), progress)

@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from ..options import fmt
 from ..scene.columns import ColumnConfig
 from ..scene.network import NetworkError
 from ..settings import METHODS, PRECISIONS
+from ..tomlread import TomlError, read_toml
 
 COLUMN_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
 
@@ -217,8 +218,7 @@ def _format_error(err: dict, data: dict) -> str:
         return f"{loc}: unknown key"
     if not loc or msg.startswith(loc.split(".")[0] + "."):  # model-level check: its message names the keys
         return msg
-    value = err.get("input")
-    return f"{loc} = {value!r}: {msg}"
+    return f"{loc} = {fmt(err.get('input'))}: {msg}"
 
 
 def parse_lens_spec(data: dict, source: str = "<spec>") -> LensSpec:
@@ -233,9 +233,11 @@ def load_lens_spec(path) -> LensSpec:
     """Read and validate a lens spec (TOML)."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = read_toml(path.read_bytes())
     except FileNotFoundError:
         raise LensSpecError(f"lens spec {str(path)!r} does not exist") from None
-    except tomllib.TOMLDecodeError as e:
-        raise LensSpecError(f"lens spec {str(path)!r} is not valid TOML: {e}") from None
+    except OSError as e:
+        raise LensSpecError(f"lens spec {str(path)!r} cannot be read: {e.strerror or e}") from None
+    except TomlError as e:
+        raise LensSpecError(f"lens spec {str(path)!r}: {e.reason}") from None
     return parse_lens_spec(data, str(path))

@@ -65,6 +65,16 @@ def _check_history(s, t):
         raise ValueError("time must be finite and strictly increasing")
 
 
+def _float_array(name: str, value) -> np.ndarray:
+    """``value`` as a float64 array, or ValueError naming ``name`` (a masked array is refused)."""
+    if isinstance(value, np.ma.MaskedArray) and np.ma.is_masked(value):
+        raise ValueError(f"{name} is a masked array with masked samples; fill them (NaN marks a bad sample)")
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {type(value).__name__} {str(value)[:40]!r}: give an array of numbers") from None
+
+
 def _as_history(strain, time):
     """Validate; return (q, t, finite): q = -strain with non-finite samples zeroed,
     finite[..., j] = prism j's whole history is finite."""
@@ -326,9 +336,12 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     ``max_chunk_elements`` samples to bound memory.
     """
     _check_fraction("end_fraction", end_fraction)
-    s = np.asarray(strain, dtype=np.float64)
-    t = np.asarray(time, dtype=np.float64)
+    s, t = _float_array("strain", strain), _float_array("time", time)
     _check_history(s, t)
+    h = _float_array("prism_height", prism_height)  # a number, or an array broadcastable to (...)
+    if isinstance(prism_height, (bool, np.bool_)) or not (h.size and np.all(np.isfinite(h) & (h > 0))):
+        raise ValueError(f"prism_height = {' '.join(repr(prism_height).split())[:60]}: give the reference prism "
+                         "height h0 > 0 [m] (a number, or one per record)")
     lead, (T, P) = s.shape[:-2], s.shape[-2:]
     B = int(np.prod(lead, dtype=np.int64))
     s = s.reshape(B, T, P)

@@ -14,8 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..arguments import expect, expect_params
 from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 from . import columns as col
+from . import sparse
 from .network import Network, NetworkError
 
 
@@ -66,6 +68,9 @@ def _shrink(a: np.ndarray) -> np.ndarray:
 
 def network_batch(networks: list[Network], velocities: list[np.ndarray] | None = None) -> NetworkBatch:
     """Batch arbitrary networks with identical topology and reference positions."""
+    expect("network_batch", "networks", networks, (list, tuple))
+    for b, net in enumerate(networks):
+        expect("network_batch", f"networks[{b}]", net, Network)
     if not networks:
         raise NetworkError("network_batch: empty list of networks")
     first = networks[0].validate()
@@ -101,6 +106,8 @@ def network_batch(networks: list[Network], velocities: list[np.ndarray] | None =
 
 def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarray]:
     """Fill defaults and broadcast the per-column parameters to a common length B; validate."""
+    expect("column_batch", "config", config, col.ColumnConfig)
+    params = expect_params("column_batch", params)
     unknown = sorted(set(params) - set(COLUMN_PARAMETERS))
     if unknown:
         raise NetworkError(f"unknown column parameter(s) {unknown}; known: {sorted(COLUMN_PARAMETERS)}")
@@ -257,9 +264,18 @@ def equilibrium_residuals(batch: NetworkBatch) -> np.ndarray:
     f = f.reshape(B, -1)[:, free]
     active = np.broadcast_to(batch.constraint_active, (B, batch.constraints.shape[0]))
     out = np.zeros(B)
-    for pattern in np.unique(active, axis=0):
-        sel = np.all(active == pattern, axis=1)
+    groups: dict = {}  # columns by their pattern of active constraints (np.unique(axis=0) is slow on long rows)
+    if batch.constraint_active.shape[0] == 1:
+        groups[b""] = list(range(B))
+    for b in range(B if batch.constraint_active.shape[0] > 1 else 0):
+        groups.setdefault(active[b].tobytes(), []).append(b)
+    for cols in groups.values():
+        pattern, sel = active[cols[0]], np.array(cols)
         rows = batch.constraints[pattern > 0]
+        if not sparse.use_dense(int(free.sum())):  # a long column: O(n) (scene/sparse.py)
+            J = sparse.jacobian(X, rows, batch.fixed)[:, np.flatnonzero(free)]
+            out[sel] = sparse.lsq_residual(J, f[sel].T)
+            continue
         J = np.zeros((len(rows), 3 * n))
         for k, (i, j) in enumerate(rows):
             b = X[j] - X[i]

@@ -29,6 +29,7 @@ from typing import Annotated, Sequence
 import numpy as np
 
 from ..options import MASS, Opt, check_column_param, fmt, options_class
+from . import sparse
 from .impact import least_energy_impact
 from .network import Network, NetworkError
 
@@ -53,6 +54,7 @@ MODULUS = (1.0, 1e13)  # N m-2: soft gels (~1e3) .. above diamond (1.2e12)
 ASPECT = (1e-2, 1e2)  # prism height / radius: flatter or more slender is no tensegrity column (and the
 # rigid-member impact solve loses its accuracy beyond ~300)
 MAX_PRISMS = 100_000  # a 600 m column of the paper's prisms; the paper's has 50
+SELF_STRESS_EACH_MAX = 100  # prisms up to which each prism's self-stress is solved (longer: one per handedness)
 
 
 # ---------------------------------------------------------------------- the scene's options
@@ -190,47 +192,60 @@ def prism_self_stress(positions: np.ndarray, bars, cross, bottom, top) -> tuple[
     return t[:nb], t[nb : 2 * nb], t[2 * nb : 3 * nb], t[3 * nb :]
 
 
+def _expect_config(func: str, config) -> None:
+    if not isinstance(config, ColumnConfig):
+        raise TypeError(f"{func}: config = {' '.join(fmt(config).split())} ({type(config).__name__}): give a ColumnConfig")
+
+
 def column_topology(config: ColumnConfig) -> ColumnTopology:
+    """The column's nodes, members and unit self-stress (shared by every column of a scene)."""
+    _expect_config("column_topology", config)
     n = config.n_prisms
     hand = config.prism_handedness()
     a, h0, phi = config.radius, config.height, config.twist
     # clockwise numbering and clockwise twist for right-handed prisms (seen from +z)
     angle = np.zeros((n + 1, 3))
     angle[0] = -2.0 * np.pi * np.arange(3) / 3.0
-    for m in range(n):
-        angle[m + 1] = angle[m] - hand[m] * phi
+    steps = np.concatenate([angle[:1], -np.repeat((np.asarray(hand, dtype=np.float64) * phi)[:, None], 3, axis=1)])
+    angle = np.cumsum(steps, axis=0)  # angle[m + 1] = angle[m] - hand[m] * phi, in that order
     z = np.arange(n + 1)[:, None] * h0 * np.ones((1, 3))
     pos = np.stack([a * np.cos(angle), a * np.sin(angle), z], axis=-1).reshape(-1, 3)
     level_nodes = np.arange(3 * (n + 1)).reshape(n + 1, 3)
 
-    bars, cross = [], []
-    for m in range(n):
-        for k in range(3):
-            bars.append((3 * m + k, 3 * (m + 1) + k))
-            kk = (k + 2) % 3 if hand[m] > 0 else (k + 1) % 3
-            cross.append((3 * m + k, 3 * (m + 1) + kk))
-    base, base_level = [], []
-    for lvl in range(n + 1):
-        for k in range(3):
-            base.append((3 * lvl + k, 3 * lvl + (k + 1) % 3))
-            base_level.append(lvl)
-    bars, cross, base = (np.array(x, dtype=np.int64) for x in (bars, cross, base))
-    base_level = np.array(base_level, dtype=np.int64)
+    m, k = np.divmod(np.arange(3 * n, dtype=np.int64), 3)  # prism and corner of each bar / cross cable
+    bars = np.stack([3 * m + k, 3 * (m + 1) + k], axis=1)
+    kk = np.where(np.asarray(hand)[m] > 0, (k + 2) % 3, (k + 1) % 3)
+    cross = np.stack([3 * m + k, 3 * (m + 1) + kk], axis=1)
+    lvl, k = np.divmod(np.arange(3 * (n + 1), dtype=np.int64), 3)
+    base = np.stack([3 * lvl + k, 3 * lvl + (k + 1) % 3], axis=1)
+    base_level = lvl
 
     unit_bar = np.zeros(3 * n)
     unit_base = np.zeros(3 * (n + 1))
-    for m in range(n):
+    # every prism of one handedness is the same prism turned and raised: a long column solves the
+    # first of each (a short one solves each, so its numbers stay those of earlier releases bit for bit)
+    each = n <= SELF_STRESS_EACH_MAX
+    solved = {}
+    for m in (range(n) if each else [int(np.argmax(hand == h)) for h in np.unique(hand)]):
+        sl, up = slice(3 * m, 3 * m + 3), slice(3 * m + 3, 3 * m + 6)
         try:
-            sb, sc, sbot, stop = prism_self_stress(
-                pos, bars[3 * m : 3 * m + 3], cross[3 * m : 3 * m + 3], base[3 * m : 3 * m + 3], base[3 * m + 3 : 3 * m + 6]
-            )
+            sb, sc, sbot, stop = prism_self_stress(pos, bars[sl], cross[sl], base[sl], base[up])
         except NetworkError as e:  # name the option that decides it
             raise NetworkError(f"twist = {config.twist!r} rad: {e}") from None
         if np.any(np.abs(sc - 1) > 1e-9):
             raise NetworkError(f"prism {m}: cross cables do not share one self-stress level: {sc}")
-        unit_bar[3 * m : 3 * m + 3] = sb
-        unit_base[3 * m : 3 * m + 3] += sbot  # superposition: interior bases carry both prisms' share
-        unit_base[3 * m + 3 : 3 * m + 6] += stop
+        if each:
+            unit_bar[sl] = sb
+            unit_base[sl] += sbot  # superposition: interior bases carry both prisms' share
+            unit_base[up] += stop
+        solved[int(hand[m])] = (sb, sbot, stop)
+    if not each:
+        keys = np.array(sorted(solved))
+        row = np.searchsorted(keys, hand)  # each prism's handedness in keys
+        sb, sbot, stop = (np.stack([solved[int(h)][i] for h in keys])[row] for i in range(3))  # (n, 3) each
+        unit_bar[:] = sb.ravel()
+        unit_base[:-3] += sbot.ravel()
+        unit_base[3:] += stop.ravel()
     if np.any(unit_bar >= 0) or np.any(unit_base <= 0):
         raise NetworkError(f"twist = {config.twist!r} rad, handedness = {config.handedness!r}: self-stress has "
                            "compressed cables or stretched bars")
@@ -308,7 +323,13 @@ def build_column(
 ) -> ColumnScene:
     """Build one column: rest lengths from the self-stress at cross prestrain ``p``, masses,
     the impact velocity ``v0`` (compressive, along -z at the free end) and the equilibrium check."""
-    config = config or ColumnConfig()
+    config = ColumnConfig() if config is None else config
+    _expect_config("build_column", config)
+    for name, val in (("prestrain", prestrain), ("v0", v0), ("base_rigidity", base_rigidity), ("cable_EA", cable_EA),
+                      ("unit_mass", unit_mass)):
+        if val is not None and (isinstance(val, (bool, np.bool_)) or not isinstance(val, (int, float, np.number))):
+            raise TypeError(f"build_column: {name} = {' '.join(fmt(val).split())}: give one number (one column; "
+                            "column_batch takes arrays)")
     topo = topology or column_topology(config)
     EA = config.cable_EA if cable_EA is None else float(cable_EA)
     mu = config.unit_mass if unit_mass is None else float(unit_mass)
@@ -354,9 +375,12 @@ def build_column(
     ).validate()
     residual = equilibrium_residual(net)
     if config.impact_admissibility == "rigid_members":
+        members, dense = np.concatenate([topo.bars, topo.base]), sparse.use_dense(9 * config.n_prisms)
         try:
-            vel = least_energy_impact(X, net.mass_matrix(), topo.fixed, np.concatenate([topo.bars, topo.base]),
-                                      topo.level_nodes[-1], v0)
+            if dense or np.any(net.bar_mass):
+                vel = least_energy_impact(X, net.mass_matrix(), topo.fixed, members, topo.level_nodes[-1], v0)
+            else:  # a long column: lumped masses, O(n)
+                vel = sparse.least_energy_impact(X, net.node_mass, topo.fixed, members, topo.level_nodes[-1], v0)
         except ValueError as e:  # the scene's error class, so callers see one kind of bad-input error
             raise NetworkError(f"{e} (height = {config.height!r} m, radius = {config.radius!r} m)") from None
     else:
@@ -388,11 +412,15 @@ def equilibrium_residual(net: Network) -> float:
     np.add.at(f, net.cables[:, 0], t[:, None] * e)
     np.add.at(f, net.cables[:, 1], -t[:, None] * e)
     free = np.repeat(~net.fixed, 3)
-    J = constraint_jacobian(net)[:, free]
     rhs = f.reshape(-1)[free]
+    if not rhs.size:
+        return 0.0
+    if not sparse.use_dense(rhs.size):  # a long column: O(n) (scene/sparse.py)
+        return float(sparse.lsq_residual(sparse.jacobian(x, net.bars, net.fixed)[:, np.flatnonzero(free)], rhs))
+    J = constraint_jacobian(net)[:, free]
     lam, *_ = np.linalg.lstsq(J.T, rhs, rcond=None)
     r = rhs - J.T @ lam
-    return float(np.abs(r).max()) if r.size else 0.0
+    return float(np.abs(r).max())
 
 
 def impact_velocity(net: Network, end_nodes: Sequence[int], v0: float, mode: str) -> np.ndarray:
@@ -402,9 +430,13 @@ def impact_velocity(net: Network, end_nodes: Sequence[int], v0: float, mode: str
     target[list(end_nodes), 2] = -v0
     if v0 == 0.0:
         return target
-    J = constraint_jacobian(net)
     free = np.repeat(~net.fixed, 3)
+    long = not sparse.use_dense(int(free.sum()))
+    J = sparse.jacobian(net.positions, net.bars, net.fixed) if long or mode == "end_twist" else constraint_jacobian(net)
+    if mode == "project" and long and not np.any(net.bar_mass):  # O(n): lumped masses, sparse solve
+        return sparse.project_velocity(J, net.node_mass, free, target.reshape(-1)).reshape(n, 3)
     if mode == "project":
+        J = J.toarray() if long else J  # massive bars (a single prism): dense
         M = np.kron(net.mass_matrix(), np.eye(3))[np.ix_(free, free)]
         Jf = J[:, free]
         Minv_JT = np.linalg.solve(M, Jf.T)
@@ -414,12 +446,13 @@ def impact_velocity(net: Network, end_nodes: Sequence[int], v0: float, mode: str
         return v.reshape(n, 3)
     if mode == "end_twist":
         cols = np.array([3 * i + c for i in end_nodes for c in (0, 1)])
-        rows = np.flatnonzero(np.abs(J[:, cols]).sum(axis=1) > 0)
-        rhs = -J[rows] @ target.reshape(-1)
-        u, *_ = np.linalg.lstsq(J[np.ix_(rows, cols)], rhs, rcond=None)
+        # J sparse (the same entries as the dense one, so the same numbers): O(n) at any length
+        rows = np.flatnonzero(np.asarray(abs(J[:, cols]).sum(axis=1)).ravel() > 0)
+        rhs = -(J[rows] @ target.reshape(-1))
+        u, *_ = np.linalg.lstsq(J[rows][:, cols].toarray(), rhs, rcond=None)
         v = target.reshape(-1).copy()
         v[cols] = u
-        viol = np.abs(J @ v).max() / (abs(v0) * np.abs(J).max())
+        viol = np.abs(J @ v).max() / (abs(v0) * abs(J).max())
         if viol > 1e-10:
             raise NetworkError(
                 f"impact_admissibility='end_twist': no horizontal end velocity satisfies the bars "

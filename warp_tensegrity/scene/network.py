@@ -146,40 +146,36 @@ class Network:
             if bad.any():
                 i = int(np.argmax(bad))
                 raise NetworkError(f"node {i}: {name} = {arr[i]} kg must be finite and >= 0")
+        # vectorised checks (a long column has 10^5 members); each message names the first offender
         for kind, pairs, namer in (("bar", self.bars, self.bar_name), ("cable", self.cables, self.cable_name)):
-            for k, (i, j) in enumerate(pairs):
-                if not (0 <= i < n and 0 <= j < n):
-                    raise NetworkError(
-                        f"{kind} {k}: node index {(int(i), int(j))} out of range 0..{n - 1}"
-                    )
-                if i == j:
-                    raise NetworkError(f"{namer(k)}: joins node {i} to itself")
+            pairs = np.asarray(pairs).reshape(-1, 2)
+            out = np.flatnonzero(~((pairs >= 0) & (pairs < n)).all(axis=1))
+            if out.size:
+                i, j = pairs[out[0]]
+                raise NetworkError(f"{kind} {int(out[0])}: node index {(int(i), int(j))} out of range 0..{n - 1}")
+            same = np.flatnonzero(pairs[:, 0] == pairs[:, 1])
+            if same.size:
+                raise NetworkError(f"{namer(int(same[0]))}: joins node {pairs[same[0], 0]} to itself")
         # bars
         L = self.bar_lengths()
-        for k in range(self.n_bars):
+        m = self.bar_mass
+        both = self.fixed[self.bars[:, 0]] & self.fixed[self.bars[:, 1]] if self.n_bars else np.zeros(0, bool)
+        for k in np.flatnonzero(~(L > 0) | ~np.isfinite(m) | (m < 0) | both)[:1]:
             if not (L[k] > 0):
                 raise NetworkError(f"{self.bar_name(k)}: length {L[k]} m must be > 0")
-            m = self.bar_mass[k]
-            if not np.isfinite(m) or m < 0:
-                raise NetworkError(f"{self.bar_name(k)}: mass {m} kg must be finite and >= 0")
-            i, j = self.bars[k]
-            if self.fixed[i] and self.fixed[j]:
-                raise NetworkError(f"{self.bar_name(k)}: both ends are fixed; remove the bar")
+            if not np.isfinite(m[k]) or m[k] < 0:
+                raise NetworkError(f"{self.bar_name(k)}: mass {m[k]} kg must be finite and >= 0")
+            raise NetworkError(f"{self.bar_name(k)}: both ends are fixed; remove the bar")
         # cables
-        for k in range(self.n_cables):
-            for label, val, unit in (
-                ("EA", self.cable_EA[k], "N"),
-                ("rest length", self.cable_rest_length[k], "m"),
-            ):
-                if not np.isfinite(val) or val <= 0:
-                    raise NetworkError(f"{self.cable_name(k)}: {label} = {val} {unit} must be finite and > 0")
-            c = self.cable_EA_compression[k]
-            if not np.isfinite(c) or c < 0:
-                raise NetworkError(f"{self.cable_name(k)}: EA_compression = {c} N must be finite and >= 0")
+        for label, vals, unit in (("EA", self.cable_EA, "N"), ("rest length", self.cable_rest_length, "m")):
+            for k in np.flatnonzero(~np.isfinite(vals) | ~(vals > 0))[:1]:
+                raise NetworkError(f"{self.cable_name(k)}: {label} = {vals[k]} {unit} must be finite and > 0")
+        c = self.cable_EA_compression
+        for k in np.flatnonzero(~np.isfinite(c) | (c < 0))[:1]:
+            raise NetworkError(f"{self.cable_name(k)}: EA_compression = {c[k]} N must be finite and >= 0")
         sl = self.cable_lengths()
-        for k in range(self.n_cables):
-            if not sl[k] > 0:
-                raise NetworkError(f"{self.cable_name(k)}: current length {sl[k]} m must be > 0")
+        for k in np.flatnonzero(~(sl > 0))[:1]:
+            raise NetworkError(f"{self.cable_name(k)}: current length {sl[k]} m must be > 0")
         # every free node needs inertia
         inertia = self.node_mass.copy()
         np.add.at(inertia, self.bars[:, 0], self.bar_mass)

@@ -102,35 +102,74 @@ def _atomic_write_text(path: Path, text: str) -> None:
 
 # ---------------------------------------------------------------------- locking
 class SweepLock:
-    """An exclusive lock on an output (filelock): a second run into the same output fails at once."""
+    """An exclusive lock on an output: a second run into the same output fails at once. The lock
+    file ``.OUT.nc.lock`` exists only while a run holds it (removed when the run ends; a killed
+    run leaves it, unlocked, and the next run takes it over).
+
+    POSIX: ``flock`` on the lock file, which the holder unlinks before it lets go; a run that
+    locked a file just unlinked sees that its file is no longer the one at the path and tries
+    again, so two runs never hold two different files. Elsewhere: filelock, file kept."""
 
     def __init__(self, out):
-        from filelock import FileLock
-
         self.out = Path(out)
         self.path = lock_path_for(out)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({e.filename})") from None
-        self._lock = FileLock(str(self.path), timeout=0)
+        self._fd: int | None = None
+        self._lock = None
+
+    def _held(self) -> StoreError:
+        return StoreError(f"{self.out} is being written by another run (lock {self.path} is held); wait for that "
+                          f"run to finish, or give another output")
 
     def __enter__(self):
-        from filelock import Timeout
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return self._enter_filelock()
+        for _ in range(100):
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as e:
+                raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({self.path})") from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                os.close(fd)
+                raise self._held() from None
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                self._fd = fd
+                return self
+            os.close(fd)  # locked a file its holder had just removed: take the new one
+        raise self._held()  # pragma: no cover
 
+    def _enter_filelock(self):  # pragma: no cover - not POSIX
+        from filelock import FileLock, Timeout
+
+        self._lock = FileLock(str(self.path), timeout=0)
         try:
             self._lock.acquire()
         except Timeout:
-            raise StoreError(
-                f"{self.out} is being written by another run (lock {self.path} is held); wait for that "
-                f"run to finish, or give another output"
-            ) from None
-        except OSError as e:  # a directory we may not write (Timeout is an OSError too: caught above)
+            raise self._held() from None
+        except OSError as e:
             raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({self.path})") from None
         return self
 
     def __exit__(self, *exc):
-        self._lock.release()
+        if self._fd is not None:
+            try:
+                self.path.unlink(missing_ok=True)  # while still locked: see the class docstring
+            finally:
+                os.close(self._fd)
+                self._fd = None
+        elif self._lock is not None:  # pragma: no cover
+            self._lock.release()
         return False
 
 
@@ -143,12 +182,22 @@ def _canonical(a: np.ndarray) -> np.ndarray:
     return a
 
 
+STRING_KINDS = "OUT"
+"""dtype kinds of text: object, fixed-width unicode and NumPy 2's variable-width StringDType ('T').
+The same labels come back as any of them (xarray keeps object arrays; Zarr 3 under NumPy 2 reads
+StringDType; NumPy 1 reads fixed-width or object), so they are hashed as text, whatever the kind."""
+
+
 def array_sha256(a) -> str:
+    """sha256 of an array's dtype, shape and contents. Text arrays (:data:`STRING_KINDS`) hash as
+    their strings under one header, so a label written as object and read back as StringDType (or
+    fixed-width unicode) has the same checksum; other arrays hash their canonical bytes."""
     a = np.asarray(a)
-    h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
-    if a.dtype.kind == "O":
+    if a.dtype.kind in STRING_KINDS:
+        h = hashlib.sha256(f"|O{a.shape}".encode())  # '|O' is the object dtype's str: old manifests still match
         h.update("\x00".join(map(str, a.ravel())).encode())
     else:
+        h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
         h.update(_canonical(a).tobytes())
     return h.hexdigest()
 

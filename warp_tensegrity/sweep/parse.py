@@ -34,10 +34,8 @@ RUN_KEYS = tuple(f.name for f in dataclasses.fields(RunSettings))
 
 # ---------------------------------------------------------------------- helpers
 def _fmt(value) -> str:
-    if isinstance(value, str):
-        return repr(value)
-    if isinstance(value, float):
-        return repr(value)
+    if isinstance(value, (str, float, int)):
+        return O.fmt(value)  # repr, long ones cut
     if isinstance(value, (dict, list)):
         s = json.dumps(value, default=str)
         return s if len(s) < 80 else s[:77] + "..."
@@ -75,7 +73,11 @@ class _Checker:
                 self.bad(path, value, "must be an integer")
                 return None
             return int(value)
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:  # an integer beyond float range
+            self.bad(path, value, "must be finite (beyond the float range)")
+            return None
         if not math.isfinite(value):
             self.bad(path, value, "must be finite")
             return None
@@ -149,7 +151,8 @@ def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None
             num = None
         elif num is not None and (need := plan_bytes(num, 1)) > (have := host_memory_available()):
             # checked before the axis is made: np.linspace would try to allocate it
-            ck.bad(f"{path}.num", spec["num"], f"an axis of {num:,} values cannot be planned: even one-prism columns "
+            count = f"{num:,}" if num < 10**18 else "over 10^18"
+            ck.bad(f"{path}.num", spec["num"], f"an axis of {count} values cannot be planned: even one-prism columns "
                    f"need about {fmt_bytes(need)} of host memory and {fmt_bytes(have)} is available")
             num = None
         spacing = spec.get("spacing", "linear")

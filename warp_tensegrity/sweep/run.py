@@ -36,12 +36,16 @@ def execute(
     client=None,
     stream=None,
     combine_output: bool = True,
+    keep_store: bool = True,
 ) -> Path | None:
     """Run (or resume) every shard of ``plan`` that is not done into the store, then export plan.out.
     ``progress``: None shows the bar only when ``stream`` (stderr) is a terminal; True always; False never.
 
     Holds the output's lock throughout. A run refuses an existing output or store without
     ``overwrite``; a resume re-reads every recorded shard and recomputes those that do not check out.
+    ``keep_store`` False removes the store (``OUT.nc.sweep/``) once ``OUT.nc`` is written: the
+    output stays complete and ``status`` still reads it, but ``combine`` and ``resume`` have
+    nothing left to work from.
     """
     if plan.out is None:
         raise SweepError("no output path")
@@ -126,6 +130,8 @@ def execute(
             return None
         fault("finalise")
         export_netcdf(store.dataset(plan, tpl), plan.out)
+        if not keep_store:
+            store.remove()
     return plan.out
 
 
@@ -139,19 +145,21 @@ def _estimated_seconds(plan: SweepPlan, todo) -> float | None:
 
 
 def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrite=False, progress=None,
-              dask_workers=None, scheduler=None, client=None, stream=None, memory_limit=None) -> Path:
+              dask_workers=None, scheduler=None, client=None, stream=None, memory_limit=None,
+              keep_store=True) -> Path:
     """Run a spec (SweepSpec, path or TOML text) into ``out`` (netCDF, exported from ``out.sweep/``).
     ``memory_limit`` (bytes or '512MB') lowers the shard size so the host holds at most that much
-    sweep data (see docs/guarantees.md)."""
+    sweep data (see docs/guarantees.md). ``keep_store`` False: the store is removed once ``out``
+    is written (see :func:`execute`)."""
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
     plan = apply_memory_limit(plan_sweep(spec, out, device=device, shard_size=shard_size), memory_limit)
     return execute(plan, resume=resume, overwrite=overwrite, progress=progress, dask_workers=dask_workers,
-                   scheduler=scheduler, client=client, stream=stream)
+                   scheduler=scheduler, client=client, stream=stream, keep_store=keep_store)
 
 
 def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=None, dask_workers=None,
-                 scheduler=None, client=None, stream=None) -> Path:
+                 scheduler=None, client=None, stream=None, keep_store=True) -> Path:
     """Finish an interrupted run: reuse the shards that check out, recompute the others, export."""
     if spec is None:
         plan = load_plan_from_manifest(out, device=device, shard_size=shard_size)
@@ -160,7 +168,7 @@ def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=None,
             spec = load_spec(spec)
         plan = plan_sweep(spec, out, device=device, shard_size=shard_size)
     return execute(plan, resume=True, progress=progress, dask_workers=dask_workers, scheduler=scheduler,
-                   client=client, stream=stream)
+                   client=client, stream=stream, keep_store=keep_store)
 
 
 def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True) -> SweepPlan:

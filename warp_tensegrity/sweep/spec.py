@@ -25,7 +25,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +34,7 @@ from ..engine import for_accuracy
 from ..options import COLUMN_PARAMETERS, EXECUTION_KEYS, ColumnParameters, OptionError, RunSettings
 from ..provenance import code_version
 from ..scene.columns import ColumnConfig
+from ..tomlread import TomlError, decode, read_toml
 from .errors import SpecError
 from .parse import SCENE_FIELDS, _Checker, _parse_run, _parse_scene, _parse_sweep
 
@@ -225,24 +225,33 @@ def load_spec(source, overrides: dict | None = None) -> SweepSpec:
     (e.g. ``{"run": {"t_end": 0.1}}``). Raises SpecError listing every problem found.
     """
     path = None
-    is_path = isinstance(source, Path) or (
-        isinstance(source, str) and "\n" not in source and (source.endswith(".toml") or Path(source).is_file())
-    )
-    if is_path:
+    if isinstance(source, (bytes, bytearray)):
+        try:
+            source = decode(source)
+        except TomlError as e:
+            raise SpecError(e.reason) from None
+    elif not isinstance(source, (str, Path)):
+        raise SpecError(f"give a spec file's path or its TOML text, not {type(source).__name__} {source!r:.60}")
+    if isinstance(source, Path) or ("\n" not in source and (source.endswith(".toml") or _is_file(source))):
         path = Path(source)
         try:
             raw = path.read_bytes()
         except OSError as e:
             raise SpecError(f"cannot read spec: {e}", str(path)) from None
         try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as e:  # TOML is UTF-8
-            line = raw[: e.start].count(b"\n") + 1
-            raise SpecError(f"not UTF-8 text (TOML must be): byte {raw[e.start:e.start + 1]!r} at line {line}, "
-                            f"byte offset {e.start}", str(path)) from None
+            text = decode(raw)
+        except TomlError as e:
+            raise SpecError(e.reason, str(path)) from None
     else:
         text = str(source)
     return parse_spec(text, source=str(path) if path else None, overrides=overrides)
+
+
+def _is_file(name: str) -> bool:
+    try:
+        return Path(name).is_file()
+    except (OSError, ValueError):  # a name too long, or with a NUL byte: TOML text, not a path
+        return False
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -270,9 +279,9 @@ def _overridden_text(text: str, data: dict, overrides: dict) -> str:
 
 def parse_spec(text: str, source: str | None = None, overrides: dict | None = None) -> SweepSpec:
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise SpecError(f"not valid TOML: {e}", source) from None
+        data = read_toml(text)
+    except TomlError as e:
+        raise SpecError(e.reason, source) from None
     if overrides:
         data = _merge(data, overrides)
         text = _overridden_text(text, data, overrides)

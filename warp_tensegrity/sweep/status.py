@@ -111,6 +111,11 @@ def status_from_output(out) -> dict:
         ds = D.open_sweep(out)
     except Exception as e:
         raise SweepError(f"{out} does not open ({type(e).__name__}: {e}) and has no store") from None
+    if "status" not in ds.variables or "fingerprint" not in ds.attrs:
+        what = ds.attrs.get("title") or ds.attrs.get("source") or "no title"
+        raise SweepError(f"{out} is not the output of a sweep (`warp-tensegrity run`): it has no "
+                         f"{'status variable' if 'status' not in ds.variables else 'fingerprint attribute'} "
+                         f"({what}); status, combine and resume read sweep outputs")
     n = int(ds.attrs.get("n_columns", ds["status"].size))
     return {
         "output": str(out), "store": None, "spec": ds.attrs.get("spec_file"), "columns": n, "shards": 0,
