@@ -266,9 +266,10 @@ def test_lane_parallel_step_with_massive_bars(lanes):
 
 
 def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
-    """estimate_batch (the dry run) reports the path the policy picks on a GPU: RB fp32 at 4,096
-    columns is fused-serial; FB takes the lane step at any width, and a batch with one RB column
-    (its rigid links: band 6) the measured table's RB rows again (a stand-in device: CI has no GPU)."""
+    """estimate_batch (the dry run) reports the path the policy picks on a GPU: the lane step for
+    columns it takes (flexible, elastic or rigid bases up to 64 prisms) at any width; RB columns
+    longer than that (the lane step refuses them) the measured table's RB rows: fused-serial at
+    4,096 and 1,024 columns, staged at 65,536 (a stand-in device: CI has no GPU)."""
     from types import SimpleNamespace
 
     from warp_tensegrity.engine import estimate_batch
@@ -276,10 +277,13 @@ def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
     monkeypatch.setattr(integrate, "resolve_device", lambda name: SimpleNamespace(is_cuda=True))
     cfg = ColumnConfig(n_prisms=3)
     s = RunSettings(t_end=0.01, precision="fp32", truncate=False)
-    assert estimate_batch(cfg, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "fused-serial"
+    assert estimate_batch(cfg, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "lanes"
     assert estimate_batch(cfg, {"base_rigidity": np.zeros(65536)}, s)["step_path"] == "lanes"
     assert estimate_batch(cfg, {"base_rigidity": np.zeros(1024)}, s)["step_path"] == "lanes"
+    long = ColumnConfig(n_prisms=65, impact_admissibility="end_twist")
+    assert estimate_batch(long, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "fused-serial"
     one_rb = np.zeros(65536)
     one_rb[-1] = 1.0
-    assert estimate_batch(cfg, {"base_rigidity": one_rb}, s)["step_path"] == "staged"
-    assert estimate_batch(cfg, {"base_rigidity": one_rb[-1024:]}, s)["step_path"] == "fused-serial"
+    assert estimate_batch(cfg, {"base_rigidity": one_rb}, s)["step_path"] == "lanes"
+    assert estimate_batch(long, {"base_rigidity": one_rb}, s)["step_path"] == "staged"
+    assert estimate_batch(long, {"base_rigidity": one_rb[-1024:]}, s)["step_path"] == "fused-serial"
