@@ -216,6 +216,37 @@ def reached(tp_time: wp.array2d(dtype=f64), b: int, lo: int, hi: int) -> int:
 
 
 @wp.func
+def chain(tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), arrival: wp.array2d(dtype=f64),
+          b: int, lo: int, hi: int, ratio: f64):
+    """measure._chain: (n, cut) of the leading peak followed from hi - 1 downward while defined and
+    continuous (arrival not earlier, value within ``ratio``, peak not earlier than half the mean
+    arrival step); cut = 1 where the run ended at a defined but discontinuous peak."""
+    n = int(0)
+    cut = int(0)
+    j = hi - 1
+    while j >= lo:
+        if not wp.isfinite(tp_time[j, b]):
+            return n, cut
+        if j < hi - 1:
+            step = (arrival[j, b] - arrival[hi - 1, b]) / f64(hi - 1 - j)
+            tol = f64(0.0)
+            if wp.isfinite(step):
+                tol = f64(0.5) * step
+            ok = int(1)
+            if arrival[j, b] < arrival[j + 1, b]:
+                ok = 0
+            if not (tp_value[j, b] * ratio > tp_value[j + 1, b] and tp_value[j, b] < ratio * tp_value[j + 1, b]):
+                ok = 0
+            if not (tp_time[j, b] >= tp_time[j + 1, b] - tol):
+                ok = 0
+            if ok == 0:
+                return n, int(1)
+        n += 1
+        j -= 1
+    return n, cut
+
+
+@wp.func
 def spatial_peak_index(strain: Any, k: int, b: int, cut: int, n_valid: int, P: int, c: int, search: int) -> int:
     """First argmax of q[k, j] over |j - c| <= search, 0 <= j < P (measure._spatial_peak); -1 if none."""
     i = int(-1)

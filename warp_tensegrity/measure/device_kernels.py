@@ -10,6 +10,7 @@ import warp as wp
 
 from .device_funcs import (
     NAN,
+    chain,
     f64,
     finite_at,
     median,
@@ -172,17 +173,19 @@ def refine(
 def column_measures(
     # Model:
     time: wp.array(dtype=f64), prism_height: wp.array(dtype=f64), cut: int, lo: int, hi: int, min_reached: int,
+    continuity_ratio: f64,
     # Data in:
     strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int),
     tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64),
     # Data out:
-    jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
+    arrival: wp.array2d(dtype=f64), jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
     fit: wp.array2d(dtype=f64), lo_eff: wp.array(dtype=int),
     amplitude: wp.array(dtype=f64), speed: wp.array(dtype=f64), width_fwhm: wp.array(dtype=f64),
-    width_10: wp.array(dtype=f64), prisms_measured: wp.array(dtype=f64),
+    width_10: wp.array(dtype=f64), prisms_measured: wp.array(dtype=f64), pulse_captured: wp.array(dtype=f64),
 ):
-    """Window reached, amplitude, time-of-flight speed and widths at mid-column of column b
-    (measure_pulse's per-record part); fit[:, b] = (c0, c1) of t_peak = c0 + c1 j, for the snapshots."""
+    """Window reached (the leading peak followed while continuous), amplitude, time-of-flight speed
+    and widths at mid-column of column b (measure_pulse's per-record part); fit[:, b] = (c0, c1) of
+    t_peak = c0 + c1 j, for the snapshots. Arrivals on the clamp side of a cut become NaN."""
     b = wp.tid()
     P = tp_time.shape[0]
     amplitude[b] = NAN
@@ -190,9 +193,15 @@ def column_measures(
     width_fwhm[b] = NAN
     width_10[b] = NAN
     prisms_measured[b] = NAN
+    pulse_captured[b] = NAN
     fit[0, b] = NAN
     fit[1, b] = NAN
-    n_in = reached(tp_time, b, lo, hi)
+    n_in, was_cut = chain(tp_time, tp_value, arrival, b, lo, hi, continuity_ratio)
+    if whole[b] != 0 and n_in > 0:
+        pulse_captured[b] = f64(was_cut)
+    if was_cut == 1:
+        for jj in range(hi - n_in):
+            arrival[jj, b] = NAN
     lb = hi
     if n_in >= min_reached:
         lb = hi - n_in

@@ -25,8 +25,12 @@ DEFAULT_SKIP_FRACTION = 0.1
 """Default fraction of prisms left out of the measurement window at each end."""
 MIN_WINDOW = 3
 """Smallest window (prisms) the default skips leave."""
+CONTINUITY_RATIO = 2.0
+"""measure_pulse follows the leading peak from the impacted end while its value changes by less
+than this factor from one prism to the next (with arrivals not earlier, see :func:`_chain`)."""
 
 __all__ = [
+    "CONTINUITY_RATIO",
     "DEFAULT_END_FRACTION",
     "DEFAULT_SKIP_FRACTION",
     "DEFAULT_THRESHOLD_FRACTION",
@@ -232,6 +236,33 @@ def _reached(track, lo, hi):
     return np.where(defined.all(axis=-1), hi - lo, np.argmin(defined, axis=-1))
 
 
+def _chain(track, arrival, lo, hi):
+    """The leading pulse followed from the impacted end: (n, cut). ``n`` = window prisms,
+    contiguous from ``hi - 1`` downward, whose leading peak is defined and continuous with the
+    previous prism's: the arrival is not earlier, the peak value changes by less than
+    ``CONTINUITY_RATIO``, and the peak is not earlier by more than half the mean arrival step
+    so far. ``cut``: the run ended at a defined peak that broke this (something else - a
+    disturbance from the clamp, a precursor - crossed the threshold there first)."""
+    tp, vp, at = track.time, track.value, arrival
+    n = np.zeros(tp.shape[:-1], dtype=np.int64)
+    cut = np.zeros(tp.shape[:-1], dtype=bool)
+    alive = np.ones(tp.shape[:-1], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        for j in range(hi - 1, lo - 1, -1):
+            ok = np.isfinite(tp[..., j])
+            if j < hi - 1:
+                step = (at[..., j] - at[..., hi - 1]) / (hi - 1 - j)
+                tol = np.where(np.isfinite(step), 0.5 * step, 0.0)
+                cont = ~(at[..., j] < at[..., j + 1])  # NaN arrivals pass (a record compressed at t = 0)
+                cont &= (vp[..., j] * CONTINUITY_RATIO > vp[..., j + 1]) & (vp[..., j] < CONTINUITY_RATIO * vp[..., j + 1])
+                cont &= tp[..., j] >= tp[..., j + 1] - tol
+                cut |= alive & ok & ~cont
+                ok &= cont
+            alive &= ok
+            n += alive
+    return n, cut
+
+
 def _amplitude(track, lo, hi):
     v = track.value[..., lo:hi]
     if hi - lo < 1:
@@ -315,8 +346,12 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     * ``arrival_time`` (..., n_prisms) [s]: :func:`arrival_times`;
     * ``peak_time``, ``peak_value`` (..., n_prisms) [s], [-]: :func:`peak_track`;
     * ``threshold`` (...) [-]: the arrival threshold used;
-    * ``prisms_measured`` (...): prisms of the window the leading pulse reached within the record
-      (contiguous from the impact side; at least a quarter of the window, else NaN everywhere).
+    * ``prisms_measured`` (...): prisms of the window the leading pulse reached within the record,
+      followed from the impact side while its peak stays continuous (:func:`_chain`; at least a
+      quarter of the window, else NaN everywhere);
+    * ``pulse_captured`` (...): 1 where that run was cut by a discontinuity (something else crossed
+      the threshold first there), 0 where not, NaN where it is empty (no leading peak at the
+      window's impact-side prism); ``arrival_time`` is NaN on the clamp side of a cut.
 
     ``threshold`` None -> 5 % of each record's largest compression (lowered by decades, down to
     0.05 %, until leading peaks are found), then 25 % of the leading amplitude so found where this
@@ -339,7 +374,8 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
         thr_all = np.broadcast_to(np.asarray(threshold, dtype=np.float64), lead).reshape(B)
     lo, hi = measurement_window(P, skip_impact, skip_clamp)
     min_reached = max(min(5, hi - lo), (hi - lo) // 4)
-    keys_b = ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "threshold", "prisms_measured")
+    keys_b = ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "threshold", "prisms_measured",
+              "pulse_captured")
     keys_p = ("arrival_time", "peak_time", "peak_value")
     out = {k: np.full(B, np.nan) for k in keys_b} | {k: np.full((B, P), np.nan) for k in keys_p}
     step = max(1, int(max_chunk_elements) // max(1, T * P))
@@ -370,11 +406,14 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
             thr, thr_ok = _threshold(q, thr_b[:, None])
             track = _track(q, t, finite, thr, thr_ok, end_fraction)
         out["threshold"][sl] = thr_b
-        # the prisms reached: contiguous finite leading peaks from the impact side of the window
-        reached = _reached(track, lo, hi)
+        # the prisms reached: the leading peak followed from the impact side of the window while continuous
+        arrival = _arrival(q, t, finite, thr, thr_ok)
+        reached, cut = _chain(track, arrival, lo, hi)
         lo_eff = np.where(reached >= min_reached, hi - reached, hi)
+        arrival = np.where(cut[:, None] & (np.arange(P) < (hi - reached)[:, None]), np.nan, arrival)
+        out["pulse_captured"][sl] = np.where(whole & (reached > 0), cut.astype(np.float64), np.nan)
         res = {
-            "arrival_time": _arrival(q, t, finite, thr, thr_ok),
+            "arrival_time": arrival,
             "peak_time": track.time,
             "peak_value": track.value,
         }
