@@ -22,7 +22,7 @@ LAYERS = [
     {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse_core", "measure.pulse",
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
      "lens.host", "lens.design"},  # leaves
-    {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
+    {"settings", "scene.columns", "scene.base_modes", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
      "measure.device_kernels", "measure.device", "sweep.parse"},
     {"scene.batch", "scene", "integrate", "checks", "checks.reference", "checks.linear", "result", "plot", "lens.spec"},

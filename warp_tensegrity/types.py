@@ -77,7 +77,7 @@ MEASUREMENT_FLAGS = (
 column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tells each case)."""
 
 BETA_LIMIT_FLAGS = ("regular", "slow_convergence_possible", "rigid_bases")
-"""Values 0, 1, 2 of the datasets' ``beta_limit_flag`` (:mod:`warp_tensegrity.checks.base_modes`):
+"""Values 0, 1, 2 of the datasets' ``beta_limit_flag`` (:mod:`warp_tensegrity.scene.base_modes`):
 how the limit base_rigidity -> 1 converges for a case."""
 
 
