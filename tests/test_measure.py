@@ -374,12 +374,31 @@ def captured_record():
 def test_speed_at_beta_0p9999_follows_the_main_pulse():
     """Issue 25 part 2: at beta = 0.9999 a disturbance from the clamp crossed the threshold first at
     prisms 0-16 and 21; the old measure gave +69 % against beta = 1. Now within 5 % of beta = 1's
-    speed, and each within 5 % of its main pulse's own speed (tracked independently)."""
+    speed, and each within 5 % of its main pulse's own speed (tracked independently up to the
+    time the run ends, t = 1.05 s at beta = 0.9999: prism 16)."""
     s, t, beta = captured_record()
     m = M.measure_pulse(s, t, 6.2e-3)
     assert list(beta) == [0.9999, 1.0]
     assert m["pulse_captured"].tolist() == [1.0, 0.0]
     assert m["speed"][0] == pytest.approx(m["speed"][1], rel=0.05)
+    assert m["prisms_measured"].tolist() == [29.0, 40.0]  # 44..16: found again at 21 and 16, ends at 15
     for b in range(2):
-        assert m["speed"][b] == pytest.approx(main_pulse_speed(-s[b], t, 6.2e-3), rel=0.05)
+        assert m["speed"][b] == pytest.approx(main_pulse_speed(-s[b], t, 6.2e-3, t1=1.05), rel=0.05)
     assert M.pulse_speed(s[0], t, 6.2e-3, threshold=m["threshold"][0]).time_of_flight > 1.5 * m["speed"][1]  # control
+
+
+def test_a_single_captured_prism_is_bridged():
+    """A brief bump crosses the threshold at prism 20 long before the pulse gets there: the run finds
+    the pulse again at that prism and goes on over the whole window, with the pulse's peak time."""
+    t, s = _sech2_history(t_end=1.4)
+    s[:, 20] -= 0.3e-3 * np.exp(-(((t - 0.2) / 0.01) ** 2))
+    m = M.measure_pulse(s, t, 6.2e-3)
+    lo, hi = M.measurement_window(50)
+    assert m["pulse_captured"] == 0 and m["prisms_measured"] == hi - lo
+    assert m["speed"] == pytest.approx(40 * 6.2e-3, rel=0.005)
+    assert m["peak_time"][20] == pytest.approx((49 + 6 - 20) / 40.0, abs=0.01)  # the pulse's, not the bump's
+    assert m["peak_value"][20] == pytest.approx(1e-3, rel=0.01)
+    # two bumps in a row end the run there
+    s[:, 19] -= 0.3e-3 * np.exp(-(((t - 0.2) / 0.01) ** 2))
+    m2 = M.measure_pulse(s, t, 6.2e-3)
+    assert m2["pulse_captured"] == 1 and m2["prisms_measured"] == hi - 1 - 19

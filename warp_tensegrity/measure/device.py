@@ -15,9 +15,9 @@ Passes (one launch each; ``(P, B)`` = one thread per prism of each column, ``B``
 3. ``track`` (P, B): leading-peak track (and arrival) for a per-column threshold; run for the
    three trial thresholds of measure_pulse's refinement (1, 0.1, 0.01 x default), each followed by
 4. ``refine`` (B): prisms reached, trial amplitude, next trial; then ``track`` with the final one;
-5. ``column_measures`` (B): window reached (the leading peak followed while continuous; arrivals past a
-   cut set NaN), amplitude (median), time-of-flight fit, widths at
-   mid-column;
+5. ``column_measures`` (B): window reached (the leading peak followed while continuous, found again
+   past a single captured prism; arrivals past a cut set NaN), amplitude (median), time-of-flight
+   fit, widths at mid-column;
 6. ``snapshots`` (T, B): spatial peak of every snapshot the time-of-flight fit points at;
 7. ``snapshot_fit`` (B): least-squares speed of those peaks.
 
@@ -131,8 +131,9 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
                                       "speed_snapshot", "pulse_captured")}
         sx, sy, sw = zeros((T, B)), zeros((T, B)), zeros((T, B))
         if B and P and T:
-            wp.launch(column_measures, B, [t_d, h_d, cut, lo, hi, min_reached, f64(CONTINUITY_RATIO), strain, nv_d,
-                                           whole, tp_time, tp_value, arrival, jx, jw, fit, lo_eff, scal["amplitude"],
+            wp.launch(column_measures, B, [t_d, h_d, cut, lo, hi, min_reached, f64(CONTINUITY_RATIO), f64(end_fraction),
+                                           strain, nv_d, whole, trial, tp_time, tp_value, arrival, jx, jw, fit, lo_eff,
+                                           scal["amplitude"],
                                            scal["speed"], scal["width_fwhm"], scal["width_10"], scal["prisms_measured"],
                                            scal["pulse_captured"]])
             wp.launch(snapshots, (T, B), [t_d, cut, hi, strain, nv_d, whole, fit, lo_eff, P, sx, sy, sw])

@@ -173,19 +173,20 @@ def refine(
 def column_measures(
     # Model:
     time: wp.array(dtype=f64), prism_height: wp.array(dtype=f64), cut: int, lo: int, hi: int, min_reached: int,
-    continuity_ratio: f64,
+    continuity_ratio: f64, end_fraction: f64,
     # Data in:
-    strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int),
-    tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64),
+    strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int), thr: wp.array(dtype=f64),
     # Data out:
+    tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64),
     arrival: wp.array2d(dtype=f64), jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
     fit: wp.array2d(dtype=f64), lo_eff: wp.array(dtype=int),
     amplitude: wp.array(dtype=f64), speed: wp.array(dtype=f64), width_fwhm: wp.array(dtype=f64),
     width_10: wp.array(dtype=f64), prisms_measured: wp.array(dtype=f64), pulse_captured: wp.array(dtype=f64),
 ):
-    """Window reached (the leading peak followed while continuous), amplitude, time-of-flight speed
-    and widths at mid-column of column b (measure_pulse's per-record part); fit[:, b] = (c0, c1) of
-    t_peak = c0 + c1 j, for the snapshots. Arrivals on the clamp side of a cut become NaN."""
+    """Window reached (the leading peak followed while continuous, found again past a single
+    captured prism: measure._chain), amplitude, time-of-flight speed and widths at mid-column of
+    column b (measure_pulse's per-record part); fit[:, b] = (c0, c1) of t_peak = c0 + c1 j, for the
+    snapshots. Arrivals on the clamp side of a cut become NaN."""
     b = wp.tid()
     P = tp_time.shape[0]
     amplitude[b] = NAN
@@ -196,7 +197,9 @@ def column_measures(
     pulse_captured[b] = NAN
     fit[0, b] = NAN
     fit[1, b] = NAN
-    n_in, was_cut = chain(tp_time, tp_value, arrival, b, lo, hi, continuity_ratio)
+    nv = n_valid[b]
+    n_in, was_cut = chain(strain, time, cut, nv, thr[b], end_fraction, tp_time, tp_value, arrival, b, lo, hi,
+                          continuity_ratio)
     if whole[b] != 0 and n_in > 0:
         pulse_captured[b] = f64(was_cut)
     if was_cut == 1:
@@ -243,7 +246,6 @@ def column_measures(
         if d < dbest:
             dbest = d
             k = kk
-    nv = n_valid[b]
     width_fwhm[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.5))
     width_10[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.1))
 

@@ -24,7 +24,8 @@ table below, that explains the first NaN of amplitude, speed, widths):
                                         move toward the clamp (no positive speed)
  8  leading_pulse_captured              the leading peak, followed from the impacted end,
                                         breaks off (its value jumps, or the arrival or peak
-                                        comes earlier than at the previous prism) before a
+                                        comes earlier than at the previous prism, at two prisms
+                                        in a row or where it cannot be found again) before a
                                         quarter of the window: something else (a disturbance
                                         from the clamp, a precursor) crossed the threshold
                                         first, so no measure is given (checked before 3 and 4)

@@ -236,31 +236,95 @@ def _reached(track, lo, hi):
     return np.where(defined.all(axis=-1), hi - lo, np.argmin(defined, axis=-1))
 
 
-def _chain(track, arrival, lo, hi):
-    """The leading pulse followed from the impacted end: (n, cut). ``n`` = window prisms,
-    contiguous from ``hi - 1`` downward, whose leading peak is defined and continuous with the
-    previous prism's: the arrival is not earlier, the peak value changes by less than
-    ``CONTINUITY_RATIO``, and the peak is not earlier by more than half the mean arrival step
-    so far. ``cut``: the run ended at a defined peak that broke this (something else - a
-    disturbance from the clamp, a precursor - crossed the threshold there first)."""
-    tp, vp, at = track.time, track.value, arrival
-    n = np.zeros(tp.shape[:-1], dtype=np.int64)
-    cut = np.zeros(tp.shape[:-1], dtype=bool)
-    alive = np.ones(tp.shape[:-1], dtype=bool)
+def _retrack(q, t, thr, thr_r, end_fraction, t_start):
+    """The leading peak of histories q (m, T) that starts with the first upward crossing of
+    ``thr_r`` (m,) after the first sample at or after ``t_start`` (m,) [s], ended and refined as in
+    :func:`_track`; its arrival is the crossing of ``thr`` (m,) on the same rise (not before that
+    start sample). Returns (t_peak, q_peak, arrival), NaN where undefined."""
+    m, T = q.shape
+    k = np.arange(T)[None, :]
+    rows = np.arange(m)
+    k0 = np.searchsorted(t, t_start, side="left")[:, None]
+    up = np.zeros((m, T), dtype=bool)
+    up[:, 1:] = (q[:, :-1] < thr_r[:, None]) & (q[:, 1:] >= thr_r[:, None])
+    up &= k > k0
+    hit = up.any(axis=-1)
+    ka = up.argmax(axis=-1)
+    from_a = k >= ka[:, None]
+    runmax = np.maximum.accumulate(np.where(from_a, q, -np.inf), axis=-1)
+    ended = (k > ka[:, None]) & (q <= end_fraction * runmax)
+    has_end = ended.any(axis=-1)
+    ke = ended.argmax(axis=-1)
+    kp = np.where(from_a & (k < ke[:, None]), q, -np.inf).argmax(axis=-1)
+    below = np.where((k > k0) & (k < ka[:, None]) & (q < thr[:, None]), k, -1).max(axis=-1)
+    kb = np.where(below >= 0, below + 1, k0[:, 0] + 1).clip(1, T - 1)
+    qb0, qb1 = q[rows, kb - 1], q[rows, kb]
+    ok_a = hit & (qb0 < thr) & (thr <= qb1)
+    arrival = np.where(ok_a, t[kb - 1] + (thr - qb0) / np.where(ok_a, qb1 - qb0, 1.0) * (t[kb] - t[kb - 1]), np.nan)
+    ok = hit & has_end & (kp + 1 < T)
+    km, kq = np.clip(kp - 1, 0, T - 1), np.clip(kp + 1, 0, T - 1)
+    off, val = _parabola_peak(q[rows, km], q[rows, kp], q[rows, kq],
+                              np.where(ok, t[kp] - t[km], 1.0), np.where(ok, t[kq] - t[kp], 1.0))
+    ok &= np.isfinite(val)
+    return np.where(ok, t[kp] + off, np.nan), np.where(ok, val, np.nan), arrival
+
+
+def _continuous(tp, vp, at, tp1, vp1, at1, at_hi, steps):
+    """Prism j's leading peak (tp, vp, at) continues prism j + 1's (tp1, vp1, at1): arrival not
+    earlier, value within CONTINUITY_RATIO, peak not earlier by more than half the mean arrival
+    step (at - at_hi) / steps from the window's impact-side prism."""
     with np.errstate(invalid="ignore"):
-        for j in range(hi - 1, lo - 1, -1):
-            ok = np.isfinite(tp[..., j])
-            if j < hi - 1:
-                step = (at[..., j] - at[..., hi - 1]) / (hi - 1 - j)
-                tol = np.where(np.isfinite(step), 0.5 * step, 0.0)
-                cont = ~(at[..., j] < at[..., j + 1])  # NaN arrivals pass (a record compressed at t = 0)
-                cont &= (vp[..., j] * CONTINUITY_RATIO > vp[..., j + 1]) & (vp[..., j] < CONTINUITY_RATIO * vp[..., j + 1])
-                cont &= tp[..., j] >= tp[..., j + 1] - tol
-                cut |= alive & ok & ~cont
-                ok &= cont
-            alive &= ok
-            n += alive
-    return n, cut
+        step = (at - at_hi) / steps
+        tol = np.where(np.isfinite(step), 0.5 * step, 0.0)
+        ok = np.isfinite(tp) & ~(at < at1)  # NaN arrivals pass (a record compressed at t = 0)
+        ok &= (vp * CONTINUITY_RATIO > vp1) & (vp < CONTINUITY_RATIO * vp1)
+        return ok & (tp >= tp1 - tol)
+
+
+def _chain(q, t, thr, end_fraction, track, arrival, lo, hi):
+    """The leading pulse followed from the impacted end: (n, cut, t_peak, q_peak, arrival).
+
+    From prism ``hi - 1`` toward the clamp, prism j joins the run while its leading peak is
+    continuous with prism j + 1's (:func:`_continuous`). A defined peak that is not (something
+    else - a disturbance from the clamp, a precursor - crossed the threshold there first) is
+    tracked again (:func:`_retrack`): from the first rise above ``q_peak(j + 1) / CONTINUITY_RATIO``
+    after the arrival at prism j + 1 (its peak time if that is NaN) less half the mean arrival
+    step of the run. If that peak is continuous
+    it replaces the first one and the run goes on; two such prisms in a row, or a peak that stays
+    discontinuous, end the run with ``cut`` True. An undefined peak ends it too (``cut`` False).
+    ``n``: prisms of the run. The returned track and arrivals hold the replacements."""
+    tp, vp, at = track.time.copy(), track.value.copy(), arrival.copy()
+    B = tp.shape[0]
+    n = np.zeros(B, dtype=np.int64)
+    cut = np.zeros(B, dtype=bool)
+    alive = np.ones(B, dtype=bool)
+    bridged = np.zeros(B, dtype=bool)
+    for j in range(hi - 1, lo - 1, -1):
+        ok = np.isfinite(tp[:, j])
+        if j < hi - 1:
+            cont = _continuous(tp[:, j], vp[:, j], at[:, j], tp[:, j + 1], vp[:, j + 1], at[:, j + 1], at[:, hi - 1],
+                               hi - 1 - j)
+            need = alive & ok & ~cont
+            redo = np.flatnonzero(need & ~bridged)
+            good = np.zeros(B, dtype=bool)
+            if redo.size:
+                with np.errstate(invalid="ignore"):
+                    s = (at[redo, j + 1] - at[redo, hi - 1]) / (hi - 2 - j) if j < hi - 2 else np.full(redo.size, np.nan)
+                tol = np.where(np.isfinite(s), 0.5 * s, 0.0)
+                thr_r = np.maximum(thr[redo, j], vp[redo, j + 1] / CONTINUITY_RATIO)
+                start = np.where(np.isfinite(at[redo, j + 1]), at[redo, j + 1], tp[redo, j + 1]) - tol
+                rt, rv, ra = _retrack(q[redo, :, j], t, thr[redo, j], thr_r, end_fraction, start)
+                g = _continuous(rt, rv, ra, tp[redo, j + 1], vp[redo, j + 1], at[redo, j + 1], at[redo, hi - 1],
+                                hi - 1 - j)
+                keep = redo[g]
+                tp[keep, j], vp[keep, j], at[keep, j] = rt[g], rv[g], ra[g]
+                good[keep] = True
+            cut |= need & ~good
+            bridged = good
+            ok &= cont | good
+        alive &= ok
+        n += alive
+    return n, cut, tp, vp, at
 
 
 def _amplitude(track, lo, hi):
@@ -350,8 +414,10 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
       followed from the impact side while its peak stays continuous (:func:`_chain`; at least a
       quarter of the window, else NaN everywhere);
     * ``pulse_captured`` (...): 1 where that run was cut by a discontinuity (something else crossed
-      the threshold first there), 0 where not, NaN where it is empty (no leading peak at the
-      window's impact-side prism); ``arrival_time`` is NaN on the clamp side of a cut.
+      the threshold first at two prisms in a row, or the pulse could not be found again), 0 where
+      not, NaN where it is empty (no leading peak at the window's impact-side prism);
+      ``arrival_time`` is NaN on the clamp side of a cut; ``arrival_time``, ``peak_time`` and
+      ``peak_value`` of a prism where the pulse was found again are the pulse's.
 
     ``threshold`` None -> 5 % of each record's largest compression (lowered by decades, down to
     0.05 %, until leading peaks are found), then 25 % of the leading amplitude so found where this
@@ -408,7 +474,8 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
         out["threshold"][sl] = thr_b
         # the prisms reached: the leading peak followed from the impact side of the window while continuous
         arrival = _arrival(q, t, finite, thr, thr_ok)
-        reached, cut = _chain(track, arrival, lo, hi)
+        reached, cut, tp_f, vp_f, arrival = _chain(q, t, thr, end_fraction, track, arrival, lo, hi)
+        track = PeakTrack(tp_f, vp_f, track.sample)
         lo_eff = np.where(reached >= min_reached, hi - reached, hi)
         arrival = np.where(cut[:, None] & (np.arange(P) < (hi - reached)[:, None]), np.nan, arrival)
         out["pulse_captured"][sl] = np.where(whole & (reached > 0), cut.astype(np.float64), np.nan)
