@@ -16,9 +16,12 @@ E. The convergence table of issue 25: RMS over the strain record (t <= 0.3 s) of
    band (scene.base_modes.base_mode_ratio) and the per-case flag the datasets record.
 F. The lock is not a rank loss: singular values of the Jacobian of the bar and link constraints
    of one rigid-base prism (bottom base clamped) at the reference twist and at the lock (pi).
+G. The speed measure against the main pulse (issue 25, part 2): 50 prisms, p = 0.002, t_end = 1.6 s,
+   v0 in {0.05, 0.075, 0.1, 0.125, 0.15}, beta in {0.999, 0.9999, 1} (one batch): measured speed,
+   its run, and the main pulse tracked snapshot by snapshot over the same time span.
 
-    python analysis/beta_limit.py            # all parts, ~8-10 min on 2 CPU cores
-    python analysis/beta_limit.py E F        # only these parts (merged into the JSON)
+    python analysis/beta_limit.py            # all parts, ~15 min on 2 CPU cores
+    python analysis/beta_limit.py E F G      # only these parts (merged into the JSON)
 Writes analysis/data/beta_limit.json.
 """
 
@@ -130,7 +133,47 @@ def part_f():
     return out
 
 
-def main(parts=("A", "B", "C", "D", "E", "F")):
+def main_pulse_speed(q, t, h, t0=0.2, t1=1.0, start=(30, 45)):
+    """Independent of the measure (as tests/test_measure.py): the largest compression of the main
+    pulse tracked snapshot by snapshot (searched from 2 prisms behind to 1 ahead of the last
+    location, parabolic), its location fitted linearly in time over [t0, t1]."""
+    k0, k1 = np.searchsorted(t, [t0, t1])
+    i = start[0] + int(q[k0, start[0]:start[1]].argmax())
+    locs = []
+    for k in range(k0, k1 + 1):
+        lo = max(i - 2, 1)
+        i = lo + int(q[k, lo:i + 2].argmax())
+        y0, y1, y2 = q[k, i - 1], q[k, i], q[k, i + 1]
+        locs.append(i + 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2))
+    return float(-h * np.polyfit(t[k0:k1 + 1], locs, 1)[0])
+
+
+def part_g():
+    v0s, betas = [0.05, 0.075, 0.1, 0.125, 0.15], [0.999, 0.9999, 1.0]
+    V, B = (a.ravel() for a in np.meshgrid(v0s, betas, indexing="ij"))
+    r = simulate_batch(CFG, {"prestrain": 0.002, "v0": V, "base_rigidity": B},
+                       RunSettings(t_end=1.6, output_interval=0.002, device="cpu", dt_safety=0.25))
+    m = measure_pulse(r.strain, r.time, CFG.height)
+    lo, hi = 5, 45
+    rows = []
+    for i in range(len(V)):
+        ref = int(np.flatnonzero((V == V[i]) & (B == 1.0))[0])
+        n = m["prisms_measured"][i]
+        t_end_run = float(np.nanmax(m["peak_time"][i][hi - int(n):hi])) if np.isfinite(n) else float("nan")
+        span = min(t_end_run, 1.4) if np.isfinite(t_end_run) else 1.0
+        mp, mp_ref = (main_pulse_speed(-r.strain[k], r.time, CFG.height, t1=span) for k in (i, ref))
+        rows.append({"v0": float(V[i]), "beta": float(B[i]), "speed": float(m["speed"][i]),
+                     "rel_to_beta_1": float(m["speed"][i] / m["speed"][ref] - 1), "prisms_measured": float(n),
+                     "pulse_captured": float(m["pulse_captured"][i]), "run_ends_at_t": t_end_run,
+                     "main_pulse_speed": mp, "main_pulse_speed_beta_1_same_span": mp_ref,
+                     "main_pulse_rel": mp / mp_ref - 1})
+        x = rows[-1]
+        print("G", x["v0"], x["beta"], f"{x['speed']:.4f} ({x['rel_to_beta_1']:+.1%}) n={n:g} main {mp:.4f} ({x['main_pulse_rel']:+.1%})",
+              flush=True)
+    return {"dt": r.dt, "rows": rows}
+
+
+def main(parts=("A", "B", "C", "D", "E", "F", "G")):
     wp.config.quiet = True
     out = json.loads(OUT.read_text()) if OUT.exists() else {}
     out["kinematic_lock_strain"] = kinematic_lock_strain(CFG.radius, CFG.height, CFG.twist)
@@ -138,7 +181,9 @@ def main(parts=("A", "B", "C", "D", "E", "F")):
         out["E_convergence_t_0.3"] = part_e()
     if "F" in parts:
         out["F_lock_jacobian"] = part_f()
-    if set(parts) <= {"E", "F"}:
+    if "G" in parts:
+        out["G_speed_vs_main_pulse"] = part_g()
+    if set(parts) <= {"E", "F", "G"}:
         OUT.write_text(json.dumps(out, indent=1))
         print("wrote", OUT)
         return
@@ -164,4 +209,4 @@ def main(parts=("A", "B", "C", "D", "E", "F")):
 
 
 if __name__ == "__main__":
-    main(tuple(sys.argv[1:]) or ("A", "B", "C", "D", "E", "F"))
+    main(tuple(sys.argv[1:]) or ("A", "B", "C", "D", "E", "F", "G"))
