@@ -12,8 +12,8 @@ paper's prism at p = 0.002, nearly independent of p).
 The limit beta -> 1 is the stiff-spring limit of Rubin and Ungar: the elastic column follows
 the rigid-base motion, with a difference ~ (1 - beta), when the stiff modes are far above the
 frequencies that drive them. The base members are driven by the constraint forces of the rigid
-motion, which are quadratic in the velocities (centripetal terms), so by frequencies up to
-2 omega_RB. Hence the criterion
+motion, which hold terms quadratic in the velocities (the bars' and links' |b'|^2), so by
+frequencies up to 2 omega_RB. Hence the criterion
 
     base_mode_ratio = omega_base_min / omega_RB,   scale-separated  <=>  ratio >= BAND_FACTOR = 2.
 
@@ -21,8 +21,9 @@ Below it the limit is pre-asymptotic: the difference to beta = 1 need not fall ~
 and can stall over a decade (measured in analysis/beta_limit.py, part E). The transfer into the
 base modes is nonlinear, and it was seen only where the pulse's compression reached at least
 ``LOCK_FRACTION`` = 1/2 of the rigid-base kinematic lock (50 prisms, p = 0.002: compression 0.037
-converged 10x per decade from 1 - beta = 1e-2 to 1e-5 with the base modes within reach; 0.068,
-0.0999 and 0.199 did not). The per-case flag is therefore
+converged 9-10.5x per decade from 1 - beta = 1e-2 to 1e-5 with the base modes within reach;
+0.068 slowed to 6x over one decade, 0.0999 and 0.199 stalled at 1.7-1.8x). The per-case flag is
+therefore
 
     beta_limit_flag = slow_convergence_possible  <=>  ratio < BAND_FACTOR  and
                                                       max_compression >= LOCK_FRACTION x lock.
