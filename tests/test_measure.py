@@ -402,3 +402,18 @@ def test_a_single_captured_prism_is_bridged():
     s[:, 19] -= 0.3e-3 * np.exp(-(((t - 0.2) / 0.01) ** 2))
     m2 = M.measure_pulse(s, t, 6.2e-3)
     assert m2["pulse_captured"] == 1 and m2["prisms_measured"] == hi - 1 - 19
+
+
+def test_the_longest_continuous_run_is_measured():
+    """Strong early bumps at the three window prisms next to the impacted end (a pulse still
+    forming there): the run from the impacted end is cut where the pulse proper starts, and the
+    longer run below it is the one measured."""
+    t, s = _sech2_history(t_end=1.4)
+    lo, hi = M.measurement_window(50)
+    s[:, hi - 3:hi] -= 3e-3 * np.exp(-(((t[:, None] - 0.03) / 0.005) ** 2))
+    m = M.measure_pulse(s, t, 6.2e-3)
+    assert m["pulse_captured"] == 1 and m["prisms_measured"] == hi - 3 - lo
+    assert m["speed"] == pytest.approx(40 * 6.2e-3, rel=0.005)
+    assert m["amplitude"] == pytest.approx(1e-3, rel=0.01)
+    at = m["arrival_time"]
+    assert np.isnan(at[hi - 3:hi]).all() and np.isfinite(at[lo:hi - 3]).all()  # the run's arrivals only

@@ -106,6 +106,9 @@ def adversarial_records():
     j = np.arange(30)
     for c2 in (20.0, 150.0):  # a bump from the clamp captures the threshold: part of the window, most of it
         R.append(base - 3e-4 / np.cosh((j[None, :] - (-3.0 + c2 * t[:, None])) / 1.5) ** 2)
+    s = base.copy()  # strong early bumps at the window's impact end: the run measured starts below them
+    s[:, 24:27] -= 3e-3 * np.exp(-(((t[:, None] - 0.03) / 0.005) ** 2))
+    R.append(s)
     return np.stack(R), t
 
 

@@ -294,23 +294,47 @@ def continuous(tp: f64, vp: f64, at: f64, tp1: f64, vp1: f64, at1: f64, at_hi: f
 def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f64, end_fraction: f64,
           tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), arrival: wp.array2d(dtype=f64),
           b: int, lo: int, hi: int, ratio: f64):
-    """measure._chain for column b: (n, was_cut), the peaks and arrivals of prisms where the pulse
-    was found again written in place."""
+    """measure._chain for column b: (n, run_hi, was_cut) of the longest run of the leading peak
+    through the window; the peaks and arrivals of prisms where the pulse was found again are
+    written in place."""
     n = int(0)
+    cs = hi
+    best_n = int(0)
+    best_hi = hi
+    was_cut = int(0)
     bridged = int(0)
     j = hi - 1
     while j >= lo:
-        if not wp.isfinite(tp_time[j, b]):
-            return n, int(0)
-        if j < hi - 1:
-            c = continuous(tp_time[j, b], tp_value[j, b], arrival[j, b], tp_time[j + 1, b], tp_value[j + 1, b],
-                           arrival[j + 1, b], arrival[hi - 1, b], hi - 1 - j, ratio)
-            if c == 0:
-                if bridged == 1:
-                    return n, int(1)
+        ok = wp.isfinite(tp_time[j, b])
+        if n == 0:  # the first prism of a run
+            if ok:
+                n = 1
+                cs = j + 1
+                bridged = 0
+            elif was_cut == 0:
+                return best_n, best_hi, was_cut  # before any cut an undefined peak ends the search
+            j -= 1
+            continue
+        a_hi = arrival[cs - 1, b]
+        steps = cs - 1 - j
+        if continuous(tp_time[j, b], tp_value[j, b], arrival[j, b], tp_time[j + 1, b], tp_value[j + 1, b],
+                      arrival[j + 1, b], a_hi, steps, ratio) == 1:
+            n += 1
+            bridged = 0
+        elif not ok:  # an undefined peak ends the run
+            if n > best_n:
+                best_n = n
+                best_hi = cs
+            n = 0
+            bridged = 0
+            if was_cut == 0:
+                return best_n, best_hi, was_cut
+        else:
+            good = int(0)
+            if bridged == 0:
                 s = NAN
-                if j < hi - 2:
-                    s = (arrival[j + 1, b] - arrival[hi - 1, b]) / f64(hi - 2 - j)
+                if cs - 2 - j > 0:
+                    s = (arrival[j + 1, b] - a_hi) / f64(cs - 2 - j)
                 tol = f64(0.0)
                 if wp.isfinite(s):
                     tol = f64(0.5) * s
@@ -322,18 +346,28 @@ def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f6
                 if not wp.isfinite(start):
                     start = tp_time[j + 1, b]
                 rt, rv, ra = retrack(strain, time, j, b, cut, n_valid, th, thr_r, end_fraction, start - tol)
-                if continuous(rt, rv, ra, tp_time[j + 1, b], tp_value[j + 1, b], arrival[j + 1, b],
-                              arrival[hi - 1, b], hi - 1 - j, ratio) == 0:
-                    return n, int(1)
-                tp_time[j, b] = rt
-                tp_value[j, b] = rv
-                arrival[j, b] = ra
+                if continuous(rt, rv, ra, tp_time[j + 1, b], tp_value[j + 1, b], arrival[j + 1, b], a_hi, steps,
+                              ratio) == 1:
+                    tp_time[j, b] = rt
+                    tp_value[j, b] = rv
+                    arrival[j, b] = ra
+                    good = 1
+            if good == 1:
+                n += 1
                 bridged = 1
-            else:
+            else:  # a cut: the run ends, a new one starts at j
+                if n > best_n:
+                    best_n = n
+                    best_hi = cs
+                was_cut = 1
+                n = 1
+                cs = j + 1
                 bridged = 0
-        n += 1
         j -= 1
-    return n, int(0)
+    if n > best_n:
+        best_n = n
+        best_hi = cs
+    return best_n, best_hi, was_cut
 
 
 @wp.func

@@ -22,18 +22,18 @@ table below, that explains the first NaN of amplitude, speed, widths):
                                         the impacted end or the window by t_end): width NaN
  6  speed_undefined                     amplitude defined, but the leading-peak times do not
                                         move toward the clamp (no positive speed)
- 8  leading_pulse_captured              the leading peak, followed from the impacted end,
-                                        breaks off (its value jumps, or the arrival or peak
-                                        comes earlier than at the previous prism, at two prisms
-                                        in a row or where it cannot be found again) before a
+ 8  leading_pulse_captured              the leading peak breaks off (its value jumps, or the
+                                        arrival or peak comes earlier than at the previous
+                                        prism, at two prisms in a row or where it cannot be
+                                        found again) so often that no continuous run covers a
                                         quarter of the window: something else (a disturbance
                                         from the clamp, a precursor) crossed the threshold
                                         first, so no measure is given (checked before 3 and 4)
  7  measurement_undefined               any other NaN (should not occur; report it)
 ==  ==================================  =====================================================
 
-Where the leading peak breaks off after a quarter of the window or more, the measures are taken
-over the prisms before the break (``prisms_measured`` says how many) and the flag stays ``ok``.
+Where a continuous run of the leading peak covers a quarter of the window or more, the measures
+are taken over the longest one (``prisms_measured`` says how long) and the flag stays ``ok``.
 
 ``arrival_time`` is per prism: NaN at the prisms the threshold never reached by t_end (that is
 what it measures), which needs no flag.

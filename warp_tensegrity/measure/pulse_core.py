@@ -282,49 +282,74 @@ def _continuous(tp, vp, at, tp1, vp1, at1, at_hi, steps):
 
 
 def _chain(q, t, thr, end_fraction, track, arrival, lo, hi):
-    """The leading pulse followed from the impacted end: (n, cut, t_peak, q_peak, arrival).
+    """The leading pulse followed through the window: (n, run_hi, cut, t_peak, q_peak, arrival).
 
-    From prism ``hi - 1`` toward the clamp, prism j joins the run while its leading peak is
-    continuous with prism j + 1's (:func:`_continuous`). A defined peak that is not (something
-    else - a disturbance from the clamp, a precursor - crossed the threshold there first) is
-    tracked again (:func:`_retrack`): from the first rise above ``q_peak(j + 1) / CONTINUITY_RATIO``
-    after the arrival at prism j + 1 (its peak time if that is NaN) less half the mean arrival
-    step of the run. If that peak is continuous
-    it replaces the first one and the run goes on; two such prisms in a row, or a peak that stays
-    discontinuous, end the run with ``cut`` True. An undefined peak ends it too (``cut`` False).
-    ``n``: prisms of the run. The returned track and arrivals hold the replacements."""
+    A run starts at prism ``hi - 1`` and goes toward the clamp: prism j joins it while its leading
+    peak is continuous with prism j + 1's (:func:`_continuous`, the mean arrival step taken from
+    the run's first prism). A defined peak that is not (something else - a disturbance from the
+    clamp, a precursor - crossed the threshold there first) is tracked again (:func:`_retrack`):
+    from the first rise above ``q_peak(j + 1) / CONTINUITY_RATIO`` after the arrival at prism
+    j + 1 (its peak time if that is NaN) less half the mean arrival step of the run. If that peak
+    is continuous it replaces the first one and the run goes on. Two such prisms in a row, or a
+    peak that stays discontinuous, end the run there (a cut), and a new run starts at that prism.
+    An undefined peak ends a run; before any cut it ends the search (the pulse had not reached
+    further), after one the search goes on to the next defined prism.
+    Returns the longest run (the first of equal ones): ``n`` prisms ending at ``run_hi - 1``;
+    ``cut``: some run was cut. The returned track and arrivals hold the replacements."""
     tp, vp, at = track.time.copy(), track.value.copy(), arrival.copy()
     B = tp.shape[0]
-    n = np.zeros(B, dtype=np.int64)
+    rows = np.arange(B)
+    n = np.zeros(B, dtype=np.int64)  # current run
+    cs = np.full(B, hi, dtype=np.int64)  # current run's hi (it starts at cs - 1)
+    best_n = np.zeros(B, dtype=np.int64)
+    best_hi = np.full(B, hi, dtype=np.int64)
     cut = np.zeros(B, dtype=bool)
-    alive = np.ones(B, dtype=bool)
+    done = np.zeros(B, dtype=bool)
     bridged = np.zeros(B, dtype=bool)
+
+    def close(mask):  # the current run ends: keep it if longer
+        better = mask & (n > best_n)
+        best_n[better], best_hi[better] = n[better], cs[better]
+
     for j in range(hi - 1, lo - 1, -1):
         ok = np.isfinite(tp[:, j])
-        if j < hi - 1:
-            cont = _continuous(tp[:, j], vp[:, j], at[:, j], tp[:, j + 1], vp[:, j + 1], at[:, j + 1], at[:, hi - 1],
-                               hi - 1 - j)
-            need = alive & ok & ~cont
-            redo = np.flatnonzero(need & ~bridged)
-            good = np.zeros(B, dtype=bool)
-            if redo.size:
-                with np.errstate(invalid="ignore"):
-                    s = (at[redo, j + 1] - at[redo, hi - 1]) / (hi - 2 - j) if j < hi - 2 else np.full(redo.size, np.nan)
-                tol = np.where(np.isfinite(s), 0.5 * s, 0.0)
-                thr_r = np.maximum(thr[redo, j], vp[redo, j + 1] / CONTINUITY_RATIO)
-                start = np.where(np.isfinite(at[redo, j + 1]), at[redo, j + 1], tp[redo, j + 1]) - tol
-                rt, rv, ra = _retrack(q[redo, :, j], t, thr[redo, j], thr_r, end_fraction, start)
-                g = _continuous(rt, rv, ra, tp[redo, j + 1], vp[redo, j + 1], at[redo, j + 1], at[redo, hi - 1],
-                                hi - 1 - j)
-                keep = redo[g]
-                tp[keep, j], vp[keep, j], at[keep, j] = rt[g], rv[g], ra[g]
-                good[keep] = True
-            cut |= need & ~good
-            bridged = good
-            ok &= cont | good
-        alive &= ok
-        n += alive
-    return n, cut, tp, vp, at
+        start = ~done & (n == 0)
+        go = ~done & (n > 0)
+        a_hi = at[rows, np.maximum(cs - 1, 0)]
+        steps = np.maximum(cs - 1 - j, 1)
+        cont = go & _continuous(tp[:, j], vp[:, j], at[:, j], tp[:, j + 1] if j + 1 < tp.shape[1] else tp[:, j],
+                                vp[:, j + 1] if j + 1 < tp.shape[1] else vp[:, j],
+                                at[:, j + 1] if j + 1 < tp.shape[1] else at[:, j], a_hi, steps)
+        need = go & ok & ~cont
+        redo = np.flatnonzero(need & ~bridged)
+        good = np.zeros(B, dtype=bool)
+        if redo.size:
+            with np.errstate(invalid="ignore"):
+                k2 = cs[redo] - 2 - j
+                s_ = np.where(k2 > 0, (at[redo, j + 1] - a_hi[redo]) / np.maximum(k2, 1), np.nan)
+            tol = np.where(np.isfinite(s_), 0.5 * s_, 0.0)
+            thr_r = np.maximum(thr[redo, j], vp[redo, j + 1] / CONTINUITY_RATIO)
+            t0 = np.where(np.isfinite(at[redo, j + 1]), at[redo, j + 1], tp[redo, j + 1]) - tol
+            rt, rv, ra = _retrack(q[redo, :, j], t, thr[redo, j], thr_r, end_fraction, t0)
+            g = _continuous(rt, rv, ra, tp[redo, j + 1], vp[redo, j + 1], at[redo, j + 1], a_hi[redo], steps[redo])
+            keep = redo[g]
+            tp[keep, j], vp[keep, j], at[keep, j] = rt[g], rv[g], ra[g]
+            good[keep] = True
+        grow = cont | good
+        n[grow] += 1
+        bridged = good
+        broken = need & ~good  # a cut: the run ends, a new one starts at j
+        ended = go & ~ok  # an undefined peak ends the run
+        close(broken | ended)
+        cut |= broken
+        n[broken], cs[broken] = 1, j + 1
+        n[ended] = 0
+        done |= ended & ~cut
+        new = start & ok & ~done  # the first prism of a run (the first run, or a search after a cut)
+        n[new], cs[new] = 1, j + 1
+        done |= start & ~ok & ~cut  # before any cut, an undefined peak at the run's start ends the search
+    close(~done | (n > 0))
+    return best_n, best_hi, cut, tp, vp, at
 
 
 def _amplitude(track, lo, hi):
@@ -410,13 +435,13 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     * ``arrival_time`` (..., n_prisms) [s]: :func:`arrival_times`;
     * ``peak_time``, ``peak_value`` (..., n_prisms) [s], [-]: :func:`peak_track`;
     * ``threshold`` (...) [-]: the arrival threshold used;
-    * ``prisms_measured`` (...): prisms of the window the leading pulse reached within the record,
-      followed from the impact side while its peak stays continuous (:func:`_chain`; at least a
-      quarter of the window, else NaN everywhere);
-    * ``pulse_captured`` (...): 1 where that run was cut by a discontinuity (something else crossed
+    * ``prisms_measured`` (...): prisms of the run measured: the longest stretch of the window over
+      which the leading peak is continuous (:func:`_chain`); every per-record measure is taken
+      over it, and it must hold at least a quarter of the window, else NaN everywhere;
+    * ``pulse_captured`` (...): 1 where a run was cut by a discontinuity (something else crossed
       the threshold first at two prisms in a row, or the pulse could not be found again), 0 where
-      not, NaN where it is empty (no leading peak at the window's impact-side prism);
-      ``arrival_time`` is NaN on the clamp side of a cut; ``arrival_time``, ``peak_time`` and
+      not, NaN where there is no run; where 1, ``arrival_time`` is NaN at every prism up to the
+      window's impact end outside the run measured; ``arrival_time``, ``peak_time`` and
       ``peak_value`` of a prism where the pulse was found again are the pulse's.
 
     ``threshold`` None -> 5 % of each record's largest compression (lowered by decades, down to
@@ -474,11 +499,15 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
         out["threshold"][sl] = thr_b
         # the prisms reached: the leading peak followed from the impact side of the window while continuous
         arrival = _arrival(q, t, finite, thr, thr_ok)
-        reached, cut, tp_f, vp_f, arrival = _chain(q, t, thr, end_fraction, track, arrival, lo, hi)
+        reached, run_hi, cut, tp_f, vp_f, arrival = _chain(q, t, thr, end_fraction, track, arrival, lo, hi)
         track = PeakTrack(tp_f, vp_f, track.sample)
-        lo_eff = np.where(reached >= min_reached, hi - reached, hi)
-        arrival = np.where(cut[:, None] & (np.arange(P) < (hi - reached)[:, None]), np.nan, arrival)
-        out["pulse_captured"][sl] = np.where(whole & (reached > 0), cut.astype(np.float64), np.nan)
+        measured = reached >= min_reached
+        lo_eff = np.where(measured, run_hi - reached, hi)
+        hi_eff = np.where(measured, run_hi, hi)
+        jj = np.arange(P)
+        outside = (jj < (run_hi - reached)[:, None]) | ((jj >= run_hi[:, None]) & (jj < hi))
+        arrival = np.where(cut[:, None] & outside, np.nan, arrival)  # up to the window's impact end: the run's only
+        out["pulse_captured"][sl] = np.where(whole & ((reached > 0) | cut), cut.astype(np.float64), np.nan)
         res = {
             "arrival_time": arrival,
             "peak_time": track.time,
@@ -487,19 +516,19 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
         for k, v in res.items():
             out[k][sl] = np.where(whole[:, None], v, np.nan)
         idx = np.arange(sl.start, sl.stop)
-        for lo_b in np.unique(lo_eff):
-            m = lo_eff == lo_b
-            if lo_b >= hi:
+        for lo_b, hi_b in {(int(a), int(b)) for a, b in zip(lo_eff, hi_eff)}:
+            m = (lo_eff == lo_b) & (hi_eff == hi_b)
+            if lo_b >= hi_b:
                 continue  # too few prisms reached: NaN
             sub = PeakTrack(track.time[m], track.value[m], track.sample[m])
-            v_tof, v_snap = _speeds(q[m], t, finite[m], sub, int(lo_b), hi, h[sl][m])
+            v_tof, v_snap = _speeds(q[m], t, finite[m], sub, lo_b, hi_b, h[sl][m])
             part = {
-                "amplitude": _amplitude(sub, int(lo_b), hi),
+                "amplitude": _amplitude(sub, lo_b, hi_b),
                 "speed": v_tof,
                 "speed_snapshot": v_snap,
-                "width_fwhm": _mid_width(q[m], t, finite[m], sub, 0.5, 0.5 * (lo_b + hi - 1)),
-                "width_10": _mid_width(q[m], t, finite[m], sub, 0.1, 0.5 * (lo_b + hi - 1)),
-                "prisms_measured": np.full(m.sum(), float(hi - lo_b)),
+                "width_fwhm": _mid_width(q[m], t, finite[m], sub, 0.5, 0.5 * (lo_b + hi_b - 1)),
+                "width_10": _mid_width(q[m], t, finite[m], sub, 0.1, 0.5 * (lo_b + hi_b - 1)),
+                "prisms_measured": np.full(m.sum(), float(hi_b - lo_b)),
             }
             for k, v in part.items():
                 out[k][idx[m]] = np.where(whole[m], v, np.nan)
