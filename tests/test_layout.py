@@ -22,8 +22,8 @@ LAYERS = [
     {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse_core", "measure.pulse",
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
      "lens.host", "lens.design", "tomlread", "scene.sparse", "arguments"},  # leaves
-    {"settings", "scene.columns", "kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver",
-     "kernels.lane_ops", "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes",
+    {"settings", "scene.columns", "scene.base_modes", "kernels.common", "kernels.coop", "kernels.staged",
+     "kernels.staged_solver", "kernels.lane_ops", "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
      "measure.device_kernels", "measure.device", "sweep.parse", "overrides"},
     {"scene.batch", "scene", "integrate", "paths", "checks", "checks.reference", "checks.linear", "checks.closed_forms",

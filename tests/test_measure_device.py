@@ -103,6 +103,12 @@ def adversarial_records():
     s = base.copy()  # a brief strong bump at prism 17 as the pulse passes mid-window (j_mid = 14.5):
     s[:, 17] -= 2e-3 * np.exp(-(((t - 20.5 / 60.0) / 0.004) ** 2))  # the width search must centre on rint(14.5) = 14
     R.append(s)
+    j = np.arange(30)
+    for c2 in (20.0, 150.0):  # a bump from the clamp captures the threshold: part of the window, most of it
+        R.append(base - 3e-4 / np.cosh((j[None, :] - (-3.0 + c2 * t[:, None])) / 1.5) ** 2)
+    s = base.copy()  # strong early bumps at the window's impact end: the run measured starts below them
+    s[:, 24:27] -= 3e-3 * np.exp(-(((t[:, None] - 0.03) / 0.005) ** 2))
+    R.append(s)
     return np.stack(R), t
 
 
@@ -119,6 +125,21 @@ def test_adversarial_records(adversarial):
     # the set covers defined and undefined outcomes of every measure
     for k in ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "prisms_measured"):
         assert np.isnan(ref[k]).any() and np.isfinite(ref[k]).any(), k
+    assert set(np.unique(ref["pulse_captured"][np.isfinite(ref["pulse_captured"])])) == {0.0, 1.0}
+    captured = ref["pulse_captured"] == 1
+    assert np.isfinite(ref["speed"][captured]).any() and np.isnan(ref["speed"][captured]).any()
+
+
+def test_engine_record_with_a_captured_threshold():
+    """The stored 50-prism record (beta = 0.9999 and 1, tests/test_measure.py::captured_record):
+    the device follows the pulse as the host does, and its speed at 0.9999 is within 5 % of 1's."""
+    from test_measure import captured_record
+
+    s, t, _ = captured_record()
+    ref, dev = both(s, t)
+    assert_same(ref, dev)
+    assert dev["pulse_captured"].tolist() == [1.0, 0.0]
+    assert dev["speed"][0] == pytest.approx(dev["speed"][1], rel=0.05)
 
 
 def test_records_discriminate_the_definitions(adversarial):

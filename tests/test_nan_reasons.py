@@ -123,3 +123,20 @@ def test_paper_2017_nans_are_flagged(paper_2017_nc):
     ds = open_sweep(paper_2017_nc)
     _check_every_nan_flagged(ds)
     assert dataset_summary(ds) == [] or all("of 12 cases" in s for s in dataset_summary(ds))
+
+
+def test_a_captured_threshold_is_flagged_not_measured():
+    """Issue 25: where something else crosses the threshold before the leading pulse over most of
+    the window, the case gets leading_pulse_captured and NaN measures; where it does so over a
+    smaller part, the measures are taken before the cut and the flag stays ok."""
+    from types import SimpleNamespace
+
+    from test_measure import _sech2_history, _with_disturbance
+
+    t, clean = _sech2_history(t_end=1.4)
+    s = np.stack([clean, _with_disturbance(20.0)[1], _with_disturbance(150.0)[1]])
+    res = SimpleNamespace(status=np.zeros(3, np.int8), strain=s, time=t, measurements=None)
+    m = measure_columns(res, 6.2e-3)
+    assert m["measurement_flag"].tolist() == [FLAG["ok"], FLAG["ok"], FLAG["leading_pulse_captured"]]
+    assert np.isfinite(m["speed"][:2]).all() and np.isnan(m["speed"][2])
+    assert m["pulse_captured"].tolist() == [0.0, 1.0, 1.0]

@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -54,6 +55,7 @@ from .scene.batch import (
     reference_states,
 )
 from .arguments import expect, expect_callable, expect_count, expect_params
+from .scene.base_modes import beta_limit_measures
 from .scene.columns import ColumnConfig
 from .runtime import init_warp
 from .result import BatchResult
@@ -316,6 +318,8 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings, pr
                     "record_strain": settings.record_strain})
     result.info["choices"] = choices
     result.info["prism_height"] = float(config.height)  # for BatchResult.to_xarray's measurements
+    # the per-case flag of the limit beta -> 1, evaluated when a dataset is built (it needs max_compression)
+    result.info["beta_limit"] = partial(beta_limit_measures, config, column_params(config, params), result.n_columns)
     return result
 
 

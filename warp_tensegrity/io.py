@@ -36,7 +36,7 @@ import xarray as xr
 
 from .scene.impact import kinematic_lock_strain
 from .options import COLUMN_PARAMETERS  # declared once, with units and bounds: options.ColumnParameters
-from .types import MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME
+from .types import BETA_LIMIT_FLAGS, MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME
 
 if TYPE_CHECKING:
     from .sweep.spec import SweepSpec
@@ -103,11 +103,22 @@ VAR_ATTRS = {
     "max_compression": {
         "units": "1",
         "long_name": "largest prism compression -strain over the record",
-        "comment": "at or above the rigid-base kinematic lock (attribute kinematic_lock_compression) the limit "
-                   "base_rigidity -> 1 is singular: rigid bases (1) are then not the limit of stiff ones (docs/impact.md)",
+        "comment": "the rigid-base kinematic lock (attribute kinematic_lock_compression) is where the pulse of "
+                   "rigid bases saturates; beta_limit_flag says where the limit base_rigidity -> 1 may converge slowly "
+                   "(docs/impact.md)",
     },
     "arrival_time": {"units": "s", "long_name": "arrival time of the leading pulse at each prism",
-                     "comment": "NaN at the prisms the pulse had not reached by t_end"},
+                     "comment": "NaN at the prisms the pulse had not reached by t_end, and on the clamp side of a "
+                                "prism where something else crossed the threshold first (docs/measurements.md)"},
+    "base_mode_ratio": {
+        "units": "1",
+        "long_name": "lowest base-member mode frequency over the top of the rigid-base band (omega_base_min / omega_RB)",
+        "comment": "NaN at base_rigidity = 1 (no base modes); below 2 the base modes are within reach of the "
+                   "rigid-base motion and the limit base_rigidity -> 1 may converge slowly (docs/impact.md)",
+    },
+    "beta_limit_flag": flag_attrs("how the limit base_rigidity -> 1 converges for this case: slow_convergence_possible "
+                                  "where base_mode_ratio < 2 and max_compression >= half the kinematic lock "
+                                  "(docs/impact.md)", dict(enumerate(BETA_LIMIT_FLAGS))),
     "measurement_flag": flag_attrs("why the pulse measures of the column are NaN (ok: all defined; "
                                    "docs/measurements.md)", dict(enumerate(MEASUREMENT_FLAGS))),
     "status": flag_attrs("column status at the end of the run", STATUS_NAMES),
@@ -175,10 +186,10 @@ def spec_attrs(spec: SweepSpec) -> dict:
     a["base_rigidity_law"] = ("base members: tension EA/(1-beta), compression beta*EA/(1-beta); beta = 1: rigid links; "
                               "continuous in beta, with the rigid_members impact the same initial state for every beta")
     a["base_rigidity_continuity"] = (
-        "outputs converge as beta -> 0 (to FB) and, while max_compression stays below kinematic_lock_compression, as "
-        "beta -> 1 (difference ~ 1 - beta); pulses that reach the lock make beta -> 1 singular (stiff base modes "
-        "take energy at the locked prisms), so beta = 1 is a separate model there: compare it with beta < 1 only "
-        "where max_compression < kinematic_lock_compression (docs/impact.md)")
+        "outputs converge as beta -> 0 (to FB) and as beta -> 1 (to RB), at the kinematic lock too: the rigid-base "
+        "constraints keep full rank there. The difference to beta = 1 falls ~ (1 - beta) once the lowest base-member "
+        "mode is above twice the rigid-base band (base_mode_ratio >= 2); before that it can stall over a decade of "
+        "1 - beta for pulses near the lock (beta_limit_flag = slow_convergence_possible; docs/impact.md)")
     return {k: _attr(v) for k, v in a.items()}
 
 
@@ -244,6 +255,9 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
         dv["arrival_time"] = (("case", "prism"), measurements["arrival_time"])
         if "measurement_flag" in measurements:
             dv["measurement_flag"] = (C, np.asarray(measurements["measurement_flag"], dtype=np.int8))
+        if "base_mode_ratio" in measurements:
+            dv["base_mode_ratio"] = (C, np.asarray(measurements["base_mode_ratio"], dtype=np.float64))
+            dv["beta_limit_flag"] = (C, np.asarray(measurements["beta_limit_flag"], dtype=np.int8))
     dv.update({
         "status": (C, np.asarray(result.status, dtype=np.int8)),
         "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),

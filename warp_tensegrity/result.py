@@ -77,5 +77,7 @@ class BatchResult:
             if height is None:
                 raise ValueError("to_xarray(measure=True) needs the column's config (prism height)")
             meas = measure_columns(self, height)
+            if "beta_limit" in self.info:  # set by simulate_batch: base_mode_ratio, beta_limit_flag
+                meas.update(self.info["beta_limit"](meas["max_compression"]))
         attrs = {**provenance_attrs(), "cuda_driver": warp_facts(self.device)["cuda_driver"]}
         return result_dataset(self, config=config, measurements=meas, attrs=attrs)

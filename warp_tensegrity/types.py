@@ -71,9 +71,14 @@ MEASUREMENT_FLAGS = (
     "record_too_short_for_width",
     "speed_undefined",
     "measurement_undefined",
+    "leading_pulse_captured",
 )
 """Values 0.. of the datasets' ``measurement_flag`` (CF flag_values/flag_meanings): why a
 column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tells each case)."""
+
+BETA_LIMIT_FLAGS = ("regular", "slow_convergence_possible", "rigid_bases")
+"""Values 0, 1, 2 of the datasets' ``beta_limit_flag`` (:mod:`warp_tensegrity.scene.base_modes`):
+how the limit base_rigidity -> 1 converges for a case."""
 
 
 class Method(StrEnum):

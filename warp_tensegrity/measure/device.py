@@ -15,8 +15,9 @@ Passes (one launch each; ``(P, B)`` = one thread per prism of each column, ``B``
 3. ``track`` (P, B): leading-peak track (and arrival) for a per-column threshold; run for the
    three trial thresholds of measure_pulse's refinement (1, 0.1, 0.01 x default), each followed by
 4. ``refine`` (B): prisms reached, trial amplitude, next trial; then ``track`` with the final one;
-5. ``column_measures`` (B): window reached, amplitude (median), time-of-flight fit, widths at
-   mid-column;
+5. ``column_measures`` (B): the run measured (the longest stretch of the window over which the
+   leading peak is continuous, found again past a single captured prism; arrivals outside it NaN
+   where a run was cut), amplitude (median), time-of-flight fit, widths at its middle;
 6. ``snapshots`` (T, B): spatial peak of every snapshot the time-of-flight fit points at;
 7. ``snapshot_fit`` (B): least-squares speed of those peaks.
 
@@ -47,6 +48,7 @@ from .device_kernels import (
     track,
 )
 from .pulse_core import (
+    CONTINUITY_RATIO,
     DEFAULT_END_FRACTION,
     DEFAULT_THRESHOLD_FRACTION,
     REFINED_THRESHOLD_FRACTION,
@@ -124,15 +126,17 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
                                           tp_time, tp_value, thr0, a0, trial])
             wp.launch(track, (P, B), [t_d, f64(end_fraction), cut, strain, nv_d, whole, trial,
                                       tp_time, tp_value, arrival])
-        jx, jw, fit, lo_eff = zeros((P, B)), zeros((P, B)), zeros((2, B)), zeros(B, wp.int32)
+        jx, jw, fit, lo_eff, hi_eff = zeros((P, B)), zeros((P, B)), zeros((2, B)), zeros(B, wp.int32), zeros(B, wp.int32)
         scal = {k: zeros(B) for k in ("amplitude", "speed", "width_fwhm", "width_10", "prisms_measured",
-                                      "speed_snapshot")}
+                                      "speed_snapshot", "pulse_captured")}
         sx, sy, sw = zeros((T, B)), zeros((T, B)), zeros((T, B))
         if B and P and T:
-            wp.launch(column_measures, B, [t_d, h_d, cut, lo, hi, min_reached, strain, nv_d, whole, tp_time, tp_value,
-                                           jx, jw, fit, lo_eff, scal["amplitude"], scal["speed"], scal["width_fwhm"],
-                                           scal["width_10"], scal["prisms_measured"]])
-            wp.launch(snapshots, (T, B), [t_d, cut, hi, strain, nv_d, whole, fit, lo_eff, P, sx, sy, sw])
+            wp.launch(column_measures, B, [t_d, h_d, cut, lo, hi, min_reached, f64(CONTINUITY_RATIO), f64(end_fraction),
+                                           strain, nv_d, whole, trial, tp_time, tp_value, arrival, jx, jw, fit, lo_eff, hi_eff,
+                                           scal["amplitude"],
+                                           scal["speed"], scal["width_fwhm"], scal["width_10"], scal["prisms_measured"],
+                                           scal["pulse_captured"]])
+            wp.launch(snapshots, (T, B), [t_d, cut, strain, nv_d, whole, fit, lo_eff, hi_eff, P, sx, sy, sw])
             wp.launch(snapshot_fit, B, [h_d, sx, sy, sw, scal["speed_snapshot"]])
         wp.synchronize_device(dev)
         t1 = _time.perf_counter()

@@ -216,6 +216,161 @@ def reached(tp_time: wp.array2d(dtype=f64), b: int, lo: int, hi: int) -> int:
 
 
 @wp.func
+def retrack(strain: Any, time: wp.array(dtype=f64), j: int, b: int, cut: int, n_valid: int, th: f64, thr_r: f64,
+            end_fraction: f64, t_start: f64):
+    """measure._retrack for prism j of column b: (t_peak, q_peak, arrival) of the pulse that starts
+    with the first upward crossing of thr_r after the first sample at or after t_start."""
+    T = time.shape[0]
+    k0 = int(T)
+    for k in range(T):
+        if time[k] >= t_start:
+            k0 = k
+            break
+    ka = int(-1)
+    for k in range(k0 + 1, T):
+        if q_at(strain, k - 1, j, b, cut, n_valid) < thr_r and q_at(strain, k, j, b, cut, n_valid) >= thr_r:
+            ka = k
+            break
+    if ka < 0:
+        return NAN, NAN, NAN
+    m = q_at(strain, ka, j, b, cut, n_valid)
+    best = m
+    kp = ka
+    ke = int(-1)
+    for k in range(ka + 1, T):
+        qk = q_at(strain, k, j, b, cut, n_valid)
+        if qk > m:
+            m = qk
+        if qk <= end_fraction * m:
+            ke = k
+            break
+        if qk > best:
+            best = qk
+            kp = k
+    kb = k0 + 1
+    i = ka - 1
+    while i > k0:
+        if q_at(strain, i, j, b, cut, n_valid) < th:
+            kb = i + 1
+            break
+        i -= 1
+    at = NAN
+    q0 = q_at(strain, kb - 1, j, b, cut, n_valid)
+    q1 = q_at(strain, kb, j, b, cut, n_valid)
+    if q0 < th and th <= q1:
+        at = time[kb - 1] + (th - q0) / (q1 - q0) * (time[kb] - time[kb - 1])
+    if ke < 0 or kp + 1 >= T:
+        return NAN, NAN, at
+    y0 = q_at(strain, kp - 1, j, b, cut, n_valid)
+    y1 = q_at(strain, kp, j, b, cut, n_valid)
+    y2 = q_at(strain, kp + 1, j, b, cut, n_valid)
+    h1 = time[kp] - time[kp - 1]
+    h2 = time[kp + 1] - time[kp]
+    val = parabola_value(y0, y1, y2, h1, h2)
+    if not wp.isfinite(val):
+        return NAN, NAN, at
+    return time[kp] + parabola_offset(y0, y1, y2, h1, h2), val, at
+
+
+@wp.func
+def continuous(tp: f64, vp: f64, at: f64, tp1: f64, vp1: f64, at1: f64, at_hi: f64, steps: int, ratio: f64) -> int:
+    """measure._continuous: prism j's leading peak continues prism j + 1's."""
+    step = (at - at_hi) / f64(steps)
+    tol = f64(0.0)
+    if wp.isfinite(step):
+        tol = f64(0.5) * step
+    if not wp.isfinite(tp):
+        return 0
+    if at < at1:
+        return 0
+    if not (vp * ratio > vp1 and vp < ratio * vp1):
+        return 0
+    if not (tp >= tp1 - tol):
+        return 0
+    return 1
+
+
+@wp.func
+def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f64, end_fraction: f64,
+          tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), arrival: wp.array2d(dtype=f64),
+          b: int, lo: int, hi: int, ratio: f64):
+    """measure._chain for column b: (n, run_hi, was_cut) of the longest run of the leading peak
+    through the window; the peaks and arrivals of prisms where the pulse was found again are
+    written in place."""
+    n = int(0)
+    cs = hi
+    best_n = int(0)
+    best_hi = hi
+    was_cut = int(0)
+    bridged = int(0)
+    j = hi - 1
+    while j >= lo:
+        ok = wp.isfinite(tp_time[j, b])
+        if n == 0:  # the first prism of a run
+            if ok:
+                n = 1
+                cs = j + 1
+                bridged = 0
+            elif was_cut == 0:
+                return best_n, best_hi, was_cut  # before any cut an undefined peak ends the search
+            j -= 1
+            continue
+        a_hi = arrival[cs - 1, b]
+        steps = cs - 1 - j
+        if continuous(tp_time[j, b], tp_value[j, b], arrival[j, b], tp_time[j + 1, b], tp_value[j + 1, b],
+                      arrival[j + 1, b], a_hi, steps, ratio) == 1:
+            n += 1
+            bridged = 0
+        elif not ok:  # an undefined peak ends the run
+            if n > best_n:
+                best_n = n
+                best_hi = cs
+            n = 0
+            bridged = 0
+            if was_cut == 0:
+                return best_n, best_hi, was_cut
+        else:
+            good = int(0)
+            if bridged == 0:
+                s = NAN
+                if cs - 2 - j > 0:
+                    s = (arrival[j + 1, b] - a_hi) / f64(cs - 2 - j)
+                tol = f64(0.0)
+                if wp.isfinite(s):
+                    tol = f64(0.5) * s
+                thr_r = th
+                r = tp_value[j + 1, b] / ratio
+                if r > thr_r:
+                    thr_r = r
+                start = arrival[j + 1, b]
+                if not wp.isfinite(start):
+                    start = tp_time[j + 1, b]
+                rt, rv, ra = retrack(strain, time, j, b, cut, n_valid, th, thr_r, end_fraction, start - tol)
+                if continuous(rt, rv, ra, tp_time[j + 1, b], tp_value[j + 1, b], arrival[j + 1, b], a_hi, steps,
+                              ratio) == 1:
+                    tp_time[j, b] = rt
+                    tp_value[j, b] = rv
+                    arrival[j, b] = ra
+                    good = 1
+            if good == 1:
+                n += 1
+                bridged = 1
+            else:  # a cut: the run ends, a new one starts at j
+                if n > best_n:
+                    best_n = n
+                    best_hi = cs
+                was_cut = 1
+                n = 1
+                cs = j + 1
+                bridged = 0
+        j -= 1
+    if n > best_n:
+        best_n = n
+        best_hi = cs
+    return best_n, best_hi, was_cut
+
+
+@wp.func
 def spatial_peak_index(strain: Any, k: int, b: int, cut: int, n_valid: int, P: int, c: int, search: int) -> int:
     """First argmax of q[k, j] over |j - c| <= search, 0 <= j < P (measure._spatial_peak); -1 if none."""
     i = int(-1)

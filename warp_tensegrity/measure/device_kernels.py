@@ -10,6 +10,7 @@ import warp as wp
 
 from .device_funcs import (
     NAN,
+    chain,
     f64,
     finite_at,
     median,
@@ -172,17 +173,21 @@ def refine(
 def column_measures(
     # Model:
     time: wp.array(dtype=f64), prism_height: wp.array(dtype=f64), cut: int, lo: int, hi: int, min_reached: int,
+    continuity_ratio: f64, end_fraction: f64,
     # Data in:
-    strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int),
-    tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64),
+    strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int), thr: wp.array(dtype=f64),
     # Data out:
-    jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
-    fit: wp.array2d(dtype=f64), lo_eff: wp.array(dtype=int),
+    tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64),
+    arrival: wp.array2d(dtype=f64), jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
+    fit: wp.array2d(dtype=f64), lo_eff: wp.array(dtype=int), hi_eff: wp.array(dtype=int),
     amplitude: wp.array(dtype=f64), speed: wp.array(dtype=f64), width_fwhm: wp.array(dtype=f64),
-    width_10: wp.array(dtype=f64), prisms_measured: wp.array(dtype=f64),
+    width_10: wp.array(dtype=f64), prisms_measured: wp.array(dtype=f64), pulse_captured: wp.array(dtype=f64),
 ):
-    """Window reached, amplitude, time-of-flight speed and widths at mid-column of column b
-    (measure_pulse's per-record part); fit[:, b] = (c0, c1) of t_peak = c0 + c1 j, for the snapshots."""
+    """The run measured (the longest stretch of the window over which the leading peak is
+    continuous, found again past a single captured prism: measure._chain), amplitude,
+    time-of-flight speed and widths at its middle for column b (measure_pulse's per-record part);
+    fit[:, b] = (c0, c1) of t_peak = c0 + c1 j, for the snapshots. Where a run was cut, arrivals
+    outside the run measured (up to the window's impact end) become NaN."""
     b = wp.tid()
     P = tp_time.shape[0]
     amplitude[b] = NAN
@@ -190,16 +195,28 @@ def column_measures(
     width_fwhm[b] = NAN
     width_10[b] = NAN
     prisms_measured[b] = NAN
+    pulse_captured[b] = NAN
     fit[0, b] = NAN
     fit[1, b] = NAN
-    n_in = reached(tp_time, b, lo, hi)
+    nv = n_valid[b]
+    n_in, run_hi, was_cut = chain(strain, time, cut, nv, thr[b], end_fraction, tp_time, tp_value, arrival, b, lo,
+                                  hi, continuity_ratio)
+    if whole[b] != 0 and (n_in > 0 or was_cut == 1):
+        pulse_captured[b] = f64(was_cut)
+    if was_cut == 1:
+        for jj in range(hi):
+            if jj < run_hi - n_in or jj >= run_hi:
+                arrival[jj, b] = NAN
     lb = hi
+    hb = hi
     if n_in >= min_reached:
-        lb = hi - n_in
+        lb = run_hi - n_in
+        hb = run_hi
     lo_eff[b] = lb
-    if lb >= hi or whole[b] == 0:
+    hi_eff[b] = hb
+    if lb >= hb or whole[b] == 0:
         return
-    n = hi - lb
+    n = hb - lb
     prisms_measured[b] = f64(n)
     amplitude[b] = median(tp_value, b, lb, n)
     # time of flight: least squares t_peak(j) = c0 + c1 j over the prisms reached (all defined)
@@ -220,8 +237,8 @@ def column_measures(
                 speed[b] = -h / c1
                 fit[0, b] = c0
                 fit[1, b] = c1
-    # widths at the sample nearest to the leading peak's time at mid-window
-    j_mid = f64(0.5) * f64(lb + hi - 1)
+    # widths at the sample nearest to the leading peak's time at the middle of the run
+    j_mid = f64(0.5) * f64(lb + hb - 1)
     j0 = int(wp.floor(j_mid))
     j1 = int(wp.ceil(j_mid))
     t_mid = f64(0.5) * (tp_time[j0, b] + tp_time[j1, b])
@@ -234,7 +251,6 @@ def column_measures(
         if d < dbest:
             dbest = d
             k = kk
-    nv = n_valid[b]
     width_fwhm[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.5))
     width_10[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.1))
 
@@ -242,10 +258,10 @@ def column_measures(
 @wp.kernel(enable_backward=False)
 def snapshots(
     # Model:
-    time: wp.array(dtype=f64), cut: int, hi: int,
+    time: wp.array(dtype=f64), cut: int,
     # Data in:
     strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int), fit: wp.array2d(dtype=f64),
-    lo_eff: wp.array(dtype=int), n_prisms: int,
+    lo_eff: wp.array(dtype=int), hi_eff: wp.array(dtype=int), n_prisms: int,
     # Data out:
     sx: wp.array2d(dtype=f64), sy: wp.array2d(dtype=f64), sw: wp.array2d(dtype=f64),
 ):
@@ -262,7 +278,7 @@ def snapshots(
     nv = n_valid[b]
     tk = time[k]
     jf = (tk - fit[0, b]) / c1
-    if not (wp.isfinite(jf) and jf >= f64(lo_eff[b] + 1) and jf <= f64(hi - 2)):
+    if not (wp.isfinite(jf) and jf >= f64(lo_eff[b] + 1) and jf <= f64(hi_eff[b] - 2)):
         return
     i = spatial_peak_index(strain, k, b, cut, nv, P, int(wp.rint(jf)), 1)
     if i < 1 or i > P - 2:

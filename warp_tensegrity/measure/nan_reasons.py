@@ -22,8 +22,18 @@ table below, that explains the first NaN of amplitude, speed, widths):
                                         the impacted end or the window by t_end): width NaN
  6  speed_undefined                     amplitude defined, but the leading-peak times do not
                                         move toward the clamp (no positive speed)
+ 8  leading_pulse_captured              the leading peak breaks off (its value jumps, or the
+                                        arrival or peak comes earlier than at the previous
+                                        prism, at two prisms in a row or where it cannot be
+                                        found again) so often that no continuous run covers a
+                                        quarter of the window: something else (a disturbance
+                                        from the clamp, a precursor) crossed the threshold
+                                        first, so no measure is given (checked before 3 and 4)
  7  measurement_undefined               any other NaN (should not occur; report it)
 ==  ==================================  =====================================================
+
+Where a continuous run of the leading peak covers a quarter of the window or more, the measures
+are taken over the longest one (``prisms_measured`` says how long) and the flag stays ``ok``.
 
 ``arrival_time`` is per prism: NaN at the prisms the threshold never reached by t_end (that is
 what it measures), which needs no flag.
@@ -67,6 +77,7 @@ def measure_columns(result, prism_height: float) -> dict:
         "width_10": m["width_10"],
         "prisms_measured": m["prisms_measured"],
         "arrival_time": m["arrival_time"],
+        "pulse_captured": m.get("pulse_captured", np.zeros(status.shape[0])),
     }
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
@@ -92,6 +103,7 @@ def measurement_flags(status, strain, time, meas: dict, record_stats: dict | Non
     B = status.shape[0]
     flags = np.full(B, FLAG["ok"], dtype=np.int8)
     amp, speed = np.asarray(meas["amplitude"]), np.asarray(meas["speed"])
+    captured = np.asarray(meas.get("pulse_captured", np.zeros(B))) == 1
     widths = np.isnan(np.asarray(meas["width"])) | np.isnan(np.asarray(meas["width_10"]))
     if strain is None and record_stats is not None:
         finite = np.asarray(record_stats["record_finite"], dtype=bool)
@@ -119,7 +131,9 @@ def measurement_flags(status, strain, time, meas: dict, record_stats: dict | Non
         elif status[b] == 2:
             flags[b] = FLAG["constraint_failure"]
         elif np.isnan(amp[b]):
-            if not compressed[b]:
+            if captured[b]:
+                flags[b] = FLAG["leading_pulse_captured"]
+            elif not compressed[b]:
                 flags[b] = FLAG["no_leading_pulse"]
             elif need is not None and arrived[b] >= need:
                 flags[b] = FLAG["no_leading_pulse"]  # the front crossed the window, no pulse over it
@@ -187,6 +201,8 @@ def summary(flags, n_prisms: int, t_end: float, needed=None) -> list[str]:
         "record_too_short_for_width": "no width: the pulse was not clear of the ends in the mid-column snapshot",
         "speed_undefined": "no speed: the leading peak does not travel toward the clamp",
         "measurement_undefined": "a measure is NaN for no known reason",
+        "leading_pulse_captured": "no measure: something else (a disturbance from the clamp, a precursor) crossed the "
+                                  "threshold before the leading pulse over most of the window",
     }
     for f, text in why.items():
         if counts[f]:

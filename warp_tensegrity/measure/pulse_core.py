@@ -25,8 +25,12 @@ DEFAULT_SKIP_FRACTION = 0.1
 """Default fraction of prisms left out of the measurement window at each end."""
 MIN_WINDOW = 3
 """Smallest window (prisms) the default skips leave."""
+CONTINUITY_RATIO = 2.0
+"""measure_pulse follows the leading peak from the impacted end while its value changes by less
+than this factor from one prism to the next (with arrivals not earlier, see :func:`_chain`)."""
 
 __all__ = [
+    "CONTINUITY_RATIO",
     "DEFAULT_END_FRACTION",
     "DEFAULT_SKIP_FRACTION",
     "DEFAULT_THRESHOLD_FRACTION",
@@ -242,6 +246,122 @@ def _reached(track, lo, hi):
     return np.where(defined.all(axis=-1), hi - lo, np.argmin(defined, axis=-1))
 
 
+def _retrack(q, t, thr, thr_r, end_fraction, t_start):
+    """The leading peak of histories q (m, T) that starts with the first upward crossing of
+    ``thr_r`` (m,) after the first sample at or after ``t_start`` (m,) [s], ended and refined as in
+    :func:`_track`; its arrival is the crossing of ``thr`` (m,) on the same rise (not before that
+    start sample). Returns (t_peak, q_peak, arrival), NaN where undefined."""
+    m, T = q.shape
+    k = np.arange(T)[None, :]
+    rows = np.arange(m)
+    k0 = np.searchsorted(t, t_start, side="left")[:, None]
+    up = np.zeros((m, T), dtype=bool)
+    up[:, 1:] = (q[:, :-1] < thr_r[:, None]) & (q[:, 1:] >= thr_r[:, None])
+    up &= k > k0
+    hit = up.any(axis=-1)
+    ka = up.argmax(axis=-1)
+    from_a = k >= ka[:, None]
+    runmax = np.maximum.accumulate(np.where(from_a, q, -np.inf), axis=-1)
+    ended = (k > ka[:, None]) & (q <= end_fraction * runmax)
+    has_end = ended.any(axis=-1)
+    ke = ended.argmax(axis=-1)
+    kp = np.where(from_a & (k < ke[:, None]), q, -np.inf).argmax(axis=-1)
+    below = np.where((k > k0) & (k < ka[:, None]) & (q < thr[:, None]), k, -1).max(axis=-1)
+    kb = np.where(below >= 0, below + 1, k0[:, 0] + 1).clip(1, T - 1)
+    qb0, qb1 = q[rows, kb - 1], q[rows, kb]
+    ok_a = hit & (qb0 < thr) & (thr <= qb1)
+    arrival = np.where(ok_a, t[kb - 1] + (thr - qb0) / np.where(ok_a, qb1 - qb0, 1.0) * (t[kb] - t[kb - 1]), np.nan)
+    ok = hit & has_end & (kp + 1 < T)
+    km, kq = np.clip(kp - 1, 0, T - 1), np.clip(kp + 1, 0, T - 1)
+    off, val = _parabola_peak(q[rows, km], q[rows, kp], q[rows, kq],
+                              np.where(ok, t[kp] - t[km], 1.0), np.where(ok, t[kq] - t[kp], 1.0))
+    ok &= np.isfinite(val)
+    return np.where(ok, t[kp] + off, np.nan), np.where(ok, val, np.nan), arrival
+
+
+def _continuous(tp, vp, at, tp1, vp1, at1, at_hi, steps):
+    """Prism j's leading peak (tp, vp, at) continues prism j + 1's (tp1, vp1, at1): arrival not
+    earlier, value within CONTINUITY_RATIO, peak not earlier by more than half the mean arrival
+    step (at - at_hi) / steps from the window's impact-side prism."""
+    with np.errstate(invalid="ignore"):
+        step = (at - at_hi) / steps
+        tol = np.where(np.isfinite(step), 0.5 * step, 0.0)
+        ok = np.isfinite(tp) & ~(at < at1)  # NaN arrivals pass (a record compressed at t = 0)
+        ok &= (vp * CONTINUITY_RATIO > vp1) & (vp < CONTINUITY_RATIO * vp1)
+        return ok & (tp >= tp1 - tol)
+
+
+def _chain(q, t, thr, end_fraction, track, arrival, lo, hi):
+    """The leading pulse followed through the window: (n, run_hi, cut, t_peak, q_peak, arrival).
+
+    A run starts at prism ``hi - 1`` and goes toward the clamp: prism j joins it while its leading
+    peak is continuous with prism j + 1's (:func:`_continuous`, the mean arrival step taken from
+    the run's first prism). A defined peak that is not (something else - a disturbance from the
+    clamp, a precursor - crossed the threshold there first) is tracked again (:func:`_retrack`):
+    from the first rise above ``q_peak(j + 1) / CONTINUITY_RATIO`` after the arrival at prism
+    j + 1 (its peak time if that is NaN) less half the mean arrival step of the run. If that peak
+    is continuous it replaces the first one and the run goes on. Two such prisms in a row, or a
+    peak that stays discontinuous, end the run there (a cut), and a new run starts at that prism.
+    An undefined peak ends a run; before any cut it ends the search (the pulse had not reached
+    further), after one the search goes on to the next defined prism.
+    Returns the longest run (the first of equal ones): ``n`` prisms ending at ``run_hi - 1``;
+    ``cut``: some run was cut. The returned track and arrivals hold the replacements."""
+    tp, vp, at = track.time.copy(), track.value.copy(), arrival.copy()
+    B = tp.shape[0]
+    rows = np.arange(B)
+    n = np.zeros(B, dtype=np.int64)  # current run
+    cs = np.full(B, hi, dtype=np.int64)  # current run's hi (it starts at cs - 1)
+    best_n = np.zeros(B, dtype=np.int64)
+    best_hi = np.full(B, hi, dtype=np.int64)
+    cut = np.zeros(B, dtype=bool)
+    done = np.zeros(B, dtype=bool)
+    bridged = np.zeros(B, dtype=bool)
+
+    def close(mask):  # the current run ends: keep it if longer
+        better = mask & (n > best_n)
+        best_n[better], best_hi[better] = n[better], cs[better]
+
+    for j in range(hi - 1, lo - 1, -1):
+        ok = np.isfinite(tp[:, j])
+        start = ~done & (n == 0)
+        go = ~done & (n > 0)
+        a_hi = at[rows, np.maximum(cs - 1, 0)]
+        steps = np.maximum(cs - 1 - j, 1)
+        cont = go & _continuous(tp[:, j], vp[:, j], at[:, j], tp[:, j + 1] if j + 1 < tp.shape[1] else tp[:, j],
+                                vp[:, j + 1] if j + 1 < tp.shape[1] else vp[:, j],
+                                at[:, j + 1] if j + 1 < tp.shape[1] else at[:, j], a_hi, steps)
+        need = go & ok & ~cont
+        redo = np.flatnonzero(need & ~bridged)
+        good = np.zeros(B, dtype=bool)
+        if redo.size:
+            with np.errstate(invalid="ignore"):
+                k2 = cs[redo] - 2 - j
+                s_ = np.where(k2 > 0, (at[redo, j + 1] - a_hi[redo]) / np.maximum(k2, 1), np.nan)
+            tol = np.where(np.isfinite(s_), 0.5 * s_, 0.0)
+            thr_r = np.maximum(thr[redo, j], vp[redo, j + 1] / CONTINUITY_RATIO)
+            t0 = np.where(np.isfinite(at[redo, j + 1]), at[redo, j + 1], tp[redo, j + 1]) - tol
+            rt, rv, ra = _retrack(q[redo, :, j], t, thr[redo, j], thr_r, end_fraction, t0)
+            g = _continuous(rt, rv, ra, tp[redo, j + 1], vp[redo, j + 1], at[redo, j + 1], a_hi[redo], steps[redo])
+            keep = redo[g]
+            tp[keep, j], vp[keep, j], at[keep, j] = rt[g], rv[g], ra[g]
+            good[keep] = True
+        grow = cont | good
+        n[grow] += 1
+        bridged = good
+        broken = need & ~good  # a cut: the run ends, a new one starts at j
+        ended = go & ~ok  # an undefined peak ends the run
+        close(broken | ended)
+        cut |= broken
+        n[broken], cs[broken] = 1, j + 1
+        n[ended] = 0
+        done |= ended & ~cut
+        new = start & ok & ~done  # the first prism of a run (the first run, or a search after a cut)
+        n[new], cs[new] = 1, j + 1
+        done |= start & ~ok & ~cut  # before any cut, an undefined peak at the run's start ends the search
+    close(~done | (n > 0))
+    return best_n, best_hi, cut, tp, vp, at
+
+
 def _amplitude(track, lo, hi):
     v = track.value[..., lo:hi]
     if hi - lo < 1:
@@ -325,8 +445,14 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     * ``arrival_time`` (..., n_prisms) [s]: :func:`arrival_times`;
     * ``peak_time``, ``peak_value`` (..., n_prisms) [s], [-]: :func:`peak_track`;
     * ``threshold`` (...) [-]: the arrival threshold used;
-    * ``prisms_measured`` (...): prisms of the window the leading pulse reached within the record
-      (contiguous from the impact side; at least a quarter of the window, else NaN everywhere).
+    * ``prisms_measured`` (...): prisms of the run measured: the longest stretch of the window over
+      which the leading peak is continuous (:func:`_chain`); every per-record measure is taken
+      over it, and it must hold at least a quarter of the window, else NaN everywhere;
+    * ``pulse_captured`` (...): 1 where a run was cut by a discontinuity (something else crossed
+      the threshold first at two prisms in a row, or the pulse could not be found again), 0 where
+      not, NaN where there is no run; where 1, ``arrival_time`` is NaN at every prism up to the
+      window's impact end outside the run measured; ``arrival_time``, ``peak_time`` and
+      ``peak_value`` of a prism where the pulse was found again are the pulse's.
 
     ``threshold`` None -> 5 % of each record's largest compression (lowered by decades, down to
     0.05 %, until leading peaks are found), then 25 % of the leading amplitude so found where this
@@ -352,7 +478,8 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
         thr_all = np.broadcast_to(np.asarray(threshold, dtype=np.float64), lead).reshape(B)
     lo, hi = measurement_window(P, skip_impact, skip_clamp)
     min_reached = max(min(5, hi - lo), (hi - lo) // 4)
-    keys_b = ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "threshold", "prisms_measured")
+    keys_b = ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10", "threshold", "prisms_measured",
+              "pulse_captured")
     keys_p = ("arrival_time", "peak_time", "peak_value")
     out = {k: np.full(B, np.nan) for k in keys_b} | {k: np.full((B, P), np.nan) for k in keys_p}
     step = max(1, int(max_chunk_elements) // max(1, T * P))
@@ -383,30 +510,38 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
             thr, thr_ok = _threshold(q, thr_b[:, None])
             track = _track(q, t, finite, thr, thr_ok, end_fraction)
         out["threshold"][sl] = thr_b
-        # the prisms reached: contiguous finite leading peaks from the impact side of the window
-        reached = _reached(track, lo, hi)
-        lo_eff = np.where(reached >= min_reached, hi - reached, hi)
+        # the prisms reached: the leading peak followed from the impact side of the window while continuous
+        arrival = _arrival(q, t, finite, thr, thr_ok)
+        reached, run_hi, cut, tp_f, vp_f, arrival = _chain(q, t, thr, end_fraction, track, arrival, lo, hi)
+        track = PeakTrack(tp_f, vp_f, track.sample)
+        measured = reached >= min_reached
+        lo_eff = np.where(measured, run_hi - reached, hi)
+        hi_eff = np.where(measured, run_hi, hi)
+        jj = np.arange(P)
+        outside = (jj < (run_hi - reached)[:, None]) | ((jj >= run_hi[:, None]) & (jj < hi))
+        arrival = np.where(cut[:, None] & outside, np.nan, arrival)  # up to the window's impact end: the run's only
+        out["pulse_captured"][sl] = np.where(whole & ((reached > 0) | cut), cut.astype(np.float64), np.nan)
         res = {
-            "arrival_time": _arrival(q, t, finite, thr, thr_ok),
+            "arrival_time": arrival,
             "peak_time": track.time,
             "peak_value": track.value,
         }
         for k, v in res.items():
             out[k][sl] = np.where(whole[:, None], v, np.nan)
         idx = np.arange(sl.start, sl.stop)
-        for lo_b in np.unique(lo_eff):
-            m = lo_eff == lo_b
-            if lo_b >= hi:
+        for lo_b, hi_b in {(int(a), int(b)) for a, b in zip(lo_eff, hi_eff)}:
+            m = (lo_eff == lo_b) & (hi_eff == hi_b)
+            if lo_b >= hi_b:
                 continue  # too few prisms reached: NaN
             sub = PeakTrack(track.time[m], track.value[m], track.sample[m])
-            v_tof, v_snap = _speeds(q[m], t, finite[m], sub, int(lo_b), hi, h[sl][m])
+            v_tof, v_snap = _speeds(q[m], t, finite[m], sub, lo_b, hi_b, h[sl][m])
             part = {
-                "amplitude": _amplitude(sub, int(lo_b), hi),
+                "amplitude": _amplitude(sub, lo_b, hi_b),
                 "speed": v_tof,
                 "speed_snapshot": v_snap,
-                "width_fwhm": _mid_width(q[m], t, finite[m], sub, 0.5, 0.5 * (lo_b + hi - 1)),
-                "width_10": _mid_width(q[m], t, finite[m], sub, 0.1, 0.5 * (lo_b + hi - 1)),
-                "prisms_measured": np.full(m.sum(), float(hi - lo_b)),
+                "width_fwhm": _mid_width(q[m], t, finite[m], sub, 0.5, 0.5 * (lo_b + hi_b - 1)),
+                "width_10": _mid_width(q[m], t, finite[m], sub, 0.1, 0.5 * (lo_b + hi_b - 1)),
+                "prisms_measured": np.full(m.sum(), float(hi_b - lo_b)),
             }
             for k, v in part.items():
                 out[k][idx[m]] = np.where(whole[m], v, np.nan)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import io as D
+from ..scene.base_modes import beta_limit_measures
 from ..engine import simulate_batch
 from ..measure.nan_reasons import measure_columns  # shared with BatchResult.to_xarray
 from ..provenance import provenance_attrs
@@ -37,6 +38,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     result = simulate_batch(spec.scene, params, settings, progress=progress, prisms_simulated=plan.prisms_simulated,
                             lanes_refused=plan.estimate.get("lane_refusal"))
     meas = measure_columns(result, spec.scene.height)
+    meas.update(result.info["beta_limit"](meas["max_compression"]))
     attrs = {
         "Conventions": D.CONVENTIONS,
         "fingerprint": plan.fingerprint,
@@ -84,6 +86,7 @@ def template_dataset(plan: SweepPlan):
         info={"output_step": steps})
     with np.errstate(all="ignore"):
         meas = measure_columns(result, spec.scene.height)
+    meas.update(beta_limit_measures(spec.scene, {k: v[:1] for k, v in plan.params.items()}, 1, meas["max_compression"]))
     return D.shard_dataset(spec, plan.params, 0, 1, result, meas, {})
 
 
