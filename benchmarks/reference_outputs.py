@@ -134,7 +134,8 @@ def remeasure(path: Path = REFERENCE_FILE) -> dict:
     for sh in shards:
         name = sh.split("/")[0]
         spec = load_spec(ROOT / "sweeps" / f"{name}.toml")
-        strain, time = out[f"{sh}/strain"], out[f"{sh}/time"]
+        strain = out[f"{sh}/strain"]
+        time = out[f"{sh}/t"] if f"{sh}/t" in out else out[f"{sh}/time"]  # the axis is "t" since the CF rename
         B = strain.shape[0]
         with np.errstate(all="ignore"):
             dev = measure_pulse_device(strain, time, spec.scene.height, device="cpu")
