@@ -25,11 +25,14 @@ if TYPE_CHECKING:
     from ..scene.batch import NetworkBatch
 
 @functools.cache
-def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False):
+def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
+                     fast_math: bool = False, smem_spill_block: int = 0):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
-    has ring links, active in its rigid-base columns, :mod:`.lane_rigid`). Launch with ``dim`` =
-    B G rounded up to a multiple of 32, one warp per block (or a few)."""
+    has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
+    approximate fp32 division and square root; ``smem_spill_block``: the launch's threads per block,
+    with which register spills may go to shared memory instead of local memory, 0: not). Launch
+    with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual)
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
@@ -57,7 +60,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     v[node, w] = V[3 * j - 3 + k]
                     a[node, w] = A[3 * j - 3 + k]
 
-    @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers)
+    spill = {"enable_cuda_smem_spilling": True, "launch_bounds": smem_spill_block} if smem_spill_block else {}
+
+    @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers,
+               module_options={"fast_math": bool(fast_math)}, **spill)
     def lane_steps(
         # Model:
         xy: wp.array(dtype=vec2), hz: wp.array(dtype=real), hand: wp.array(dtype=int),
@@ -248,6 +254,8 @@ MAX_LEVELS_PER_LANE = 4
 LANE_STEPS = 64  # most RATTLE steps per launch (launches also end on every output step)
 LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
 LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
+LANE_FAST_MATH = {"fp32": False, "fp64": False}  # CUDA's approximate fp32 division and square root
+LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
 
 
 def _column_members(n: int, hand: np.ndarray):
@@ -341,7 +349,11 @@ class LaneStep:
         real = wp.float64 if model.precision == "fp64" else wp.float32
         npr = np.float64 if real == wp.float64 else np.float32
         self.rigid = batch.constraints.shape[0] == 6 * n
-        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[model.precision], self.rigid)
+        self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
+        prec = model.precision
+        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
+                                        LANE_FAST_MATH[prec] and device.is_cuda,
+                                        self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0)
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
