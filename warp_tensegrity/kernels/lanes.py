@@ -254,7 +254,10 @@ MAX_LEVELS_PER_LANE = 4
 LANE_STEPS = 64  # most RATTLE steps per launch (launches also end on every output step)
 LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
 LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
-LANE_FAST_MATH = {"fp32": False, "fp64": False}  # CUDA's approximate fp32 division and square root
+# CUDA's approximate fp32 division and square root, for the flexible-base kernel: 2.1x its rate with
+# the bars still within 2.4e-7 (H200, 16,384 columns: benchmarks/results/lanes_tuning_h200/); not
+# for rigid bases, whose bars then reach 3.2e-7, over the fp32 tolerance of 3e-7
+LANE_FAST_MATH = {"fp32": True, "fp64": False}
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
 
 
@@ -352,7 +355,7 @@ class LaneStep:
         self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
         prec = model.precision
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
-                                        LANE_FAST_MATH[prec] and device.is_cuda,
+                                        LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid,
                                         self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0)
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
