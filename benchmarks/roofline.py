@@ -87,7 +87,8 @@ def column_counts(n_prisms: int, base) -> dict:
             cons += [topo.base[3 * (m + 1) + k] for k in range(3)]
     cons = np.array(cons, dtype=np.int64)
     partner = -np.ones(topo.n_nodes, dtype=np.int32)
-    start, ls, *_rest, bw = constraint_coupling(SimpleNamespace(constraints=cons, fixed=topo.fixed), partner)
+    start, ls, *_rest, bw = constraint_coupling(SimpleNamespace(constraints=cons, fixed=topo.fixed,
+                                                                positions=topo.positions), partner)
     return {
         "n_nodes": int(topo.n_nodes),
         "n_cables": int(len(topo.cross) + len(topo.base)),
