@@ -282,6 +282,27 @@ def precompile(device, precisions, max_workers: int | None = None) -> float:
     return time.perf_counter() - t0
 
 
+def kernel_resources(kernel, device, block_dim: int) -> dict:
+    """Registers, local (spill) bytes, static shared bytes, resident blocks and warps per SM of a
+    Warp kernel as loaded on a CUDA device with ``block_dim`` threads a block (cuFuncGetAttribute,
+    cuOccupancyMaxActiveBlocksPerMultiprocessor)."""
+    import ctypes
+
+    cuda = ctypes.CDLL("libcuda.so.1")
+    exe = kernel.module.execs[(device.context, block_dim)]
+    func = ctypes.c_void_p(exe.get_kernel_hooks(kernel).forward)
+    out = {}
+    for name, attr in (("registers", 4), ("local_bytes", 3), ("static_shared_bytes", 1)):
+        v = ctypes.c_int()
+        cuda.cuFuncGetAttribute(ctypes.byref(v), attr, func)
+        out[name] = v.value
+    n = ctypes.c_int()
+    cuda.cuOccupancyMaxActiveBlocksPerMultiprocessor(ctypes.byref(n), func, block_dim, ctypes.c_size_t(0))
+    out["blocks_per_sm"] = n.value
+    out["warps_per_sm"] = n.value * -(-block_dim // 32)
+    return out
+
+
 # ---------------------------------------------------------------------- memory
 def _array_bytes(a) -> int:
     import warp as wp

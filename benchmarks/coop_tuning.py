@@ -6,7 +6,6 @@ registers, spills, static shared memory and resident blocks per SM read from the
 """
 
 import argparse
-import ctypes
 import sys
 import time
 from pathlib import Path
@@ -23,23 +22,8 @@ VARIANTS = {  # name: (lanes per block, shared budget [bytes], node rows shared)
 
 
 def kernel_resources(integ) -> dict:
-    """Registers, local (spill) bytes, static shared bytes and resident blocks per SM of the fused
-    kernel as loaded for this Integrator (cuFuncGetAttribute / cuOccupancy...)."""
-    cuda = ctypes.CDLL("libcuda.so.1")
-    fk = integ.fk
-    kern = fk.kernels.rattle_columns
-    exe = kern.module.execs[(integ.device.context, fk.block_dim)]
-    func = ctypes.c_void_p(exe.get_kernel_hooks(kern).forward)
-    out = {}
-    for name, attr in (("registers", 4), ("local_bytes", 3), ("static_shared_bytes", 1)):
-        v = ctypes.c_int()
-        cuda.cuFuncGetAttribute(ctypes.byref(v), attr, func)
-        out[name] = v.value
-    n = ctypes.c_int()
-    cuda.cuOccupancyMaxActiveBlocksPerMultiprocessor(ctypes.byref(n), func, fk.block_dim, ctypes.c_size_t(0))
-    out["blocks_per_sm"] = n.value
-    out["warps_per_sm"] = n.value * -(-fk.block_dim // 32)
-    return out
+    """Resources of the fused kernel as loaded for this Integrator (:func:`common.kernel_resources`)."""
+    return common.kernel_resources(integ.fk.kernels.rattle_columns, integ.device, integ.fk.block_dim)
 
 
 def main(argv=None):

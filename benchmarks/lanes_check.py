@@ -10,7 +10,6 @@ independent implementation of the same RATTLE) and the kernel's resources from t
 """
 
 import argparse
-import ctypes
 import time
 
 import numpy as np
@@ -20,19 +19,8 @@ from . import common
 
 def lane_resources(integ) -> dict:
     """Registers, local bytes and resident warps per SM of the loaded lane kernel (CUDA driver)."""
-    cuda = ctypes.CDLL("libcuda.so.1")
     fk = integ.fk
-    kern = fk.kernels.lane_steps
-    exe = kern.module.execs[(integ.device.context, fk.block_dim)]
-    func = ctypes.c_void_p(exe.get_kernel_hooks(kern).forward)
-    out = {}
-    for name, attr in (("registers", 4), ("local_bytes", 3), ("static_shared_bytes", 1)):
-        v = ctypes.c_int()
-        cuda.cuFuncGetAttribute(ctypes.byref(v), attr, func)
-        out[name] = v.value
-    n = ctypes.c_int()
-    cuda.cuOccupancyMaxActiveBlocksPerMultiprocessor(ctypes.byref(n), func, fk.block_dim, ctypes.c_size_t(0))
-    out["warps_per_sm"] = n.value * fk.block_dim // 32
+    out = common.kernel_resources(fk.kernels.lane_steps, integ.device, fk.block_dim)
     out["levels_per_lane"], out["lanes_per_column"] = fk.P, fk.G
     return out
 

@@ -98,6 +98,18 @@ def finite3(v: Any):
 
 
 @wp.func
+def projection_status(err: Any, fail_tol: Any):
+    """The column's status after a position projection whose largest relative bar error is err:
+    non-finite, over ``fail_tol`` (constraint failure), or ok."""
+    code = int(STATUS_OK)
+    if not wp.isfinite(err):
+        code = STATUS_NONFINITE
+    elif err > fail_tol:
+        code = STATUS_CONSTRAINT
+    return code
+
+
+@wp.func
 def set_failure(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, code: int, at_step: int):
     """Flag column w (first failure only) with ``code`` at step ``at_step``."""
     if status[w] == STATUS_OK:

@@ -41,6 +41,7 @@ from .common import (
     member_vec,
     node_force,
     node_impulse,
+    projection_status,
     set_failure,
 )
 from .coop import block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
@@ -367,12 +368,8 @@ def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
             most = wp.max(most, it)
             if err > worst:
                 worst = err
-            code = int(STATUS_OK)
-            if not wp.isfinite(err):
-                code = STATUS_NONFINITE
-            elif err > fail_tol:
-                code = STATUS_CONSTRAINT
-            else:
+            code = projection_status(err, fail_tol)
+            if code == STATUS_OK:
                 f.gather_kick(m, q, qa, half, w, lane, bd)  # force, second half kick
                 if nc > 0:  # velocity projection at the new positions
                     if not f.factor_gram(m, q, x, band, red, w, lane, bd):

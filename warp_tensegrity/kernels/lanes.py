@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_force, set_failure
+from .common import (STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_force, projection_status,
+                     set_failure)
 from .lane_funcs import WARP, lane_shape, make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
 from .lane_rigid import MAX_RIGID_LEVELS_PER_LANE, make_rigid_funcs
@@ -222,11 +223,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     most = wp.max(most, it)
                     if err > worst:
                         worst = err
-                    code = int(STATUS_OK)
-                    if not wp.isfinite(err):
-                        code = STATUS_NONFINITE
-                    elif err > fail_tol:
-                        code = STATUS_CONSTRAINT
+                    code = projection_status(err, fail_tol)
                     if code != STATUS_OK:
                         store(U, V, A, u, v, a, lane, n, w)
                         if lane == 0:
