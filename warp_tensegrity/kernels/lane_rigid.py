@@ -42,7 +42,7 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
     B_BI = B_PCR + 2 * LG
     NB = B_BI + 1
     RFac = wp.types.matrix((3 * NB, 3), real)
-    Nodes, Ext, XY, Lv, Rows, Pv = f.Nodes, f.Ext, f.XY, f.Lv, f.Rows, f.Pv
+    Nodes, XY, Lv, Rows, Pv = f.Nodes, f.XY, f.Lv, f.Rows, f.Pv
     zero = real(0.0)
     one = real(1.0)
 
