@@ -114,8 +114,8 @@ class Base(float, Enum):
 
 
 class Slot(IntEnum):
-    """Slots of a node's row in the fused step's scratch (``integrate.FusedStep``: rows (n, NQ) per column;
-    the accelerations have a row of their own, ``fused.accel``)."""
+    """Slots of a node's row in the fused step's scratch (``kernels.fused.FusedStep.sq``: rows (n, NQ)
+    per column; the accelerations have a row of their own, ``sa``)."""
 
     U = 0
     """displacement [m]"""
