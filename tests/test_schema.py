@@ -39,7 +39,8 @@ def test_docstring_model_data_and_struct_agree_with_the_schema():
     for owner, fields in (("Model", MODEL_FIELDS), ("Data", DATA_FIELDS), ("FusedStep", SCRATCH_FIELDS)):
         for f in fields:
             row = f"{owner}.{f.name}"
-            assert any(line.split()[:1] == [row] and f"{f.shape} {f.dtype}" in line for line in types.__doc__.splitlines()), row
+            lines = [line for line in types.__doc__.splitlines() if line.split()[:1] == [row]]
+            assert len(lines) == 1 and f"{f.shape} {f.dtype}" in lines[0] and f.doc in lines[0], row
     sizes = [n for n, _ in model.MODEL_SIZES]
     assert [f.name for f in dataclasses.fields(model.Model)] == sizes + [f.name for f in MODEL_FIELDS]
     assert [f.name for f in dataclasses.fields(model.Data)] == [f.name for f in DATA_FIELDS] + ["rk"]
@@ -74,6 +75,7 @@ def test_kernel_model_arguments_are_their_group():
 
 @pytest.fixture
 def fresh_fused():
+    """Afterwards the kernel factories forget the structs made from the extended schema."""
     yield
     for f in FUSED_CACHES:
         f.cache_clear()
@@ -93,7 +95,7 @@ def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
 
     def with_extra(batch, precision):
         sizes, arrays = host_arrays(batch, precision)
-        return sizes, {**arrays, "con_k": np.full((sizes["n_constraints"], 2), 7.0)}
+        return sizes, {**arrays, "con_k": np.full((2, sizes["n_constraints"]), 7.0)}  # (Bp, nc)
 
     monkeypatch.setattr(model, "host_arrays", with_extra)
     integ = _integrator()

@@ -135,8 +135,8 @@ Model = model_class(types.MODEL_FIELDS)
 
 
 def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
-    """(sizes, arrays): every Model array on the host by name, in its device shape (per-column
-    parameters (k, Bp)) and, for reals, the dtype its values are rounded from."""
+    """(sizes, arrays): every Model array on the host, by its declared name; per-column parameters
+    as the batch holds them, (Bp, k) (:func:`device_array` lays them out as declared, (k, Bp))."""
     npr = NP_REAL[precision]
     X = batch.positions
     cons, cab = batch.constraints, batch.cables
@@ -160,25 +160,25 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
                  n_cables=len(cab), bandwidth=int(bw), n_prisms=n_prisms)
     arrays = dict(
         con_i=cons[:, 0].astype(np.int32), con_j=cons[:, 1].astype(np.int32), con_dref=dref_c, con_L=L_c,
-        con_active=np.asarray(batch.constraint_active).T,
+        con_active=batch.constraint_active,
         cpl_start=cpl_start, cpl_l=cpl_l, cpl_a=cpl_a, cpl_cross=cpl_cross, cpl_sign=cpl_sign,
         ncon_start=ncon_start, ncon_member=ncon_member,
         cab_i=cab[:, 0].astype(np.int32), cab_j=cab[:, 1].astype(np.int32), cab_dref=dref_e,
-        cab_EA=np.asarray(batch.cable_EA).T, cab_EAc=np.asarray(batch.cable_EA_compression).T,
-        cab_L=np.asarray(batch.cable_rest_length).T,
+        cab_EA=batch.cable_EA, cab_EAc=batch.cable_EA_compression, cab_L=batch.cable_rest_length,
         node_start=node_start, node_member=node_member, node_other=node_other, node_dref=node_dref,
         partner=partner, mass_blocks=mass_blocks(partner_full),
-        m_self=m_self.T, m_cross=m_cross.T, minv_self=minv_self.T, minv_cross=minv_cross.T,
+        m_self=m_self, m_cross=m_cross, minv_self=minv_self, minv_cross=minv_cross,
         level_nodes=level_nodes, h0=h0,
     )
     return sizes, arrays
 
 
 def device_array(a: np.ndarray | None, field: types.Field, real, device) -> wp.array | None:
-    """The declared array ``field`` on the device from its host values (None stays None when optional)."""
+    """The declared array ``field`` on the device from its host values (None stays None when optional);
+    a per-column parameter's (Bp, k) rows are transposed to (k, Bp), the column index fastest."""
     if a is None and field.optional:
         return None
-    a = np.ascontiguousarray(a)
+    a = np.ascontiguousarray(np.asarray(a).T if field.per_column else a)
     if a.ndim != field.ndim + (field.dtype == "vec3"):
         raise ValueError(f"{field.name}: host array of shape {a.shape} for the declared {field.shape} {field.dtype}")
     return wp.array(a, dtype=array_type(field.dtype, field.ndim, real).dtype, device=device)
