@@ -324,7 +324,7 @@ def integrator_bytes(integ) -> dict:
             out["data"] += sum(_array_bytes(x) for x in v.values())
         else:
             out["data"] += _array_bytes(v)
-    fk = getattr(integ, "fk", None)  # the fused step's own rows (integrate.FusedStep)
+    fk = getattr(integ, "fk", None)  # the fused step's own rows (kernels.fused.FusedStep)
     if fk is not None:
         for name in ("sx", "sq", "sa", "sb", "xy", "hz", "hand"):  # FusedStep's rows or LaneStep's lane arrays
             if getattr(fk, name, None) is not None:

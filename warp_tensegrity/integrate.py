@@ -16,22 +16,19 @@ Methods (one force evaluation = one ``gather_accel`` launch):
 from __future__ import annotations
 
 import gc
-from dataclasses import dataclass
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
-from .kernels.common import NQ
-from .kernels.coop import band_reals, solver_reals
-from .kernels.fused import make_fused_kernels, shared_plan
+from .kernels.fused import FusedStep
 from .kernels.lanes import LaneStep
 from .kernels.staged import make_kernels
 from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
 from .settings import RunSettings, SettingsError
-from .types import Method, Path, RKStage
+from .types import ARGUMENT_GROUPS, Method, Path, RKStage, group_fields
 
 if TYPE_CHECKING:
     from .scene.batch import NetworkBatch
@@ -108,7 +105,8 @@ class Integrator:
                                         "engine runs switch them on: paths.lane_emulation)")
                 self.fk = LaneStep(m, batch, self.device)
             elif self.fused:
-                self.fk = FusedStep(m, self.device, self.fused_block, self.device.is_cuda or FUSED_SHARED_ON_CPU,
+                self.fk = FusedStep(m, self.device, self.fused_block, FUSED_STEPS,
+                                    self.device.is_cuda or FUSED_SHARED_ON_CPU,
                                     "serial" if self.path == Path.FUSED_SERIAL else "cr")
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
@@ -128,27 +126,23 @@ class Integrator:
             return 1
         return COLUMN_BLOCK_DIM if kernel.key in self.column_kernels else 256
 
-    def _launch(self, kernel, dim, inputs):
+    def _launch(self, kernel, dim, inputs, model: str | None = None):
+        """``model``: the argument group (types.ARGUMENT_GROUPS) whose Model arrays lead the inputs."""
+        inputs = (self.args[model] + inputs) if model else inputs
         wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, block_dim=self._block_dim(kernel))
 
     def _group_arguments(self):
-        """The Model arguments the kernels take, in named groups (each kernel's signature lists
-        them in this order under ``# Model:``), and the projection settings as typed scalars."""
+        """The Model arguments of each launch, by argument group (the declared fields naming it, in
+        their order: each kernel's signature lists them first, under ``# Model:``), and the
+        projection settings as typed scalars."""
         m, s, real = self.model, self.settings, self.real
-        self.bars = [m.con_i, m.con_j, m.con_dref, m.con_L, m.con_active]
-        self.coupling = [m.cpl_start, m.cpl_l, m.cpl_a, m.cpl_cross, m.cpl_sign]
-        self.gram = [m.con_i, m.con_j, m.con_dref, m.con_active] + self.coupling  # rows of G M^-1 G^T
-        self.node_bars = [m.ncon_start, m.ncon_member]
-        self.minv = [m.partner, m.minv_self, m.minv_cross]
-        self.cables = [m.cab_i, m.cab_j, m.cab_dref, m.cab_EA, m.cab_EAc, m.cab_L]
-        self.node_cables = [m.cab_EA, m.cab_EAc, m.cab_L, m.node_start, m.node_member, m.node_other, m.node_dref]
-        self.masses = [m.partner, m.m_self, m.m_cross]
+        self.args = {g: [getattr(m, f.name) for f in group_fields(g)] for g in ARGUMENT_GROUPS}
         self.projection = [real(s.tolerance), int(s.max_projection_iters), real(s.failure_bar_error)]
 
     def _gather(self, u, v, kick, a, v_out):
         m, d = self.model, self.data
-        self._launch(self.k.gather_accel, (m.mass_blocks.shape[0], m.n_columns), self.node_cables + [
-            m.mass_blocks, m.minv_self, m.minv_cross, d.status, u, v, self.real(kick), a, v_out])
+        self._launch(self.k.gather_accel, (m.mass_blocks.shape[0], m.n_columns),
+                     [d.status, u, v, self.real(kick), a, v_out], model="gather")
 
     def _kick_drift(self, kick, drift):
         m, d = self.model, self.data
@@ -159,29 +153,29 @@ class Integrator:
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.project_positions, m.n_columns, self.bars + self.node_bars + self.minv + self.projection + [
-            self.real(inv_dt), d.band, ug, d.step, d.u, d.v, d.lam, d.imp, d.bar_err, d.iters, d.status, d.fail_step])
+        self._launch(self.ks.project_positions, m.n_columns, self.projection + [
+            self.real(inv_dt), d.band, ug, d.step, d.u, d.v, d.lam, d.imp, d.bar_err, d.iters, d.status, d.fail_step],
+            model="positions")
 
     def _factor_project_velocities(self, u, v):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.factor_project_velocities, m.n_columns, self.gram + self.node_bars + self.minv + [
-            u, d.step, d.band, v, d.lam, d.imp, d.status, d.fail_step])
+        self._launch(self.ks.factor_project_velocities, m.n_columns,
+                     [u, d.step, d.band, v, d.lam, d.imp, d.status, d.fail_step], model="velocities")
 
     def _factor(self, u):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.factor_only, m.n_columns, self.gram + [
-            m.minv_self, m.minv_cross, u, d.step, d.band, d.status, d.fail_step])
+        self._launch(self.ks.factor_only, m.n_columns, [u, d.step, d.band, d.status, d.fail_step], model="factor")
 
     def _constrained_accel(self, u, v, a):
         m, d = self.model, self.data
         if m.n_constraints == 0:
             return
-        self._launch(self.ks.constrained_accel, m.n_columns, self.gram + self.node_bars + self.minv + [
-            u, v, d.step, d.band, a, d.lam, d.imp, d.status, d.fail_step])
+        self._launch(self.ks.constrained_accel, m.n_columns,
+                     [u, v, d.step, d.band, a, d.lam, d.imp, d.status, d.fail_step], model="velocities")
 
     def _fused(self, n_sub: int, init: int = 0):
         self.fk.launch(self.data, self.settings, self.dt, n_sub, init)
@@ -200,9 +194,9 @@ class Integrator:
         m, d = self.model, self.data
         if self.strain is not None:
             self._launch(self.k.record_strain, (m.n_prisms, m.n_columns),
-                         [m.level_nodes, m.h0, self.every, d.u, d.step, self.strain])
-        self._launch(self.k.record_energy, m.n_columns, self.cables + self.masses + [
-            self.every, d.u, d.v, d.step, self.kinetic, self.elastic])
+                         [self.every, d.u, d.step, self.strain], model="strain")
+        self._launch(self.k.record_energy, m.n_columns,
+                     [self.every, d.u, d.v, d.step, self.kinetic, self.elastic], model="energy")
 
     # ------------------------------------------------------------------ steps
     def load_kernels(self):
@@ -366,83 +360,3 @@ STEPS = {
     Method.SYMPLECTIC_EULER: Integrator._symplectic_euler,
 }
 """One staged step of each method: ``STEPS[method](integrator, dt)``."""
-
-
-@dataclass
-class FusedStep:
-    """Scratch and launches of the fused step for one model on one device; the Integrator calls
-    :meth:`launch` (n_sub steps or the initialisation) and :meth:`advance_counter`."""
-
-    model: object  # warp_tensegrity.model.Model
-    device: object  # wp.context.Device
-    block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
-    shared: bool = True  # solver / node rows in block shared memory where they fit
-    solver: str = "cr"  # constraint solver: "cr" (lanes in parallel) or "serial" (lane 0)
-
-    @property
-    def steps_per_launch(self) -> int:
-        return FUSED_STEPS
-
-    def __post_init__(self):
-        m = self.model
-        real = wp.float64 if m.precision == "fp64" else wp.float32
-        rb = 8 if real == wp.float64 else 4
-        sv = self.solver
-        self.x_cap, self.q_cap = (shared_plan(m.n_nodes, m.n_constraints, m.bandwidth, self.block_dim, rb, solver=sv)
-                                  if self.shared else (0, 0))
-        nbr = band_reals(m.n_constraints, m.bandwidth, sv)
-        self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap, sv,
-                                          max(m.n_constraints, 1) if nbr else 0)
-        k, B, d = self.kernels, m.n_columns, m.device
-        nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim, sv) - nbr
-        self.sx = wp.zeros((1, 1, 1) if self.x_cap else (B, nx, 1), dtype=real, device=d)
-        self.sb = wp.zeros((B, max(m.n_constraints, 1), m.bandwidth + 1, 1) if nbr and not self.x_cap else (1, 1, 1, 1),
-                           dtype=real, device=d)
-        self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
-        self.sa = wp.zeros((B, m.n_nodes), dtype=k.vec, device=d)  # accelerations, a row per column
-        cm = k.ColumnModel()
-        self._column_major = []  # the copies the struct's views point into (kept alive here)
-        for name in _STRUCT_FIELDS:
-            a = getattr(m, name)
-            if a.ndim == 2 and a.shape[1] > 1:
-                a = self._column_view(a)
-            setattr(cm, name, a)
-        self.cm = cm
-        self.real = real
-
-    def _column_view(self, a):
-        """The (n, B) per-column parameter ``a`` as a view with the same shape and indexing over a
-        (B, n) copy: a block's lanes read one column's n values from adjacent addresses (coalesced),
-        where the model's layout, made for one thread per column, puts them B apart."""
-        t = wp.array(np.ascontiguousarray(a.numpy().T), dtype=a.dtype, device=a.device)
-        self._column_major.append(t)
-        return t.transpose()
-
-    @property
-    def description(self) -> str:
-        where = ("shared" if self.x_cap else "global") + "/" + ("shared" if self.q_cap else "global")
-        how = "block cyclic reduction" if self.solver == "cr" else "serial banded Cholesky on lane 0"
-        name = "fused" if self.solver == "cr" else "fused-serial"
-        return f"{name} ({how}, {self.block_dim} lanes per column; solver/node rows {where})"
-
-    def load(self):
-        self.kernels.rattle_columns.module.load(self.device, self.block_dim)
-        self.kernels.advance_counter_by.module.load(self.device, 1 if not self.device.is_cuda else 256)
-
-    def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
-        r = self.real
-        wp.launch_tiled(self.kernels.rattle_columns, dim=[self.model.n_columns], block_dim=self.block_dim,
-                        device=self.device, inputs=[
-                            self.cm, r(settings.tolerance), int(settings.max_projection_iters),
-                            r(settings.failure_bar_error), r(dt), int(n_sub), int(init), data.step,
-                            data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
-                            self.sq, self.sx, self.sb, self.sa])
-
-    def advance_counter(self, data, n: int):
-        wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device,
-                  block_dim=1 if not self.device.is_cuda else 256)
-
-
-_STRUCT_FIELDS = ("con_i", "con_j", "con_dref", "con_L", "con_active", "cpl_start", "cpl_l", "cpl_a", "cpl_cross",
-                  "cpl_sign", "ncon_start", "ncon_member", "cab_EA", "cab_EAc", "cab_L", "node_start", "node_member",
-                  "node_other", "node_dref", "partner", "minv_self", "minv_cross")

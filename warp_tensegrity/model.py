@@ -1,16 +1,19 @@
-"""Device model and data: the arrays the kernels read, with each shape stated once.
-
-``B`` = columns in the batch; ``Bp`` = B or 1 for per-column parameters (1 when shared).
-Batched arrays put the column index last (fastest) - see :mod:`warp_tensegrity.kernels`.
+"""Device model and data: the arrays the kernels read. Their names, shapes, dtypes and units are
+declared once, in :data:`warp_tensegrity.types.MODEL_FIELDS` and :data:`~warp_tensegrity.types.DATA_FIELDS`;
+:class:`Model` and :class:`Data` are made from them, and :func:`build_model` fills them by name.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import make_dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
+
+from . import types
+from .kernels.common import array_type
 
 if TYPE_CHECKING:
     from .scene.batch import NetworkBatch
@@ -113,60 +116,28 @@ def node_member_csr(n_nodes: int, members: np.ndarray):
     return start, mid.astype(np.int32)
 
 
-@dataclass
-class Model:
-    """Topology and per-column parameters on the device. n = nodes, nc = constraints, ne = cables."""
-
-    precision: str
-    device: str
-    n_columns: int
-    n_nodes: int
-    n_constraints: int
-    n_cables: int
-    bandwidth: int
-    """Half-bandwidth of the constraint Gram matrix in the chosen ordering."""
-    con_i: wp.array  # (nc,) int32
-    con_j: wp.array  # (nc,) int32
-    con_dref: wp.array  # (nc,) vec3: reference bar vector X_j - X_i [m]
-    con_L: wp.array  # (nc,) bar length [m]
-    con_active: wp.array  # (nc, Bp) 1 if the rigid member exists in the column
-    cpl_start: wp.array  # (nc+1,) CSR of Gram-matrix coupling terms
-    cpl_l: wp.array
-    cpl_a: wp.array
-    cpl_cross: wp.array
-    cpl_sign: wp.array
-    cab_i: wp.array  # (ne,) int32
-    cab_j: wp.array
-    cab_dref: wp.array  # (ne,) vec3 [m]
-    cab_EA: wp.array  # (ne, Bp) [N]
-    cab_EAc: wp.array  # (ne, Bp) [N]
-    cab_L: wp.array  # (ne, Bp) rest length [m]
-    node_start: wp.array  # (n+1,) CSR node -> cables
-    node_member: wp.array
-    node_other: wp.array  # (2 ne,) other end of node_member's cable
-    node_dref: wp.array  # (2 ne,) vec3: reference vector from the node to node_other [m]
-    ncon_start: wp.array  # (n+1,) CSR node -> rigid members
-    ncon_member: wp.array
-    partner: wp.array  # (n,) other end of the node's massive bar if both are free, else -1
-    mass_blocks: wp.array  # (nb, 2) int32: blocks of M (massive bar i < j, or lone node and -1)
-    m_self: wp.array  # (n, Bp) [kg]
-    m_cross: wp.array  # (n, Bp) [kg]
-    minv_self: wp.array  # (n, Bp) [kg-1], 0 at fixed nodes
-    minv_cross: wp.array  # (n, Bp) [kg-1]
-    level_nodes: wp.array | None  # (n_prisms+1, 3) column bases
-    h0: wp.array | None  # (n_prisms,) reference prism heights [m]
-    n_prisms: int
+MODEL_SIZES = (("precision", str), ("device", str), ("n_columns", int), ("n_nodes", int), ("n_constraints", int),
+               ("n_cables", int), ("bandwidth", int), ("n_prisms", int))
+"""Model's sizes beside its arrays (``bandwidth``: half-bandwidth of the Gram matrix in the chosen ordering)."""
 
 
-def _dev2(a: np.ndarray, dtype, device) -> wp.array:
-    """(Bp, k) host -> (k, Bp) device (column index fastest)."""
-    return wp.array(np.ascontiguousarray(np.asarray(a).T), dtype=dtype, device=device)
+@functools.cache
+def model_class(fields: tuple[types.Field, ...]) -> type:
+    """The Model dataclass of these array declarations: the sizes, then one ``wp.array`` attribute per field."""
+    arrays = [(f.name, "wp.array | None" if f.optional else "wp.array") for f in fields]
+    return make_dataclass("Model", [*MODEL_SIZES, *arrays], namespace={
+        "__module__": __name__,
+        "__doc__": "Topology and per-column parameters on the device (:data:`warp_tensegrity.types.MODEL_FIELDS`), "
+                   "and the sizes."})
 
 
-def build_model(batch: NetworkBatch, precision: str, device) -> Model:
-    real = REAL[precision]
+Model = model_class(types.MODEL_FIELDS)
+
+
+def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
+    """(sizes, arrays): every Model array on the host, by its declared name; per-column parameters
+    as the batch holds them, (Bp, k) (:func:`device_array` lays them out as declared, (k, Bp))."""
     npr = NP_REAL[precision]
-    vec = wp.types.vector(3, real)
     X = batch.positions
     cons, cab = batch.constraints, batch.cables
     partner_full, partner, m_self, m_cross, minv_self, minv_cross = mass_entries(batch)
@@ -178,79 +149,64 @@ def build_model(batch: NetworkBatch, precision: str, device) -> Model:
     node_start, node_member = node_member_csr(X.shape[0], cab)
     node_other, node_dref = node_incidence(node_start, node_member, cab, dref_e)
     ncon_start, ncon_member = node_member_csr(X.shape[0], cons.reshape(-1, 2))
-    arr = lambda a, dt: wp.array(np.asarray(a), dtype=dt, device=device)  # noqa: E731
     level_nodes = h0 = None
     n_prisms = 0
     if batch.level_nodes is not None:
-        level_nodes = arr(batch.level_nodes.astype(np.int32), wp.int32)
+        level_nodes = batch.level_nodes.astype(np.int32)
         zl = X[batch.level_nodes, 2].mean(axis=1)
-        h0 = arr(np.diff(zl), real)
+        h0 = np.diff(zl)
         n_prisms = len(zl) - 1
-    return Model(
-        precision=precision,
-        device=str(device),
-        n_columns=batch.n_columns,
-        n_nodes=X.shape[0],
-        n_constraints=len(cons),
-        n_cables=len(cab),
-        bandwidth=int(bw),
-        con_i=arr(cons[:, 0].astype(np.int32), wp.int32),
-        con_j=arr(cons[:, 1].astype(np.int32), wp.int32),
-        con_dref=arr(dref_c, vec),
-        con_L=arr(L_c, real),
-        con_active=_dev2(batch.constraint_active, real, device),
-        cpl_start=arr(cpl_start, wp.int32),
-        cpl_l=arr(cpl_l, wp.int32),
-        cpl_a=arr(cpl_a, wp.int32),
-        cpl_cross=arr(cpl_cross, wp.int32),
-        cpl_sign=arr(cpl_sign, real),
-        cab_i=arr(cab[:, 0].astype(np.int32), wp.int32),
-        cab_j=arr(cab[:, 1].astype(np.int32), wp.int32),
-        cab_dref=arr(dref_e, vec),
-        cab_EA=_dev2(batch.cable_EA, real, device),
-        cab_EAc=_dev2(batch.cable_EA_compression, real, device),
-        cab_L=_dev2(batch.cable_rest_length, real, device),
-        node_start=arr(node_start, wp.int32),
-        node_member=arr(node_member, wp.int32),
-        node_other=arr(node_other, wp.int32),
-        node_dref=arr(node_dref, vec),
-        ncon_start=arr(ncon_start, wp.int32),
-        ncon_member=arr(ncon_member, wp.int32),
-        partner=arr(partner, wp.int32),
-        mass_blocks=arr(mass_blocks(partner_full), wp.int32),
-        m_self=_dev2(m_self, real, device),
-        m_cross=_dev2(m_cross, real, device),
-        minv_self=_dev2(minv_self, real, device),
-        minv_cross=_dev2(minv_cross, real, device),
-        level_nodes=level_nodes,
-        h0=h0,
-        n_prisms=n_prisms,
+    sizes = dict(precision=precision, n_columns=batch.n_columns, n_nodes=X.shape[0], n_constraints=len(cons),
+                 n_cables=len(cab), bandwidth=int(bw), n_prisms=n_prisms)
+    arrays = dict(
+        con_i=cons[:, 0].astype(np.int32), con_j=cons[:, 1].astype(np.int32), con_dref=dref_c, con_L=L_c,
+        con_active=batch.constraint_active,
+        cpl_start=cpl_start, cpl_l=cpl_l, cpl_a=cpl_a, cpl_cross=cpl_cross, cpl_sign=cpl_sign,
+        ncon_start=ncon_start, ncon_member=ncon_member,
+        cab_i=cab[:, 0].astype(np.int32), cab_j=cab[:, 1].astype(np.int32), cab_dref=dref_e,
+        cab_EA=batch.cable_EA, cab_EAc=batch.cable_EA_compression, cab_L=batch.cable_rest_length,
+        node_start=node_start, node_member=node_member, node_other=node_other, node_dref=node_dref,
+        partner=partner, mass_blocks=mass_blocks(partner_full),
+        m_self=m_self, m_cross=m_cross, minv_self=minv_self, minv_cross=minv_cross,
+        level_nodes=level_nodes, h0=h0,
     )
+    return sizes, arrays
 
 
-@dataclass
-class Data:
-    """Mutable state of a batch on the device; shapes with n nodes, nc constraints, B columns."""
+def device_array(a: np.ndarray | None, field: types.Field, real, device) -> wp.array | None:
+    """The declared array ``field`` on the device from its host values (None stays None when optional);
+    a per-column parameter's (Bp, k) rows are transposed to (k, Bp), the column index fastest."""
+    if a is None and field.optional:
+        return None
+    a = np.ascontiguousarray(np.asarray(a).T if field.per_column else a)
+    if a.ndim != field.ndim + (field.dtype == "vec3"):
+        raise ValueError(f"{field.name}: host array of shape {a.shape} for the declared {field.shape} {field.dtype}")
+    return wp.array(a, dtype=array_type(field.dtype, field.ndim, real).dtype, device=device)
 
-    u: wp.array  # (n, B) vec3 displacement from the reference [m]
-    v: wp.array  # (n, B) vec3 velocity [m s-1]
-    a: wp.array  # (n, B) vec3 acceleration [m s-2]
-    u_prev: wp.array  # (n, B) vec3 displacement at the start of the step [m]
-    imp: wp.array  # (n, B) vec3 scratch: G^T lambda per node
-    band: wp.array  # (nc, bw+1, B) Cholesky factor of G M^-1 G^T
-    lam: wp.array  # (nc, B) multipliers / right-hand sides
-    status: wp.array  # (B,) int32 0 ok, 1 non-finite, 2 constraint failure
-    fail_step: wp.array  # (B,) int32 step of failure, -1 if none
-    iters: wp.array  # (B,) int32 largest projection iteration count seen
-    bar_err: wp.array  # (B,) max relative bar-length error after projection
-    step: wp.array  # (1,) int32 completed steps
-    rk: dict | None  # RK4 scratch: u0, v0, acc_u, acc_v, us, vs, each (n, B) vec3
+
+def build_model(batch: NetworkBatch, precision: str, device) -> Model:
+    """The Model of a batch: each declared array (:data:`warp_tensegrity.types.MODEL_FIELDS`) from
+    its host values (:func:`host_arrays`), by name."""
+    fields = types.MODEL_FIELDS
+    sizes, host = host_arrays(batch, precision)
+    if set(host) != {f.name for f in fields}:
+        raise KeyError(f"host arrays {sorted(set(host) ^ {f.name for f in fields})} undeclared or not computed")
+    real = REAL[precision]
+    return model_class(fields)(device=str(device), **sizes,
+                               **{f.name: device_array(host[f.name], f, real, device) for f in fields})
+
+
+Data = make_dataclass(
+    "Data", [*((f.name, "wp.array") for f in types.DATA_FIELDS), ("rk", "dict | None")],
+    namespace={"__module__": __name__, "__doc__": "Mutable state of a batch on the device "
+               "(:data:`warp_tensegrity.types.DATA_FIELDS`); ``rk``: RK4 scratch u0, v0, acc_u, acc_v, us, vs, "
+               "each (n, B) vec3."})
 
 
 def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = False) -> Data:
     """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused`` the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders; the fused step keeps its own
-    rows, :class:`warp_tensegrity.integrate.FusedStep`)."""
+    rows, :class:`warp_tensegrity.kernels.fused.FusedStep`)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d = model.device

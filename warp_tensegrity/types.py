@@ -3,41 +3,29 @@ strings, and the shapes and SI units of the device arrays, stated once.
 
 Nothing here imports Warp (specs validate without it).
 
-Device arrays (:class:`~warp_tensegrity.model.Model`, :class:`~warp_tensegrity.model.Data`)
--------------------------------------------------------------------------------------------
+Device arrays
+-------------
+Every device array is declared once, as a :class:`Field` of :data:`MODEL_FIELDS`,
+:data:`DATA_FIELDS` or :data:`SCRATCH_FIELDS` below: :class:`~warp_tensegrity.model.Model` and
+:class:`~warp_tensegrity.model.Data`, the fused step's struct and the launch argument groups
+(:data:`ARGUMENT_GROUPS`) are made from them, and so is this table.
+
 ``B`` = columns in the batch, ``Bp`` = B or 1 (a per-column parameter shared by all columns),
 ``n`` = nodes, ``nc`` = rigid members (constraints), ``ne`` = cables, ``bw`` = half-bandwidth of
-the constraint Gram matrix G M^-1 G^T, ``np`` = prisms. Batched arrays put the column index last
-(fastest), so neighbouring threads read neighbouring columns; the fused step's scratch puts it
-first (one thread block per column). Per-column parameters are read as ``param[k, b % Bp]``.
+the constraint Gram matrix G M^-1 G^T, ``np`` = prisms, ``nb`` = blocks of M, ``ncp`` = coupling
+terms of the Gram matrix, ``nx`` = a column's solver reals. Batched arrays put the column index
+last (fastest), so neighbouring threads read neighbouring columns; the fused step's scratch puts
+it first (one thread block per column). Per-column parameters are read as ``param[k, b % Bp]``.
+``real`` is fp32 or fp64 (the run's precision), ``vec3`` three reals.
 
-=============  ===============  ========  ============================================
-array          shape            unit      meaning
-=============  ===============  ========  ============================================
-con_dref       (nc,) vec3       m         reference bar vector X_j - X_i
-con_L          (nc,)            m         bar length
-con_active     (nc, Bp)         1         1 if the rigid member exists in the column
-cab_dref       (ne,) vec3       m         reference cable vector
-cab_EA         (ne, Bp)         N         tension stiffness EA (EAc: compression)
-cab_L          (ne, Bp)         m         rest length
-m_self         (n, Bp)          kg        mass matrix entry of the node (m_cross: partner)
-minv_self      (n, Bp)          kg-1      inverse-mass entry, 0 at fixed nodes
-h0             (np,)            m         reference prism heights
-u, v, a        (n, B) vec3      m, m s-1, m s-2  displacement from the reference, velocity, acceleration
-band           (nc, bw+1, B)    --        banded Cholesky factor of G M^-1 G^T
-lam            (nc, B)          --        multipliers / right-hand sides
-status         (B,) int32       --        :class:`Status`
-fail_step      (B,) int32       --        step at which the column froze, -1 if none
-bar_err        (B,)             1         max relative bar-length error after projection
-fused.nodes    (B, 4 n) vec3    --        node rows, slot :class:`Slot` s of node i at 4 i + s
-fused.accel    (B, n) vec3      m s-2     accelerations, one global row per column (not in shared memory)
-=============  ===============  ========  ============================================
+{field_table}
 """
 
 from __future__ import annotations
 
 import math
 from enum import Enum, IntEnum, StrEnum
+from typing import NamedTuple
 
 
 class Status(IntEnum):
@@ -126,8 +114,8 @@ class Base(float, Enum):
 
 
 class Slot(IntEnum):
-    """Slots of a node's row in the fused step's scratch (``integrate.FusedStep``: rows (n, NQ) per column;
-    the accelerations have a row of their own, ``fused.accel``)."""
+    """Slots of a node's row in the fused step's scratch (``kernels.fused.FusedStep.sq``: rows (n, NQ)
+    per column; the accelerations have a row of their own, ``sa``)."""
 
     U = 0
     """displacement [m]"""
@@ -159,3 +147,130 @@ class ShardState(StrEnum):
     """written by another spec, code version or case range"""
     CORRUPT = "corrupt"
     """does not open"""
+
+
+# ---------------------------------------------------------------------------- device arrays
+class Field(NamedTuple):
+    """One device array, declared once (the module docstring's table lists them all)."""
+
+    name: str
+    dtype: str
+    """"int32", "real" (the run's precision) or "vec3" (3 reals)."""
+    shape: str
+    """e.g. "(nc, Bp)"; one entry per dimension."""
+    unit: str
+    """SI; "1" dimensionless, "--" for indices and codes."""
+    doc: str
+    groups: tuple[str, ...] = ()
+    """The :data:`ARGUMENT_GROUPS` that take it."""
+    optional: bool = False
+    """None when the batch has no prism levels."""
+
+    @property
+    def ndim(self) -> int:
+        return len([d for d in self.shape.strip("()").split(",") if d.strip()])
+
+    @property
+    def per_column(self) -> bool:
+        """A per-column parameter (k, Bp): host rows (Bp, k) are transposed onto the device."""
+        return self.shape.endswith(", Bp)")
+
+
+ARGUMENT_GROUPS = {
+    "fused": "the fused step's struct ``ColumnModel`` (:mod:`warp_tensegrity.kernels.fused`)",
+    "positions": "``project_positions``",
+    "velocities": "``factor_project_velocities`` and ``constrained_accel``",
+    "factor": "``factor_only``",
+    "gather": "``gather_accel``",
+    "energy": "``record_energy``",
+    "strain": "``record_strain``",
+}
+"""Model arguments of each launch: the :data:`MODEL_FIELDS` naming the group, in their order (a
+hand-written kernel lists them first, under ``# Model:``)."""
+
+_BAR = ("fused", "positions", "velocities", "factor")
+_CPL = ("fused", "velocities", "factor")
+_NCON = ("fused", "positions", "velocities")
+_CAB = ("fused", "gather", "energy")
+_NODE = ("fused", "gather")
+_MINV = ("fused", "gather", "positions", "velocities", "factor")
+
+MODEL_FIELDS = (
+    Field("con_i", "int32", "(nc,)", "--", "first node of the rigid member", _BAR),
+    Field("con_j", "int32", "(nc,)", "--", "second node of the rigid member", _BAR),
+    Field("con_dref", "vec3", "(nc,)", "m", "reference bar vector X_j - X_i", _BAR),
+    Field("con_L", "real", "(nc,)", "m", "bar length (of the rounded con_dref)", ("fused", "positions")),
+    Field("con_active", "real", "(nc, Bp)", "1", "1 if the rigid member exists in the column", _BAR),
+    Field("cpl_start", "int32", "(nc+1,)", "--", "CSR row starts of the Gram matrix's coupling terms", _CPL),
+    Field("cpl_l", "int32", "(ncp,)", "--", "coupling term's column l <= k of row k", _CPL),
+    Field("cpl_a", "int32", "(ncp,)", "--", "coupling term's node a of row k", _CPL),
+    Field("cpl_cross", "int32", "(ncp,)", "--", "1 if the term takes the partner entry of M^-1 (minv_cross)", _CPL),
+    Field("cpl_sign", "real", "(ncp,)", "1", "coupling term's sign, +-1", _CPL),
+    Field("ncon_start", "int32", "(n+1,)", "--", "CSR node -> rigid members", _NCON),
+    Field("ncon_member", "int32", "(2 nc,)", "--", "rigid members of the node", _NCON),
+    Field("cab_i", "int32", "(ne,)", "--", "first node of the cable", ("energy",)),
+    Field("cab_j", "int32", "(ne,)", "--", "second node of the cable", ("energy",)),
+    Field("cab_dref", "vec3", "(ne,)", "m", "reference cable vector", ("energy",)),
+    Field("cab_EA", "real", "(ne, Bp)", "N", "tension stiffness EA", _CAB),
+    Field("cab_EAc", "real", "(ne, Bp)", "N", "compression stiffness EA_c", _CAB),
+    Field("cab_L", "real", "(ne, Bp)", "m", "rest length", _CAB),
+    Field("node_start", "int32", "(n+1,)", "--", "CSR node -> cables", _NODE),
+    Field("node_member", "int32", "(2 ne,)", "--", "cables of the node", _NODE),
+    Field("node_other", "int32", "(2 ne,)", "--", "other end of node_member's cable", _NODE),
+    Field("node_dref", "vec3", "(2 ne,)", "m", "reference vector from the node to node_other", _NODE),
+    Field("partner", "int32", "(n,)", "--", "other end of the node's massive bar if both are free, else -1",
+          ("fused", "positions", "velocities", "energy")),
+    Field("mass_blocks", "int32", "(nb, 2)", "--", "blocks of M: massive bar i < j, or lone node and -1", ("gather",)),
+    Field("m_self", "real", "(n, Bp)", "kg", "mass matrix entry of the node", ("energy",)),
+    Field("m_cross", "real", "(n, Bp)", "kg", "mass matrix entry of the node and its partner", ("energy",)),
+    Field("minv_self", "real", "(n, Bp)", "kg-1", "inverse-mass entry, 0 at fixed nodes", _MINV),
+    Field("minv_cross", "real", "(n, Bp)", "kg-1", "inverse-mass entry of the node and its partner", _MINV),
+    Field("level_nodes", "int32", "(np+1, 3)", "--", "nodes of each column base", ("strain",), optional=True),
+    Field("h0", "real", "(np,)", "m", "reference prism heights", ("strain",), optional=True),
+)
+"""Topology and per-column parameters (:class:`~warp_tensegrity.model.Model`)."""
+
+DATA_FIELDS = (
+    Field("u", "vec3", "(n, B)", "m", "displacement from the reference"),
+    Field("v", "vec3", "(n, B)", "m s-1", "velocity"),
+    Field("a", "vec3", "(n, B)", "m s-2", "acceleration"),
+    Field("u_prev", "vec3", "(n, B)", "m", "displacement at the start of the step (staged)"),
+    Field("imp", "vec3", "(n, B)", "--", "scratch: G^T lambda per node (staged)"),
+    Field("band", "real", "(nc, bw+1, B)", "--", "banded Cholesky factor of G M^-1 G^T (staged)"),
+    Field("lam", "real", "(nc, B)", "--", "multipliers / right-hand sides (staged)"),
+    Field("status", "int32", "(B,)", "--", ":class:`Status`"),
+    Field("fail_step", "int32", "(B,)", "--", "step at which the column froze, -1 if none"),
+    Field("iters", "int32", "(B,)", "--", "largest projection iteration count seen"),
+    Field("bar_err", "real", "(B,)", "1", "max relative bar-length error after projection"),
+    Field("step", "int32", "(1,)", "--", "completed steps"),
+)
+"""Mutable state (:class:`~warp_tensegrity.model.Data`; staged-only arrays are size-1 placeholders
+on the fused paths)."""
+
+SCRATCH_FIELDS = (
+    Field("sq", "vec3", "(B, n, NQ)", "--", "node rows, slot :class:`Slot` s of node i at [i, s]"),
+    Field("sa", "vec3", "(B, n)", "m s-2", "accelerations, one global row per column (not in shared memory)"),
+    Field("sx", "real", "(B, nx, 1)", "--", "solver rows: CR storage or the serial right-hand side; lane reduction"),
+    Field("sb", "real", "(B, nc, bw+1, 1)", "--", "the serial solver's band"),
+)
+"""The fused step's own rows (``kernels.fused.FusedStep``; size-1 where they live in shared memory)."""
+
+
+def group_fields(group: str, fields: tuple[Field, ...] | None = None) -> tuple[Field, ...]:
+    """The fields (default :data:`MODEL_FIELDS`) in argument group ``group``, in their order."""
+    return tuple(f for f in (MODEL_FIELDS if fields is None else fields) if group in f.groups)
+
+
+def field_table() -> str:
+    """The declared arrays as a reStructuredText table (the module docstring's)."""
+    rows = [(f"{owner}.{f.name}", f"{f.shape} {f.dtype}", f.unit, f.doc + (" (optional)" if f.optional else ""))
+            for owner, fields in (("Model", MODEL_FIELDS), ("Data", DATA_FIELDS), ("FusedStep", SCRATCH_FIELDS))
+            for f in fields]
+    head = ("array", "shape dtype", "unit", "meaning")
+    widths = [max(len(r[i]) for r in rows + [head]) for i in range(4)]
+    rule = "  ".join("=" * w for w in widths)
+    line = lambda r: "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip()  # noqa: E731
+    return "\n".join([rule, line(head), rule, *map(line, rows), rule])
+
+
+__doc__ = __doc__.replace("{field_table}", field_table())

@@ -26,6 +26,13 @@ NQ = 4
 U, V, P, I = (wp.constant(i) for i in range(NQ))
 
 
+def array_type(dtype: str, ndim: int, real):
+    """The Warp array type of a declared device array (``types.Field``: dtype "int32", "real" or
+    "vec3", ``real`` the run's scalar type)."""
+    scalar = {"int32": wp.int32, "real": real, "vec3": wp.types.vector(3, real)}[dtype]
+    return wp.array(dtype=scalar, ndim=ndim)
+
+
 @wp.func
 def pget(p: wp.array2d(dtype=Any), k: int, w: int):
     """Per-column parameter ``p[k, w % Bp]`` (Bp = 1: shared by all columns)."""

@@ -13,38 +13,25 @@ barrier. Which is faster depends on the bandwidth, precision and batch
 (``benchmarks/results/throughput_h100_solver.json``; the policy is ``engine.choose_path``). Same
 Newton / RATTLE semantics and tolerances as the staged path.
 
-On chip: the column's CR storage and node rows live in block shared memory when they fit
-(:func:`shared_plan`), else in per-column global rows (contiguous, so they stay in L1/L2); the
-canonical ``(n, B)`` state is read once and written once per launch; the accelerations, used twice
-a step, keep a global row per column (``sa[w]``). On the CPU a block has one
-lane unless ``wp.config.enable_cpu_blocks`` emulates the lanes (the tests do).
+On chip (:class:`FusedStep` owns the rows): the column's CR storage and node rows live in block
+shared memory when they fit (:func:`shared_plan`), else in per-column global rows (contiguous, so
+they stay in L1/L2); the canonical ``(n, B)`` state is read and written once per launch; the
+accelerations, used twice a step, keep a global row per column (``sa[w]``). On the CPU a block
+has one lane unless ``wp.config.enable_cpu_blocks`` emulates the lanes (the tests do).
 """
 
 import functools
+from dataclasses import dataclass
 from types import SimpleNamespace
 
+import numpy as np
 import warp as wp
 
-from .common import (
-    NQ,
-    STATUS_CONSTRAINT,
-    STATUS_NONFINITE,
-    STATUS_OK,
-    I,
-    P,
-    U,
-    V,
-    bar_residual,
-    finite3,
-    make_band_funcs,
-    make_gram_row,
-    member_vec,
-    node_force,
-    node_impulse,
-    projection_status,
-    set_failure,
-)
-from .coop import block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
+from .. import types
+from .common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3,
+                     make_band_funcs, make_gram_row, member_vec, node_force, node_impulse, projection_status,
+                     set_failure)
+from .coop import band_reals, block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
 
 SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
 SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
@@ -60,9 +47,9 @@ def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int
     CR levels read them most), then the node rows, each only if it fits whole; 0 = global rows.
     ``budget``: bytes (None: SHARED_BYTES_MAX)."""
     budget = SHARED_BYTES_MAX if budget is None else budget
-    xs = solver_reals(n_constraints, bandwidth, block_dim, solver) * real_bytes
+    xs = solver_reals(n_constraints, bandwidth, block_dim, solver)
     qs = n_nodes * NQ * 3 * real_bytes
-    x_cap = solver_reals(n_constraints, bandwidth, block_dim, solver) if xs <= budget else 0
+    x_cap = xs if xs * real_bytes <= budget else 0
     nodes = SHARED_NODES and not (solver == "serial" and bandwidth > SERIAL_SHARED_NODES_MAX_BANDWIDTH)
     q_cap = n_nodes * NQ if nodes and x_cap * real_bytes + qs <= budget else 0
     return x_cap, q_cap
@@ -70,36 +57,12 @@ def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int
 
 @functools.cache
 def make_node_funcs(real):
-    """The model struct and the node passes of the fused step (lanes over nodes), plus the
-    block reduction (:func:`.coop.make_block_max`)."""
+    """The model struct (the "fused" group of :data:`warp_tensegrity.types.MODEL_FIELDS`) and the
+    node passes of the fused step (lanes over nodes), plus the block reduction (:func:`.coop.make_block_max`)."""
     vec = wp.types.vector(3, real)
     block_max = make_block_max(real)
-
-    @wp.struct
-    class ColumnModel:
-        """Topology and per-column parameters (shapes and units: :class:`warp_tensegrity.model.Model`)."""
-        con_i: wp.array(dtype=int)
-        con_j: wp.array(dtype=int)
-        con_dref: wp.array(dtype=vec)
-        con_L: wp.array(dtype=real)
-        con_active: wp.array2d(dtype=real)
-        cpl_start: wp.array(dtype=int)
-        cpl_l: wp.array(dtype=int)
-        cpl_a: wp.array(dtype=int)
-        cpl_cross: wp.array(dtype=int)
-        cpl_sign: wp.array(dtype=real)
-        ncon_start: wp.array(dtype=int)
-        ncon_member: wp.array(dtype=int)
-        cab_EA: wp.array2d(dtype=real)
-        cab_EAc: wp.array2d(dtype=real)
-        cab_L: wp.array2d(dtype=real)
-        node_start: wp.array(dtype=int)
-        node_member: wp.array(dtype=int)
-        node_other: wp.array(dtype=int)
-        node_dref: wp.array(dtype=vec)
-        partner: wp.array(dtype=int)
-        minv_self: wp.array2d(dtype=real)
-        minv_cross: wp.array2d(dtype=real)
+    ColumnModel = wp.struct(type("ColumnModel", (), {"__module__": __name__, "__annotations__": {
+        f.name: array_type(f.dtype, f.ndim, real) for f in types.group_fields("fused")}}))
 
     @wp.func
     def minv_apply(m: ColumnModel, q: wp.array2d(dtype=vec), n: int, ws: int, wx: int):
@@ -468,3 +431,69 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0, sol
 
     return SimpleNamespace(real=real, vec=vec, ColumnModel=ColumnModel, rattle_columns=rattle_columns,
                            advance_counter_by=advance_counter_by)
+
+
+@dataclass
+class FusedStep:
+    """Scratch (:data:`warp_tensegrity.types.SCRATCH_FIELDS`) and launches of the fused step for one
+    model on one device: :meth:`launch` (n_sub steps or the initialisation), :meth:`advance_counter`."""
+
+    model: object  # warp_tensegrity.model.Model
+    device: object  # wp.context.Device
+    block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
+    steps_per_launch: int  # most RATTLE steps per launch
+    shared: bool = True  # solver / node rows in block shared memory where they fit
+    solver: str = "cr"  # constraint solver: "cr" (lanes in parallel) or "serial" (lane 0)
+
+    def __post_init__(self):
+        m, sv = self.model, self.solver
+        real = self.real = wp.float64 if m.precision == "fp64" else wp.float32
+        rb = 8 if real == wp.float64 else 4
+        self.x_cap, self.q_cap = (shared_plan(m.n_nodes, m.n_constraints, m.bandwidth, self.block_dim, rb, solver=sv)
+                                  if self.shared else (0, 0))
+        nbr = band_reals(m.n_constraints, m.bandwidth, sv)
+        k = self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap, sv,
+                                              max(m.n_constraints, 1) if nbr else 0)
+        B, d = m.n_columns, m.device
+        nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim, sv) - nbr
+        self.sx = wp.zeros((1, 1, 1) if self.x_cap else (B, nx, 1), dtype=real, device=d)
+        self.sb = wp.zeros((B, max(m.n_constraints, 1), m.bandwidth + 1, 1) if nbr and not self.x_cap else (1, 1, 1, 1),
+                           dtype=real, device=d)
+        self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
+        self.sa = wp.zeros((B, m.n_nodes), dtype=k.vec, device=d)
+        self.cm = k.ColumnModel()
+        self._column_major = []  # the copies the struct's views point into (kept alive here)
+        for f in types.group_fields("fused"):
+            a = getattr(m, f.name)
+            setattr(self.cm, f.name, self._column_view(a) if a.ndim == 2 and a.shape[1] > 1 else a)
+
+    def _column_view(self, a):
+        """The (n, B) parameter ``a`` as an (n, B) view of a (B, n) copy: a block's lanes read a column's
+        values from adjacent addresses (coalesced), where the model's layout puts them B apart."""
+        t = wp.array(np.ascontiguousarray(a.numpy().T), dtype=a.dtype, device=a.device)
+        self._column_major.append(t)
+        return t.transpose()
+
+    @property
+    def description(self) -> str:
+        where = ("shared" if self.x_cap else "global") + "/" + ("shared" if self.q_cap else "global")
+        how = "block cyclic reduction" if self.solver == "cr" else "serial banded Cholesky on lane 0"
+        name = "fused" if self.solver == "cr" else "fused-serial"
+        return f"{name} ({how}, {self.block_dim} lanes per column; solver/node rows {where})"
+
+    def load(self):
+        self.kernels.rattle_columns.module.load(self.device, self.block_dim)
+        self.kernels.advance_counter_by.module.load(self.device, 1 if not self.device.is_cuda else 256)
+
+    def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
+        r, d = self.real, data
+        wp.launch_tiled(self.kernels.rattle_columns, dim=[self.model.n_columns], block_dim=self.block_dim,
+                        device=self.device, inputs=[
+                            self.cm, r(settings.tolerance), int(settings.max_projection_iters),
+                            r(settings.failure_bar_error), r(dt), int(n_sub), int(init), d.step,
+                            d.u, d.v, d.a, d.bar_err, d.iters, d.status, d.fail_step,
+                            self.sq, self.sx, self.sb, self.sa])
+
+    def advance_counter(self, data, n: int):
+        wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device,
+                  block_dim=1 if not self.device.is_cuda else 256)
