@@ -64,7 +64,6 @@ def simulate(d: Path):
     rev, others, grid, _ = selection()
     spec = load_spec(ROOT / "sweeps" / "phase_large.toml", overrides={"run": {"record_strain": True}})
     plan = plan_sweep(spec, device="cpu")
-    plan.resolve()
     d.mkdir(parents=True, exist_ok=True)
     for name, sel in (("rev", rev), ("others", others)):
         for beta in np.unique(grid[sel, 2]):

@@ -4,7 +4,7 @@
         --out benchmarks/results/end_to_end_cpu.json
 
 For every spec: the dry-run's calibrated prediction is taken first
-(:func:`warp_tensegrity.calibrate.estimate_plan`, the function ``--dry-run`` prints; its probe
+(:func:`warp_tensegrity.policy.calibrate.estimate_plan`, the function ``--dry-run`` prints; its probe
 also warms the kernel cache), then a fresh Python process runs ``warp-tensegrity run SPEC -o OUT
 --device D --overwrite --no-progress`` through :func:`warp_tensegrity.cli.main`, timed from
 process creation to the closed output file. Stages are read off the engine
@@ -36,7 +36,7 @@ STAGES = ("import", "build", "compile", "stepping", "measurement", "transfer", "
 
 def _child(spec: str, device: str, out: str, record: str) -> None:
     """Run one spec through cli.main and write its stage record (the run process)."""
-    from warp_tensegrity.calibrate import process_age
+    from warp_tensegrity.runtime import process_age
 
     t_ref = time.perf_counter() - process_age()  # process creation on the perf_counter clock
     import warp as wp
@@ -120,7 +120,7 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
 
 
 def _estimate(spec: str, device: str, out: str) -> dict:
-    from warp_tensegrity.calibrate import estimate_plan
+    from warp_tensegrity.policy.calibrate import estimate_plan
     from warp_tensegrity.sweep.plan import plan_sweep
     from warp_tensegrity.sweep.spec import load_spec
 

@@ -26,16 +26,14 @@ def lane_resources(integ) -> dict:
 
 
 def run(device: str, precision: str, path: str, cfg, params, t_end: float):
-    from warp_tensegrity import RunSettings, engine
+    import dataclasses
+
+    from warp_tensegrity import RunSettings, decide, simulate_batch
     from warp_tensegrity.types import Path as LaunchPath
 
-    orig = engine.choose_path
-    engine.choose_path = lambda *a, **k: LaunchPath(path)
-    try:
-        s = RunSettings(t_end=t_end, precision=precision, device=device, truncate=False, output_interval=0.01)
-        return engine.simulate_batch(cfg, params, s)
-    finally:
-        engine.choose_path = orig
+    s = RunSettings(t_end=t_end, precision=precision, device=device, truncate=False, output_interval=0.01)
+    plan = dataclasses.replace(decide(cfg, params, s), path=LaunchPath(path))  # the path forced
+    return simulate_batch(cfg, params, plan=plan)
 
 
 def main(argv=None):

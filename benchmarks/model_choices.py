@@ -78,15 +78,11 @@ def device_bytes(batch, settings) -> dict:
     """Bytes of every Warp array the Integrator allocates for this batch and these settings."""
     import warp as wp
 
-    from warp_tensegrity.scene.batch import omega_max_bound
-    from warp_tensegrity.engine import apply_accuracy, choose_path, choose_timestep
-    from warp_tensegrity.integrate import Integrator, resolve_device
+    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.policy.decide import decide_batch
 
-    settings, _ = apply_accuracy(settings)
-    omega = float(omega_max_bound(batch).max())
-    dt, _, n_steps, every = choose_timestep(settings, omega)
-    integ = Integrator(batch, settings, dt, every, n_steps // every + 1,
-                       path=choose_path(settings, resolve_device(settings.device).is_cuda, batch.n_columns))
+    run = decide_batch(batch, settings)
+    integ = Integrator(batch, run.settings, run.dt, run.output_every, run.n_out, path=run.path)
 
     def size(v):
         if isinstance(v, wp.array):

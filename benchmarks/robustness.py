@@ -103,8 +103,9 @@ def main(argv=None) -> int:
 
     wp.config.quiet = True
     wp.init()
-    from warp_tensegrity.engine import prisms_to_simulate, simulate_batch
-    from warp_tensegrity.integrate import default_device
+    from warp_tensegrity.engine import simulate_batch
+    from warp_tensegrity.policy.decide import prisms_to_simulate
+    from warp_tensegrity.runtime import default_device
     from warp_tensegrity.scene.columns import ColumnConfig
     from warp_tensegrity.settings import RunSettings
     from warp_tensegrity.settings import STATUS_NAMES

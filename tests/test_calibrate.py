@@ -1,16 +1,25 @@
-"""Calibrated estimates (warp_tensegrity.calibrate): the probe runs once per key and is cached;
-the dry-run names the device; the cost model scales as stated. (No timing assertions: the
-accuracy of the estimates is measured by benchmarks/end_to_end.py.)"""
+"""The run decided once and the one cost model (warp_tensegrity.policy): a sweep calls decide()
+once and nothing recomputes its bound, band or path; --time-limit and --dry-run quote the same
+estimate; the probe is cached, renewed by --recalibrate, and one taken under load is not kept as if
+it were not; the exported estimate_batch takes every parameter form simulate_batch takes; the cost
+model scales as stated. (No timing assertions: the accuracy of the estimates is measured by
+benchmarks/end_to_end.py.)"""
 
 import dataclasses
 import json
+import re
+import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from warp_tensegrity import calibrate as C
+from warp_tensegrity import ColumnConfig, RunSettings, estimate_batch, simulate_batch
+from warp_tensegrity.cli import main
+from warp_tensegrity.policy import calibrate as C
+from warp_tensegrity.policy import decide as D
+from warp_tensegrity.policy.cost import fmt_seconds, predict
 from warp_tensegrity.sweep import plan as sweep
-from warp_tensegrity.sweep.progress import fmt_seconds
 from warp_tensegrity.sweep.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,29 +44,29 @@ def test_probe_is_cached_and_feeds_the_dry_run(cache, tmp_path, monkeypatch):
                                     "finalise"}
     assert est["seconds"] == pytest.approx(sum(est["stages_s"].values()))
     assert est["device_bytes_per_shard"] > 0 and est["host_peak_bytes"] > 0
+    monkeypatch.setattr(C, "host_idle", lambda: True)
 
     def no_probe(*a, **k):
         raise AssertionError("the probe ran again instead of reading the cache")
 
-    monkeypatch.setattr(C, "_fresh_process_costs", no_probe)
-    assert C.estimate_plan(plan)["stages_s"] == est["stages_s"]
-    text = sweep.dry_run(plan, C.estimate_plan(plan))
+    if not cal["under_load"]:  # a probe under load is taken again on an idle host (test below)
+        monkeypatch.setattr(C, "_measure", no_probe)
+        assert C.estimate_plan(plan)["stages_s"] == est["stages_s"]
+    text = sweep.dry_run(plan, est)
     assert "device:      cpu (" in text and "calibration: 4 columns x" in text
     assert f"~{fmt_seconds(est['seconds'])} wall" in text
 
 
 def test_cache_key_separates_precision_method_and_path():
-    import warp as wp
-
     spec = load_spec(ROOT / "sweeps" / "ci_small.toml")
-    params = spec.column_params()
+    params = D.column_params(spec.scene, spec.column_params())
     base = spec.run_settings(device="cpu", dt=1e-3)
-    dev = wp.get_device("cpu")
-    keys = {C._key(spec.scene, params, s, 4, dev)[0] for s in (
+    runs = [D.decide(spec.scene, params, s) for s in (
         base, dataclasses.replace(base, precision="fp32"), dataclasses.replace(base, fused=False),
-        dataclasses.replace(base, method="rk4", fused=False))}
+        dataclasses.replace(base, method="rk4", fused=False))]
+    keys = {C._key(spec.scene, params, r, 4)[0] for r in runs}
     assert len(keys) == 4
-    assert C._key(spec.scene, params, base, 4, dev)[0] == C._key(spec.scene, params, base, 4, dev)[0]
+    assert C._key(spec.scene, params, runs[0], 4)[0] == C._key(spec.scene, params, runs[0], 4)[0]
 
 
 def _cal(is_cuda):
@@ -66,27 +75,147 @@ def _cal(is_cuda):
             "column_step_seconds": 2.5e-4 if not is_cuda else 1e-3 / 512, "measure_seconds": 0.04,
             "measure_samples": 1001, "transfer_per_byte": 1e-9, "io_write_fixed": 0.05, "io_write_per_byte": 1e-9,
             "io_read_fixed": 0.01, "io_read_per_byte": 1e-9, "device_bytes_fixed": 1000,
-            "device_bytes_per_column": 5000, "strain_bytes_per_sample": 400, "base_rss": 3e8, "device_label": "x",
-            "load_avg": 0.0}
+            "device_bytes_per_column": 5000, "strain_bytes_per_sample": 400, "base_rss": 3e8, "device_label": "x"}
+
+
+def _run(on_gpu, record_strain=False):
+    """A run plan of 50-prism columns, 1000 steps, 1001 outputs."""
+    return D.RunPlan(settings=RunSettings(record_strain=record_strain), dt=1e-3, dt_limit=1e-2, n_steps=1000,
+                     output_every=1, omega_max_bound=100.0, bandwidth=3, n_nodes=153, n_constraints=150, n_cables=303,
+                     path=D.Path.FUSED, lane_refusal=None, device="cuda:0" if on_gpu else "cpu", on_gpu=on_gpu,
+                     n_columns=512, prisms=50, prisms_simulated=50)
 
 
 def test_cost_model_scaling():
     """CPU: stepping and measurement proportional to columns; GPU: flat up to the probed width
-    (latency), proportional beyond; fixed costs once per run, per-shard costs per shard."""
-    cpu = C.predict(_cal(False), 8, [4, 4], 1000, 1001, 50, False, load=0.0)["stages_s"]
+    (latency), proportional beyond; fixed costs once per run, per-shard costs per shard; the same
+    figures whatever the host's load now (no rescaling by the load average)."""
+    cpu = predict(_cal(False), _run(False), [4, 4], False, planned_columns=8)["stages_s"]
     assert cpu["stepping"] == pytest.approx(1000 * 2.5e-4 * 8)
     assert cpu["measurement"] == pytest.approx(0.04 * 2)
     assert cpu["import"] == 1.0 and cpu["compile"] == 0.5
     assert cpu["build"] == pytest.approx(0.1 + 0.01 * 8 + 2 * (0.1 + 0.01 * 4 + 0.2))
-    gpu = C.predict(_cal(True), 1536, [512, 512, 512], 1000, 1001, 50, False, load=0.0)
+    gpu = predict(_cal(True), _run(True), [512, 512, 512], False)
     assert gpu["stages_s"]["stepping"] == pytest.approx(3 * 1000 * 1e-3)
-    big = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, False, load=0.0)
+    big = predict(_cal(True), _run(True), [1024], False)
     assert big["stages_s"]["stepping"] == pytest.approx(2 * 1000 * 1e-3)
-    with_strain = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, True, load=0.0)
-    # a host twice as loaded (per core) as at probe time: host stages double, GPU stepping does not
-    cores = __import__("os").cpu_count()
-    busy = C.predict(_cal(True), 1024, [1024], 1000, 1001, 50, False, load=2.0 * cores)["stages_s"]
-    assert busy["stepping"] == big["stages_s"]["stepping"] and busy["write"] == pytest.approx(2 * big["stages_s"]["write"])
-    cpu_busy = C.predict(_cal(False), 8, [4, 4], 1000, 1001, 50, False, load=2.0 * cores)["stages_s"]
-    assert cpu_busy["stepping"] == pytest.approx(2 * cpu["stepping"])
+    with_strain = predict(_cal(True), _run(True), [1024], True)
     assert with_strain["output_bytes"] - big["output_bytes"] == 8 * 1024 * 1001 * 50
+    assert with_strain["host_bytes_per_column"] > big["host_bytes_per_column"]
+
+
+TINY = """[scene]
+n_prisms = 4
+[sweep]
+grid = { v0 = [0.002, 0.004], base_rigidity = [0.0, 0.5, 1.0] }
+[run]
+t_end = 0.05
+output_interval = 0.01
+precision = "fp64"
+shard_size = 2
+"""
+
+
+def _wrap_everywhere(monkeypatch, name, log, inside=None):
+    """Count calls of the package function ``name`` wherever a module holds it (by name)."""
+    mods = [m for k, m in list(sys.modules.items()) if k.startswith("warp_tensegrity") and hasattr(m, name)]
+    orig = getattr(mods[0], name)
+    mods = [m for m in mods if getattr(m, name) is orig]
+
+    def counted(*a, **k):
+        log.append((name, bool(inside and inside[0])))
+        return orig(*a, **k)
+
+    for m in mods:
+        monkeypatch.setattr(m, name, counted)
+
+
+def test_a_sweep_decides_once(tmp_path, cache, monkeypatch):
+    """A 3-shard CLI sweep: one decide(); the omega bound, the Gram band and the path are computed
+    inside it only (the estimate, the probe, the store template and every shard read the plan)."""
+    import warp_tensegrity.engine  # noqa: F401 (every module that could hold the functions is loaded)
+    import warp_tensegrity.policy.calibrate  # noqa: F401
+    import warp_tensegrity.sweep.run  # noqa: F401
+
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    log, inside = [], [False]
+    for name in ("omega_max_bound", "gram_bandwidth", "choose_path"):
+        _wrap_everywhere(monkeypatch, name, log, inside)
+    real = D.decide
+
+    def decide(*a, **k):
+        log.append(("decide", True))
+        inside[0] = True
+        try:
+            return real(*a, **k)
+        finally:
+            inside[0] = False
+
+    for m in [m for k, m in list(sys.modules.items()) if k.startswith("warp_tensegrity") and getattr(m, "decide", None) is real]:
+        monkeypatch.setattr(m, "decide", decide)
+    assert main(["run", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu", "--no-progress"]) == 0
+    names = [n for n, _ in log]
+    assert names.count("decide") == 1, names
+    assert names.count("gram_bandwidth") == 1 and names.count("choose_path") == 1, names
+    assert names.count("omega_max_bound") >= 1 and all(ins for _, ins in log), log
+    import xarray as xr
+
+    from warp_tensegrity.sweep.store import SweepStore
+
+    assert json.loads(SweepStore(tmp_path / "o.nc").manifest_path.read_text())["n_shards"] == 3
+    with xr.open_dataset(tmp_path / "o.nc") as ds:
+        assert int((ds.status == 0).sum()) == 6
+
+
+def _estimate_line(text):
+    return re.search(r"time:        ~(\S+) wall", text).group(1)
+
+
+def test_time_limit_and_dry_run_quote_the_same_estimate(tmp_path, cache, capsys):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    out = str(tmp_path / "o.nc")
+    assert main(["run", str(spec), "-o", out, "--device", "cpu", "--dry-run"]) == 0
+    quoted = _estimate_line(capsys.readouterr().out)
+    assert main(["run", str(spec), "-o", out, "--device", "cpu", "--time-limit", "0.001"]) == 1
+    err = capsys.readouterr().err
+    assert f"the estimate is {quoted} " in err, (quoted, err)
+    assert not Path(out).exists()
+
+
+def test_recalibrate_renews_the_probe_and_a_loaded_probe_is_marked(tmp_path, cache, capsys, monkeypatch):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    args = ["run", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu", "--dry-run"]
+    monkeypatch.setattr(C, "others_busy", lambda start: 0.9)  # the host busy while the probe runs
+    real, taken = C._measure, []
+    monkeypatch.setattr(C, "_measure", lambda *a, **k: taken.append(1) or real(*a, **k))
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "taken while other work kept 90 % of the cores busy" in text
+    files = list(cache.glob("*.json"))
+    assert len(files) == 1 and json.loads(files[0].read_text())["under_load"] is True
+    monkeypatch.setattr(C, "host_idle", lambda: False)  # still busy: the marked probe is used, and said so
+    assert main(args) == 0 and len(taken) == 1
+    assert "taken while other work kept" in capsys.readouterr().out
+    monkeypatch.setattr(C, "others_busy", lambda start: 0.0)
+    monkeypatch.setattr(C, "host_idle", lambda: True)  # idle now: the marked probe is taken again
+    assert main(args) == 0 and len(taken) == 2
+    assert "taken while other work" not in capsys.readouterr().out
+    assert json.loads(files[0].read_text())["under_load"] is False
+    assert main(args) == 0 and len(taken) == 2  # an idle probe is kept ...
+    assert main(args + ["--recalibrate"]) == 0 and len(taken) == 3  # ... until --recalibrate
+
+
+@pytest.mark.parametrize("form", ["scalar", "list", "array", "0-d", "int"])
+def test_exported_estimate_batch_takes_every_parameter_form(form, cache):
+    """``"base_rigidity": 1.0`` crashed the exported estimate_batch while simulate_batch took it."""
+    cfg = ColumnConfig(n_prisms=3)
+    s = RunSettings(t_end=0.01, device="cpu", truncate=False)
+    value = {"scalar": 1.0, "list": [1.0, 1.0], "array": np.ones(2), "0-d": np.array(1.0), "int": 1}[form]
+    params = {"base_rigidity": value, "v0": 0.01}
+    est = estimate_batch(cfg, params, s)
+    r = simulate_batch(cfg, params, s)
+    assert est["dt"] == r.dt and est["n_steps"] == r.n_steps and est["step_path"] in r.info["step_path"]
+    assert est["seconds_estimate"] > 0 and est["device_bytes_estimate"] > 0

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from warp_tensegrity.engine import for_accuracy, reachable_prisms
+from warp_tensegrity.policy.accuracy import for_accuracy, reachable_prisms
 from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
 from warp_tensegrity.sweep import SpecError, load_spec as load_spec_text
 

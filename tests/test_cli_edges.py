@@ -10,7 +10,7 @@ import pytest
 import xarray as xr
 
 from warp_tensegrity import cli, sweep
-from warp_tensegrity.engine import DEFAULT_ACCURACY
+from warp_tensegrity.policy.accuracy import DEFAULT_ACCURACY
 from warp_tensegrity.sweep.manifest import lock_path_for
 from warp_tensegrity.sweep.store import SweepStore
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-from warp_tensegrity.engine import DEFAULT_ACCURACY, apply_accuracy, default_dt_safety, dt_fraction
+from warp_tensegrity.policy.accuracy import DEFAULT_ACCURACY, apply_accuracy, default_dt_safety, dt_fraction
 from warp_tensegrity.measure import measure_pulse
 
 

@@ -285,18 +285,18 @@ def one_probe(monkeypatch, tmp_path_factory):
     CPU alone takes minutes). The harness judges input handling, not the estimate
     (tests/test_calibrate.py does), so every dry run here reuses ONE real probe, of ci_small's
     scene; the prediction from it (calibrate.predict) still runs on each fuzzed plan."""
-    from warp_tensegrity import calibrate
+    from warp_tensegrity.policy import calibrate
     from warp_tensegrity.sweep import plan as sweep_plan
     from warp_tensegrity.sweep.spec import load_spec
 
     real = calibrate.probe
 
-    def probe_once(config, params, settings, shard_size, use_cache=True):
+    def probe_once(config, params, run, shard_size, use_cache=True):
         if "cal" not in _PROBE:
             plan = sweep_plan.plan_sweep(load_spec(Path(__file__).resolve().parents[1] / "sweeps" / "ci_small.toml"),
                                          tmp_path_factory.mktemp("probe") / "ci_small.nc", device="cpu")
             shard = max(b - a for a, b in plan.shards)
-            _PROBE["cal"] = real(plan.spec.scene, plan.params, plan.settings, shard, use_cache=use_cache)
+            _PROBE["cal"] = real(plan.spec.scene, plan.params, plan.run, shard, use_cache=use_cache)
         return _PROBE["cal"]
 
     monkeypatch.setattr(calibrate, "probe", probe_once)
@@ -705,17 +705,19 @@ def test_budget_names_every_shortfall_with_figures(tmp_path):
     from warp_tensegrity.sweep import budget, plan_sweep
     from warp_tensegrity.sweep.spec import parse_spec
 
+    from warp_tensegrity.policy.calibrate import estimate_plan
+
     plan = plan_sweep(parse_spec(tomli_w.dumps(BASE)), tmp_path / "o.nc", device="cpu")
-    need = budget.needs(plan)
-    assert budget.problems(plan) == [] and budget.hard_problems(plan) == []
-    found = budget.problems(plan, device_bytes=need["device_bytes_per_column"] - 1, host_bytes=need["host_bytes_per_shard"] - 1,
+    need = estimate_plan(plan)
+    assert budget.problems(plan, need) == [] and budget.hard_problems(plan) == []
+    found = budget.problems(plan, need, device_bytes=need["device_bytes_per_column"] - 1, host_bytes=need["host_bytes_per_shard"] - 1,
                             disk_bytes=need["output_bytes"] - 1, time_limit=need["seconds"] / 2)
     assert len(found) == 4, found
     assert "one column does not fit" in found[0] and "use --shard-size 1 or less" in found[1]
     assert "free on" in found[2] and "time limit" in found[3]
     with pytest.raises(budget.BudgetError, match="--ignore-estimate"):
-        budget.check_run(plan, time_limit=need["seconds"] / 2)
-    budget.check_run(plan, ignore=True, time_limit=need["seconds"] / 2)  # the override
+        budget.check_run(plan, need, time_limit=need["seconds"] / 2)
+    budget.check_run(plan, None, ignore=True, time_limit=need["seconds"] / 2)  # the override
     with pytest.raises(budget.BudgetError, match=r"planning it needs about .* of host memory and 1 kB is available"):
         budget.check_plan(plan.spec, available=1000)
 

@@ -10,7 +10,8 @@ import pytest
 import warp as wp
 
 from warp_tensegrity import integrate
-from warp_tensegrity.engine import prisms_to_simulate, simulate_batch
+from warp_tensegrity.engine import simulate_batch
+from warp_tensegrity.policy.decide import prisms_to_simulate
 from warp_tensegrity.scene.columns import ColumnConfig
 from warp_tensegrity.settings import RunSettings
 from warp_tensegrity.settings import STATUS_NAMES

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, engine, simulate_batch
-from warp_tensegrity.kernels.lane_funcs import lane_shape
-from warp_tensegrity.kernels.lanes import MAX_LEVELS_PER_LANE, lane_support
-from warp_tensegrity.paths import NOT_CHECKED, choose_path, lane_refusal
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
+from warp_tensegrity.policy.decide import decide, far_end
+from warp_tensegrity.policy.lane_fit import MAX_LEVELS_PER_LANE, lane_refusal, lane_shape, lane_support
+from warp_tensegrity.policy.paths import NOT_CHECKED, choose_path
 from warp_tensegrity.scene.batch import column_batch
 from warp_tensegrity.sweep import parse_spec
-from warp_tensegrity.sweep.plan import _step_path, plan_sweep
+from warp_tensegrity.sweep.plan import plan_sweep
 from warp_tensegrity.sweep.shard import compute_shard
 from warp_tensegrity.types import Path
 
@@ -112,7 +112,7 @@ SCENES = [  # (config, params, simulated prisms, words of the refusal or None)
 
 @pytest.mark.parametrize("cfg, params, n_sim, words", SCENES)
 def test_lane_refusal_agrees_with_lane_support(cfg, params, n_sim, words):
-    sim = engine._far_end(cfg, n_sim) if n_sim else cfg
+    sim = far_end(cfg, n_sim) if n_sim else cfg
     on_batch = lane_support(column_batch(sim, params))
     on_scene = lane_refusal(cfg, params, n_sim)
     if words is None:
@@ -171,24 +171,23 @@ def test_estimate_plan_and_run_name_the_same_path(device):
     cfg = ColumnConfig(n_prisms=4)
     params = {"v0": [0.01, 0.02], "base_rigidity": [0.0, 0.5]}
     s = RunSettings(t_end=0.01, dt=5e-4, device=device, truncate=False, fused="lanes")
-    est = engine.estimate_batch(cfg, params, s)
-    assert est["step_path"] == "lanes" and est["lane_refusal"] is None
-    auto = engine.estimate_batch(cfg, params, dataclasses.replace(s, fused="auto"))
-    assert auto["step_path"] == str(choose_path(RunSettings(), auto["on_gpu"], 2, auto["bandwidth"], None).value)
+    est = decide(cfg, params, s)
+    assert est.path == Path.LANES and est.lane_refusal is None
+    auto = decide(cfg, params, dataclasses.replace(s, fused="auto"))
+    assert auto.path == choose_path(RunSettings(), auto.on_gpu, 2, auto.bandwidth, None)
     long = ColumnConfig(n_prisms=65, impact_admissibility="end_twist")
     with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
-        engine.estimate_batch(long, {"base_rigidity": [0.0, 1.0]}, s)
+        decide(long, {"base_rigidity": [0.0, 1.0]}, s)
     with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
         simulate_batch(long, {"base_rigidity": [0.0, 1.0]}, s)
     # a sweep: the plan names the path, and its shards take it (decided once for all columns)
     spec = parse_spec('[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01, 0.02] }\n[run]\nt_end = 0.01\n'
                       f'dt = 5e-4\ntruncate = false\nfused = "lanes"\ndevice = "{device}"\n')
     plan = plan_sweep(spec, shard_size=1)
-    assert _step_path(plan) == "lanes"
+    assert plan.run.path == Path.LANES
     assert compute_shard(plan, 1).attrs["step_path"].startswith("lanes")
-    plan.estimate["lane_refusal"] = "a column of another shard has massive bars"
-    with pytest.raises(SettingsError, match="another shard"):
-        compute_shard(plan, 0)
+    plan.run = dataclasses.replace(plan.run, path=Path.STAGED)  # a shard runs the plan's path, whatever its columns
+    assert compute_shard(plan, 0).attrs["step_path"].startswith("staged")
 
 
 def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
@@ -197,14 +196,14 @@ def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
     sweep of longer columns (decided per sweep)."""
     from types import SimpleNamespace
 
-    from warp_tensegrity import integrate
+    from warp_tensegrity import runtime
 
-    monkeypatch.setattr(integrate, "resolve_device", lambda name: SimpleNamespace(is_cuda=True))
+    monkeypatch.setattr(runtime, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0"))
     text = '[scene]\nn_prisms = %d\nimpact_admissibility = "end_twist"\n' \
            '[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
            '[run]\nt_end = 0.01\nprecision = "fp32"\ntruncate = false\n'
     for n, beta in ((4, "0.5"), (4, "1.0"), (64, "1.0")):
         plan = plan_sweep(parse_spec(text % (n, beta)), shard_size=2)
-        assert plan.estimate["lane_refusal"] is None and _step_path(plan) == "lanes", (n, beta)
+        assert plan.run.lane_refusal is None and plan.run.path == Path.LANES, (n, beta)
     plan = plan_sweep(parse_spec(text % (65, "1.0")), shard_size=2)
-    assert "rigid bases with 65" in plan.estimate["lane_refusal"] and _step_path(plan) == "fused-serial"
+    assert "rigid bases with 65" in plan.run.lane_refusal and plan.run.path == Path.FUSED_SERIAL

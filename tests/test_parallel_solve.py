@@ -171,7 +171,7 @@ def test_auto_path_policy_picks_the_fastest_measured_path():
     from pathlib import Path as FsPath
 
     from warp_tensegrity import SettingsError
-    from warp_tensegrity.engine import FUSED_MAX_BANDWIDTH, MEASURED_H100, MEASURED_PATHS, choose_path
+    from warp_tensegrity.policy.paths import FUSED_MAX_BANDWIDTH, MEASURED_H100, MEASURED_PATHS, choose_path
     from warp_tensegrity.types import Path
 
     res = FsPath(__file__).parents[1] / "benchmarks/results"
@@ -213,7 +213,7 @@ def test_auto_path_policy_picks_the_fastest_measured_path():
 def test_serial_solver_variant_matches_staged_and_cr(case, shared, lanes, monkeypatch):
     """The fused step with lane 0's banded Cholesky (Path.FUSED_SERIAL, the staged threads' band
     bodies) against the staged kernels and the CR fused step, fp64, 4 emulated lanes."""
-    from warp_tensegrity import engine
+    from warp_tensegrity.policy import decide as policy
     from warp_tensegrity.types import Path
 
     lanes(4)
@@ -222,7 +222,7 @@ def test_serial_solver_variant_matches_staged_and_cr(case, shared, lanes, monkey
     s = RunSettings(t_end=0.03, dt=5e-4, device="cpu", truncate=False, output_interval=0.01)
     out = {}
     for path in (Path.STAGED, Path.FUSED, Path.FUSED_SERIAL):
-        monkeypatch.setattr(engine, "choose_path", lambda *a, p=path, **k: p)
+        monkeypatch.setattr(policy, "choose_path", lambda *a, p=path, **k: p)
         out[path] = simulate_batch(cfg, params, s)
     ser = out[Path.FUSED_SERIAL]
     assert ser.info["step_path"].startswith("fused-serial (serial banded Cholesky on lane 0, 4 lanes")
@@ -266,15 +266,20 @@ def test_lane_parallel_step_with_massive_bars(lanes):
 
 
 def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
-    """estimate_batch (the dry run) reports the path the policy picks on a GPU: the lane step for
+    """decide (the dry run's run plan) reports the path the policy picks on a GPU: the lane step for
     columns it takes (flexible, elastic or rigid bases up to 64 prisms) at any width; RB columns
     longer than that (the lane step refuses them) the measured table's RB rows: fused-serial at
     4,096 and 1,024 columns, staged at 65,536 (a stand-in device: CI has no GPU)."""
     from types import SimpleNamespace
 
-    from warp_tensegrity.engine import estimate_batch
+    from warp_tensegrity import runtime
+    from warp_tensegrity.policy.decide import decide
 
-    monkeypatch.setattr(integrate, "resolve_device", lambda name: SimpleNamespace(is_cuda=True))
+    monkeypatch.setattr(runtime, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0"))
+
+    def estimate_batch(cfg, params, s):  # the run plan the dry run prints
+        return {"step_path": str(decide(cfg, params, s).path.value)}
+
     cfg = ColumnConfig(n_prisms=3)
     s = RunSettings(t_end=0.01, precision="fp32", truncate=False)
     assert estimate_batch(cfg, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "lanes"

@@ -234,7 +234,7 @@ def test_dt_above_stability_limit_refused_with_the_limit():
     assert plan.dt == 0.05 and plan.dt_limit == pytest.approx(est["dt_limit"])
 
     auto = sweep.plan_sweep(parse_spec(spec_text()), device="cpu")
-    assert auto.dt <= auto.dt_limit * auto.estimate["dt_safety"] * (1 + 1e-12)  # default: from the accuracy policy
+    assert auto.dt <= auto.dt_limit * auto.run.settings.dt_safety * (1 + 1e-12)  # default: from the accuracy policy
 
 
 # ---------------------------------------------------------------------- CLI stays light

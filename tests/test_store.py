@@ -23,6 +23,7 @@ import xarray as xr
 
 from warp_tensegrity import cli, sweep
 from warp_tensegrity.io import drop_run_dependent
+from warp_tensegrity.policy.cost import host_bytes_per_column
 from warp_tensegrity.io import open_sweep as open_nc
 from warp_tensegrity.sweep import manifest as zmanifest
 from warp_tensegrity.sweep import run as sweep_run
@@ -479,7 +480,8 @@ RSS_SCRIPT = textwrap.dedent("""
     import warp as wp
     wp.config.quiet = True
     from warp_tensegrity import sweep
-    from warp_tensegrity.sweep import load_spec, store as zstore
+    from warp_tensegrity.policy.cost import host_bytes_per_column
+    from warp_tensegrity.sweep import load_spec
     spec_text, out, cap = sys.argv[1], sys.argv[2], int(sys.argv[3])
     rss = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     # warm-up: the same scene, 2 columns, through the whole path (imports, kernels, store, export)
@@ -488,10 +490,11 @@ RSS_SCRIPT = textwrap.dedent("""
     warm.grid[next(iter(warm.grid))] = list(load_spec(spec_text).grid[next(iter(warm.grid))][:2])
     sweep.run_sweep(warm, out + ".warm.nc", progress=False)
     base = rss()
-    plan = sweep.apply_memory_limit(sweep.plan_sweep(load_spec(spec_text), out), cap)
+    plan = sweep.plan_sweep(load_spec(spec_text), out, memory_limit=cap)
     sweep.execute(plan, progress=False)
+    per = host_bytes_per_column(plan.run, plan.spec.run["record_strain"], plan.spec.run["record_energy"])
     print(json.dumps({"baseline_rss": base, "peak_rss": rss(), "shard_size": plan.shard_size,
-                      "n_shards": plan.n_shards, "host_bytes_per_column": zstore.host_bytes_per_column(plan)}))
+                      "n_shards": plan.n_shards, "host_bytes_per_column": per}))
 """)
 
 
@@ -529,8 +532,8 @@ def test_peak_rss_stays_under_the_memory_limit(tmp_path):
 def test_memory_limit_sets_the_shard_size_and_refuses_nonsense(tmp_path, capsys):
     spec = write(tmp_path, GRID_SPEC.replace("shard_size = 3", "shard_size = 8"))
     out = tmp_path / "m.nc"
-    plan = sweep.apply_memory_limit(sweep.plan_sweep(sweep.load_spec(spec), out), "250kB")
-    per = zstore.host_bytes_per_column(plan)
+    plan = sweep.plan_sweep(sweep.load_spec(spec), out, memory_limit="250kB")
+    per = host_bytes_per_column(plan.run, plan.spec.run["record_strain"], plan.spec.run["record_energy"])
     assert plan.shard_size == int(zstore.SHARD_SHARE * 250e3 // (zstore.IN_FLIGHT * per)) < 8
     assert plan.shards == plan.spec.shards(plan.shard_size)
     for bad, msg in (("lots", "memory limit 'lots'"), ("10kB", "is below the")):

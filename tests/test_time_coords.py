@@ -9,7 +9,7 @@ import pytest
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
 from warp_tensegrity.cli import main as cli_main
 from warp_tensegrity.io import open_sweep
-from warp_tensegrity.engine import output_times
+from warp_tensegrity.policy.accuracy import output_times
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,14 +1,16 @@
 """warp_tensegrity: batched wave dynamics of tensegrity lattices on NVIDIA Warp.
 
-Data path (``docs/architecture.md``): scene (:mod:`.scene`: network, columns, batch) -> device
-model (:mod:`.model`) -> kernels -> :mod:`.integrate` (the step) -> :mod:`.engine` (policy and
-entry points) -> :mod:`.measure` -> :mod:`.io` (CF datasets) -> :mod:`.sweep` -> :mod:`.cli`.
+Data path (``docs/architecture.md``): scene (:mod:`.scene`: network, columns, batch) -> policy
+(:mod:`.policy`: :func:`decide` -> :class:`RunPlan`, the cost model, calibration) -> device model
+(:mod:`.model`) -> kernels -> :mod:`.integrate` (the step) -> :mod:`.engine` (runs a plan) ->
+:mod:`.measure` -> :mod:`.io` (CF datasets) -> :mod:`.sweep` -> :mod:`.cli`.
 Importing the package (and reading a spec) does not import Warp; the first run does.
 Figures: :mod:`.plot`. ``__version__`` is the build's version (setuptools-scm; :mod:`.provenance`).
 """
 
-from .calibrate import estimate_batch  # time and memory from a probe on the device
 from .engine import run_batch, simulate_batch
+from .policy.calibrate import estimate_batch  # the run plan, with time and memory from a probe on the device
+from .policy.decide import RunPlan, decide
 from .measure import measure_pulse
 from .scene import (
     ColumnConfig,
@@ -35,12 +37,14 @@ __all__ = [
     "Network",
     "NetworkBatch",
     "NetworkError",
+    "RunPlan",
     "RunSettings",
     "SettingsError",
     "Status",
     "build_column",
     "column_batch",
     "column_topology",
+    "decide",
     "estimate_batch",
     "measure_pulse",
     "network_batch",

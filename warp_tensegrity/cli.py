@@ -83,7 +83,11 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
     p.add_argument("--time-limit", type=_positive_float, default=None, metavar="SECONDS",
                    help="refuse a run estimated to take longer (default: 7 days)")
     p.add_argument("--ignore-estimate", action="store_true",
-                   help="run even when the estimate says the run exceeds this machine's memory, disk or time limit")
+                   help="run even when the estimate says the run exceeds this machine's memory, disk or time limit "
+                        "(no calibration probe is taken)")
+    p.add_argument("--recalibrate", action="store_true",
+                   help="take the calibration probe again instead of the cached one (the estimate of --dry-run "
+                        "and --time-limit)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (it shows only when stderr is a terminal anyway)")
     p.add_argument("--keep-store", action=argparse.BooleanOptionalAction, default=True,
@@ -299,33 +303,38 @@ def _dispatch(args) -> int:
 
             spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
-            plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size)
+            plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size,
+                                         memory_limit=args.memory_limit)
         else:
             if _looks_like_spec(args.target):
                 if not args.output:
                     raise SweepError("resume SPEC needs -o OUT.nc")
                 out = Path(args.output)
-                plan = sweep_plan.plan_sweep(load_spec(Path(args.target)), out, device=device, shard_size=args.shard_size)
+                plan = sweep_plan.plan_sweep(load_spec(Path(args.target)), out, device=device,
+                                             shard_size=args.shard_size, memory_limit=args.memory_limit)
             else:
                 out = Path(args.target)
                 if args.output and Path(args.output) != out:
                     raise SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
-                plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size)
-        plan = sweep_plan.apply_memory_limit(plan, args.memory_limit)
+                plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size,
+                                                     memory_limit=args.memory_limit)
         from .sweep import budget
 
         limits = {"time_limit": args.time_limit or budget.DEFAULT_TIME_LIMIT}
-        if args.dry_run:
-            from .calibrate import estimate_plan  # a probe on the target device, cached
+        cost = None
+        if args.dry_run or not args.ignore_estimate:
+            from .policy.calibrate import estimate_plan  # a probe on the target device, cached
 
-            print(sweep_plan.dry_run(plan, estimate_plan(plan)))
-            found = budget.hard_problems(plan) + budget.problems(plan, **limits)
+            cost = estimate_plan(plan, recalibrate=args.recalibrate)  # the one estimate: dry run and limits
+        if args.dry_run:
+            print(sweep_plan.dry_run(plan, cost))
+            found = budget.hard_problems(plan) + budget.problems(plan, cost, **limits)
             print("fits:        " + ("yes (memory, disk, time limit)" if not found else "NO: " + "; ".join(found)))
             if args.command == "resume" and plan.shard_dir.exists():
                 st = sweep.sweep_status(out, plan.spec)
                 print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")
             return 0
-        budget.check_run(plan, ignore=args.ignore_estimate, **limits)
+        budget.check_run(plan, cost, ignore=args.ignore_estimate, **limits)
         path = sweep.execute(
             plan,
             resume=args.command == "resume",
@@ -334,6 +343,7 @@ def _dispatch(args) -> int:
             dask_workers=args.dask,
             scheduler=args.scheduler,
             keep_store=args.keep_store,
+            cost=cost,
         )
         log.info("wrote %s", path)
         _log_nan_summary(path)

@@ -27,6 +27,7 @@ from .kernels.lanes import LaneStep
 from .kernels.staged import make_kernels
 from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
+from .runtime import default_device, resolve_device  # noqa: F401 (the device a batch runs on)
 from .settings import RunSettings, SettingsError
 from .types import ARGUMENT_GROUPS, Method, Path, RKStage, group_fields
 
@@ -48,19 +49,6 @@ FUSED_BLOCK_DIM = 32  # CUDA threads per column block in the fused step (one war
 FUSED_STEPS = 16  # most RATTLE steps per fused launch
 FUSED_SHARED_ON_CPU = False  # CPU blocks run alone: the global rows are as fast there (tests may switch it on)
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph by the fused path
-
-
-def default_device() -> str:
-    """The first CUDA device if there is one, else the CPU."""
-    return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
-
-
-def resolve_device(name: str | None) -> wp.context.Device:
-    name = name or default_device()
-    try:
-        return wp.get_device(name)
-    except Exception as exc:  # warp raises RuntimeError/ValueError for unknown aliases
-        raise SettingsError(f"device = {name!r} is not available ({exc}); use 'cpu' or 'cuda:N'") from None
 
 
 class Integrator:

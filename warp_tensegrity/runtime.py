@@ -16,16 +16,42 @@ import os
 import sys
 import tempfile
 
+from .options import SettingsError
+
 log = logging.getLogger("warp_tensegrity")
 
 _NO_DRIVER = ("Could not find or load the NVIDIA CUDA driver", "Unable to determine CUDA driver version")
 _done = False
+_startup: float | None = None
+
+
+def process_age() -> float:
+    """Seconds since this process was created (interpreter start included). Linux: /proc (10 ms
+    ticks; psutil's create_time rounds the boot time to whole seconds); elsewhere psutil."""
+    try:
+        with open("/proc/self/stat") as f:
+            start = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            up = float(f.read().split()[0])
+        return up - start / os.sysconf("SC_CLK_TCK")
+    except OSError:
+        import psutil
+        import time
+
+        return time.time() - psutil.Process().create_time()
+
+
+def startup_seconds() -> float:
+    """Seconds this process took from its start until Warp was ready (:func:`init_warp`): the
+    interpreter, the package's imports and Warp's initialisation, which every run pays once."""
+    init_warp()
+    return float(_startup)
 
 
 def init_warp(verbose: bool = False):
     """Import and initialise Warp once, quietly (``verbose``: keep Warp's own banner). Returns ``warp``."""
     global _done
-    import warp as wp
+    import warp as wp  # with the first run, not with the package
 
     if _done:
         return wp
@@ -53,10 +79,28 @@ def init_warp(verbose: bool = False):
     for line in captured.splitlines():
         if line.strip():  # the known no-driver lines only with -v; anything else is a warning
             log.log(logging.DEBUG if any(s in line for s in _NO_DRIVER) else logging.WARNING, "%s", line)
-    _done = True
+    global _startup
+    _done, _startup = True, process_age()
     if not wp.is_cuda_available():
         log.info("no CUDA device: Warp runs on the CPU")
     return wp
+
+
+def default_device() -> str:
+    """The first CUDA device if there is one, else the CPU."""
+    wp = init_warp()
+
+    return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
+
+
+def resolve_device(name: str | None):
+    """The Warp device ``name`` (None: :func:`default_device`); SettingsError if there is none."""
+    wp = init_warp()
+    name = name or default_device()
+    try:
+        return wp.get_device(name)
+    except Exception as exc:  # warp raises RuntimeError/ValueError for unknown aliases
+        raise SettingsError(f"device = {name!r} is not available ({exc}); use 'cpu' or 'cuda:N'") from None
 
 
 def warp_facts(device: str | None = None) -> dict:

@@ -29,22 +29,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-WARP = 32
-
-
-def lane_shape(n_prisms: int, max_levels: int = 4) -> tuple[int, int] | None:
-    """(P levels per lane, G lanes per column) for a column of ``n_prisms``; None if it needs more
-    than ``max_levels`` levels per lane (a warp holds at most 32 P levels)."""
-    n = max(int(n_prisms), 1)
-    P = -(-n // WARP)
-    if P > max_levels:
-        return None
-    lanes = -(-n // P)
-    G = 1
-    while G < lanes:
-        G *= 2
-    return P, G
-
+from ..policy.lane_fit import WARP
 
 def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # once per cached kernel
     """The lane pieces for scalar type ``real``, P levels per lane and G lanes per column, over the

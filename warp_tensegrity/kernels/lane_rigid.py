@@ -22,7 +22,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-MAX_RIGID_LEVELS_PER_LANE = 2
+from ..policy.lane_fit import MAX_RIGID_LEVELS_PER_LANE
+
 
 
 def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel

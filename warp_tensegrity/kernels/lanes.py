@@ -1,11 +1,12 @@
 """The one-warp-per-column RATTLE step: the kernel (its pieces in :mod:`.lane_funcs`, the lane map
-there too), which batches it takes, its lane arrays and its launches. The Integrator drives
+there too), its lane arrays and its launches; which batches it takes is
+:mod:`warp_tensegrity.policy.lane_fit` (NumPy only). The Integrator drives
 :class:`LaneStep` like the fused step (same ``launch`` / ``advance_counter`` / ``load``).
 
 It takes T3 columns (column_batch's layout) with lumped masses: flexible or elastic bases up to
-:data:`MAX_LEVELS_PER_LANE` levels per lane (128 prisms), and batches with rigid-base columns
+:data:`~warp_tensegrity.policy.lane_fit.MAX_LEVELS_PER_LANE` levels per lane (128 prisms), and batches with rigid-base columns
 (ring links as constraints, :mod:`.lane_rigid`) up to 2 levels per lane (64 prisms). Massive bars
-and other networks run the other paths; :func:`lane_support` says why.
+and other networks run the other paths; :func:`~warp_tensegrity.policy.lane_fit.lane_support` says why.
 """
 
 import functools
@@ -17,9 +18,10 @@ import warp as wp
 
 from .common import (STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_force, projection_status,
                      set_failure)
-from .lane_funcs import WARP, lane_shape, make_lane_funcs
+from ..policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
+from .lane_funcs import make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
-from .lane_rigid import MAX_RIGID_LEVELS_PER_LANE, make_rigid_funcs
+from .lane_rigid import make_rigid_funcs
 
 if TYPE_CHECKING:
     from ..model import Model
@@ -247,7 +249,6 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                            real=real, P=P, G=G)
 
 
-MAX_LEVELS_PER_LANE = 4
 LANE_STEPS = 64  # most RATTLE steps per launch (launches also end on every output step)
 LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
 LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
@@ -256,83 +257,6 @@ LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the 
 # for rigid bases, whose bars then reach 3.2e-7, over the fp32 tolerance of 3e-7
 LANE_FAST_MATH = {"fp32": True, "fp64": False}
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
-
-
-def _column_members(n: int, hand: np.ndarray):
-    """Bars, cross cables and base members of an n-prism column in column_batch's order."""
-    m = np.repeat(np.arange(n), 3)
-    k = np.tile(np.arange(3), n)
-    bars = np.stack([3 * m + k, 3 * m + 3 + k], axis=1)
-    kk = np.where(np.repeat(hand, 3) > 0, (k + 2) % 3, (k + 1) % 3)
-    cross = np.stack([3 * m + k, 3 * m + 3 + kk], axis=1)
-    lv = np.repeat(np.arange(n + 1), 3)
-    kb = np.tile(np.arange(3), n + 1)
-    base = np.stack([3 * lv + kb, 3 * lv + (kb + 1) % 3], axis=1)
-    return bars, cross, base
-
-
-def _uniform(a: np.ndarray) -> bool:
-    """Every member of a kind holds the same value in each column ((Bp, k) arrays)."""
-    return a.shape[1] == 0 or bool(np.all(a == a[:, :1]))
-
-
-def lane_support(batch: "NetworkBatch") -> str | None:
-    """None if the lane step takes this batch, else why not (one sentence)."""
-    ln = batch.level_nodes
-    if ln is None:
-        return "not a T3 column (no levels)"
-    n = ln.shape[0] - 1
-    if n < 1 or not np.array_equal(ln, np.arange(3 * (n + 1)).reshape(n + 1, 3)):
-        return "the column's nodes are not numbered level by level"
-    if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
-        return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a 32-lane warp"
-    if batch.positions.shape[0] != 3 * (n + 1):
-        return "nodes other than the column's"
-    if np.any(batch.constraint_mass != 0):
-        return "massive bars (consistent bar inertia couples node pairs)"
-    fixed = np.zeros(3 * (n + 1), dtype=bool)
-    fixed[:3] = True
-    if not np.array_equal(batch.fixed, fixed):
-        return "a boundary other than the clamped level 0"
-    # handedness from the cross cables; then every member list must be column_batch's
-    if batch.cables.shape[0] != 6 * n + 3:
-        return "a member layout other than column_batch's"
-    top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
-    hand = np.where(top == 2, 1, -1)
-    bars, cross, base = _column_members(n, hand)
-    if not np.array_equal(batch.cables, np.concatenate([cross, base])):
-        return "a member layout other than column_batch's"
-    active = batch.constraint_active
-    if np.array_equal(batch.constraints, bars):
-        if np.any(active != 1):
-            return "inactive bars"
-    else:
-        # rigid base links: prism m's bars, then the links of level m + 1 (column_batch's order)
-        links = base[3:].reshape(n, 3, 2)
-        if not np.array_equal(batch.constraints, np.concatenate([bars.reshape(n, 3, 2), links], axis=1).reshape(-1, 2)):
-            return "a constraint layout other than column_batch's"
-        if n > WARP * MAX_RIGID_LEVELS_PER_LANE:
-            return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
-                    "prisms (2 levels per lane)")
-        a = active.reshape(active.shape[0], n, 6)
-        if np.any(a[:, :, :3] != 1):
-            return "inactive bars"
-        if np.any(a[:, :, 3:] != a[:, :1, 3:4]) or np.any((a[:, 0, 3] != 0) & (a[:, 0, 3] != 1)):
-            return "a column whose base links are partly rigid"
-    m = batch.node_mass.reshape(batch.node_mass.shape[0], n + 1, 3)
-    if np.any(m != m[:, :, :1]):
-        return "nodes of one level with different masses"
-    z = batch.positions[:, 2].reshape(n + 1, 3)
-    if np.any(z != z[:, :1]):
-        return "a base that is not horizontal"
-    c, b = slice(0, 3 * n), slice(3 * n, None)
-    for name in ("cable_EA", "cable_EA_compression"):
-        if not _uniform(getattr(batch, name)[:, c]):
-            return f"cross cables of one column with different {name}"
-    for name in ("cable_EA", "cable_EA_compression"):
-        if not _uniform(getattr(batch, name)[:, b]):
-            return f"base members of one column with different {name}"
-    return None
 
 
 class LaneStep:

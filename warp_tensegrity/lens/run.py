@@ -71,7 +71,8 @@ device, its float64 copy, the measures' temporaries)."""
 def check_memory(spec: LensSpec, available: int | None = None) -> None:
     """Refuse up front (LensSpecError, with the figures) a calibration whose strain record would not
     fit in host memory: the whole column is recorded at every output, count x n_out x n_prisms."""
-    from ..sweep.budget import fmt_bytes, host_memory_available
+    from ..policy.cost import fmt_bytes
+    from ..sweep.budget import host_memory_available
     from .spec import LensSpecError
 
     n_out = int(spec.run.t_end / spec.run.output_interval) + 1

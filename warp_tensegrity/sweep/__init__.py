@@ -8,7 +8,7 @@ Reading and validating a spec does not import Warp."""
 from .dask import local_cluster, run_shards_dask
 from .errors import SpecError, SweepError
 from .manifest import MANIFEST, SPEC_COPY, SweepLock, shard_dir_for
-from .plan import SweepPlan, apply_memory_limit, dry_run, plan_sweep, resolve_dt
+from .plan import SweepPlan, decide_sweep, dry_run, plan_sweep
 from .progress import ProgressBar
 from .run import combine, execute, load_plan_from_manifest, open_sweep, resume_sweep, run_sweep, sweep_status
 from .shard import compute_and_write, compute_shard, measure_columns, template_dataset
@@ -25,10 +25,10 @@ __all__ = [
     "SweepPlan",
     "SweepSpec",
     "SweepStore",
-    "apply_memory_limit",
     "combine",
     "compute_and_write",
     "compute_shard",
+    "decide_sweep",
     "dry_run",
     "execute",
     "load_plan_from_manifest",
@@ -38,7 +38,6 @@ __all__ = [
     "open_sweep",
     "parse_spec",
     "plan_sweep",
-    "resolve_dt",
     "resume_sweep",
     "run_shards_dask",
     "run_sweep",

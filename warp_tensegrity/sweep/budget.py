@@ -6,9 +6,9 @@ Two checks, both before any kernel runs:
   that planning itself needs (the per-column parameters and the engine's estimate, which builds
   every column of the sweep once) against the memory available.
 * :func:`check_run` (the CLI calls it before a run; ``--ignore-estimate`` skips it): the
-  estimate's device memory and host memory per shard, the output size against the free disk,
+  cost model's device memory and host memory per shard, the output size against the free disk,
   the step count against the device's int32 step counter, and the estimated time against a
-  time limit.
+  time limit: the figures the dry run prints (:mod:`warp_tensegrity.policy.cost`).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import os
 import shutil
 from pathlib import Path
 
+from ..policy.cost import fmt_bytes, fmt_seconds
 from .errors import SweepError
 
 MAX_STEPS = 2**31 - 1
@@ -34,27 +35,6 @@ PARAM_BYTES = 8 * 5
 
 class BudgetError(SweepError):
     """The estimate says the sweep does not fit the machine; the message gives the figures."""
-
-
-def fmt_bytes(b: float) -> str:
-    try:
-        b = float(b)
-    except OverflowError:  # an integer count beyond float range
-        b = math.inf
-    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
-        if abs(b) < 1000 or unit == "PB":
-            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.3g} {unit}"
-        b /= 1000.0
-    return f"{b:.3g} PB"  # pragma: no cover
-
-
-def _fmt_time(s: float) -> str:
-    if not math.isfinite(s):
-        return str(s)
-    for unit, size in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
-        if s >= size:
-            return f"{s / size:.3g} {unit}"
-    return f"{s:.3g} s"
 
 
 def host_memory_available() -> int:
@@ -126,52 +106,29 @@ def check_plan(spec, available: int | None = None) -> None:
     if secs > PLAN_TIME_LIMIT:
         raise BudgetError(
             f"sweep of {spec.n_columns:,} columns x {spec.scene.n_prisms} prisms: planning builds every "
-            f"column (its frequency bound and impact), about {_fmt_time(secs)} here (limit "
-            f"{_fmt_time(PLAN_TIME_LIMIT)}); use fewer prisms, or split the sweep into several specs"
+            f"column (its frequency bound and impact), about {fmt_seconds(secs)} here (limit "
+            f"{fmt_seconds(PLAN_TIME_LIMIT)}); use fewer prisms, or split the sweep into several specs"
         )
     if secs > PLAN_NOTICE_SECONDS:
         logging.getLogger(__name__).info("planning %s columns x %s prisms: about %s", f"{spec.n_columns:,}",
-                                         f"{spec.scene.n_prisms:,}", _fmt_time(secs))
-
-
-def needs(plan) -> dict:
-    """What a planned run needs, from the engine's estimate (the figures :func:`dry_run` prints)."""
-    spec, est = plan.spec, plan.estimate
-    r = spec.run
-    n = plan.n_columns
-    n_steps = int(est.get("n_steps", 0))
-    n_out = int(est.get("n_out", 0)) or n_steps + 1
-    P = spec.scene.n_prisms
-    per_col_out = 8 * (5 + 2 + P) + (8 * 2 * n_out if r["record_energy"] else 0)
-    per_col_strain = 8 * n_out * P
-    shard = max((b - a for a, b in plan.shards), default=0)
-    spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
-    return {
-        "n_steps": n_steps,
-        "device_bytes_per_shard": int(est.get("bytes_per_column", 0)) * shard,
-        "host_bytes_per_shard": (per_col_out + per_col_strain) * shard,
-        "output_bytes": n * (per_col_out + (per_col_strain if r["record_strain"] else 0)),
-        "seconds": spc * n_steps * n,
-        "shard": shard,
-        "device_bytes_per_column": int(est.get("bytes_per_column", 0)),
-        "host_bytes_per_column": per_col_out + per_col_strain,
-    }
+                                         f"{spec.scene.n_prisms:,}", fmt_seconds(secs))
 
 
 def hard_problems(plan) -> list[str]:
     """What no override can run: more steps than the device's int32 step counter holds."""
-    n_steps = needs(plan)["n_steps"]
+    n_steps = plan.run.n_steps
     if n_steps > MAX_STEPS:
         return [f"{n_steps:.3g} steps (t_end = {plan.spec.run['t_end']!r} s at dt = {plan.dt:.3g} s) exceed the "
                 f"device's step counter ({MAX_STEPS:,} steps); raise run.dt or lower run.t_end"]
     return []
 
 
-def problems(plan, *, time_limit: float = DEFAULT_TIME_LIMIT, device_bytes: int | None = None,
+def problems(plan, cost: dict, *, time_limit: float = DEFAULT_TIME_LIMIT, device_bytes: int | None = None,
              host_bytes: int | None = None, disk_bytes: int | None = None) -> list[str]:
     """Every way the planned run exceeds this machine, one line each with the figures ([] if it fits;
-    :func:`hard_problems` are listed apart)."""
-    need = needs(plan)
+    :func:`hard_problems` are listed apart), from its ``cost``
+    (:func:`warp_tensegrity.policy.calibrate.estimate_plan`: the figures the dry run prints)."""
+    need = cost | {"shard": max(b - a for a, b in plan.shards), "n_steps": plan.run.n_steps}
     out = []
     if device_bytes is None:
         dev_name, device_bytes = device_memory(plan.device)
@@ -199,19 +156,19 @@ def problems(plan, *, time_limit: float = DEFAULT_TIME_LIMIT, device_bytes: int 
             out.append(f"the output needs up to {fmt_bytes(need['output_bytes'])} (uncompressed) and "
                        f"{fmt_bytes(disk_bytes)} is free on {Path(plan.out).parent}")
     if math.isfinite(need["seconds"]) and need["seconds"] > time_limit:
-        out.append(f"the estimate is {_fmt_time(need['seconds'])} ({plan.n_columns:,} columns x "
-                   f"{need['n_steps']:,} steps) and the time limit is {_fmt_time(time_limit)} "
+        out.append(f"the estimate is {fmt_seconds(need['seconds'])} ({plan.n_columns:,} columns x "
+                   f"{need['n_steps']:,} steps) and the time limit is {fmt_seconds(time_limit)} "
                    "(--time-limit SECONDS)")
     return out
 
 
-def check_run(plan, *, ignore: bool = False, **kw) -> None:
-    """Raise :class:`BudgetError` listing every way the planned run does not fit; with ``ignore``
-    only what cannot run at all (:func:`hard_problems`)."""
+def check_run(plan, cost: dict | None, *, ignore: bool = False, **kw) -> None:
+    """Raise :class:`BudgetError` listing every way the planned run does not fit its ``cost``; with
+    ``ignore`` (``cost`` may then be None) only what cannot run at all (:func:`hard_problems`)."""
     hard = hard_problems(plan)
     if hard:
         raise BudgetError("the run cannot be done:\n  - " + "\n  - ".join(hard))
-    found = [] if ignore else problems(plan, **kw)
+    found = [] if ignore else problems(plan, cost, **kw)
     if found:
-        raise BudgetError("the run does not fit this machine (by the engine's estimate; "
+        raise BudgetError("the run does not fit this machine (by the estimate the dry run prints; "
                           "--ignore-estimate runs it anyway):\n  - " + "\n  - ".join(found))

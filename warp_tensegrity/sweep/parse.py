@@ -18,7 +18,8 @@ from .. import options as O
 from ..options import COLUMN_PARAMETERS, ColumnParameters, OptionError, RunSettings, suggest
 from ..scene.columns import ColumnConfig, column_topology
 from ..scene.network import NetworkError
-from .budget import fmt_bytes, host_memory_available, plan_bytes
+from ..policy.cost import fmt_bytes
+from .budget import host_memory_available, plan_bytes
 
 SWEEP_KEYS = ("grid", "cases", "fixed")
 RANGE_KEYS = ("start", "stop", "num", "spacing")

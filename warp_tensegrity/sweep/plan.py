@@ -1,30 +1,27 @@
-"""Planning a sweep: bind a spec to an output, split its columns into shards, resolve dt once for
-the whole sweep (so every shard steps alike), and describe the run (dry run)."""
+"""Planning a sweep: bind a spec to an output, split its columns into shards and decide the run once
+for all of them (:func:`~warp_tensegrity.policy.decide.decide`: dt, truncation, path; so every
+shard steps alike and no shard's results depend on which columns it holds), and describe it (dry
+run) from the one cost model (:mod:`warp_tensegrity.policy.cost`)."""
 
 from __future__ import annotations
 
 import dataclasses
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from ..engine import NOT_CHECKED, choose_path, estimate_batch
+from ..policy.cost import fmt_bytes, fmt_seconds, host_bytes_per_column
+from ..policy.decide import RunPlan, decide
 from ..provenance import code_version
-from ..settings import RunSettings
-from .progress import fmt_seconds
 from .budget import check_plan
 from .errors import SpecError
 from .manifest import shard_dir_for
+from .spec import SweepSpec
 from .store import limit_shard_size, parse_bytes
-
-if TYPE_CHECKING:
-    from .spec import SweepSpec
 
 
 @dataclass
 class SweepPlan:
-    """A spec bound to an output, its shards and the resolved run settings."""
+    """A spec bound to an output, its shards and the run decided for them."""
 
     spec: SweepSpec
     out: Path | None
@@ -37,14 +34,10 @@ class SweepPlan:
     code_version: str
     device: str | None
     """Requested device (None: the GPU if there is one, else the CPU)."""
-    settings: RunSettings | None = None
-    """Engine settings with dt resolved once for the whole sweep (None until estimated)."""
-    estimate: dict = field(default_factory=dict)
+    run: RunPlan | None = None
+    """The run of every shard, decided once (None until decided: :func:`decide_sweep`)."""
     memory_limit: int | None = None
-    """Host bytes for the sweep's data (:func:`apply_memory_limit`); None: no limit."""
-    prisms_simulated: int | None = None
-    """Prisms every shard simulates (settings.truncate: decided once from all the sweep's columns,
-    so no shard's results depend on which columns it holds)."""
+    """Host bytes for the sweep's data (``memory_limit`` of :func:`plan_sweep`); None: no limit."""
 
     @property
     def n_shards(self) -> int:
@@ -58,17 +51,18 @@ class SweepPlan:
     def shard_dir(self) -> Path:
         return shard_dir_for(self.out)
 
-    def resolve(self) -> SweepPlan:
-        """Resolve dt once for the whole sweep (:func:`resolve_dt`)."""
-        return resolve_dt(self)
+    @property
+    def settings(self):
+        """The settings every shard steps with (the run plan's)."""
+        return self.run.settings
 
     @property
     def dt(self) -> float:
-        return float(self.settings.dt)
+        return float(self.run.dt)
 
     @property
     def dt_limit(self) -> float:
-        return float(self.estimate.get("dt_limit", float("nan")))
+        return float(self.run.dt_limit)
 
 
 def plan_sweep(
@@ -78,10 +72,12 @@ def plan_sweep(
     device: str | None = None,
     shard_size: int | None = None,
     estimate: bool = True,
+    memory_limit=None,
 ) -> SweepPlan:
-    """Bind ``spec`` to ``out``; with ``estimate`` also ask the engine for the stability limit,
-    refuse an explicit dt above it (SpecError naming the limit) and resolve dt = "auto" once
-    for the whole sweep, so every shard steps with the same dt."""
+    """Bind ``spec`` to ``out``; with ``estimate`` also decide the run (:func:`decide_sweep`): an
+    explicit dt above the stability limit is refused (SpecError naming the limit), dt = "auto" is
+    resolved once for the whole sweep. ``memory_limit`` (bytes or '64MB') lowers the shard size so
+    the shards alive on the host fit (:func:`~warp_tensegrity.sweep.store.limit_shard_size`)."""
     size = int(shard_size or spec.run["shard_size"])
     if size < 1:
         raise SpecError(f"shard_size = {size!r} must be a positive integer")
@@ -96,105 +92,63 @@ def plan_sweep(
         fingerprint="",
         code_version=code_version(),
         device=None if dev in (None, "auto") else dev,
+        memory_limit=None if memory_limit is None else (
+            parse_bytes(memory_limit) if isinstance(memory_limit, str) else int(memory_limit)),
     )
     plan.fingerprint = spec.fingerprint(plan.code_version)
     if estimate:
-        resolve_dt(plan)
+        decide_sweep(plan)
     return plan
 
 
-def resolve_dt(plan: SweepPlan) -> SweepPlan:
+def decide_sweep(plan: SweepPlan) -> SweepPlan:
+    """Decide the run of every shard once (its path for the widest shard), then fit the shards to
+    the memory limit."""
     spec = plan.spec
-    probe = dataclasses.replace(spec.run_settings(device=plan.device), allow_unstable_dt=True)
-    est = dict(estimate_batch(spec.scene, plan.params, probe))
-    plan.estimate = est
-    spec.check_dt(float(est["dt_limit"]))
-    dt = float(est["dt"]) if isinstance(spec.run["dt"], str) else float(spec.run["dt"])
-    plan.settings = spec.run_settings(device=plan.device, dt=dt)
-    plan.prisms_simulated = int(est["prisms_simulated"])  # depends on t_end and truncate only, as the probe's
+    settings = dataclasses.replace(spec.run_settings(device=plan.device), allow_unstable_dt=True)
+    run = decide(spec.scene, plan.params, settings, n_columns=max(b - a for a, b in plan.shards))
+    spec.check_dt(run.dt_limit)
+    plan.run = dataclasses.replace(run, settings=dataclasses.replace(
+        run.settings, allow_unstable_dt=spec.run["allow_unstable_dt"]))
+    if plan.memory_limit is not None:
+        per = host_bytes_per_column(plan.run, bool(spec.run["record_strain"]), bool(spec.run["record_energy"]))
+        n = limit_shard_size(plan.shard_size, per, plan.memory_limit)
+        if n != plan.shard_size:
+            plan.shard_size, plan.shards = n, spec.shards(n)
     return plan
 
 
-def apply_memory_limit(plan: SweepPlan, memory_limit) -> SweepPlan:
-    """Shrink the shard size so the shards alive on the host fit in ``memory_limit`` (bytes or
-    '64MB'; :func:`~warp_tensegrity.sweep.store.limit_shard_size`)."""
-    if memory_limit is None:
-        return plan
-    plan.memory_limit = parse_bytes(memory_limit) if isinstance(memory_limit, str) else int(memory_limit)
-    n = limit_shard_size(plan, plan.memory_limit)
-    if n != plan.shard_size:
-        plan.shard_size = n
-        plan.shards = plan.spec.shards(n)
-    return plan
-
-
-def dry_run(plan: SweepPlan, costs: dict | None = None) -> str:
-    """What a run would do: columns, shards, dt, steps, memory and time estimates. ``costs``: the
-    calibrated prediction (:func:`warp_tensegrity.calibrate.estimate_plan`, which the CLI passes);
-    without it, memory and time are the engine's uncalibrated figures."""
-    spec, est = plan.spec, plan.estimate
+def dry_run(plan: SweepPlan, cost: dict) -> str:
+    """What a run would do: columns, shards, dt, steps, path, memory, output and time, from the run
+    plan and its cost (:func:`warp_tensegrity.policy.calibrate.estimate_plan`)."""
+    spec, run = plan.spec, plan.run
     r = spec.run
-    n = plan.n_columns
-    n_steps = int(est.get("n_steps", 0))
-    oi = r["output_interval"]
-    n_out = int(math.floor(r["t_end"] / oi + 1e-9)) + 1 if oi else 201
-    P = spec.scene.n_prisms
-    per_col_out = 8 * (5 + 2 + P) + (8 * 2 * n_out if r["record_energy"] else 0)
-    per_col_strain = 8 * n_out * P
-    out_bytes = n * (per_col_out + (per_col_strain if r["record_strain"] else 0))
     dt_txt = f"{plan.dt:.4g} s"
     if isinstance(r["dt"], str):
-        dt_txt += f" (auto: {plan.estimate.get('dt_safety', r['dt_safety']):.4g} x limit {plan.dt_limit:.4g} s)"
+        dt_txt += f" (auto: {run.settings.dt_safety:.4g} x limit {plan.dt_limit:.4g} s)"
     else:
         dt_txt += f" (explicit; limit {plan.dt_limit:.4g} s)"
+    p = cost["probe"]
+    auto = "" if plan.device else " (auto: the GPU if there is one, else the CPU)"
     lines = [
         f"spec:        {spec.source or '<text>'} (sha256 {spec.text_sha256[:12]})",
         f"columns:     {spec.describe()}",
         f"shards:      {plan.n_shards} of up to {plan.shard_size} columns -> {plan.shard_dir}/ (Zarr store)",
-        f"method:      {r['method']} {r['precision']}, dt = {dt_txt}",
-        f"steps:       {n_steps} to t_end = {r['t_end']} s, {n_out} outputs",
+        f"method:      {run.method} {run.precision}, dt = {dt_txt}",
+        f"steps:       {run.n_steps} to t_end = {r['t_end']} s, {run.n_out} outputs",
+        f"prisms:      {run.prisms_simulated} of {run.prisms} simulated",
+        f"device:      {cost['device']}{auto}",
+        f"step path:   {run.path.value} (decided for shards of {run.n_columns} columns)",
+        f"memory:      {fmt_bytes(cost['device_bytes_per_shard'])} device memory per shard, "
+        f"{fmt_bytes(cost['host_peak_bytes'])} peak host memory",
+        f"output:      {fmt_bytes(cost['output_bytes'])} uncompressed"
+        + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"),
+        f"time:        ~{fmt_seconds(cost['seconds'])} wall ("
+        + ", ".join(f"{k} {v:.3g} s" for k, v in cost["stages_s"].items()) + ")",
+        f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
+        f"({p['column_step_seconds']:.3g} s per column-step; cached {p['created']}; --recalibrate renews it)",
     ]
-    auto = "" if plan.device else " (auto: the GPU if there is one, else the CPU)"
-    step_path = f"step path:   {_step_path(plan)} (per shard of {max(b - a for a, b in plan.shards)} columns)"
-    if costs is not None:
-        p = costs["probe"]
-        lines += [
-            f"device:      {costs['device']}{auto}",
-            step_path,
-            f"memory:      {_fmt_bytes(costs['device_bytes_per_shard'])} device memory per shard, "
-            f"{_fmt_bytes(costs['host_peak_bytes'])} peak host memory",
-        ]
-    else:
-        dev_bytes = int(est.get("bytes_per_column", 0)) * max(b - a for a, b in plan.shards)
-        lines += [f"device:      {plan.device or 'auto'}{auto}", step_path,
-                  f"memory:      {_fmt_bytes(dev_bytes)} device memory per shard (uncalibrated)"]
-    lines.append(f"output:      {_fmt_bytes(out_bytes)} uncompressed"
-                 + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"))
-    if costs is not None:
-        lines += [
-            f"time:        ~{fmt_seconds(costs['seconds'])} wall ("
-            + ", ".join(f"{k} {v:.3g} s" for k, v in costs["stages_s"].items()) + ")",
-            f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
-            f"({p['column_step_seconds']:.3g} s per column-step; cached {p['created']})",
-        ]
-    else:
-        spc = float(est.get("seconds_per_column_step_estimate", float("nan")))
-        lines.append(f"time:        ~{fmt_seconds(spc * n_steps * n)} stepping (uncalibrated flop count)")
+    if p.get("under_load"):
+        lines.append(f"             taken while other work kept {100 * p['others_busy']:.0f} % of the cores busy: "
+                     "the time may be high; it is re-measured once the host is idle")
     return "\n".join(lines)
-
-
-def _step_path(plan: SweepPlan) -> str:
-    """The launch path (engine.choose_path) a shard takes: 'lanes', 'fused', 'fused-serial' or
-    'staged' (whether the lane step takes the columns is decided once for the whole sweep)."""
-    est = plan.estimate
-    shard = max(b - a for a, b in plan.shards)
-    return str(choose_path(plan.settings, bool(est.get("on_gpu")), shard, int(est.get("bandwidth", 0)),
-                           est.get("lane_refusal", NOT_CHECKED)).value)
-
-
-def _fmt_bytes(b: float) -> str:
-    for unit in ("B", "kB", "MB", "GB", "TB"):
-        if abs(b) < 1000 or unit == "TB":
-            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.1f} {unit}"
-        b /= 1000.0
-    return f"{b:.1f} TB"

@@ -3,8 +3,8 @@
 tqdm draws the bar, limits the refresh rate and finds out whether the stream is a terminal; by
 default (``enabled=None``) the bar shows only on a terminal, so logs and pipes stay clean.
 
-The ETA starts from the engine's calibrated cost estimate (``estimate_s``, from
-:func:`warp_tensegrity.engine.estimate_batch`) and moves to the measured rate as columns
+The ETA starts from the calibrated cost model (``estimate_s``, from
+:func:`warp_tensegrity.policy.calibrate.estimate_plan`) and moves to the measured rate as columns
 finish: with a fraction f of the outstanding work done, ETA = (1 - f) * estimate_left + f * rate_left.
 tqdm's own ETA knows only the rate, hence the postfix.
 """
@@ -17,21 +17,7 @@ import time
 
 from tqdm import tqdm
 
-
-def _fmt(s: float) -> str:
-    return tqdm.format_interval(max(s, 0.0)) if math.isfinite(s) else "?"
-
-
-def fmt_seconds(s: float) -> str:
-    """A duration for the dry run's summary, e.g. '2m05s' ('?' when unknown)."""
-    if not math.isfinite(s):
-        return "?"
-    s = int(round(s))
-    if s >= 3600:
-        return f"{s // 3600}h{(s % 3600) // 60:02d}m"
-    if s >= 60:
-        return f"{s // 60}m{s % 60:02d}s"
-    return f"{s}s"
+from ..policy.cost import fmt_seconds
 
 
 class ProgressBar:
@@ -68,8 +54,8 @@ class ProgressBar:
     def _set_postfix(self) -> None:
         elapsed = time.monotonic() - self.t0
         self._bar.set_postfix_str(
-            f"{int(self.done)}/{self.total} columns, {self.diverged} diverged, elapsed {_fmt(elapsed)}, "
-            f"ETA {_fmt(self.eta())}", refresh=False)
+            f"{int(self.done)}/{self.total} columns, {self.diverged} diverged, elapsed {fmt_seconds(elapsed)}, "
+            f"ETA {fmt_seconds(self.eta())}", refresh=False)
 
     def update(self, done: float, diverged: int, force: bool = False) -> None:
         self.done, self.diverged = float(done), int(diverged)

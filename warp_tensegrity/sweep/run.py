@@ -15,7 +15,7 @@ from ..types import ShardState
 from .dask import run_shards_dask
 from .errors import SweepError
 from .manifest import STORE, StoreError, SweepLock, fault
-from .plan import SweepPlan, apply_memory_limit, plan_sweep, resolve_dt
+from .plan import SweepPlan, decide_sweep, plan_sweep
 from .progress import ProgressBar
 from .shard import compute_and_write, compute_shard, template_dataset
 from .spec import SweepSpec, load_spec
@@ -37,6 +37,7 @@ def execute(
     stream=None,
     combine_output: bool = True,
     keep_store: bool = True,
+    cost: dict | None = None,
 ) -> Path | None:
     """Run (or resume) every shard of ``plan`` that is not done into the store, then export plan.out.
     ``progress``: None shows the bar only when ``stream`` (stderr) is a terminal; True always; False never.
@@ -45,12 +46,13 @@ def execute(
     ``overwrite``; a resume re-reads every recorded shard and recomputes those that do not check out.
     ``keep_store`` False removes the store (``OUT.nc.sweep/``) once ``OUT.nc`` is written: the
     output stays complete and ``status`` still reads it, but ``combine`` and ``resume`` have
-    nothing left to work from.
+    nothing left to work from. ``cost``: the run's predicted cost
+    (:func:`warp_tensegrity.policy.calibrate.estimate_plan`), the progress bar's first ETA.
     """
     if plan.out is None:
         raise SweepError("no output path")
-    if plan.settings is None:
-        resolve_dt(plan)
+    if plan.run is None:
+        decide_sweep(plan)
     store = SweepStore(plan.out)
     if plan.memory_limit:
         import zarr
@@ -89,7 +91,7 @@ def execute(
         tally = {"cols": sum(plan.shards[i][1] - plan.shards[i][0] for i in done),
                  "failed": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done)}
         bar = ProgressBar(plan.n_columns, tally["cols"], tally["failed"], stream=stream, enabled=progress,
-                          estimate_s=_estimated_seconds(plan, todo))
+                          estimate_s=_estimated_seconds(plan, todo, cost))
         log.debug("%d of %d shards to run (%d columns done)", len(todo), plan.n_shards, tally["cols"])
         lk = threading.Lock()
 
@@ -135,12 +137,12 @@ def execute(
     return plan.out
 
 
-def _estimated_seconds(plan: SweepPlan, todo) -> float | None:
-    """The calibrated cost model's time for the shards still to run (None if unknown)."""
-    spc = float(plan.estimate.get("seconds_per_column_step_estimate", float("nan")))
-    steps = int(plan.estimate.get("n_steps", 0))
-    cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in todo)
-    secs = spc * steps * cols
+def _estimated_seconds(plan: SweepPlan, todo, cost: dict | None) -> float | None:
+    """The cost model's stepping and measuring time for the shards still to run (None if unknown)."""
+    if cost is None:
+        return None
+    st = cost["stages_s"]
+    secs = (st["stepping"] + st["measurement"]) * sum(plan.shards[i][1] - plan.shards[i][0] for i in todo) / plan.n_columns
     return secs if math.isfinite(secs) and secs > 0 else None
 
 
@@ -153,7 +155,7 @@ def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrit
     is written (see :func:`execute`)."""
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
-    plan = apply_memory_limit(plan_sweep(spec, out, device=device, shard_size=shard_size), memory_limit)
+    plan = plan_sweep(spec, out, device=device, shard_size=shard_size, memory_limit=memory_limit)
     return execute(plan, resume=resume, overwrite=overwrite, progress=progress, dask_workers=dask_workers,
                    scheduler=scheduler, client=client, stream=stream, keep_store=keep_store)
 
@@ -171,7 +173,7 @@ def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=None,
                    client=client, stream=stream, keep_store=keep_store)
 
 
-def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True) -> SweepPlan:
+def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True, memory_limit=None) -> SweepPlan:
     """The plan of the run at ``out``, from its spec copy and manifest header."""
     m = read_run(out)
     spec = load_spec(m["spec_text"])
@@ -183,6 +185,7 @@ def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True)
         device=device if device is not None else m.get("device"),
         shard_size=shard_size or m.get("shard_size"),
         estimate=estimate,
+        memory_limit=memory_limit,
     )
 
 

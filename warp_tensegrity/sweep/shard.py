@@ -3,9 +3,7 @@ Dask worker also write it into its region of the sweep's store (:mod:`.store`)."
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,10 +13,9 @@ from ..engine import simulate_batch
 from ..measure.nan_reasons import measure_columns  # shared with BatchResult.to_xarray
 from ..provenance import provenance_attrs
 from ..runtime import warp_facts
+from .plan import SweepPlan, decide_sweep
 from .store import SweepStore, time_coord
 
-if TYPE_CHECKING:
-    from .plan import SweepPlan
 
 
 def _num(x):
@@ -28,15 +25,13 @@ def _num(x):
 
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
     """Run shard ``index`` and return its case-stacked dataset (not written)."""
-    if plan.settings is None:
-        plan.resolve()
+    if plan.run is None:
+        decide_sweep(plan)
     spec = plan.spec
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
-    settings = plan.settings if device is None else dataclasses.replace(plan.settings, device=device)
-    # prisms simulated and the lane step decided once for all the sweep's columns (the plan's)
-    result = simulate_batch(spec.scene, params, settings, progress=progress, prisms_simulated=plan.prisms_simulated,
-                            lanes_refused=plan.estimate.get("lane_refusal"))
+    # the run decided once for all the sweep's columns (the plan's)
+    result = simulate_batch(spec.scene, params, progress=progress, plan=plan.run.with_device(device))
     meas = measure_columns(result, spec.scene.height)
     meas.update(result.info["beta_limit"](meas["max_compression"]))
     attrs = {
@@ -53,8 +48,8 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         **D.result_attrs(result),
         "step_path": result.info.get("step_path", "unknown"),
         "dt_limit": plan.dt_limit,
-        "dt_safety_used": _num(plan.estimate.get("dt_safety") if isinstance(spec.run["dt"], str) else None),
-        "accuracy_target": _num(plan.estimate.get("accuracy_target") if isinstance(spec.run["dt"], str) else None),
+        "dt_safety_used": _num(plan.run.settings.dt_safety if isinstance(spec.run["dt"], str) else None),
+        "accuracy_target": _num(plan.run.accuracy if isinstance(spec.run["dt"], str) else None),
         "history": f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} shard {index} computed by warp_tensegrity",
     }
     if spec.run["output_interval"] is not None:
@@ -68,16 +63,10 @@ def template_dataset(plan: SweepPlan):
     before any shard runs. Nothing is stepped."""
     from types import SimpleNamespace
 
-    from ..engine import apply_accuracy, choose_timestep, output_times
-
-    if plan.settings is None:
-        plan.resolve()
+    if plan.run is None:
+        decide_sweep(plan)
     spec = plan.spec
-    # as the engine times each shard, from the plan's bound (no second pass over every column)
-    settings, _ = apply_accuracy(plan.settings, plan.prisms_simulated)
-    dt, _, n_steps, every = choose_timestep(settings, float(plan.estimate["omega_max_bound"]))
-    steps = np.arange(n_steps // every + 1, dtype=np.int64) * every
-    time = output_times(steps, dt)
+    steps, time = plan.run.output_steps, plan.run.output_times  # as every shard's
     P, T = spec.scene.n_prisms, len(time)
     z = lambda *shape: np.zeros(shape)  # noqa: E731
     result = SimpleNamespace(

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import for_accuracy
+from ..policy.accuracy import for_accuracy
 from ..options import COLUMN_PARAMETERS, EXECUTION_KEYS, ColumnParameters, OptionError, RunSettings
 from ..provenance import code_version
 from ..scene.columns import ColumnConfig

@@ -43,11 +43,6 @@ from .manifest import (
 
 IN_FLIGHT = 2
 """Shards alive on the host at once in a serial run: one stepping, one being written."""
-HOST_COPIES = 4
-"""Host bytes a shard needs while stepping and measuring, in units of its output bytes
-(engine arrays, their float64 copies, measurement temporaries); calibrated by
-tests/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
-
 
 # ---------------------------------------------------------------------- layout
 def time_coord(ds: xr.Dataset) -> np.ndarray:
@@ -370,27 +365,15 @@ def export_netcdf(ds: xr.Dataset, path) -> Path:
 
 
 # ---------------------------------------------------------------------- memory
-def host_bytes_per_column(plan) -> int:
-    """Host bytes one column needs while its shard steps, is measured and written (engine state too
-    when the engine runs on the CPU)."""
-    est = plan.estimate
-    n_out = int(est.get("n_out", 0))
-    P = plan.spec.scene.n_prisms
-    r = plan.spec.run
-    out = 8 * (10 + P + (2 * n_out if r["record_energy"] else 0) + (n_out * P if r["record_strain"] else 0))
-    engine = int(est.get("bytes_per_column", 0)) if (plan.device or "cpu").startswith("cpu") else 0
-    return HOST_COPIES * out + engine
-
-
 SHARD_SHARE = 0.4
 """Share of the memory limit for the shards in flight; the rest is headroom for the writer's and the
 export's buffers (Zarr codecs, the netCDF chunk cache, allocator slack), measured at ~10-25 MB."""
 
 
-def limit_shard_size(plan, memory_limit: int) -> int:
-    """The largest shard size (at most the plan's) whose IN_FLIGHT shards fit in SHARD_SHARE of
+def limit_shard_size(shard_size: int, per: int, memory_limit: int) -> int:
+    """The largest shard size (at most ``shard_size``) whose IN_FLIGHT shards, ``per`` host bytes a
+    column (:func:`warp_tensegrity.policy.cost.host_bytes_per_column`), fit in SHARD_SHARE of
     ``memory_limit`` bytes of host memory beyond the process's own (libraries, compiled kernels)."""
-    per = host_bytes_per_column(plan)
     n = int(SHARD_SHARE * memory_limit // (IN_FLIGHT * per))
     if n < 1:
         raise StoreError(
@@ -398,7 +381,7 @@ def limit_shard_size(plan, memory_limit: int) -> int:
             f"that {IN_FLIGHT} shards of one column need with headroom; raise --memory-limit or record less "
             f"(run.record_strain = false)"
         )
-    return min(plan.shard_size, n)
+    return min(shard_size, n)
 
 
 def parse_bytes(text) -> int:

@@ -3,11 +3,9 @@ per column, its constraint solve by block cyclic reduction or serially on lane 0
 (one warp per column, :mod:`warp_tensegrity.kernels.lanes`), from the settings, the device, the
 batch's width and Gram band, and whether the lane step takes the batch.
 
-Whether it does: :func:`~warp_tensegrity.kernels.lanes.lane_support` reads a built batch;
-:func:`lane_refusal` decides from the scene where there is none yet (estimates, sweep plans,
-calibration probes, and a sweep for all its shards at once); the two agree on column batches
-(tests/test_lanes.py). :mod:`warp_tensegrity.engine` re-exports these names. Warp is imported only
-inside the functions that need it (a spec validates without it).
+Whether the lane step takes the batch: :mod:`.lane_fit`. :func:`~.decide.decide` calls
+:func:`choose_path` once per run. Warp is imported only by :func:`lane_emulation`, which runs
+the lane step on the CPU.
 """
 
 from __future__ import annotations
@@ -15,11 +13,9 @@ from __future__ import annotations
 import contextlib
 import math
 
-import numpy as np
-
-from .options import ColumnParameters
-from .settings import RunSettings, SettingsError
-from .types import Base, Method, Path
+from ..options import RunSettings, SettingsError
+from ..scene.coupling import constraint_coupling, mass_entries
+from ..types import Method, Path
 
 # fused='auto' on a GPU, where the lane step does not take the batch: the fastest measured of the
 # fused step with its constraint solve by block cyclic reduction ("fused"), the fused step with
@@ -60,32 +56,10 @@ NOT_CHECKED = "the batch was not checked for the lane step"
 (and fused = 'lanes' is refused with this reason)."""
 
 
-def lane_refusal(config, params: dict, n_prisms: int | None = None) -> str | None:
-    """Why the lane step would not take T3 columns of scene ``config`` with the per-column ``params``
-    when ``n_prisms`` of their prisms are simulated (default: all); None if it takes them. The
-    scene-level form of :func:`~warp_tensegrity.kernels.lanes.lane_support`: massless bars, at most
-    ``MAX_LEVELS_PER_LANE`` levels per lane of a 32-lane warp, and at most
-    ``MAX_RIGID_LEVELS_PER_LANE`` once a column has rigid bases (base_rigidity = 1)."""
-    from .kernels.lane_funcs import WARP, lane_shape
-    from .kernels.lane_rigid import MAX_RIGID_LEVELS_PER_LANE
-    from .kernels.lanes import MAX_LEVELS_PER_LANE
-
-    n = config.n_prisms if n_prisms is None else int(n_prisms)
-    rigid = np.any(np.asarray(params.get("base_rigidity", ColumnParameters.base_rigidity), dtype=np.float64) >= Base.RIGID)
-    if rigid and n > WARP * MAX_RIGID_LEVELS_PER_LANE:
-        return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
-                "prisms (2 levels per lane)")
-    if config.bar_mass > 0:
-        return "massive bars (consistent bar inertia couples node pairs)"
-    if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
-        return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a {WARP}-lane warp"
-    return None
-
-
 def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int, bandwidth: int = 0,
                 lanes: str | None = NOT_CHECKED) -> Path:
     """The launch path. ``lanes``: why the lane step does not take the batch
-    (:func:`~warp_tensegrity.kernels.lanes.lane_support`, :func:`lane_refusal`), None if it does.
+    (:func:`.lane_fit.lane_support`, :func:`.lane_fit.lane_refusal`), None if it does.
 
     * fused 'lanes': the lane step on any device (the CPU emulates each warp with 32 fibers: slow,
       for tests), or a SettingsError that names why it does not take the batch;
@@ -143,6 +117,4 @@ def lane_emulation(path: Path, device):
 
 def gram_bandwidth(batch) -> int:
     """Half-bandwidth of the batch's constraint Gram matrix (host-side, no kernel)."""
-    from .model import constraint_coupling, mass_entries
-
     return int(constraint_coupling(batch, mass_entries(batch)[0])[-1])

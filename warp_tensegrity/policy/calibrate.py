@@ -1,0 +1,339 @@
+"""Calibration: the cost of a decided run (:class:`~.decide.RunPlan`) measured by a short probe on
+the target device, not taken from constants.
+
+The probe (:func:`probe`) runs the plan's own step (method, precision, dt, output stride, path) on
+a few of its columns: the CPU backend steps columns one after another, so 4 columns give the cost
+per column-step; on a GPU it takes the shard's width, since the step time there is set by latency
+up to thousands of columns. It times the batch build, the stepping (the fastest of three segments,
+after a first one that loads kernels and captures graphs), the device measurement of a record of
+the run's length, the device-to-host copy and a netCDF write and read of a few MB; import and
+kernel-load seconds are this process's own. :func:`.cost.predict` turns it into stage seconds and
+memory.
+
+Probes are cached as JSON under the user cache dir (``platformdirs.user_cache_dir
+('warp_tensegrity')/calibration`` or ``$WARP_TENSEGRITY_CACHE``), one file per device, run plan,
+scene, probe columns and code version. A probe records how busy the host was with other work
+while it ran (:func:`others_busy`); one taken under load (``under_load``) is used with that said,
+and taken again as soon as the host is idle. ``recalibrate`` (CLI ``--recalibrate``) renews it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import math
+import os
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .cost import predict
+from .decide import RunPlan, check_batch_arguments, decide, far_end
+
+PROBE_STEPS = 300
+"""Steps timed by the probe (after a first segment of PROBE_WARM_STEPS)."""
+PROBE_WARM_STEPS = 60
+CPU_PROBE_COLUMNS = 4
+CACHE_VERSION = 3
+BUSY_SHARE = 0.25
+"""A probe is taken under load when other processes kept more than this share of the host's cores
+busy while it ran (a 2-core host: half a core)."""
+
+
+def cache_dir() -> Path:
+    """Where probes are cached: ``$WARP_TENSEGRITY_CACHE`` or the user cache dir."""
+    env = os.environ.get("WARP_TENSEGRITY_CACHE")
+    if env:
+        return Path(env) / "calibration"
+    try:
+        import platformdirs
+
+        root = Path(platformdirs.user_cache_dir("warp_tensegrity"))
+    except ImportError:  # platformdirs is optional: the XDG default
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "warp_tensegrity"
+    return root / "calibration"
+
+
+def device_label(name=None) -> str:
+    """'cpu (x86_64, 2 cores)' or 'cuda:0 (NVIDIA H100 80GB HBM3)': the device a run will use."""
+    import platform
+
+    from ..runtime import resolve_device  # loads Warp
+
+    d = resolve_device(name)
+    if d.is_cuda:
+        return f"{d.alias} ({d.name})"
+    return f"{d.alias} ({platform.machine()}, {os.cpu_count()} cores)"
+
+
+def _busy_seconds() -> tuple[float, float]:
+    """(CPU seconds of the whole host, of this process) so far."""
+    import psutil
+
+    t = psutil.cpu_times()
+    own = psutil.Process().cpu_times()
+    return (t.user + t.nice + t.system + getattr(t, "irq", 0.0) + getattr(t, "softirq", 0.0)
+            + getattr(t, "steal", 0.0), own.user + own.system + own.children_user + own.children_system)
+
+
+def others_busy(start: tuple[float, float, float]) -> float:
+    """Share of the host's cores that other processes kept busy since ``start`` = (wall, host CPU
+    seconds, own CPU seconds) of :func:`busy_start` (0 idle .. 1 every core busy)."""
+    wall0, host0, own0 = start
+    host1, own1 = _busy_seconds()
+    span = (time.perf_counter() - wall0) * (os.cpu_count() or 1)
+    return max(0.0, ((host1 - host0) - (own1 - own0)) / span) if span > 0 else 0.0
+
+
+def busy_start() -> tuple[float, float, float]:
+    return (time.perf_counter(), *_busy_seconds())
+
+
+def host_idle(window: float = 0.5) -> bool:
+    """Whether other processes keep less than BUSY_SHARE of the cores busy (sampled for ``window`` s)."""
+    start = busy_start()
+    time.sleep(window)
+    return others_busy(start) < BUSY_SHARE
+
+
+def _probe_columns(n_columns: int, shard: int, is_cuda: bool) -> np.ndarray:
+    if is_cuda:
+        return np.arange(min(shard, n_columns))  # the first shard, at its width
+    k = min(CPU_PROBE_COLUMNS, n_columns)
+    return np.unique(np.round(np.linspace(0, n_columns - 1, k)).astype(int))
+
+
+def _key(config, params: dict, run: RunPlan, shard: int) -> tuple[str, dict]:
+    from ..provenance import code_version
+
+    cols = _probe_columns(params["prestrain"].size, shard, run.on_gpu)
+    s = run.settings
+    desc = {
+        "device": device_label(run.device), "method": run.method, "precision": run.precision, "path": str(run.path.value),
+        "shard": int(shard), "scene": repr(config), "dt": repr(run.dt), "output_every": run.output_every,
+        "prisms_simulated": run.prisms_simulated, "probe_columns": len(cols), "measure": s.measure,
+        "params": {k: np.asarray(v, dtype=np.float64)[cols].tolist() for k, v in sorted(params.items())},
+        "code": code_version(), "version": CACHE_VERSION,
+    }
+    h = hashlib.sha256(json.dumps(desc, sort_keys=True, default=str).encode()).hexdigest()[:20]
+    return h, desc
+
+
+@functools.cache
+def _tile_columns(real):
+    """Kernel: out[k, j, b] = src[k, j] (a synthetic record of the probe's width, built on the device)."""
+    import warp as wp
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def tile(src: wp.array2d(dtype=wp.float64), out: wp.array3d(dtype=real)):
+        k, j, b = wp.tid()
+        out[k, j, b] = real(src[k, j])
+
+    return tile
+
+
+def _array_bytes(obj, B: int) -> tuple[int, int]:
+    """(bytes of arrays with a column axis of length B, other bytes) held by obj's attributes."""
+    import warp as wp
+
+    per, fixed, seen = 0, 0, set()
+
+    def visit(v):
+        nonlocal per, fixed
+        if isinstance(v, wp.array):
+            if id(v) in seen:
+                return
+            seen.add(id(v))
+            nb = int(np.prod(v.shape)) * wp.types.type_size_in_bytes(v.dtype)
+            if v.ndim and v.shape[-1] == B and B > 1:
+                per += nb
+            else:
+                fixed += nb
+        elif isinstance(v, dict):
+            for x in v.values():
+                visit(x)
+        elif hasattr(v, "__dict__") and not isinstance(v, type):
+            for x in vars(v).values():
+                visit(x)
+
+    visit(obj)
+    return per, fixed
+
+
+def _io_rates(tmp: Path) -> dict:
+    """netCDF write and read seconds per byte (and per file) on this host, from a few-MB file."""
+    import xarray as xr
+
+    from .. import io as D
+
+    rng = np.random.default_rng(0)
+    out = {}
+    for n in (1, 400):  # a small and a ~8 MB file: fixed cost and rate
+        ds = xr.Dataset({"strain": (("case", "time", "prism"), rng.standard_normal((n, 50, 50)))})
+        p = tmp / f"io{n}.nc"
+        t0 = time.perf_counter()
+        D.write_netcdf(ds, p)
+        t1 = time.perf_counter()
+        D.open_sweep(p, load=True)
+        t2 = time.perf_counter()
+        out[n] = (ds.nbytes, t1 - t0, t2 - t1)
+    (b0, w0, r0), (b1, w1, r1) = out[1], out[400]
+    return {"write_fixed": w0, "write_per_byte": max(w1 - w0, 0.0) / (b1 - b0),
+            "read_fixed": r0, "read_per_byte": max(r1 - r0, 0.0) / (b1 - b0)}
+
+
+def probe(config, params: dict, run: RunPlan, shard_size: int, use_cache: bool = True) -> dict:
+    """Run (or read from the cache) the calibration probe of ``run`` for T3 columns of ``config``
+    with the per-column ``params`` (filled, shape (N,); :func:`~.decide.decide`'s), on shards of
+    ``shard_size`` columns. ``use_cache`` False renews it. Returns the measured rates (dict)."""
+    key, desc = _key(config, params, run, shard_size)
+    path = cache_dir() / f"{key}.json"
+    if use_cache and path.exists():
+        try:
+            cal = json.loads(path.read_text())
+            if not cal.get("under_load") or not host_idle():
+                return cal
+        except (OSError, ValueError):
+            pass
+    cal = _measure(config, params, run, shard_size) | {"key": key, "describe": desc, "device_label": desc["device"]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(cal, indent=1))
+    os.replace(tmp, path)
+    return cal
+
+
+def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
+    import warp as wp
+
+    from ..integrate import Integrator  # Warp and the kernels: only a probe needs them
+    from ..measure.device import load_kernels, measure_record
+    from ..policy.paths import lane_emulation
+    from ..runtime import resolve_device, startup_seconds
+    from ..scene.batch import column_batch
+    from ..types import Path as StepPath
+
+    busy = busy_start()
+    device = resolve_device(run.device)
+    cols = _probe_columns(params["prestrain"].size, shard_size, device.is_cuda)
+    pp = {k: np.ascontiguousarray(v[cols]) for k, v in params.items()}
+    n, n_sim = config.n_prisms, run.prisms_simulated
+    # as the engine runs it: the record is kept on the device for the measures
+    s = dataclasses.replace(run.settings, record_strain=run.settings.record_strain or run.settings.measure != "none")
+    sim_cfg = far_end(config, n_sim) if n_sim < n else config
+
+    # batch assembly (reference states, equilibrium checks) as a + b x columns: medians of three
+    # builds at two widths (the probe's and a quarter of it), as a shared host is noisy
+    def build_time(p):
+        times = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            out = column_batch(sim_cfg, p)
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times)), out
+
+    n_small = max(1, len(cols) // 4)
+    t_small, _ = build_time({k: v[:n_small] for k, v in pp.items()})
+    t_full, batch = build_time(pp)
+    b_col = max(t_full - t_small, 0.0) / (len(cols) - n_small) if len(cols) > n_small else 0.0
+    a_batch = max(t_full - b_col * len(cols), 0.0)
+    every, spg = run.output_every, int(s.steps_per_graph)
+    # whole graph periods (as a run replays them): the fused paths capture output periods
+    period = every * max(1, -(-spg // every)) if run.path != StepPath.STAGED else spg
+    seg_steps = period * max(1, -(-(PROBE_STEPS // 3) // period))
+    warm_steps = period * max(1, -(-PROBE_WARM_STEPS // period))
+    n_out = (warm_steps + 3 * seg_steps) // every + 1
+    with lane_emulation(run.path, device):  # the CPU runs the lane step as fibers
+        t0 = time.perf_counter()
+        integ = Integrator(batch, s, run.dt, every, n_out, path=run.path)
+        t_integ = time.perf_counter() - t0
+        B = batch.n_columns
+        with wp.ScopedDevice(integ.device):
+            t0 = time.perf_counter()
+            integ.initialize()
+            load_kernels(integ.device)
+            wp.synchronize_device(integ.device)
+            t_init = time.perf_counter() - t0
+            integ.advance(warm_steps)  # loads, graph capture
+            wp.synchronize_device(integ.device)
+            seg = []  # three segments, the fastest: a neighbour's burst only slows the others
+            for _ in range(3):
+                t0 = time.perf_counter()
+                integ.advance(seg_steps)
+                wp.synchronize_device(integ.device)
+                seg.append((time.perf_counter() - t0) / seg_steps)
+            t_step = float(np.min(seg))
+            per_col, fixed = _array_bytes((integ.model, integ.data, integ.kinetic, integ.elastic), B)
+            # measurement of a record of the run's length (sech^2 pulses crossing the column)
+            T_full = run.n_out
+            tt = run.output_times
+            j = np.arange(n_sim)
+            c = max(n_sim, 4) / max(float(tt[-1]), 1e-30) * 0.8
+            rec = -1e-3 / np.cosh((j[None, :] - (n_sim - 1 + 4 - c * tt[:, None])) / 2.0) ** 2
+            real = wp.float32 if s.precision == "fp32" else wp.float64
+            rec_d = wp.empty((T_full, n_sim, B), dtype=real)
+            wp.launch(_tile_columns(real), rec_d.shape, [wp.array(rec.astype(np.float64), dtype=wp.float64), rec_d])
+            measure_record(rec_d, tt, config.height, n_prisms=n, cut=n - n_sim)  # warm
+            tm = {}
+            measure_record(rec_d, tt, config.height, n_prisms=n, cut=n - n_sim, timings=tm)
+            big = wp.zeros(1 << 21, dtype=wp.float64)
+            t0 = time.perf_counter()
+            big.numpy()
+            t_copy = (time.perf_counter() - t0) / big.size / 8
+    with tempfile.TemporaryDirectory() as tmp:
+        io = _io_rates(Path(tmp))
+    share = others_busy(busy)
+    return {
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "is_cuda": bool(device.is_cuda),
+        "step_path": str(run.path.value), "probe_columns": int(B), "probe_steps": 3 * seg_steps,
+        "prisms_simulated": int(n_sim), "dt": float(run.dt), "output_every": int(every),
+        "batch_fixed": a_batch, "batch_per_column": b_col, "integrator_build": t_integ, "initialize": t_init,
+        "step_seconds": t_step, "column_step_seconds": t_step / B,
+        "measure_seconds": tm["measurement"], "measure_samples": int(T_full),
+        "transfer_per_byte": t_copy, "device_bytes_per_column": per_col / B, "device_bytes_fixed": fixed,
+        "strain_bytes_per_sample": (4 if s.precision == "fp32" else 8) * n_sim,
+        **{f"io_{k}": v for k, v in io.items()},
+        # this process's start-up (interpreter, imports, Warp) and the probe's kernel loads: what a run pays once
+        "import": startup_seconds(), "compile": t_init,
+        "base_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        "others_busy": share, "under_load": bool(share > BUSY_SHARE),
+    }
+
+
+def estimate_plan(plan, recalibrate: bool = False) -> dict:
+    """The cost of a sweep plan (``sweep.plan.SweepPlan``): :func:`.cost.predict` from the probe of
+    its run plan on its first shard's width; ``recalibrate`` renews the probe."""
+    spec = plan.spec
+    shards = [b - a for a, b in plan.shards]
+    cal = probe(spec.scene, plan.params, plan.run, max(shards), use_cache=not recalibrate)
+    return predict(cal, plan.run, shards, bool(spec.run["record_strain"]), bool(spec.run["record_energy"]),
+                   planned_columns=plan.n_columns) | {"probe": cal}
+
+
+def estimate_batch(config, params: dict, settings, recalibrate: bool = False) -> dict:
+    """What :func:`~warp_tensegrity.simulate_batch` with these arguments would do and cost, before it
+    runs: the run plan (dt, stability limit, steps, path, prisms simulated; :func:`~.decide.decide`)
+    with time and memory from a probe on the device (:func:`probe`, cached; ``recalibrate`` renews
+    it): ``seconds_estimate`` (build, stepping, measurement, transfer), ``stages_estimate``,
+    ``device_bytes_estimate``, ``device_label``. ``params`` as ``simulate_batch`` takes them."""
+    from ..scene.batch import column_params
+
+    params = column_params(config, check_batch_arguments("estimate_batch", config, params, settings))
+    run = decide(config, params, settings)
+    B = int(params["prestrain"].size)
+    cal = probe(config, params, run, B, use_cache=not recalibrate)
+    pred = predict(cal, run, [B], run.settings.record_strain)
+    st = pred["stages_s"]
+    seconds = sum(st[k] for k in ("build", "stepping", "measurement", "transfer"))
+    return {"dt": run.dt, "dt_limit": run.dt_limit, "n_steps": run.n_steps, "output_every": run.output_every,
+            "n_out": run.n_out, "omega_max_bound": run.omega_max_bound, "bandwidth": run.bandwidth,
+            "step_path": str(run.path.value), "lane_refusal": run.lane_refusal, "on_gpu": run.on_gpu,
+            "dt_safety": run.settings.dt_safety, "accuracy_target": run.accuracy, "prisms_simulated": run.prisms_simulated,
+            "seconds_estimate": seconds, "seconds_per_column_step_estimate": cal["column_step_seconds"],
+            "stages_estimate": st, "device_bytes_estimate": pred["device_bytes_per_shard"],
+            "device_label": cal["device_label"], "under_load": pred["under_load"], "run_plan": run}

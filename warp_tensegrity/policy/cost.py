@@ -1,0 +1,122 @@
+"""The one cost model: time, memory and output size of a decided run (:class:`~.decide.RunPlan`),
+and the one formatter of each unit.
+
+* bytes: :func:`output_bytes_per_column` (what a column leaves in the output),
+  :func:`state_bytes_per_column` (the engine's arrays), :func:`host_bytes_per_column` (what a
+  shard holds on the host while it steps, is measured and written);
+* seconds and memory from a calibration probe (:func:`predict`; the probe is
+  :func:`warp_tensegrity.policy.calibrate.probe`): every figure the dry run prints, the time
+  limit and the memory checks read (:mod:`warp_tensegrity.sweep.budget`) and the progress bar's
+  first ETA start from the same prediction.
+
+No figure here is rescaled by the host's load at the time of the estimate: a probe taken under
+load says so (``under_load``) and is taken again once the host is idle (:mod:`.calibrate`).
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..types import Method
+
+HOST_COPIES = 4
+"""Host bytes a shard needs while stepping and measuring, in units of its output bytes
+(engine arrays, their float64 copies, measurement temporaries); calibrated by
+tests/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
+MEASURE_VALUES = 10
+"""Per-column scalars of the output (pulse measures, flags, errors)."""
+
+
+def fmt_bytes(b: float) -> str:
+    """'144.6 kB', '2.3 GB' (decimal units)."""
+    try:
+        b = float(b)
+    except OverflowError:  # an integer count beyond float range
+        b = math.inf
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
+        if abs(b) < 1000 or unit == "PB":
+            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.3g} {unit}"
+        b /= 1000.0
+    return f"{b:.3g} PB"  # pragma: no cover
+
+
+def fmt_seconds(s: float) -> str:
+    """A duration: '45s', '2m05s', '9h48m', '3.2 days', '?' when unknown."""
+    if not math.isfinite(s):
+        return "?"
+    if s >= 10 * 86400:
+        return f"{s / 86400:.3g} days"
+    s = int(round(s))
+    if s >= 3600:
+        return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+    if s >= 60:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s}s"
+
+
+def output_bytes_per_column(n_out: int, n_prisms: int, record_strain: bool, record_energy: bool = True) -> int:
+    """Bytes (float64) one column leaves in the output: measures and final state scalars, prism
+    heights, energy histories and the strain record when kept."""
+    return 8 * (MEASURE_VALUES + n_prisms + (2 * n_out if record_energy else 0) + (n_out * n_prisms if record_strain else 0))
+
+
+def state_bytes_per_column(run) -> int:
+    """The engine's device arrays per column (state, constraint band, cable rest lengths, energies;
+    the strain record when kept)."""
+    r = 4 if run.precision == "fp32" else 8
+    state_vecs = 5 + (6 if run.method == Method.RK4 else 0)
+    record = run.n_out * run.prisms_simulated if run.settings.record_strain else 0
+    return int(r * (3 * run.n_nodes * state_vecs + run.n_constraints * (run.bandwidth + 2) + 3 * run.n_cables
+                    + 2 * run.n_out + record))
+
+
+def host_bytes_per_column(run, record_strain: bool, record_energy: bool = True) -> int:
+    """Host bytes one column needs while its shard steps, is measured and written (the engine's
+    arrays too when the engine runs on the CPU)."""
+    out = output_bytes_per_column(run.n_out, run.prisms, record_strain, record_energy)
+    return HOST_COPIES * out + (0 if run.on_gpu else state_bytes_per_column(run))
+
+
+HOST_STAGES = ("import", "build", "compile", "transfer", "write", "finalise")
+"""Stages bound by the host CPU wherever the step runs (on the CPU device: every stage)."""
+
+
+def predict(cal: dict, run, shard_sizes: list[int], record_strain: bool, record_energy: bool = True,
+            planned_columns: int | None = None) -> dict:
+    """Stage seconds and memory of ``run`` over shards of ``shard_sizes`` columns, from a probe ``cal``
+    (:func:`~warp_tensegrity.policy.calibrate.probe`). ``planned_columns``: columns whose bound the
+    plan built (a sweep's; None: none beyond the shards)."""
+    P, n_out, n_steps = run.prisms, run.n_out, run.n_steps
+    st = dict.fromkeys(("import", "build", "compile", "stepping", "measurement", "transfer", "write", "finalise"), 0.0)
+    st["import"] = cal["import"]
+    st["compile"] = cal["compile"]
+    scale_T = n_out / max(cal["measure_samples"], 1)
+    out_total = 0
+    st["build"] = (cal["batch_fixed"] + cal["batch_per_column"] * planned_columns) if planned_columns else 0.0
+    out_col = output_bytes_per_column(n_out, P, record_strain, record_energy)
+    for b in shard_sizes:
+        st["build"] += cal["batch_fixed"] + cal["batch_per_column"] * b + cal["integrator_build"]
+        if cal["is_cuda"]:
+            # latency bound up to the probed width, then proportional
+            st["stepping"] += n_steps * cal["step_seconds"] * max(1.0, b / cal["probe_columns"])
+            st["measurement"] += cal["measure_seconds"] * scale_T * max(1.0, b / cal["probe_columns"])
+        else:
+            st["stepping"] += n_steps * cal["column_step_seconds"] * b
+            st["measurement"] += cal["measure_seconds"] * scale_T * b / cal["probe_columns"]
+        st["transfer"] += cal["transfer_per_byte"] * b * (output_bytes_per_column(n_out, P, record_strain) + 8 * 18 * (P + 1))
+        out_total += b * out_col
+        st["write"] += cal["io_write_fixed"] + cal["io_write_per_byte"] * b * out_col
+        # each shard is read back once to check it, and once more when combined
+        st["finalise"] += 2 * (cal["io_read_fixed"] + cal["io_read_per_byte"] * b * out_col)
+    st["finalise"] += cal["io_write_fixed"] + cal["io_write_per_byte"] * out_total
+    bmax = max(shard_sizes) if shard_sizes else 0
+    dev_bytes = cal["device_bytes_fixed"] + bmax * (cal["device_bytes_per_column"] + cal["strain_bytes_per_sample"] * n_out
+                                                    + 8 * (12 * P + 3 * n_out + 12))
+    # imports and kernels, the shards in flight, and the combine (every shard + the result)
+    host_peak = cal["base_rss"] + bmax * host_bytes_per_column(run, record_strain, record_energy) + 2 * out_total
+    return {"stages_s": st, "seconds": float(sum(st.values())), "device_bytes_per_shard": int(dev_bytes),
+            "host_bytes_per_shard": int(bmax * host_bytes_per_column(run, record_strain, record_energy)),
+            "host_bytes_per_column": int(host_bytes_per_column(run, record_strain, record_energy)),
+            "device_bytes_per_column": int(dev_bytes - cal["device_bytes_fixed"]) // max(bmax, 1),
+            "host_peak_bytes": int(host_peak), "output_bytes": int(out_total), "device": cal["device_label"],
+            "column_step_seconds": float(cal["column_step_seconds"]), "under_load": bool(cal.get("under_load"))}

@@ -1,0 +1,129 @@
+"""Which T3 columns the one-warp-per-column step (:mod:`warp_tensegrity.kernels.lanes`) takes, in
+NumPy alone, so the policy decides without loading Warp: the lane map's shape (:func:`lane_shape`),
+a built batch (:func:`lane_support`) and a scene before any batch is built (:func:`lane_refusal`);
+the two agree on column batches (tests/test_lanes.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..options import ColumnParameters
+from ..types import Base
+
+WARP = 32
+"""Lanes of a warp."""
+
+
+def lane_shape(n_prisms: int, max_levels: int = 4) -> tuple[int, int] | None:
+    """(P levels per lane, G lanes per column) for a column of ``n_prisms``; None if it needs more
+    than ``max_levels`` levels per lane (a warp holds at most 32 P levels)."""
+    n = max(int(n_prisms), 1)
+    P = -(-n // WARP)
+    if P > max_levels:
+        return None
+    lanes = -(-n // P)
+    G = 1
+    while G < lanes:
+        G *= 2
+    return P, G
+
+
+MAX_LEVELS_PER_LANE = 4
+"""Most levels (prisms) a lane holds in registers: 128 prisms a warp."""
+MAX_RIGID_LEVELS_PER_LANE = 2
+"""Most levels per lane once a column has rigid base links (their 3 x 3 blocks): 64 prisms."""
+
+
+def _column_members(n: int, hand: np.ndarray):
+    """Bars, cross cables and base members of an n-prism column in column_batch's order."""
+    m = np.repeat(np.arange(n), 3)
+    k = np.tile(np.arange(3), n)
+    bars = np.stack([3 * m + k, 3 * m + 3 + k], axis=1)
+    kk = np.where(np.repeat(hand, 3) > 0, (k + 2) % 3, (k + 1) % 3)
+    cross = np.stack([3 * m + k, 3 * m + 3 + kk], axis=1)
+    lv = np.repeat(np.arange(n + 1), 3)
+    kb = np.tile(np.arange(3), n + 1)
+    base = np.stack([3 * lv + kb, 3 * lv + (kb + 1) % 3], axis=1)
+    return bars, cross, base
+
+
+def _uniform(a: np.ndarray) -> bool:
+    """Every member of a kind holds the same value in each column ((Bp, k) arrays)."""
+    return a.shape[1] == 0 or bool(np.all(a == a[:, :1]))
+
+
+def lane_support(batch) -> str | None:
+    """None if the lane step takes this batch, else why not (one sentence)."""
+    ln = batch.level_nodes
+    if ln is None:
+        return "not a T3 column (no levels)"
+    n = ln.shape[0] - 1
+    if n < 1 or not np.array_equal(ln, np.arange(3 * (n + 1)).reshape(n + 1, 3)):
+        return "the column's nodes are not numbered level by level"
+    if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
+        return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a 32-lane warp"
+    if batch.positions.shape[0] != 3 * (n + 1):
+        return "nodes other than the column's"
+    if np.any(batch.constraint_mass != 0):
+        return "massive bars (consistent bar inertia couples node pairs)"
+    fixed = np.zeros(3 * (n + 1), dtype=bool)
+    fixed[:3] = True
+    if not np.array_equal(batch.fixed, fixed):
+        return "a boundary other than the clamped level 0"
+    # handedness from the cross cables; then every member list must be column_batch's
+    if batch.cables.shape[0] != 6 * n + 3:
+        return "a member layout other than column_batch's"
+    top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
+    hand = np.where(top == 2, 1, -1)
+    bars, cross, base = _column_members(n, hand)
+    if not np.array_equal(batch.cables, np.concatenate([cross, base])):
+        return "a member layout other than column_batch's"
+    active = batch.constraint_active
+    if np.array_equal(batch.constraints, bars):
+        if np.any(active != 1):
+            return "inactive bars"
+    else:
+        # rigid base links: prism m's bars, then the links of level m + 1 (column_batch's order)
+        links = base[3:].reshape(n, 3, 2)
+        if not np.array_equal(batch.constraints, np.concatenate([bars.reshape(n, 3, 2), links], axis=1).reshape(-1, 2)):
+            return "a constraint layout other than column_batch's"
+        if n > WARP * MAX_RIGID_LEVELS_PER_LANE:
+            return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
+                    "prisms (2 levels per lane)")
+        a = active.reshape(active.shape[0], n, 6)
+        if np.any(a[:, :, :3] != 1):
+            return "inactive bars"
+        if np.any(a[:, :, 3:] != a[:, :1, 3:4]) or np.any((a[:, 0, 3] != 0) & (a[:, 0, 3] != 1)):
+            return "a column whose base links are partly rigid"
+    m = batch.node_mass.reshape(batch.node_mass.shape[0], n + 1, 3)
+    if np.any(m != m[:, :, :1]):
+        return "nodes of one level with different masses"
+    z = batch.positions[:, 2].reshape(n + 1, 3)
+    if np.any(z != z[:, :1]):
+        return "a base that is not horizontal"
+    c, b = slice(0, 3 * n), slice(3 * n, None)
+    for name in ("cable_EA", "cable_EA_compression"):
+        if not _uniform(getattr(batch, name)[:, c]):
+            return f"cross cables of one column with different {name}"
+    for name in ("cable_EA", "cable_EA_compression"):
+        if not _uniform(getattr(batch, name)[:, b]):
+            return f"base members of one column with different {name}"
+    return None
+
+
+def lane_refusal(config, params: dict, n_prisms: int | None = None) -> str | None:
+    """Why the lane step would not take T3 columns of scene ``config`` with the per-column ``params``
+    when ``n_prisms`` of their prisms are simulated (default: all); None if it takes them. The
+    scene-level form of :func:`lane_support`: massless bars, at most ``MAX_LEVELS_PER_LANE`` levels
+    per lane of a 32-lane warp, and at most ``MAX_RIGID_LEVELS_PER_LANE`` once a column has rigid
+    bases (base_rigidity = 1)."""
+    n = config.n_prisms if n_prisms is None else int(n_prisms)
+    rigid = np.any(np.asarray(params.get("base_rigidity", ColumnParameters.base_rigidity), dtype=np.float64) >= Base.RIGID)
+    if rigid and n > WARP * MAX_RIGID_LEVELS_PER_LANE:
+        return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
+                "prisms (2 levels per lane)")
+    if config.bar_mass > 0:
+        return "massive bars (consistent bar inertia couples node pairs)"
+    if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
+        return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a {WARP}-lane warp"
+    return None
