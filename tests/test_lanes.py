@@ -196,9 +196,9 @@ def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
     sweep of longer columns (decided per sweep)."""
     from types import SimpleNamespace
 
-    from warp_tensegrity import runtime
+    from warp_tensegrity.policy import decide as policy_decide
 
-    monkeypatch.setattr(runtime, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0"))
+    monkeypatch.setattr(policy_decide, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0"))
     text = '[scene]\nn_prisms = %d\nimpact_admissibility = "end_twist"\n' \
            '[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
            '[run]\nt_end = 0.01\nprecision = "fp32"\ntruncate = false\n'

@@ -272,10 +272,10 @@ def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
     4,096 and 1,024 columns, staged at 65,536 (a stand-in device: CI has no GPU)."""
     from types import SimpleNamespace
 
-    from warp_tensegrity import runtime
+    from warp_tensegrity.policy import decide as policy_decide
     from warp_tensegrity.policy.decide import decide
 
-    monkeypatch.setattr(runtime, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0"))
+    monkeypatch.setattr(policy_decide, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0"))
 
     def estimate_batch(cfg, params, s):  # the run plan the dry run prints
         return {"step_path": str(decide(cfg, params, s).path.value)}

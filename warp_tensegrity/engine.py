@@ -15,9 +15,10 @@ from functools import partial
 import numpy as np
 
 from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch, far_end
+from .policy.paths import lane_emulation
 from .arguments import expect, expect_callable
 from .result import BatchResult
-from .runtime import init_warp
+from .runtime import init_warp, resolve_device
 from .scene.base_modes import beta_limit_measures
 from .scene.batch import NetworkBatch, column_batch, column_params, reference_elastic_energy, reference_states
 from .scene.columns import ColumnConfig
@@ -42,8 +43,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         expect("run_batch", "settings", settings, RunSettings)
         plan = decide_batch(batch, settings)
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
-    from .integrate import Integrator, resolve_device  # Warp loads here, not when a spec is read
-    from .policy.paths import lane_emulation
+    from .integrate import Integrator  # Warp loads with the first run, not with the package
 
     settings, dt, every, n_steps, n_out, path = plan.settings, plan.dt, plan.output_every, plan.n_steps, plan.n_out, plan.path
     device = resolve_device(plan.device)
@@ -55,7 +55,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
     measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"
     if measure_here:
-        from .measure.device import load_kernels, measure_record
+        from .measure.device import load_kernels, measure_record  # imports Warp
 
         t0 = time.perf_counter()
         load_kernels(integ.device)

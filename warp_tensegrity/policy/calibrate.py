@@ -25,15 +25,22 @@ import hashlib
 import json
 import math
 import os
+import platform
 import resource
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 
+from ..provenance import code_version
+from ..runtime import resolve_device, startup_seconds
+from ..scene.batch import column_batch, column_params
+from ..types import Path as StepPath
 from .cost import predict
 from .decide import RunPlan, check_batch_arguments, decide, far_end
+from .paths import lane_emulation
 
 PROBE_STEPS = 300
 """Steps timed by the probe (after a first segment of PROBE_WARM_STEPS)."""
@@ -61,10 +68,6 @@ def cache_dir() -> Path:
 
 def device_label(name=None) -> str:
     """'cpu (x86_64, 2 cores)' or 'cuda:0 (NVIDIA H100 80GB HBM3)': the device a run will use."""
-    import platform
-
-    from ..runtime import resolve_device  # loads Warp
-
     d = resolve_device(name)
     if d.is_cuda:
         return f"{d.alias} ({d.name})"
@@ -73,8 +76,6 @@ def device_label(name=None) -> str:
 
 def _busy_seconds() -> tuple[float, float]:
     """(CPU seconds of the whole host, of this process) so far."""
-    import psutil
-
     t = psutil.cpu_times()
     own = psutil.Process().cpu_times()
     return (t.user + t.nice + t.system + getattr(t, "irq", 0.0) + getattr(t, "softirq", 0.0)
@@ -109,8 +110,6 @@ def _probe_columns(n_columns: int, shard: int, is_cuda: bool) -> np.ndarray:
 
 
 def _key(config, params: dict, run: RunPlan, shard: int) -> tuple[str, dict]:
-    from ..provenance import code_version
-
     cols = _probe_columns(params["prestrain"].size, shard, run.on_gpu)
     s = run.settings
     desc = {
@@ -167,9 +166,9 @@ def _array_bytes(obj, B: int) -> tuple[int, int]:
 
 def _io_rates(tmp: Path) -> dict:
     """netCDF write and read seconds per byte (and per file) on this host, from a few-MB file."""
-    import xarray as xr
+    import xarray as xr  # xarray (and pandas) load with a probe, not with the package
 
-    from .. import io as D
+    from .. import io as D  # imports xarray
 
     rng = np.random.default_rng(0)
     out = {}
@@ -209,14 +208,10 @@ def probe(config, params: dict, run: RunPlan, shard_size: int, use_cache: bool =
 
 
 def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
-    import warp as wp
+    import warp as wp  # Warp and the kernels load with a probe, not with the package
 
-    from ..integrate import Integrator  # Warp and the kernels: only a probe needs them
-    from ..measure.device import load_kernels, measure_record
-    from ..policy.paths import lane_emulation
-    from ..runtime import resolve_device, startup_seconds
-    from ..scene.batch import column_batch
-    from ..types import Path as StepPath
+    from ..integrate import Integrator  # imports Warp
+    from ..measure.device import load_kernels, measure_record  # imports Warp
 
     busy = busy_start()
     device = resolve_device(run.device)
@@ -321,8 +316,6 @@ def estimate_batch(config, params: dict, settings, recalibrate: bool = False) ->
     with time and memory from a probe on the device (:func:`probe`, cached; ``recalibrate`` renews
     it): ``seconds_estimate`` (build, stepping, measurement, transfer), ``stages_estimate``,
     ``device_bytes_estimate``, ``device_label``. ``params`` as ``simulate_batch`` takes them."""
-    from ..scene.batch import column_params
-
     params = column_params(config, check_batch_arguments("estimate_batch", config, params, settings))
     run = decide(config, params, settings)
     B = int(params["prestrain"].size)

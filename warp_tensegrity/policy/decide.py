@@ -17,6 +17,7 @@ import numpy as np
 
 from ..arguments import expect, expect_callable, expect_count, expect_params
 from ..options import RunSettings
+from ..runtime import resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
 from ..types import Base, Path
@@ -155,12 +156,6 @@ def _topology_batch(config: ColumnConfig, params: dict) -> NetworkBatch:
     return column_batch(config, {k: v[rows] for k, v in params.items()})
 
 
-def _resolve_device(name: str | None):
-    from ..runtime import resolve_device  # loads Warp: a spec is read without it
-
-    return resolve_device(name)
-
-
 def decide(config: ColumnConfig, params: dict, settings: RunSettings, *, n_columns: int | None = None,
            prisms_simulated: int | None = None) -> RunPlan:
     """The run of T3 columns of scene ``config`` with the per-column ``params`` (arrays (B,) or
@@ -198,7 +193,7 @@ def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: st
     """The plan from the bound, a batch with every member of the run's (``topology``) and the rest."""
     bandwidth = gram_bandwidth(topology)
     dt, limit, n_steps, every = choose_timestep(settings, omega)
-    device = _resolve_device(settings.device)
+    device = resolve_device(settings.device)  # initialises Warp (quietly)
     path = choose_path(settings, device.is_cuda, n_columns, bandwidth, lanes)
     reasons.append(f"dt = {dt:.4g} s: " + (f"{settings.dt_safety:.3g} x the stability limit {limit:.4g} s"
                                           if settings.dt == "auto" else "given"))
