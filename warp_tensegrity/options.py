@@ -115,6 +115,8 @@ class Opt:
     """Appended to the error when the bounds are broken."""
     default_text: str | None = None
     """The default as the docs show it, when it is not a plain value (e.g. the scene's EA)."""
+    long_name: str = ""
+    """CF ``long_name`` of the coordinate a per-column parameter becomes in the datasets (io)."""
 
     # -- the rule in words, shared by errors and the docs table
     def bounds(self) -> str:
@@ -314,17 +316,22 @@ def build(cls, values: dict, prefix: str = ""):
 class ColumnParameters:
     """The per-column parameters of a batch or a sweep (each column may have its own)."""
 
-    prestrain: Annotated[float, Opt("real", "1", ge=0, lt=1, why="the cross-cable prestrain p; 1 would put the cables' rest length at zero")] = 0.0
+    prestrain: Annotated[float, Opt("real", "1", ge=0, lt=1, why="the cross-cable prestrain p; 1 would put the cables' rest length at zero",
+                                    long_name="cross-cable prestrain p")] = 0.0
     """Cross-cable prestrain p [1]."""
-    v0: Annotated[float, Opt("real", "m s-1", ge=0, why="v0 is the compressive impact speed of the free end")] = 0.0
+    v0: Annotated[float, Opt("real", "m s-1", ge=0, why="v0 is the compressive impact speed of the free end",
+                             long_name="compressive impact speed at the free end")] = 0.0
     """Compressive impact speed of the free end [m s-1]."""
-    base_rigidity: Annotated[float, Opt("real", "1", ge=0, le=1, why="0 flexible bases (FB), 1 rigid bases (RB)")] = 0.0
+    base_rigidity: Annotated[float, Opt("real", "1", ge=0, le=1, why="0 flexible bases (FB), 1 rigid bases (RB)",
+                                        long_name="base rigidity (0: flexible bases FB, 1: rigid bases RB)")] = 0.0
     """Base rigidity beta [1]: 0 flexible bases (FB), 1 rigid bases (RB), elastic in between."""
     cable_EA: Annotated[float | None, Opt("real", "N", gt=0, le=MAX_EA, optional=True,
-                                          default_text="scene's E_s pi r_s^2")] = None
+                                          default_text="scene's E_s pi r_s^2",
+                                          long_name="axial stiffness E*A of the cables")] = None
     """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2."""
     unit_mass: Annotated[float | None, Opt("real", "kg", ge=MASS[0], le=MASS[1], optional=True,
-                                           default_text="scene's unit_mass")] = None
+                                           default_text="scene's unit_mass",
+                                           long_name="mass per unit (prism), lumped on the bases")] = None
     """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
 
 
