@@ -21,7 +21,7 @@ MAX_CHAIN = 7  # issue 15
 LAYERS = [
     {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse_core", "measure.pulse",
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
-     "lens.host", "lens.design", "tomlread", "scene.sparse", "arguments"},  # leaves
+     "lens.host", "lens.design", "tomlread", "scene.sparse", "arguments", "options_lens"},  # leaves
     {"settings", "scene.columns", "scene.base_modes", "kernels.common", "kernels.coop", "kernels.staged",
      "kernels.staged_solver", "kernels.lane_ops", "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
