@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     from warp_tensegrity.runtime import default_device
     from warp_tensegrity.scene.columns import ColumnConfig
     from warp_tensegrity.settings import RunSettings
-    from warp_tensegrity.settings import STATUS_NAMES
+    from warp_tensegrity.types import STATUS_MEANINGS
 
     device = args.device or default_device()
     cfg = ColumnConfig(n_prisms=args.prisms)
@@ -153,7 +153,7 @@ def main(argv=None) -> int:
                 ref = np.array([i for i in range(B) if i != at])
                 iso = _compare(rb, r1, rows_a=others, rows_b=ref)
                 # the good columns at the bad one's place differ only in that one column: compare the rest
-                iso.update({"bad_status": int(rb.status[at]), "bad_reason": STATUS_NAMES.get(int(rb.status[at])),
+                iso.update({"bad_status": int(rb.status[at]), "bad_reason": STATUS_MEANINGS.get(int(rb.status[at])),
                             "bad_fail_step": int(rb.fail_step[at]),
                             "other_columns_failed": int(np.count_nonzero(rb.status[others]))})
                 rec["isolation"][kind] = iso

@@ -14,7 +14,7 @@ import xarray as xr
 from warp_tensegrity import io as D
 from warp_tensegrity import sweep
 from warp_tensegrity import BatchResult
-from warp_tensegrity.settings import STATUS_NAMES
+from warp_tensegrity.types import STATUS_MEANINGS
 from warp_tensegrity.sweep import parse_spec
 
 CASES = """
@@ -77,8 +77,8 @@ def test_every_variable_has_cf_attributes(case_run):
     assert ds["v0"].attrs["units"] == "m s-1" and ds["t"].attrs["units"] == "s"
     assert ds["speed"].attrs["units"] == "m s-1" and ds["arrival_time"].attrs["units"] == "s"
     st = ds["status"]
-    assert list(st.attrs["flag_values"]) == sorted(STATUS_NAMES)
-    assert len(st.attrs["flag_meanings"].split()) == len(STATUS_NAMES)
+    assert list(st.attrs["flag_values"]) == sorted(STATUS_MEANINGS)
+    assert len(st.attrs["flag_meanings"].split()) == len(STATUS_MEANINGS)
     assert st.attrs["flag_meanings"].split()[0] == "ok"
 
 
@@ -168,7 +168,7 @@ def test_write_is_atomic(tmp_path, monkeypatch):
     spec = parse_spec(CASES)
     res = _fake_result(2)
     meas = {k: np.ones(2) for k in ("amplitude", "speed", "width", "width_10", "prisms_measured")} | {"arrival_time": np.ones((2, 5))}
-    ds = D.shard_dataset(spec, spec.column_params(), 0, 2, res, meas, {"case_start": 0, "case_stop": 2})
+    ds = D.shard_dataset(spec.layout(), spec.column_params(), 0, 2, res, meas, {"case_start": 0, "case_stop": 2})
     path = tmp_path / "s.nc"
     D.write_netcdf(ds, path)
     before = path.read_bytes()
@@ -210,3 +210,14 @@ def test_to_xarray_is_the_cli_layout(case_run):
         np.testing.assert_allclose(mine[k].values, cli[k].values, rtol=1e-12, atol=0, equal_nan=True)
     for k in ("git_commit", "warp_version", "device", "method", "dt", "n_steps"):
         assert mine.attrs[k] == cli.attrs[k], k
+
+
+def test_parameter_coordinates_take_their_units_from_the_options():
+    """The per-column parameters' coordinate attributes come from their one declaration
+    (options.ColumnParameters: unit and long_name), not from a second table in io (issue 26)."""
+    from warp_tensegrity.options import COLUMN_PARAMETERS, ColumnParameters, opt_of
+
+    for p, unit in COLUMN_PARAMETERS.items():
+        o = opt_of(ColumnParameters, p)
+        assert o.long_name, p
+        assert D.COORD_ATTRS[p] == {"units": unit, "long_name": o.long_name}, p

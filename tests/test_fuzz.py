@@ -88,7 +88,7 @@ SCENE_RULES = {
 }
 PARAM_RULES = {
     "prestrain": lambda x: _real(x) and 0 <= x < 1,  # p = 1: zero cable rest length
-    "v0": lambda x: _real(x) and x >= 0,  # compressive impact speed
+    "v0": lambda x: _real(x) and 0 <= x <= 1e4,  # compressive impact speed, up to 10 km/s
     "base_rigidity": lambda x: _real(x) and 0 <= x <= 1,  # FB .. RB
     "cable_EA": lambda x: _real(x) and 0 < x <= 1e20,
     "unit_mass": lambda x: _real(x) and 1e-15 <= x <= 1e6,

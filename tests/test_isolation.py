@@ -14,7 +14,7 @@ from warp_tensegrity.engine import simulate_batch
 from warp_tensegrity.policy.decide import prisms_to_simulate
 from warp_tensegrity.scene.columns import ColumnConfig
 from warp_tensegrity.settings import RunSettings
-from warp_tensegrity.settings import STATUS_NAMES
+from warp_tensegrity.types import STATUS_MEANINGS
 from warp_tensegrity.types import Status
 
 CFG = ColumnConfig(n_prisms=6)
@@ -75,7 +75,7 @@ def test_one_diverging_column_leaves_the_others_bit_identical(path, absurd, devi
 
     # the bad column is flagged with the step and the reason
     status, step = int(with_bad.status[AT]), int(with_bad.fail_step[AT])
-    assert status != Status.OK and status in STATUS_NAMES, status
+    assert status != Status.OK and status in STATUS_MEANINGS, status
     assert 0 <= step <= with_bad.n_steps
     t_fail = step * with_bad.dt
     late = with_bad.time > t_fail + with_bad.dt * 1.0001

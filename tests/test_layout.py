@@ -22,7 +22,7 @@ MAX_CHAIN = 7  # issue 15
 LAYERS = [
     {"types", "options", "options_docs", "scene.network", "scene.impact", "measure.pulse_core", "measure.pulse",
      "sweep.errors", "sweep.budget", "sweep.progress", "sweep.manifest", "provenance", "runtime", "_version",
-     "lens.host", "lens.design", "tomlread", "scene.sparse", "arguments"},  # leaves
+     "lens.host", "lens.design", "tomlread", "scene.sparse", "arguments", "options_lens"},  # leaves
     {"settings", "scene.columns", "scene.base_modes", "kernels.common", "kernels.coop", "kernels.staged",
      "kernels.staged_solver", "kernels.lane_ops", "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes",
      "kernels.fused", "kernels", "model", "measure", "measure.nan_reasons", "io", "measure.device_funcs",
@@ -124,7 +124,43 @@ def test_import_chains_are_short():
 def test_contract_checker_sees_real_edges():
     g = import_graph()
     assert "integrate" in g["engine"] and "kernels.common" in g["kernels.fused"] and "engine" in g["sweep.plan"]
-    assert "sweep.spec" not in g["io"] and "sweep.plan" in g["sweep.shard"]  # TYPE_CHECKING counts too
+    assert "sweep.spec" not in g["io"] and "io" in g["sweep.store"]
+    assert "sweep.plan" in g["sweep.shard"]  # TYPE_CHECKING and function-level imports count too
+
+
+def _imported_names(path: Path) -> set[str]:
+    """Every module and name imported by a file, TYPE_CHECKING blocks and function bodies included."""
+    names = set()
+    for n in ast.walk(ast.parse(path.read_text())):
+        if isinstance(n, ast.ImportFrom):
+            names.add("." * n.level + (n.module or ""))
+            names.update(a.name for a in n.names)
+        elif isinstance(n, ast.Import):
+            names.update(a.name for a in n.names)
+    return names
+
+
+def test_io_imports_no_sweep_type():
+    """io lays out a sweep's datasets from a types.Layout value (``SweepSpec.layout()``): it imports no
+    sweep module, not even under TYPE_CHECKING, so engine -> result -> io has no hidden way back up
+    (issue 26)."""
+    path = ROOT / PKG / "io.py"
+    names = _imported_names(path)
+    assert not [m for m in names if "sweep" in m.lstrip(".").split(".")], names
+    assert "SweepSpec" not in path.read_text() and "TYPE_CHECKING" not in path.read_text()
+
+
+def test_status_meanings_are_one_table():
+    """The column status's meanings are one dict, types.STATUS_MEANINGS: no module builds another
+    (settings and io each rebuilt it as STATUS_NAMES; io's STATUS_MEANINGS shadowed it; issue 26)."""
+    defined = []
+    for m, p in _modules().items():
+        for n in ast.walk(ast.parse(p.read_text())):
+            targets = n.targets if isinstance(n, ast.Assign) else [n.target] if isinstance(n, ast.AnnAssign) else []
+            table = isinstance(getattr(n, "value", None), (ast.Dict, ast.DictComp))
+            defined += [(m, t.id) for t in targets if isinstance(t, ast.Name) and t.id.startswith("STATUS_")
+                        and (table or t.id in ("STATUS_NAMES", "STATUS_MEANINGS"))]
+    assert defined == [("types", "STATUS_MEANINGS")], defined
 
 
 @pytest.mark.parametrize("code", [

@@ -208,6 +208,52 @@ def test_spec_errors_name_key_and_value(path, value, words):
         assert w in str(e.value), (w, str(e.value))
 
 
+def _sweep_error(table: str) -> str:
+    """The message a sweep spec gives for ``table`` (TOML), after its key path."""
+    from warp_tensegrity.sweep import SpecError, parse_spec
+
+    text = "[scene]\nn_prisms = 3\n[sweep]\ngrid = { prestrain = [0.0] }\n[run]\nt_end = 0.1\n"
+    with pytest.raises(SpecError) as e:
+        parse_spec(text.replace("[run]\nt_end = 0.1\n", table) if "[run]" in table else text + table)
+    return str(e.value).split(" = ", 1)[1]
+
+
+@pytest.mark.parametrize("path, value, sweep_table", [
+    ("incident.v0", 2e4, "[sweep.fixed]\nv0 = 2e4\n"),  # the lens allowed <= 10, sweeps any v0 >= 0
+    ("incident.v0", -1.0, "[sweep.fixed]\nv0 = -1.0\n"),
+    ("column.base_rigidity", 2.0, "[sweep.fixed]\nbase_rigidity = 2.0\n"),
+    ("run.t_end", 2e9, "[run]\nt_end = 2e9\n"),  # the lens allowed <= 1e3 s, sweeps ~30 years
+    ("run.dt", 1e-20, "[run]\nt_end = 0.1\ndt = 1e-20\n"),
+])
+def test_lens_bounds_are_the_sweeps(path, value, sweep_table):
+    """The lens has no option system of its own (issue 26): a key it shares with sweeps has the
+    sweeps' bound, from options.py, and the same message after the key path."""
+    with pytest.raises(LensSpecError) as e:
+        parse_lens_spec(_with(path, value), "t.toml")
+    lens = str(e.value).split(f"{path} = ", 1)[1]
+    assert lens == _sweep_error(sweep_table), (lens, _sweep_error(sweep_table))
+
+
+def test_lens_options_are_declared_in_the_options_layer():
+    """lens/spec.py declares no option (no pydantic Field, no bound of its own): it reads the
+    classes of options_lens, which reuse the sweeps' declarations (issue 26)."""
+    from warp_tensegrity import options as O
+    from warp_tensegrity import options_lens as OL
+
+    src = (Path(__file__).resolve().parents[1] / "warp_tensegrity" / "lens" / "spec.py").read_text()
+    import re
+
+    assert "Field(" not in src and "BaseModel" not in src and not re.search(r"\b(ge|gt|le|lt)=", src)
+    assert O.opt_of(OL.LensIncident, "v0") is O.opt_of(O.ColumnParameters, "v0")
+    assert O.opt_of(OL.LensRun, "t_end") is O.opt_of(O.RunSettings, "t_end")
+    assert O.opt_of(OL.LensCalibration, "prestrain_max") is O.opt_of(O.ColumnParameters, "prestrain")
+
+
+def test_lens_v0_must_strike():
+    with pytest.raises(LensSpecError, match=r"incident.v0 = 0.0: must be > 0 \[m s-1\]"):
+        parse_lens_spec(_with("incident.v0", 0.0))
+
+
 def test_spec_missing_design_and_line_plane():
     d = dict(BASE)
     d.pop("design")

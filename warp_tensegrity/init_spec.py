@@ -1,7 +1,7 @@
 """``warp-tensegrity init [--example paper|phase|lens] [-o SPEC.toml]``: a commented starting spec.
 
 The text is generated from the options model (:func:`~warp_tensegrity.options_docs.options_table`
-for sweep specs, the pydantic models of :mod:`warp_tensegrity.lens.spec` for lens specs): every
+for sweep specs, :func:`~warp_tensegrity.options_docs.lens_options_table` for lens specs): every
 option of every table is listed with its unit, rule and meaning, the example's own values set and
 the others commented out at their defaults, so the starting spec can never drift from the code.
 A test runs each written spec (``tests/test_options.py``).
@@ -49,6 +49,8 @@ def _toml(value) -> str:
 
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml(x) for x in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
     return tomli_w.dumps({"v": value}).strip()[4:]
 
 
@@ -64,7 +66,7 @@ def _option_lines(row: dict, value=None) -> list[str]:
     default = row["default"]
     shown = default if default.startswith('"') or default in ("true", "false") else default
     ok = shown.replace(".", "", 1).replace("e", "", 1).replace("-", "").replace("+", "").isdigit() \
-        or shown.startswith('"') or shown in ("true", "false")
+        or shown.startswith('"') or shown in ("true", "false", "inf")
     return lines + [f"# {row['key']} = {shown}" if ok else f"# {row['key']} = ...  ({default})", ""]
 
 
@@ -95,46 +97,27 @@ def sweep_spec_text(example: str) -> str:
     return "\n".join(out).rstrip() + "\n"
 
 
-def _model_lines(model, values: dict, skip=()) -> list[str]:
-    """One commented option per field of a lens section (pydantic model), its example value set."""
-    out = []
-    for name, f in model.model_fields.items():
-        if name in skip:
-            continue
-        doc = f.description or ""
-        default = None if f.is_required() else (f.default_factory() if f.default_factory else f.default)
-        shown = "unset" if default is None else _toml(default)
-        out += _comment(f"{name}: {doc}." + (" Required." if f.is_required() else f" Default: {shown}."))
-        if name in values:
-            out.append(f"{name} = {_toml(values[name])}")
-        elif not f.is_required() and default not in ({}, None):
-            out.append(f"# {name} = {shown}")
-        out.append("")
-    return out
-
-
 def lens_spec_text() -> str:
-    """The commented lens spec (the models of :mod:`warp_tensegrity.lens.spec`, the CI lens's values)."""
-    from .lens.spec import LensSpec
+    """The commented lens spec (every option of :mod:`warp_tensegrity.options_lens`, the CI lens's values)."""
+    from .options_docs import lens_options_table
+    from .options_lens import LENS_SECTIONS
 
-    values = {"column": {"base_rigidity": 1.0}, "array": {"count": 8, "spacing": 0.012},
-              "calibration": {"count": 64}, "design": {"focal_points": [[0.0, 0.0, 0.06], [0.015, 0.0, 0.07]]},
+    values = {"": {"title": "My lens"}, "column": {"base_rigidity": 1.0, "scene": {"n_prisms": 10}},
+              "array": {"count": 8, "spacing": 0.012}, "calibration": {"count": 64},
+              "design": {"focal_points": [[0.0, 0.0, 0.06], [0.015, 0.0, 0.07]]},
               "map": {"half_width": 0.03, "half_depth": 0.03, "points": 25},
               "run": {"t_end": 0.9, "output_interval": 0.002}}
     out = _comment(f"warp_tensegrity lens spec: {EXAMPLES['lens']}. Written by `warp-tensegrity init "
-                   "--example lens` from the lens spec's model; run it with `warp-tensegrity lens THIS.toml "
-                   "-o OUT.nc`. Units are SI.")
-    out += ["", 'title = "My lens"', ""]
-    for section, f in LensSpec.model_fields.items():
-        if section in ("title", "description"):
-            continue
-        model = f.annotation
-        out += [f"[{section}]"] + _comment(" ".join((model.__doc__ or "").split())) + [""]
-        if section == "column":
-            out += _comment("scene: a [column.scene] table of ColumnConfig options (n_prisms, radius, ...; see "
-                            "`warp-tensegrity init --example phase`); unset ones take the paper's values.")
-            out += ["scene = { n_prisms = 10 }", ""]
-        out += _model_lines(model, values.get(section, {}), skip=("scene",))
+                   "--example lens` from the lens options model; run it with `warp-tensegrity lens THIS.toml "
+                   "-o OUT.nc`. Every key: docs/lens.md. Units are SI.")
+    out.append("")
+    rows = lens_options_table()
+    for section, cls in LENS_SECTIONS.items():
+        if section:
+            out += [f"[{section}]"] + _comment(" ".join((cls.__doc__ or "").split())) + [""]
+        for row in rows:
+            if row["section"] == section:
+                out += _option_lines(row, values.get(section, {}).get(row["key"]))
     return "\n".join(out).rstrip() + "\n"
 
 

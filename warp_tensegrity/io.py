@@ -29,20 +29,15 @@ import json
 import os
 import time as _time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
 
 from .scene.impact import kinematic_lock_strain
-from .options import COLUMN_PARAMETERS  # declared once, with units and bounds: options.ColumnParameters
-from .types import BETA_LIMIT_FLAGS, MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME
-
-if TYPE_CHECKING:
-    from .sweep.spec import SweepSpec
+from .options import COLUMN_PARAMETERS, ColumnParameters, opt_of
+from .types import BETA_LIMIT_FLAGS, MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME, Layout
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-STATUS_NAMES = {int(k): v for k, v in STATUS_MEANINGS.items()}
 
 CONVENTIONS = "CF-1.10"
 REFERENCES = (
@@ -70,14 +65,10 @@ def flag_attrs(long_name: str, names: dict, standard_name: str = "status_flag") 
             "flag_values": np.array(codes, dtype=np.int8), "flag_meanings": words}
 
 
-STATUS_MEANINGS = flag_attrs("", STATUS_NAMES)["flag_meanings"]
-
 COORD_ATTRS = {
-    "prestrain": {"units": "1", "long_name": "cross-cable prestrain p"},
-    "v0": {"units": "m s-1", "long_name": "compressive impact speed at the free end"},
-    "base_rigidity": {"units": "1", "long_name": "base rigidity (0: flexible bases FB, 1: rigid bases RB)"},
-    "cable_EA": {"units": "N", "long_name": "axial stiffness E*A of the cables"},
-    "unit_mass": {"units": "kg", "long_name": "mass per unit (prism), lumped on the bases"},
+    # the per-column parameters: units and long_name as declared, once, in options.ColumnParameters
+    **{p: {"units": opt_of(ColumnParameters, p).unit, "long_name": opt_of(ColumnParameters, p).long_name}
+       for p in COLUMN_PARAMETERS},
     "case": {"units": "1", "long_name": "column index in the sweep"},
     "case_label": {"long_name": "case label from the spec"},
     "prism": {
@@ -121,7 +112,7 @@ VAR_ATTRS = {
                                   "(docs/impact.md)", dict(enumerate(BETA_LIMIT_FLAGS))),
     "measurement_flag": flag_attrs("why the pulse measures of the column are NaN (ok: all defined; "
                                    "docs/measurements.md)", dict(enumerate(MEASUREMENT_FLAGS))),
-    "status": flag_attrs("column status at the end of the run", STATUS_NAMES),
+    "status": flag_attrs("column status at the end of the run", STATUS_MEANINGS),
     "fail_step": {"units": "1", "long_name": "time step at which a failed column was frozen (-1: never failed)"},
     "energy_error": {
         "units": "1",
@@ -152,19 +143,19 @@ def _attr(v):
     return v
 
 
-def spec_attrs(spec: SweepSpec) -> dict:
-    """Global attributes that follow from the spec alone."""
-    r = spec.run
+def spec_attrs(layout: Layout) -> dict:
+    """Global attributes that follow from the sweep's spec alone (its :class:`Layout`)."""
+    r = layout.run
     a = {
         "Conventions": CONVENTIONS,
-        "title": spec.title or f"warp_tensegrity sweep{f' {Path(spec.source).name}' if spec.source else ''}",
+        "title": layout.title or f"warp_tensegrity sweep{f' {Path(layout.source).name}' if layout.source else ''}",
         "references": REFERENCES,
-        "spec": spec.text,
-        "spec_sha256": spec.text_sha256,
-        "spec_file": Path(spec.source).name if spec.source else "none",
-        "sweep_kind": spec.kind,
-        "swept_parameters": " ".join(spec.swept),
-        "n_columns": spec.n_columns,
+        "spec": layout.text,
+        "spec_sha256": layout.text_sha256,
+        "spec_file": Path(layout.source).name if layout.source else "none",
+        "sweep_kind": layout.kind,
+        "swept_parameters": " ".join(layout.swept),
+        "n_columns": layout.n_columns,
         "method": r["method"],
         "precision": r["precision"],
         "dt_mode": "auto" if isinstance(r["dt"], str) else "explicit",
@@ -176,12 +167,12 @@ def spec_attrs(spec: SweepSpec) -> dict:
         "record_strain": r["record_strain"],
         "record_energy": r["record_energy"],
     }
-    if spec.description:
-        a["comment"] = spec.description
-    for f in dataclasses.fields(spec.scene):  # the ColumnConfig
-        a[f"scene_{f.name}"] = getattr(spec.scene, f.name)
-    a["scene_cable_EA"] = float(spec.scene.cable_EA)
-    sc = spec.scene
+    if layout.description:
+        a["comment"] = layout.description
+    for f in dataclasses.fields(layout.scene):  # the ColumnConfig
+        a[f"scene_{f.name}"] = getattr(layout.scene, f.name)
+    a["scene_cable_EA"] = float(layout.scene.cable_EA)
+    sc = layout.scene
     a["kinematic_lock_compression"] = -kinematic_lock_strain(sc.radius, sc.height, sc.twist)
     a["base_rigidity_law"] = ("base members: tension EA/(1-beta), compression beta*EA/(1-beta); beta = 1: rigid links; "
                               "continuous in beta, with the rigid_members impact the same initial state for every beta")
@@ -198,9 +189,9 @@ def _var(name: str, dims, data, attrs: dict) -> xr.Variable:
     return xr.Variable(dims, data, attrs=dict(attrs))
 
 
-def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int,
+def _coords(layout: Layout, params: dict, start: int, stop: int, time: np.ndarray, n_prisms: int,
             steps: np.ndarray | None = None) -> dict:
-    """Coordinates of columns ``start:stop`` of a spec: swept parameters along ``case``, the others scalar."""
+    """Coordinates of columns ``start:stop`` of a sweep: swept parameters along ``case``, the others scalar."""
     coords = {
         "case": _var("case", "case", np.arange(start, stop, dtype=np.int64), COORD_ATTRS["case"]),
         "prism": _var("prism", "prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
@@ -208,14 +199,14 @@ def _coords(spec: SweepSpec, params: dict, start: int, stop: int, time: np.ndarr
     }
     if steps is not None:  # exact: t = step * dt, rounded to the output interval's decimals
         coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
-    swept = spec.swept
+    swept = layout.swept
     for p in COLUMN_PARAMETERS:
         if p in swept:
             coords[p] = _var(p, "case", np.asarray(params[p][start:stop], dtype=np.float64), COORD_ATTRS[p])
         else:
-            coords[p] = _var(p, (), np.float64(spec.default_param(p)), COORD_ATTRS[p])
-    if spec.labels is not None:
-        coords["case_label"] = _var("case_label", "case", np.array(spec.labels[start:stop], dtype=object),
+            coords[p] = _var(p, (), np.float64(layout.scalars[p]), COORD_ATTRS[p])
+    if layout.labels is not None:
+        coords["case_label"] = _var("case_label", "case", np.array(layout.labels[start:stop], dtype=object),
                                     COORD_ATTRS["case_label"])
     return coords
 
@@ -320,7 +311,7 @@ def result_dataset(result, config=None, measurements: dict | None = None, attrs:
 
 
 def shard_dataset(
-    spec: SweepSpec,
+    layout: Layout,
     params: dict,
     start: int,
     stop: int,
@@ -328,13 +319,14 @@ def shard_dataset(
     measurements: dict,
     attrs: dict,
 ) -> xr.Dataset:
-    """Case-stacked dataset of columns ``start:stop`` from a BatchResult and its measurements."""
+    """Case-stacked dataset of columns ``start:stop`` of a sweep (its :class:`Layout`: ``spec.layout()``)
+    from a BatchResult and its measurements."""
     n = stop - start
     if result.n_columns != n:
         raise ValueError(f"batch has {result.n_columns} columns, shard {start}:{stop} needs {n}")
-    coords = _coords(spec, params, start, stop, result.time, spec.scene.n_prisms, result.info.get("output_step"))
-    return batch_dataset(result, measurements, coords, attrs, record_energy=spec.run["record_energy"],
-                         record_strain=spec.run["record_strain"])
+    coords = _coords(layout, params, start, stop, result.time, layout.scene.n_prisms, result.info.get("output_step"))
+    return batch_dataset(result, measurements, coords, attrs, record_energy=layout.run["record_energy"],
+                         record_strain=layout.run["record_strain"])
 
 
 def _joined(values) -> str:
@@ -346,11 +338,11 @@ def _joined(values) -> str:
     return ", ".join(seen)
 
 
-def sweep_attrs(spec: SweepSpec, shard_attrs: list[dict], history: str, extra_attrs: dict | None = None) -> dict:
-    """Global attributes of a sweep's dataset: the spec's, the step settings of its first shard,
-    the provenance of all its shards (joined), their summed wall time, and ``history`` (where
+def sweep_attrs(layout: Layout, shard_attrs: list[dict], history: str, extra_attrs: dict | None = None) -> dict:
+    """Global attributes of a sweep's dataset: the spec's (its :class:`Layout`), the step settings of
+    its first shard, the provenance of all its shards (joined), their summed wall time, and ``history`` (where
     ``{package_version}`` is filled in). ``extra_attrs`` (e.g. the exporting ``command_line``) wins."""
-    attrs = spec_attrs(spec)
+    attrs = spec_attrs(layout)
     a0 = shard_attrs[0]
     for k in ("code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval",
               "dt_safety_used", "accuracy_target"):
@@ -369,12 +361,12 @@ def sweep_attrs(spec: SweepSpec, shard_attrs: list[dict], history: str, extra_at
     return {k: _attr(v) for k, v in attrs.items()}
 
 
-def to_grid(spec: SweepSpec, ds: xr.Dataset, split=None) -> xr.Dataset:
-    """Unstack the case dimension into one dimension per grid axis (C order). ``split(name,
+def to_grid(layout: Layout, ds: xr.Dataset, split=None) -> xr.Dataset:
+    """Unstack the case dimension into one dimension per grid axis of ``layout`` (C order). ``split(name,
     variable, grid_shape)`` gives the data of a variable whose first dimension is ``case`` in its
     new shape (default: ``variable.data.reshape``, lazy for dask arrays)."""
-    shape = spec.shape
-    names = tuple(spec.grid)
+    shape = layout.shape
+    names = tuple(layout.grid)
     variables = {}
     for k, v in ds.variables.items():
         if k == "case" or k in names:
@@ -389,7 +381,7 @@ def to_grid(spec: SweepSpec, ds: xr.Dataset, split=None) -> xr.Dataset:
             variables[k] = xr.Variable(dims, data, attrs=dict(v.attrs))
         else:
             variables[k] = v
-    coords = {n: xr.Variable((n,), np.asarray(spec.grid[n], dtype=np.float64), attrs=dict(COORD_ATTRS[n])) for n in names}
+    coords = {n: xr.Variable((n,), np.asarray(layout.grid[n], dtype=np.float64), attrs=dict(COORD_ATTRS[n])) for n in names}
     coords.update({k: variables.pop(k) for k in list(variables) if k in ds.coords})
     return xr.Dataset({k: variables[k] for k in ds.data_vars}, coords=coords, attrs=dict(ds.attrs))
 

@@ -21,6 +21,7 @@ with a did-you-mean for unknown keys. Nothing here imports Warp, nor any module 
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import functools
 import math
@@ -42,6 +43,9 @@ PRECISIONS = ("fp32", "fp64")
 # any laboratory or built tensegrity column, narrow enough that derived quantities stay normal floats.
 MASS = (1e-15, 1e6)  # kg: unit and bar masses
 MAX_EA = 1e20  # N
+# Impact speed: 10 km/s, the hypervelocity regime of light-gas guns, far beyond what an elastic column
+# with rigid bars models; bounded so the impact's energies stay normal floats. Sweeps and lenses alike.
+MAX_SPEED = 1e4  # m s-1
 # Times (s): a femtosecond to ~30 years. Outside, step and output counts overflow float64 in the
 # estimate; inside, the estimate refuses what will not finish (sweep.budget).
 MIN_TIME, MAX_TIME = 1e-15, 1e9
@@ -93,9 +97,11 @@ def _num(x) -> str:
 class Opt:
     """How one option is typed, bounded and documented (pydantic field metadata).
 
-    kind: 'real' (finite float), 'int', 'bool', 'choice' (one of ``choices``) or 'str'.
-    Bounds ``gt/ge/lt/le`` apply to reals and ints. ``special`` maps accepted strings to the
-    value they stand for (``{"auto": None}``); ``optional``: None is accepted.
+    kind: 'real' (finite float), 'int', 'bool', 'choice' (one of ``choices``), 'str', 'table' (a
+    TOML table, checked by its owner) or 'point' (finite [x, y, z]). Bounds ``gt/ge/lt/le`` apply
+    to reals and ints. ``special`` maps accepted strings to the value they stand for
+    (``{"auto": None}``); ``optional``: None is accepted; ``items = (lo, hi)``: a list of lo..hi such
+    values (a tuple), or also one value when ``single``.
     """
 
     kind: str
@@ -115,6 +121,12 @@ class Opt:
     """Appended to the error when the bounds are broken."""
     default_text: str | None = None
     """The default as the docs show it, when it is not a plain value (e.g. the scene's EA)."""
+    long_name: str = ""
+    """CF ``long_name`` of the coordinate a per-column parameter becomes in the datasets (io)."""
+    infinite: bool = False
+    """+inf accepted besides the bounds (a wave speed: normal incidence)."""
+    items: tuple | None = None
+    single: bool = False
 
     # -- the rule in words, shared by errors and the docs table
     def bounds(self) -> str:
@@ -143,7 +155,7 @@ class Opt:
             base = self.bounds() or "finite"
         else:
             base = "string"
-        extra = [f'"{s}"' for s, _ in self.special]
+        extra = [f'"{s}"' for s, _ in self.special] + (["inf"] if self.infinite else [])
         return base + (f", or {' or '.join(extra)}" if extra else "")
 
     def _expected(self, x=None) -> str:
@@ -159,6 +171,21 @@ class Opt:
     def check(self, x):
         if x is None and self.optional:
             return None
+        if self.items is not None and (isinstance(x, (list, tuple)) or not self.single):
+            lo, hi = self.items
+            if not isinstance(x, (list, tuple)) or not lo <= len(x) <= hi:
+                raise _err(f"give {self.rule()}")
+            one = dataclasses.replace(self, items=None, single=False)
+            return tuple(one.check(v) for v in x)
+        if self.kind == "table":
+            if not isinstance(x, dict):
+                raise _err("must be a table")
+            return x
+        if self.kind == "point":
+            if not (isinstance(x, (list, tuple)) and len(x) == 3 and all(
+                    isinstance(c, numbers.Real) and not isinstance(c, bool) and math.isfinite(c) for c in x)):
+                raise _err("must be a point [x, y, z] of finite numbers")
+            return tuple(float(c) for c in x)
         if isinstance(x, str):
             for s, v in self.special:
                 if x == s:
@@ -192,6 +219,8 @@ class Opt:
                 x = float(x)
             except OverflowError:  # an integer beyond float range (TOML has them)
                 x = math.inf
+            if x == math.inf and self.infinite:
+                return x
             if not math.isfinite(x):
                 raise _err(f"must be finite{sp}")
         ok = (
@@ -254,6 +283,8 @@ def messages(exc: ValidationError, cls, prefix: str = "") -> list[str]:
         key = ".".join(loc)
         if e["type"] == "option":
             out.append(f"{prefix}{key} = {fmt(e['input'])}: {e['msg']}")
+        elif e["type"] in ("missing", "missing_argument"):
+            out.append(f"{prefix}{key}: required key is missing")
         elif e["type"] == "unexpected_keyword_argument":
             out.append(unknown_key(f"{prefix}{key}", key, fields))
         elif e["type"] == "unexpected_positional_argument":
@@ -275,7 +306,8 @@ SECTION_ORDER = ("scene", "sweep", "run")
 
 def options_class(error: type[ValueError], *, frozen: bool = False, section: str | None = None):
     """A pydantic dataclass whose constructor raises ``error`` (which takes a list of messages)
-    with :func:`messages`; registered in :data:`SECTIONS` under ``section``."""
+    with :func:`messages`; registered in :data:`SECTIONS` under ``section`` (None: not a sweep
+    spec's table, e.g. the lens's, :mod:`warp_tensegrity.options_lens`)."""
 
     def wrap(cls):
         cls = _pydantic_dataclass(
@@ -314,17 +346,22 @@ def build(cls, values: dict, prefix: str = ""):
 class ColumnParameters:
     """The per-column parameters of a batch or a sweep (each column may have its own)."""
 
-    prestrain: Annotated[float, Opt("real", "1", ge=0, lt=1, why="the cross-cable prestrain p; 1 would put the cables' rest length at zero")] = 0.0
+    prestrain: Annotated[float, Opt("real", "1", ge=0, lt=1, why="the cross-cable prestrain p; 1 would put the cables' rest length at zero",
+                                    long_name="cross-cable prestrain p")] = 0.0
     """Cross-cable prestrain p [1]."""
-    v0: Annotated[float, Opt("real", "m s-1", ge=0, why="v0 is the compressive impact speed of the free end")] = 0.0
+    v0: Annotated[float, Opt("real", "m s-1", ge=0, le=MAX_SPEED, why="v0 is the compressive impact speed of the free end",
+                             long_name="compressive impact speed at the free end")] = 0.0
     """Compressive impact speed of the free end [m s-1]."""
-    base_rigidity: Annotated[float, Opt("real", "1", ge=0, le=1, why="0 flexible bases (FB), 1 rigid bases (RB)")] = 0.0
+    base_rigidity: Annotated[float, Opt("real", "1", ge=0, le=1, why="0 flexible bases (FB), 1 rigid bases (RB)",
+                                        long_name="base rigidity (0: flexible bases FB, 1: rigid bases RB)")] = 0.0
     """Base rigidity beta [1]: 0 flexible bases (FB), 1 rigid bases (RB), elastic in between."""
     cable_EA: Annotated[float | None, Opt("real", "N", gt=0, le=MAX_EA, optional=True,
-                                          default_text="scene's E_s pi r_s^2")] = None
+                                          default_text="scene's E_s pi r_s^2",
+                                          long_name="axial stiffness E*A of the cables")] = None
     """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2."""
     unit_mass: Annotated[float | None, Opt("real", "kg", ge=MASS[0], le=MASS[1], optional=True,
-                                           default_text="scene's unit_mass")] = None
+                                           default_text="scene's unit_mass",
+                                           long_name="mass per unit (prism), lumped on the bases")] = None
     """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
 
 

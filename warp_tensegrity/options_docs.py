@@ -1,8 +1,10 @@
-"""The options' docs, generated from their declarations in :mod:`warp_tensegrity.options`: one row
-per option (key, type, unit, default, rule, doc), the markdown tables ``docs/sweeps.md`` embeds,
-and the rewrite of those tables between their markers.
+"""The options' docs, generated from their declarations in :mod:`warp_tensegrity.options` (and
+:mod:`warp_tensegrity.options_lens`): one row per option (key, type, unit, default, rule, doc), the
+markdown tables ``docs/sweeps.md`` and ``docs/lens.md`` embed, and the rewrite of those tables
+between their markers.
 
-Nothing here imports Warp; of the package, only :mod:`warp_tensegrity.options`.
+Nothing here imports Warp; of the package, only :mod:`warp_tensegrity.options` and
+:mod:`warp_tensegrity.options_lens`.
 """
 
 from __future__ import annotations
@@ -12,12 +14,15 @@ import re
 from pathlib import Path
 
 from .options import SECTION_ORDER, Opt, _num, opt_of, sections
+from .options_lens import LENS_SECTIONS
 
 
 # ---------------------------------------------------------------------- rows and tables
 def _default_text(default, o: Opt) -> str:
     if o.default_text is not None:
         return o.default_text
+    if default is dataclasses.MISSING:
+        return "required"
     for s, v in o.special:
         if default == v and type(default) is type(v):
             return f'"{s}"'
@@ -30,7 +35,21 @@ def _default_text(default, o: Opt) -> str:
     return _num(default)
 
 
-_TYPES = {"real": "number", "int": "integer", "bool": "bool", "choice": "string", "str": "string"}
+_TYPES = {"real": "number", "int": "integer", "bool": "bool", "choice": "string", "str": "string", "table": "table",
+          "point": "points"}
+
+
+def _class_rows(sec: str, cls) -> list[dict]:
+    rows = []
+    for f in dataclasses.fields(cls):
+        o = opt_of(cls, f.name)
+        doc = " ".join((cls.__pydantic_fields__[f.name].description or "").split())
+        doc = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", doc).replace("``", "`")  # Sphinx roles -> markdown
+        rows.append({
+            "section": sec, "key": f.name, "type": _TYPES[o.kind], "unit": o.unit,
+            "default": _default_text(f.default, o), "rule": o.rule(), "doc": doc,
+        })
+    return rows
 
 
 def options_table(section: str | None = None) -> list[dict]:
@@ -38,25 +57,26 @@ def options_table(section: str | None = None) -> list[dict]:
     The docs tables (:func:`options_markdown`) are these rows."""
     rows = []
     for sec, cls in sections().items():
-        if section is not None and sec != section:
-            continue
-        for f in dataclasses.fields(cls):
-            o = opt_of(cls, f.name)
-            doc = " ".join((cls.__pydantic_fields__[f.name].description or "").split())
-            doc = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", doc).replace("``", "`")  # Sphinx roles -> markdown
-            rows.append({
-                "section": sec, "key": f.name, "type": _TYPES[o.kind], "unit": o.unit,
-                "default": _default_text(f.default, o), "rule": o.rule(), "doc": doc,
-            })
+        if section is None or sec == section:
+            rows += _class_rows(sec, cls)
     return rows
 
 
+def lens_options_table() -> list[dict]:
+    """One row per option of a lens spec, by table ('' for the top-level keys; ``key`` without the
+    table); ``docs/lens.md`` and ``init --example lens`` are these rows."""
+    return [r for sec, cls in LENS_SECTIONS.items() for r in _class_rows(sec, cls)]
+
+
 def options_markdown(section: str) -> str:
-    """The markdown table of one section's options (docs/sweeps.md embeds these)."""
+    """The markdown table of one section's options (docs/sweeps.md embeds these); 'lens': every
+    option of a lens spec, keyed ``table.key`` (docs/lens.md)."""
     lines = ["| key | units | default | rule | meaning |", "|---|---|---|---|---|"]
-    for r in options_table(section):
+    lens = section == "lens"
+    for r in lens_options_table() if lens else options_table(section):
         doc = r["doc"].replace("|", "\\|")
-        lines.append(f"| `{r['key']}` | {r['unit']} | {r['default']} | {r['rule']} | {doc} |")
+        key = f"{r['section']}.{r['key']}" if lens and r["section"] else r["key"]
+        lines.append(f"| `{key}` | {r['unit']} | {r['default']} | {r['rule']} | {doc} |")
     return "\n".join(lines)
 
 
@@ -67,7 +87,7 @@ DOCS_END = "<!-- options:{} end -->"
 
 def render_docs(text: str) -> str:
     """``text`` with every generated options table between its markers replaced by the current one."""
-    for sec in SECTION_ORDER:
+    for sec in (*SECTION_ORDER, "lens"):
         begin, end = DOCS_BEGIN.format(sec), DOCS_END.format(sec)
         i, j = text.find(begin), text.find(end)
         if i >= 0 and j > i:
@@ -76,7 +96,7 @@ def render_docs(text: str) -> str:
 
 
 def update_docs(path) -> bool:
-    """Rewrite the generated tables in ``path`` (docs/sweeps.md); True if it changed."""
+    """Rewrite the generated tables in ``path`` (docs/sweeps.md, docs/lens.md); True if it changed."""
     p = Path(path)
     old = p.read_text()
     new = render_docs(old)

@@ -5,5 +5,3 @@ from __future__ import annotations
 
 from .options import COLUMN_PARAMETERS, METHODS, PRECISIONS, RunSettings, SettingsError  # noqa: F401 (re-exported)
 from .types import STATUS_MEANINGS, TIME  # noqa: F401 (re-exported)
-
-STATUS_NAMES = {int(k): v for k, v in STATUS_MEANINGS.items()}

@@ -24,8 +24,9 @@ it first (one thread block per column). Per-column parameters are read as ``para
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from enum import Enum, IntEnum, StrEnum
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 
 class Status(IntEnum):
@@ -43,6 +44,8 @@ class Status(IntEnum):
 
 
 STATUS_MEANINGS = {Status.OK: "ok", Status.NONFINITE: "non-finite state", Status.CONSTRAINT: "bar constraint failed"}
+"""What each :class:`Status` means, the one table of them (``STATUS_MEANINGS[1]`` works too: the keys
+are IntEnum members); the datasets' ``status`` flag_meanings are these words."""
 
 
 TIME = "t"
@@ -274,3 +277,36 @@ def field_table() -> str:
 
 
 __doc__ = __doc__.replace("{field_table}", field_table())
+@dataclass(frozen=True)
+class Layout:
+    """What :mod:`warp_tensegrity.io` reads of a sweep to lay out and annotate its datasets, made by
+    :meth:`warp_tensegrity.sweep.SweepSpec.layout`. io takes this value, not the spec, so it imports
+    no sweep module (the sweeps import the engine, whose results io writes)."""
+
+    kind: str
+    """'grid' (one dimension per swept parameter) or 'cases' (a ``case`` dimension)."""
+    swept: tuple[str, ...]
+    """Swept per-column parameters: the grid axes in spec order, or those the cases set."""
+    grid: dict = field(default_factory=dict)
+    """Grid axes in spec order: name -> 1-D float64 values ({} for cases)."""
+    scalars: dict = field(default_factory=dict)
+    """Every per-column parameter that is not swept -> its value (a scalar coordinate)."""
+    labels: tuple | None = None
+    """Case labels (cases only), or None."""
+    n_columns: int = 0
+    scene: Any = None
+    """The fixed scene (a :class:`~warp_tensegrity.scene.columns.ColumnConfig`)."""
+    run: dict = field(default_factory=dict)
+    """Every [run] key, defaults filled in."""
+    title: str | None = None
+    description: str | None = None
+    source: str | None = None
+    """Where the spec was read from, or None."""
+    text: str = ""
+    """The spec's full text."""
+    text_sha256: str = ""
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """The grid's shape, or (n_columns,) for cases."""
+        return tuple(len(v) for v in self.grid.values()) if self.kind == "grid" else (self.n_columns,)

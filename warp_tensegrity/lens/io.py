@@ -125,7 +125,7 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
         "calibration_undefined": int(law.dropped),
         "incident_v0_m_s": float(s0.incident.v0),
         "base_rigidity": float(s0.column.base_rigidity),
-        "spec_json": json.dumps(s0.model_dump(mode="json"), sort_keys=True, default=str),
+        "spec_json": json.dumps(s0.as_dict(), sort_keys=True, default=str),
         "device": r_ver.device,
         "device_name": r_ver.device_name,
         "method": r_ver.method,

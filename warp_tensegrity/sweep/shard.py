@@ -54,7 +54,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     }
     if spec.run["output_interval"] is not None:
         attrs["output_interval"] = float(spec.run["output_interval"])
-    return D.shard_dataset(spec, plan.params, start, stop, result, meas, attrs)
+    return D.shard_dataset(spec.layout(), plan.params, start, stop, result, meas, attrs)
 
 
 def template_dataset(plan: SweepPlan):
@@ -76,7 +76,7 @@ def template_dataset(plan: SweepPlan):
     with np.errstate(all="ignore"):
         meas = measure_columns(result, spec.scene.height)
     meas.update(beta_limit_measures(spec.scene, {k: v[:1] for k, v in plan.params.items()}, 1, meas["max_compression"]))
-    return D.shard_dataset(spec, plan.params, 0, 1, result, meas, {})
+    return D.shard_dataset(spec.layout(), plan.params, 0, 1, result, meas, {})
 
 
 def compute_and_write(plan: SweepPlan, index: int, device: str | None = None) -> tuple[int, dict]:

@@ -35,6 +35,7 @@ from ..options import COLUMN_PARAMETERS, EXECUTION_KEYS, ColumnParameters, Optio
 from ..provenance import code_version
 from ..scene.columns import ColumnConfig
 from ..tomlread import TomlError, decode, read_toml
+from ..types import Layout
 from .errors import SpecError
 from .parse import SCENE_FIELDS, _Checker, _parse_run, _parse_scene, _parse_sweep
 
@@ -137,6 +138,17 @@ class SweepSpec:
                 for name, v in case.items():
                     out[name][i] = v
         return out
+
+    def layout(self) -> Layout:
+        """What :mod:`warp_tensegrity.io` needs of this spec to lay out and annotate its datasets."""
+        swept = self.swept
+        return Layout(
+            kind=self.kind, swept=swept, grid=dict(self.grid),
+            scalars={p: self.default_param(p) for p in COLUMN_PARAMETERS if p not in swept},
+            labels=None if self.labels is None else tuple(self.labels), n_columns=self.n_columns,
+            scene=self.scene, run=dict(self.run), title=self.title, description=self.description,
+            source=self.source, text=self.text, text_sha256=self.text_sha256,
+        )
 
     def shards(self, shard_size: int | None = None) -> list[tuple[int, int]]:
         """Contiguous blocks of columns: [(start, stop), ...]."""

@@ -111,7 +111,8 @@ class SweepStore:
         time = time_coord(tpl)
         N = plan.n_columns
         extra = (tpl["step"].values,) if "step" in tpl.coords else ()
-        coords = D._coords(plan.spec, plan.params, 0, N, time, plan.spec.scene.n_prisms, *extra)
+        layout = plan.spec.layout()
+        coords = D._coords(layout, plan.params, 0, N, time, plan.spec.scene.n_prisms, *extra)
         data = {}
         enc = {}
         for k in tpl.data_vars:
@@ -120,7 +121,7 @@ class SweepStore:
             chunks = (plan.shard_size,) + v.shape[1:]
             data[k] = xr.Variable(v.dims, da.zeros(shape, dtype=v.dtype, chunks=chunks), attrs=dict(v.attrs))
             enc[k] = {"chunks": chunks}
-        ds = xr.Dataset(data, coords=coords, attrs={**D.spec_attrs(plan.spec), "fingerprint": plan.fingerprint,
+        ds = xr.Dataset(data, coords=coords, attrs={**D.spec_attrs(layout), "fingerprint": plan.fingerprint,
                                                      "spec_source": str(plan.spec.source or "none")})
         for k in ds.coords:
             if ds[k].dtype.kind == "f":
@@ -264,10 +265,11 @@ def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], tpl: xr.Dataset, zar
         variables[k] = v
     out = xr.Dataset({k: variables[k] for k in ds.data_vars}, coords={k: variables[k] for k in ds.coords})
     last = max(str(a.get("history", "")).split(" ")[0] for a in shard_attrs)  # when the last shard was made
-    out.attrs = D.sweep_attrs(spec, shard_attrs, f"{last} streamed {len(shard_attrs)} shards into a Zarr store by "
-                                                 "warp_tensegrity {package_version}")
+    layout = spec.layout()
+    out.attrs = D.sweep_attrs(layout, shard_attrs, f"{last} streamed {len(shard_attrs)} shards into a Zarr store by "
+                                                   "warp_tensegrity {package_version}")
     if spec.kind == "grid":
-        out = _to_grid_lazy(spec, out, zarr_path, shard_size)
+        out = _to_grid_lazy(layout, out, zarr_path, shard_size)
     return out
 
 
@@ -308,10 +310,10 @@ def grid_chunks(grid_shape: tuple, shard_size: int) -> tuple:
     return tuple(reversed(chunks))
 
 
-def _to_grid_lazy(spec, ds: xr.Dataset, zarr_path=None, shard_size: int = 0) -> xr.Dataset:
+def _to_grid_lazy(layout, ds: xr.Dataset, zarr_path=None, shard_size: int = 0) -> xr.Dataset:
     """io.to_grid without loading: each data variable read from the store through a GridView."""
     if zarr_path is None:
-        return D.to_grid(spec, ds)
+        return D.to_grid(layout, ds)
     import dask.array as da
     import zarr
 
@@ -326,7 +328,7 @@ def _to_grid_lazy(spec, ds: xr.Dataset, zarr_path=None, shard_size: int = 0) -> 
         return da.from_array(view, chunks=chunks, name=f"wt-grid-{name}-{token}", lock=False, asarray=True,
                              meta=np.empty((0,) * view.ndim, dtype=view.dtype))
 
-    return D.to_grid(spec, ds, split)
+    return D.to_grid(layout, ds, split)
 
 
 # ---------------------------------------------------------------------- export
