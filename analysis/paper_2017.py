@@ -286,14 +286,14 @@ fits.round(3)
 
 # %% [markdown]
 # **The speed-amplitude constant, predicted.** With rigid bases the column is exactly a 1-D chain
-# (`warp_tensegrity.checks.closed_forms`, `docs/validation.md`): effective mass m_eff = m (1 + 4 h0²/a²),
+# (`warp_tensegrity.validation.closed_forms`, `docs/validation.md`): effective mass m_eff = m (1 + 4 h0²/a²),
 # cubic force k3 δ³ with k3 = 72 EA h0⁴/(a⁴ s0³), s0² = h0² + a² (2 − √3). Its solitary wave runs at
 # V = c* h0² √(k3/m_eff) A, with the discrete constant c* from our own integration of the cubic chain.
 # That predicts the A → 0 slope from EA, a, h0 and m alone; the prism's geometry adds O(A) terms
 # (the validation gallery measures V/A rising as about 1 + 2.6 A).
 
 # %%
-from warp_tensegrity.checks.closed_forms import power_chain_soliton, rb_chain
+from warp_tensegrity.validation.closed_forms import power_chain_soliton, rb_chain
 
 _cfg = ColumnConfig()
 CHAIN_P0 = rb_chain(_cfg.cable_EA, _cfg.radius, _cfg.height, _cfg.unit_mass, 0.0)
@@ -377,7 +377,7 @@ print("largest compression anywhere, any time, RB p=0.002 cases:", np.round(rb_m
       "; paper amplitudes:", [c.amplitude for c in P.PAPER_2017[9:]])
 
 # %% [markdown]
-# ### E. Linearised stiffness and long-wave speeds (`warp_tensegrity.checks.linear`)
+# ### E. Linearised stiffness and long-wave speeds (`warp_tensegrity.validation.linear`)
 #
 # (A stored study: the six 50-prism eigenproblems take ~45 s. `plotting.branch_speeds` computes the same
 # branch speeds on short columns and is what the phase diagrams and the tests use.)
@@ -391,7 +391,7 @@ print("largest compression anywhere, any time, RB p=0.002 cases:", np.round(rb_m
 import dataclasses
 
 from warp_tensegrity import build_column
-from warp_tensegrity.checks.linear import axial_stiffness_per_prism, count_zero_modes, long_wave_speed
+from warp_tensegrity.validation.linear import axial_stiffness_per_prism, count_zero_modes, long_wave_speed
 
 cfg50 = ColumnConfig(impact_admissibility="end_twist")  # the paper run's convention (sweeps/paper_2017.toml)
 

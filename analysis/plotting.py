@@ -526,7 +526,7 @@ def branch_speeds(ds: xr.Dataset, n_prisms: int = 10) -> xr.Dataset:
     import dataclasses
 
     from warp_tensegrity import build_column
-    from warp_tensegrity.checks.linear import long_wave_speed
+    from warp_tensegrity.validation.linear import long_wave_speed
 
     handed = ds.attrs.get("scene_handedness", "right")
     cfg = scene_config(ds, **({"n_prisms": n_prisms} if handed in ("right", "left", "alternating") else {}))

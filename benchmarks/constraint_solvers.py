@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from warp_tensegrity import ColumnConfig, build_column
-from warp_tensegrity.checks.reference import ReferenceSystem
+from tests.references.reference import ReferenceSystem
 
 TOL = 1e-12
 MAX_SWEEPS = 3000

@@ -258,7 +258,7 @@ def free_prisms(B: int, bar_mass: float, seed: int = 1, speed: float = 0.002, pr
     (consistent bar inertia; lumped m/2 per end with massless bars; lumped plus a negligible
     bar mass, which takes the partner-mass path) and the velocities (B, 6, 3)."""
     from warp_tensegrity import ColumnConfig, Network, build_column
-    from warp_tensegrity.checks.reference import ReferenceSystem
+    from tests.references.reference import ReferenceSystem
 
     net = build_column(ColumnConfig(n_prisms=1), prestrain=prestrain).network
 

@@ -3,7 +3,7 @@
 One column at a time on the CPU: ``scipy.integrate.solve_ivp(method="DOP853")`` on the index-1
 DAE  M a = f(x) - G^T lam,  G M^-1 G^T lam = G M^-1 f + |b'|^2  (the bar multipliers solved at
 every right-hand-side evaluation with ``numpy.linalg.solve`` on the dense Gram matrix; the
-right-hand side is :meth:`warp_tensegrity.checks.reference.ReferenceSystem.accel`, dense float64).
+right-hand side is :meth:`tests.references.reference.ReferenceSystem.accel`, dense float64).
 
 Accuracy matching: the error of a run is the largest final-state position error over the
 nodes, relative to the largest displacement of the tight reference (DOP853 at rtol 1e-11);
@@ -109,7 +109,7 @@ def main(argv=None):
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
     from warp_tensegrity import ColumnConfig, build_column
-    from warp_tensegrity.checks.reference import ReferenceSystem
+    from tests.references.reference import ReferenceSystem
 
     t_start = time.perf_counter()
     cfg = ColumnConfig(n_prisms=a.n_prisms)

@@ -61,7 +61,7 @@ def _holdout_arrays() -> dict:
         run_batch,
         simulate_batch,
     )
-    from warp_tensegrity.checks.reference import ReferenceSystem
+    from tests.references.reference import ReferenceSystem
 
     out = {}
     for speed in (0.002, 0.02):  # free class-1 prism, massive bars, random admissible velocity

@@ -5,7 +5,7 @@ base rigidity, impact speed), bisect (log scale) the largest stable dt, where st
 status 0 (no non-finite state, every bar within failure_bar_error after its projection) and
 energy_error < 1 (|E - E0| < KE0 at every output) over ``n_steps`` steps. The prediction is
 S / omega_max with S = 2 (rattle, symplectic_euler), 2 sqrt 2 (rk4), 1.5734 (yoshida4) and
-omega_max from :func:`warp_tensegrity.checks.linear.omega_max` on the reference network (all cables
+omega_max from :func:`warp_tensegrity.validation.linear.omega_max` on the reference network (all cables
 taut).
 
 Batch trick (dt is one per batch, the cases are many): the dynamics of a column with masses
@@ -89,7 +89,7 @@ def stability_cases():
 def omega_exact(cfg, cases) -> np.ndarray:
     """omega_max [rad/s] of each case's reference network (all cables taut), by modal analysis."""
     from warp_tensegrity import build_column
-    from warp_tensegrity.checks.linear import omega_max
+    from warp_tensegrity.validation.linear import omega_max
 
     return np.array([omega_max(build_column(cfg, p, v, b).network)
                      for p, v, b in zip(cases["prestrain"], cases["v0"], cases["base_rigidity"])])
@@ -215,7 +215,7 @@ def slack_history(t_end, dt=1e-3, stride=5):
     """Slack cross/base cables of ENERGY_CASES[0] (6 prisms) over time, by the NumPy reference (RK4 +
     projection, fp64): (time, n_slack, n_cables, transitions)."""
     from warp_tensegrity import ColumnConfig, build_column
-    from warp_tensegrity.checks.reference import ReferenceSystem
+    from tests.references.reference import ReferenceSystem
 
     _, p, v0, b = ENERGY_CASES[0]
     scene = build_column(ColumnConfig(n_prisms=N_PRISMS), p, v0, b)

@@ -116,9 +116,9 @@ def test_sweep_datasets_carry_the_flag(tmp_path):
 
 @pytest.mark.parametrize("beta", [0.0, 0.9999, 1.0])
 def test_modes_agree_with_the_independent_linear_check(beta):
-    """scene.base_modes computes its own modes (sweeps must not depend on checks): they agree with
-    checks.linear.modal_analysis to round-off."""
-    from warp_tensegrity.checks.linear import modal_analysis
+    """scene.base_modes computes its own modes (sweeps must not depend on the validation references): they agree with
+    validation.linear.modal_analysis to round-off."""
+    from warp_tensegrity.validation.linear import modal_analysis
     from warp_tensegrity.scene.columns import build_column
 
     net = build_column(ColumnConfig(n_prisms=6), prestrain=0.002, base_rigidity=beta).network

@@ -1,4 +1,4 @@
-"""Checks of the linearised analysis (warp_tensegrity.checks.linear).
+"""Checks of the linearised analysis (warp_tensegrity.validation.linear).
 
 Analytic cases first (spring-mass chains, a bar pendulum in tension and in compression, which
 exercise the cable material and geometric terms and the bar geometric term), then T3 columns:
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import ColumnConfig, build_column
-from warp_tensegrity.checks.linear import (
+from warp_tensegrity.validation.linear import (
     axial_stiffness_per_prism,
     column_cell_compliance,
     count_zero_modes,
@@ -22,7 +22,7 @@ from warp_tensegrity.checks.linear import (
     tangent_stiffness,
 )
 from warp_tensegrity import Network
-from warp_tensegrity.checks.reference import ReferenceSystem
+from tests.references.reference import ReferenceSystem
 
 EA, L, P, MASS = 2.0, 0.1, 0.01, 0.05  # N, m, -, kg
 

@@ -55,6 +55,19 @@ def test_wheel_and_sdist_pass_twine_check(dist):
     assert r.returncode == 0 and r.stdout.count("PASSED") == 2, r.stdout + r.stderr
 
 
+def test_wheel_holds_the_runtime_not_the_test_references(dist):
+    """The validation gallery's references ship (``warp-tensegrity validate`` needs them); the tests'
+    fp64 simulator (``tests/references/reference.py``) and the old ``checks/`` package do not."""
+    import zipfile
+
+    names = zipfile.ZipFile(next(dist.glob("*.whl"))).namelist()
+    pkg = [n for n in names if n.startswith("warp_tensegrity/")]
+    assert not [n for n in pkg if n.startswith("warp_tensegrity/checks/")], pkg
+    assert not [n for n in names if n.endswith("/reference.py") or n.startswith(("tests/", "benchmarks/"))], names
+    for m in ("closed_forms", "constrained", "dispersion", "linear", "checks"):
+        assert f"warp_tensegrity/validation/{m}.py" in pkg
+
+
 def test_non_editable_install_records_the_commit(clone, dist, tmp_path):
     head = _git("rev-parse", "HEAD", cwd=clone)
     env_dir = tmp_path / "env"

@@ -242,7 +242,7 @@ def test_lane_parallel_step_with_massive_bars(lanes):
     read the impulses and forces their partner nodes' lanes wrote (the barrier between the
     gather and the M^-1 pass)."""
     from warp_tensegrity import Network, network_batch, run_batch
-    from warp_tensegrity.checks.reference import ReferenceSystem
+    from tests.references.reference import ReferenceSystem
     from warp_tensegrity.scene.columns import build_column
 
     lanes(4)

@@ -1,4 +1,4 @@
-"""Checks of the float64 reference dynamics (warp_tensegrity.checks.reference).
+"""Checks of the float64 reference dynamics (tests.references.reference).
 
 The class-1 matrix form (paper Eqs. 12-14) and the Lagrange-multiplier form are independent
 derivations; on a free T3 prism with massive bars they must give the same motion. Both must
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import ColumnConfig, Network, build_column
-from warp_tensegrity.checks.reference import (
+from tests.references.reference import (
     ClassOneMatrixForm,
     ReferenceSystem,
     integrate_matrix_form,

@@ -15,7 +15,7 @@ import pytest
 
 from warp_tensegrity.scene.batch import column_batch, omega_max_bound
 from warp_tensegrity import ColumnConfig, RunSettings, build_column, simulate_batch
-from warp_tensegrity.checks.linear import omega_max
+from warp_tensegrity.validation.linear import omega_max
 from warp_tensegrity.types import STABILITY
 
 # the engine's default conventions at the time of writing, pinned so the regimes below hold

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import ColumnConfig, build_column, cli
-from warp_tensegrity.checks.closed_forms import (
+from warp_tensegrity.validation.closed_forms import (
     QUASI_CONTINUUM_SPEED_CONSTANT,
     bessel_compression,
     power_chain_soliton,
     rb_chain,
 )
-from warp_tensegrity.checks.dispersion import bands, ringing_frequency
-from warp_tensegrity.checks.linear import axial_stiffness_per_prism, long_wave_speed
-from warp_tensegrity.checks.reference import ReferenceSystem
+from warp_tensegrity.validation.dispersion import bands, ringing_frequency
+from warp_tensegrity.validation.linear import axial_stiffness_per_prism, long_wave_speed
+from tests.references.reference import ReferenceSystem
 from warp_tensegrity.validation import CHECKS, report, run_validation
 from warp_tensegrity.validation import checks as V
 
@@ -171,7 +171,7 @@ def test_dispersion(dispersion_group):
 
 
 def test_bands_against_the_column_modes():
-    """Branch counts; FB long-wave speeds against the finite column's modes (checks.linear)."""
+    """Branch counts; FB long-wave speeds against the finite column's modes (validation.linear)."""
     rb, fb = bands(CFG, 0.002, 1.0, n_k=9), bands(CFG, 0.002, 0.0, k=[1e-3 / CFG.height])
     assert rb.omega.shape == (9, 3) and rb.omega_symmetric.shape == (9, 1)
     assert fb.omega.shape == (1, 6) and fb.omega_symmetric.shape == (1, 2)

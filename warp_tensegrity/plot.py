@@ -290,7 +290,7 @@ def dispersion(data, ax=None, sel: dict | None = None, speed: float | None = Non
     when the strain is recorded) the speed and cut-off, unless given. ``omega_max``: upper limit of
     the axis (default: 1.1 x the highest branch). Returns the Axes; ``ax.lines`` keep the numbers
     (symmetric branches labelled ``symmetric branch i``)."""
-    from .checks.dispersion import Bands, bands, ringing_frequency
+    from .validation.dispersion import Bands, bands, ringing_frequency
 
     title = None
     if isinstance(data, Bands):

@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks.closed_forms import RBChain, bessel_compression, power_chain_soliton, rb_chain
-from ..checks.dispersion import bands, ringing_frequency
-from ..checks.linear import modal_analysis
+from .closed_forms import RBChain, bessel_compression, power_chain_soliton, rb_chain
+from .dispersion import bands, ringing_frequency
+from .linear import modal_analysis
 from ..engine import simulate_batch
 from ..measure import measure_pulse
 from ..scene.columns import ColumnConfig, build_column

@@ -1,6 +1,8 @@
-"""Independent float64 reference dynamics of tensegrity networks (NumPy only, no Warp).
+"""Independent float64 reference dynamics of tensegrity networks (NumPy only, no Warp kernels).
 
-This module is the yardstick the Warp engine is tested against. It is written from the paper
+This module is the yardstick the Warp engine is tested against (tests and benchmarks; it is not
+part of the installed package: import it as ``tests.references.reference`` from the repository
+root). It is written from the paper
 (Fabbrocino & Carpentieri 2017, Sec. 2) and shares no code with the kernels. SI units
 throughout: positions [m], velocities [m s-1], masses [kg], forces [N], times [s].
 
@@ -52,7 +54,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene.network import Network
+from warp_tensegrity.scene.network import Network
+from warp_tensegrity.validation.constrained import ConstrainedNetwork
 
 __all__ = [
     "ClassOneMatrixForm",
@@ -202,92 +205,22 @@ def integrate_matrix_form(form: ClassOneMatrixForm, N0: np.ndarray, Ndot0: np.nd
 
 
 # ====================================================================== B. Lagrange multipliers
-class ReferenceSystem:
+class ReferenceSystem(ConstrainedNetwork):
     """Constrained dynamics of any :class:`Network` by Lagrange multipliers (dense float64).
 
-    Public methods take and return full node arrays of shape (n_nodes, 3); clamped nodes stay at
+    The model (coordinates, constraints and Jacobian, cable forces, consistent mass matrix) is
+    :class:`~warp_tensegrity.validation.constrained.ConstrainedNetwork`, which the package's
+    linearised checks use too; the accelerations, multipliers, projections and integrators are
+    here. Public methods take and return full node arrays of shape (n_nodes, 3); clamped nodes stay at
     their reference positions with zero velocity and acceleration. Bar lengths L_k are those of
     ``network.positions``.
     """
 
     def __init__(self, network: Network, external_force: np.ndarray | None = None,
                  projection_tol: float = 1e-14, max_newton: int = 50):
-        net = network
-        self.network = net
-        self.n_nodes = net.n_nodes
-        self.free = ~np.asarray(net.fixed, bool)
-        self.free_nodes = np.flatnonzero(self.free)
-        self.n_free = len(self.free_nodes)
-        self.ndof = 3 * self.n_free
-        self.x_ref = np.array(net.positions, float)
-        self.bars = np.asarray(net.bars)
-        self.cables = np.asarray(net.cables)
-        self.L_bar = np.linalg.norm(self.x_ref[self.bars[:, 1]] - self.x_ref[self.bars[:, 0]], axis=1)
-        self.L_cable = np.asarray(net.cable_rest_length, float)
-        self.k_t = np.asarray(net.cable_EA, float) / self.L_cable
-        self.k_c = np.asarray(net.cable_EA_compression, float) / self.L_cable
-        self.W = np.zeros((self.n_nodes, 3)) if external_force is None else np.asarray(external_force, float)
+        super().__init__(network, external_force)
         self.tol = projection_tol
         self.max_newton = max_newton
-        # consistent mass matrix, built here from the thin-rod kinetic energy (not Network.mass_matrix)
-        Mn = np.diag(np.asarray(net.node_mass, float))
-        for (i, j), m in zip(self.bars, net.bar_mass):
-            Mn[np.ix_([i, j], [i, j])] += m / 6.0 * np.array([[2.0, 1.0], [1.0, 2.0]])
-        Mf = Mn[np.ix_(self.free_nodes, self.free_nodes)]
-        self.M = np.kron(Mf, np.eye(3))
-        self.Minv = np.linalg.inv(self.M)
-        # map node -> free index (or -1)
-        self._slot = -np.ones(self.n_nodes, dtype=np.int64)
-        self._slot[self.free_nodes] = np.arange(self.n_free)
-
-    # ---------------------------------------------------------------- coordinates
-    def to_q(self, x: np.ndarray) -> np.ndarray:
-        return np.asarray(x, float)[self.free_nodes].reshape(-1)
-
-    def to_x(self, q: np.ndarray, fill: np.ndarray | None = None) -> np.ndarray:
-        x = (self.x_ref if fill is None else fill).copy()
-        x[self.free_nodes] = q.reshape(-1, 3)
-        return x
-
-    def _to_v(self, vq: np.ndarray) -> np.ndarray:
-        v = np.zeros((self.n_nodes, 3))
-        v[self.free_nodes] = vq.reshape(-1, 3)
-        return v
-
-    # ---------------------------------------------------------------- model pieces
-    def constraints(self, x: np.ndarray) -> np.ndarray:
-        """g_k = (|b_k|^2 - L_k^2)/2 [m^2]."""
-        b = x[self.bars[:, 1]] - x[self.bars[:, 0]]
-        return 0.5 * (np.einsum("ij,ij->i", b, b) - self.L_bar**2)
-
-    def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """G = dg/dq, shape (n_bars, 3 n_free) [m]."""
-        G = np.zeros((len(self.bars), self.ndof))
-        for k, (i, j) in enumerate(self.bars):
-            b = x[j] - x[i]
-            if self._slot[j] >= 0:
-                G[k, 3 * self._slot[j] : 3 * self._slot[j] + 3] += b
-            if self._slot[i] >= 0:
-                G[k, 3 * self._slot[i] : 3 * self._slot[i] + 3] -= b
-        return G
-
-    def cable_forces(self, x: np.ndarray) -> np.ndarray:
-        """Axial force of every cable [N], positive in tension."""
-        d = x[self.cables[:, 1]] - x[self.cables[:, 0]]
-        s = np.linalg.norm(d, axis=1)
-        k = np.where(s >= self.L_cable, self.k_t, self.k_c)
-        return k * (s - self.L_cable)
-
-    def nodal_forces(self, x: np.ndarray) -> np.ndarray:
-        """Cable plus external forces on each node [N], shape (n_nodes, 3)."""
-        d = x[self.cables[:, 1]] - x[self.cables[:, 0]]
-        s = np.linalg.norm(d, axis=1)
-        T = self.cable_forces(x)
-        fe = (T / s)[:, None] * d  # tension pulls i toward j
-        f = self.W.copy()
-        np.add.at(f, self.cables[:, 0], fe)
-        np.add.at(f, self.cables[:, 1], -fe)
-        return f
 
     def _accel_q(self, x: np.ndarray, vq: np.ndarray):
         f = self.to_q(self.nodal_forces(x))

@@ -3,7 +3,7 @@
 Job: natural frequencies and mode shapes of the constrained system (rigid bars), the largest
 frequency (explicit step limits), zero-stiffness mechanisms, the axial stiffness of the prisms
 of a column and the long-wave sound speeds of a column. Float64 NumPy on the host; the bar
-kinematics and mass matrix come from :class:`warp_tensegrity.checks.reference.ReferenceSystem`.
+kinematics and mass matrix come from :class:`.constrained.ConstrainedNetwork`.
 SI units: omega [rad s-1], stiffness [N m-1], torsional stiffness [N m rad-1], speeds [m s-1].
 
 Theory. With bar constraints ``g_k = (|b_k|^2 - L_k^2)/2`` and multipliers ``lam_k`` (force
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..scene.network import Network
-from .reference import ReferenceSystem
+from .constrained import ConstrainedNetwork
 
 __all__ = [
     "equilibrium_multipliers",
@@ -64,10 +64,10 @@ def _positions(net: Network, positions):
 
 # ====================================================================== general networks
 def equilibrium_multipliers(network: Network, positions: np.ndarray | None = None,
-                            _rs: ReferenceSystem | None = None):
+                            _rs: ConstrainedNetwork | None = None):
     """Bar force densities lam [N m-1] (tension positive; bar force = lam * length) balancing the
     cable forces at the free nodes in the least-squares sense, and the max residual force [N]."""
-    rs = _rs or ReferenceSystem(network)
+    rs = _rs or ConstrainedNetwork(network)
     x = _positions(network, positions)
     f = rs.to_q(rs.nodal_forces(x))
     G = rs.jacobian(x)
@@ -78,11 +78,11 @@ def equilibrium_multipliers(network: Network, positions: np.ndarray | None = Non
 
 
 def tangent_stiffness(network: Network, positions: np.ndarray | None = None,
-                      rest_branch: str = "tension", _rs: ReferenceSystem | None = None) -> np.ndarray:
+                      rest_branch: str = "tension", _rs: ConstrainedNetwork | None = None) -> np.ndarray:
     """K_t [N m-1] on the free coordinates (3 n_free x 3 n_free): cables plus bar geometric terms."""
     if rest_branch not in ("tension", "compression"):
         raise ValueError(f"rest_branch = {rest_branch!r}; choose 'tension' or 'compression'")
-    rs = _rs or ReferenceSystem(network)
+    rs = _rs or ConstrainedNetwork(network)
     x = _positions(network, positions)
     K = np.zeros((rs.ndof, rs.ndof))
     I3 = np.eye(3)
@@ -114,9 +114,9 @@ def tangent_stiffness(network: Network, positions: np.ndarray | None = None,
 
 
 def constraint_basis(network: Network, positions: np.ndarray | None = None, rtol: float = 1e-10,
-                     _rs: ReferenceSystem | None = None) -> np.ndarray:
+                     _rs: ConstrainedNetwork | None = None) -> np.ndarray:
     """Orthonormal basis Z (3 n_free x n_modes) of null(G): the admissible displacements."""
-    rs = _rs or ReferenceSystem(network)
+    rs = _rs or ConstrainedNetwork(network)
     G = rs.jacobian(_positions(network, positions))
     if G.shape[0] == 0:
         return np.eye(rs.ndof)
@@ -149,7 +149,7 @@ class ModalResult:
 def modal_analysis(network: Network, positions: np.ndarray | None = None,
                    rest_branch: str = "tension") -> ModalResult:
     """Generalised eigenproblem K_r y = omega^2 M_r y on the constraint tangent space."""
-    rs = ReferenceSystem(network)
+    rs = ConstrainedNetwork(network)
     x = _positions(network, positions)
     Z = constraint_basis(network, x, _rs=rs)
     K = tangent_stiffness(network, x, rest_branch, _rs=rs)
@@ -207,7 +207,7 @@ def _column_static(scene, axial_force: float, torque: float, rest_branch: str = 
     True where the load drives a zero-stiffness mechanism (then dh, dtheta are meaningless).
     """
     net, topo = scene.network, scene.topology
-    rs = ReferenceSystem(net)
+    rs = ConstrainedNetwork(net)
     x = np.array(net.positions, float)
     Z = constraint_basis(net, x, _rs=rs)
     Kr = Z.T @ tangent_stiffness(net, x, rest_branch, _rs=rs) @ Z

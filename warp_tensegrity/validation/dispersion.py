@@ -30,7 +30,7 @@ import numpy as np
 
 from ..scene.columns import ColumnConfig, build_column
 from .linear import tangent_stiffness
-from .reference import ReferenceSystem
+from .constrained import ConstrainedNetwork
 
 __all__ = ["BlochCell", "bloch_cell", "Bands", "bands", "ringing_frequency"]
 
@@ -76,7 +76,7 @@ def bloch_cell(config: ColumnConfig, prestrain: float, base_rigidity: float, cab
     cfg = replace(config, n_prisms=2 * _CELL_LEVEL, handedness="right" if hand > 0 else "left", bar_mass=0.0)
     scene = build_column(cfg, prestrain=prestrain, base_rigidity=base_rigidity, cable_EA=cable_EA, unit_mass=unit_mass)
     net, topo = scene.network, scene.topology
-    rs = ReferenceSystem(net)
+    rs = ConstrainedNetwork(net)
     K = tangent_stiffness(net, _rs=rs)
     G = rs.jacobian(net.positions)
     dof = {lvl: np.concatenate([3 * rs._slot[i] + np.arange(3) for i in topo.level_nodes[lvl]])
