@@ -80,7 +80,7 @@ except ImportError:  # pragma: no cover
     sys.path.insert(0, str(REPO_ROOT))
 
 from warp_tensegrity import plot as W  # noqa: E402  (the package's plot API draws every figure)
-from warp_tensegrity.settings import TIME  # noqa: E402  (the time axis, "t")
+from warp_tensegrity.types import TIME  # noqa: E402  (the time axis, "t")
 
 
 # ====================================================================== inputs and outputs

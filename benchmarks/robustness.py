@@ -107,7 +107,7 @@ def main(argv=None) -> int:
     from warp_tensegrity.policy.decide import prisms_to_simulate
     from warp_tensegrity.runtime import default_device
     from warp_tensegrity.scene.columns import ColumnConfig
-    from warp_tensegrity.settings import RunSettings
+    from warp_tensegrity.options import RunSettings
     from warp_tensegrity.types import STATUS_MEANINGS
 
     device = args.device or default_device()

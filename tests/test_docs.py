@@ -29,7 +29,7 @@ def spec_keys() -> list[str]:
     """Every key path a spec may hold, from the parser's own tables."""
     from warp_tensegrity.sweep import parse as P
     from warp_tensegrity.sweep import spec as S
-    from warp_tensegrity.settings import COLUMN_PARAMETERS
+    from warp_tensegrity.options import COLUMN_PARAMETERS
 
     keys = list(S.TOP_KEYS)
     keys += [f"scene.{k}" for k in P.SCENE_FIELDS + P.SCENE_PARAMS]

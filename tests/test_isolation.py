@@ -13,7 +13,7 @@ from warp_tensegrity import integrate
 from warp_tensegrity.engine import simulate_batch
 from warp_tensegrity.policy.decide import prisms_to_simulate
 from warp_tensegrity.scene.columns import ColumnConfig
-from warp_tensegrity.settings import RunSettings
+from warp_tensegrity.options import RunSettings
 from warp_tensegrity.types import STATUS_MEANINGS
 from warp_tensegrity.types import Status
 

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from warp_tensegrity.measure import pulse as M
 from warp_tensegrity.engine import simulate_batch
 from warp_tensegrity.measure.device import measure_pulse_device, measure_record
-from warp_tensegrity.settings import RunSettings, SettingsError
+from warp_tensegrity.options import RunSettings, SettingsError
 from warp_tensegrity.sweep.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]

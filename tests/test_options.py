@@ -17,7 +17,7 @@ from warp_tensegrity import overrides as OV
 from warp_tensegrity.sweep import parse as P
 from warp_tensegrity.sweep import spec as S
 from warp_tensegrity.scene import ColumnConfig, NetworkError
-from warp_tensegrity.settings import RunSettings
+from warp_tensegrity.options import RunSettings
 from warp_tensegrity.types import Method, Precision
 
 REPO = Path(__file__).resolve().parents[1]

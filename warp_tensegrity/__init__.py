@@ -24,7 +24,7 @@ from .scene import (
     network_batch,
 )
 from .result import BatchResult
-from .settings import COLUMN_PARAMETERS, RunSettings, SettingsError
+from .options import COLUMN_PARAMETERS, RunSettings, SettingsError
 from .types import Method, Status
 
 __all__ = [

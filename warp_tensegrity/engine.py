@@ -22,7 +22,7 @@ from .runtime import init_warp, resolve_device
 from .scene.base_modes import beta_limit_measures
 from .scene.batch import NetworkBatch, column_batch, column_params, reference_elastic_energy, reference_states
 from .scene.columns import ColumnConfig
-from .settings import RunSettings
+from .options import RunSettings
 from .types import FORCE_EVALS
 
 
@@ -133,7 +133,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
                    prisms_simulated: int | None = None, *, plan: RunPlan | None = None) -> BatchResult:
     """Simulate B T3 columns of one topology, each with its own parameters.
 
-    ``params`` maps names in :data:`~warp_tensegrity.settings.COLUMN_PARAMETERS` to arrays of
+    ``params`` maps names in :data:`~warp_tensegrity.options.COLUMN_PARAMETERS` to arrays of
     shape (B,) (or scalars); missing ones take the config's defaults.
     ``progress(steps_done, n_steps, n_failed)`` is called about twice a second.
     The run is decided once (:func:`~warp_tensegrity.policy.decide.decide`): with

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .settings import TIME  # xarray and matplotlib load on first use: `warp-tensegrity --help` stays instant
+from .types import TIME  # xarray and matplotlib load on first use: `warp-tensegrity --help` stays instant
 
 KINDS = {
     "phase": "a measured variable over two swept parameters",

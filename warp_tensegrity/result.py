@@ -1,7 +1,7 @@
 """The batch result: what a run returns, on the host, and its dataset (:meth:`BatchResult.to_xarray`).
 
-Apart from :mod:`.settings` so that the result may know its dataset format (:mod:`.io`) while the
-settings, which the step itself imports, stay a short import chain away from the bottom.
+Apart from :mod:`.options` (what goes into a run) so that the result may know its dataset format
+(:mod:`.io`) while the options, which every layer imports, stay at the bottom.
 """
 
 from __future__ import annotations

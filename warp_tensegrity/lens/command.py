@@ -17,7 +17,7 @@ def add_lens_parser(sub, parents=()) -> None:
 
 def run_lens_command(args) -> int:
     from ..scene.network import NetworkError
-    from ..settings import SettingsError
+    from ..options import SettingsError
     from .design import CalibrationError
     from .spec import LensSpecError, load_lens_spec
 

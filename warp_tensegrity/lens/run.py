@@ -46,7 +46,7 @@ def measure_exit(result, prism_height: float) -> dict:
 
 
 def _settings(spec: LensSpec, device: str | None, **over):
-    from ..settings import RunSettings
+    from ..options import RunSettings
 
     r = spec.run
     kw = dict(t_end=r.t_end, output_interval=r.output_interval, method=r.method, precision=r.precision,

@@ -21,7 +21,7 @@ from .linear import modal_analysis
 from ..engine import simulate_batch
 from ..measure import measure_pulse
 from ..scene.columns import ColumnConfig, build_column
-from ..settings import RunSettings
+from ..options import RunSettings
 
 __all__ = ["Check", "CheckGroup", "check_bessel", "check_soliton", "check_dispersion", "check_fb_modal", "chain_of"]
 
