@@ -70,7 +70,8 @@ def test_cache_key_separates_precision_method_and_path():
 
 
 def _cal(is_cuda):
-    return {"import": 1.0, "compile": 0.5, "batch_fixed": 0.1, "batch_per_column": 0.01, "integrator_build": 0.2,
+    return {"import": 1.0, "compile": 0.5, "batch_fixed": 0.1, "batch_per_column": 0.01, "batch_per_state": 0.05, "batch_first": 0.5,
+            "integrator_build": 0.2,
             "is_cuda": is_cuda, "probe_columns": 4 if not is_cuda else 512, "step_seconds": 1e-3,
             "column_step_seconds": 2.5e-4 if not is_cuda else 1e-3 / 512, "measure_seconds": 0.04,
             "measure_samples": 1001, "transfer_per_byte": 1e-9, "io_write_fixed": 0.05, "io_write_per_byte": 1e-9,
@@ -90,11 +91,12 @@ def test_cost_model_scaling():
     """CPU: stepping and measurement proportional to columns; GPU: flat up to the probed width
     (latency), proportional beyond; fixed costs once per run, per-shard costs per shard; the same
     figures whatever the host's load now (no rescaling by the load average)."""
-    cpu = predict(_cal(False), _run(False), [4, 4], False, planned_columns=8)["stages_s"]
+    cpu = predict(_cal(False), _run(False), [4, 4], False, shard_states=[1, 2], planned=(8, 3))["stages_s"]
     assert cpu["stepping"] == pytest.approx(1000 * 2.5e-4 * 8)
     assert cpu["measurement"] == pytest.approx(0.04 * 2)
     assert cpu["import"] == 1.0 and cpu["compile"] == 0.5
-    assert cpu["build"] == pytest.approx(0.1 + 0.01 * 8 + 2 * (0.1 + 0.01 * 4 + 0.2))
+    # a + b x columns + c x distinct reference states, for the plan and for each shard
+    assert cpu["build"] == pytest.approx(0.5 + 0.1 + 0.01 * 8 + 0.05 * 3 + 2 * (0.1 + 0.01 * 4 + 0.2) + 0.05 * (1 + 2))
     gpu = predict(_cal(True), _run(True), [512, 512, 512], False)
     assert gpu["stages_s"]["stepping"] == pytest.approx(3 * 1000 * 1e-3)
     big = predict(_cal(True), _run(True), [1024], False)

@@ -36,7 +36,7 @@ import psutil
 
 from ..provenance import code_version
 from ..runtime import resolve_device, startup_seconds
-from ..scene.batch import column_batch, column_params
+from ..scene.batch import column_batch, column_params, reference_states
 from ..types import Path as StepPath
 from .cost import predict
 from .decide import RunPlan, check_batch_arguments, decide, far_end
@@ -46,7 +46,9 @@ PROBE_STEPS = 300
 """Steps timed by the probe (after a first segment of PROBE_WARM_STEPS)."""
 PROBE_WARM_STEPS = 60
 CPU_PROBE_COLUMNS = 4
-CACHE_VERSION = 3
+CACHE_VERSION = 4
+BUILD_PROBE_COLUMNS = 8
+"""Columns of the probe's build-cost measurement (at most)."""
 BUSY_SHARE = 0.25
 """A probe is taken under load when other processes kept more than this share of the host's cores
 busy while it ran (a 2-core host: half a core)."""
@@ -222,21 +224,29 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
     s = dataclasses.replace(run.settings, record_strain=run.settings.record_strain or run.settings.measure != "none")
     sim_cfg = far_end(config, n_sim) if n_sim < n else config
 
-    # batch assembly (reference states, equilibrium checks) as a + b x columns: medians of three
-    # builds at two widths (the probe's and a quarter of it), as a shared host is noisy
+    # batch assembly as a + b x columns + c x distinct reference states (each state's equilibrium
+    # is solved once, whatever its columns), plus the scene's first build in a process (its impact
+    # solve, cached after): the fastest of three builds of one column, of m copies of it and of m
+    # columns with m distinct prestrains (noise on a shared host only adds)
     def build_time(p):
         times = []
         for _ in range(3):
             t0 = time.perf_counter()
-            out = column_batch(sim_cfg, p)
+            column_batch(sim_cfg, p)
             times.append(time.perf_counter() - t0)
-        return float(np.median(times)), out
+        return min(times), times[0]
 
-    n_small = max(1, len(cols) // 4)
-    t_small, _ = build_time({k: v[:n_small] for k, v in pp.items()})
-    t_full, batch = build_time(pp)
-    b_col = max(t_full - t_small, 0.0) / (len(cols) - n_small) if len(cols) > n_small else 0.0
-    a_batch = max(t_full - b_col * len(cols), 0.0)
+    m = min(len(cols), BUILD_PROBE_COLUMNS)
+    t1, first = build_time({k: v[:1] for k, v in pp.items()})
+    a_batch, b_col, c_state = t1, 0.0, 0.0
+    if m > 1:
+        same = {k: np.repeat(v[:1], m) for k, v in pp.items()}
+        distinct = same | {"prestrain": np.minimum(same["prestrain"] + 1e-6 * np.arange(m), 0.5)}
+        t_same, t_distinct = build_time(same)[0], build_time(distinct)[0]
+        b_col = max(t_same - t1, 0.0) / (m - 1)
+        c_state = max(t_distinct - t_same, 0.0) / (m - 1)
+        a_batch = max(t1 - b_col - c_state, 0.0)
+    batch = column_batch(sim_cfg, pp)
     every, spg = run.output_every, int(s.steps_per_graph)
     # whole graph periods (as a run replays them): the fused paths capture output periods
     period = every * max(1, -(-spg // every)) if run.path != StepPath.STAGED else spg
@@ -287,7 +297,8 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "is_cuda": bool(device.is_cuda),
         "step_path": str(run.path.value), "probe_columns": int(B), "probe_steps": 3 * seg_steps,
         "prisms_simulated": int(n_sim), "dt": float(run.dt), "output_every": int(every),
-        "batch_fixed": a_batch, "batch_per_column": b_col, "integrator_build": t_integ, "initialize": t_init,
+        "batch_fixed": a_batch, "batch_per_column": b_col, "batch_per_state": c_state,
+        "batch_first": max(first - t1, 0.0), "integrator_build": t_integ, "initialize": t_init,
         "step_seconds": t_step, "column_step_seconds": t_step / B,
         "measure_seconds": tm["measurement"], "measure_samples": int(T_full),
         "transfer_per_byte": t_copy, "device_bytes_per_column": per_col / B, "device_bytes_fixed": fixed,
@@ -300,14 +311,20 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
     }
 
 
+def reference_state_count(params: dict) -> int:
+    """Distinct reference states (prestrain, base rigidity, EA) among filled per-column parameters."""
+    return int(reference_states(params)[0]["prestrain"].size)
+
+
 def estimate_plan(plan, recalibrate: bool = False) -> dict:
     """The cost of a sweep plan (``sweep.plan.SweepPlan``): :func:`.cost.predict` from the probe of
     its run plan on its first shard's width; ``recalibrate`` renews the probe."""
     spec = plan.spec
     shards = [b - a for a, b in plan.shards]
     cal = probe(spec.scene, plan.params, plan.run, max(shards), use_cache=not recalibrate)
+    states = [reference_state_count({k: v[a:b] for k, v in plan.params.items()}) for a, b in plan.shards]
     return predict(cal, plan.run, shards, bool(spec.run["record_strain"]), bool(spec.run["record_energy"]),
-                   planned_columns=plan.n_columns) | {"probe": cal}
+                   shard_states=states, planned=(plan.n_columns, reference_state_count(plan.params))) | {"probe": cal}
 
 
 def estimate_batch(config, params: dict, settings, recalibrate: bool = False) -> dict:
@@ -320,7 +337,8 @@ def estimate_batch(config, params: dict, settings, recalibrate: bool = False) ->
     run = decide(config, params, settings)
     B = int(params["prestrain"].size)
     cal = probe(config, params, run, B, use_cache=not recalibrate)
-    pred = predict(cal, run, [B], run.settings.record_strain)
+    states = reference_state_count(params)
+    pred = predict(cal, run, [B], run.settings.record_strain, shard_states=[states], planned=(B, states))
     st = pred["stages_s"]
     seconds = sum(st[k] for k in ("build", "stepping", "measurement", "transfer"))
     return {"dt": run.dt, "dt_limit": run.dt_limit, "n_steps": run.n_steps, "output_every": run.output_every,

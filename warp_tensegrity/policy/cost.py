@@ -82,20 +82,24 @@ HOST_STAGES = ("import", "build", "compile", "transfer", "write", "finalise")
 
 
 def predict(cal: dict, run, shard_sizes: list[int], record_strain: bool, record_energy: bool = True,
-            planned_columns: int | None = None) -> dict:
+            shard_states: list[int] | None = None, planned: tuple[int, int] | None = None) -> dict:
     """Stage seconds and memory of ``run`` over shards of ``shard_sizes`` columns, from a probe ``cal``
-    (:func:`~warp_tensegrity.policy.calibrate.probe`). ``planned_columns``: columns whose bound the
-    plan built (a sweep's; None: none beyond the shards)."""
+    (:func:`~warp_tensegrity.policy.calibrate.probe`). ``shard_states``: distinct reference states
+    of each shard (default: as many as columns); ``planned``: (columns, states) whose bound the plan
+    built (a sweep's; None: none beyond the shards)."""
     P, n_out, n_steps = run.prisms, run.n_out, run.n_steps
     st = dict.fromkeys(("import", "build", "compile", "stepping", "measurement", "transfer", "write", "finalise"), 0.0)
     st["import"] = cal["import"]
     st["compile"] = cal["compile"]
     scale_T = n_out / max(cal["measure_samples"], 1)
     out_total = 0
-    st["build"] = (cal["batch_fixed"] + cal["batch_per_column"] * planned_columns) if planned_columns else 0.0
+    def build(columns, states):
+        return cal["batch_fixed"] + cal["batch_per_column"] * columns + cal.get("batch_per_state", 0.0) * states
+
+    st["build"] = cal.get("batch_first", 0.0) + (build(*planned) if planned else 0.0)  # the scene's first build
     out_col = output_bytes_per_column(n_out, P, record_strain, record_energy)
-    for b in shard_sizes:
-        st["build"] += cal["batch_fixed"] + cal["batch_per_column"] * b + cal["integrator_build"]
+    for b, states in zip(shard_sizes, shard_states or shard_sizes):
+        st["build"] += build(b, states) + cal["integrator_build"]
         if cal["is_cuda"]:
             # latency bound up to the probed width, then proportional
             st["stepping"] += n_steps * cal["step_seconds"] * max(1.0, b / cal["probe_columns"])
