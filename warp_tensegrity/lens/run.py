@@ -15,8 +15,8 @@ import time as _time
 import numpy as np
 
 from ..engine import simulate_batch
-from ..measure.pulse_core import measure_pulse
 from ..measure.pulse import peak_track
+from ..measure.pulse_core import measure_pulse
 from ..options import RunSettings
 from ..policy.cost import fmt_bytes
 from ..sweep.budget import host_memory_available

@@ -1,4 +1,4 @@
-"""Pulse measurement on the Warp device: every output of :func:`warp_tensegrity.measure.pulse.measure_pulse`
+"""Pulse measurement on the Warp device: every output of :func:`warp_tensegrity.measure.pulse_core.measure_pulse`
 computed from the strain record where the engine keeps it, so only the per-column measures cross
 to the host.
 
