@@ -1,5 +1,5 @@
 """Pulse measurement on the Warp device (warp_tensegrity.measure.device) against the NumPy
-reference (warp_tensegrity.measure.pulse): equal to <= 1e-12 relative (fp64), NaN in exactly the same
+reference (warp_tensegrity.measure.pulse_core): equal to <= 1e-12 relative (fp64), NaN in exactly the same
 places, on engine records (the 12 paper cases, ci_small) and on adversarial synthetic records."""
 
 from pathlib import Path
@@ -10,7 +10,7 @@ import pytest
 import warp as wp
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from warp_tensegrity.measure import pulse as M
+from warp_tensegrity.measure import pulse_core as M
 from warp_tensegrity.engine import simulate_batch
 from warp_tensegrity.measure.device import measure_pulse_device, measure_record
 from warp_tensegrity.options import RunSettings, SettingsError

@@ -25,6 +25,7 @@ from .scene import (
 )
 from .result import BatchResult
 from .options import COLUMN_PARAMETERS, RunSettings, SettingsError
+from .provenance import package_version
 from .types import Method, Status
 
 __all__ = [
@@ -55,7 +56,5 @@ __all__ = [
 
 def __getattr__(name):
     if name == "__version__":  # the build's version (setuptools-scm; provenance.py)
-        from .provenance import package_version
-
         return package_version()
     raise AttributeError(name)

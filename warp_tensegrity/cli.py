@@ -23,6 +23,20 @@ import logging
 import sys
 from pathlib import Path
 
+from . import plot
+from .init_spec import add_init_parser, run_init
+from .lens.command import add_lens_parser, run_lens_command
+from .measure.nan_reasons import dataset_summary
+from .options import OptionError
+from .overrides import parse_set
+from .plot import KINDS, PlotError
+from .policy.calibrate import estimate_plan
+from .provenance import version_text
+from .runtime import init_warp, warp_facts
+from .scene.network import NetworkError
+from .validation import report, run_validation
+from .validation.figures import write_figures
+
 log = logging.getLogger("warp_tensegrity")
 
 EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE = 0, 1, 3
@@ -136,8 +150,6 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("combine", parents=[common], help="export a finished run's store to OUT.nc again")
     p.add_argument("output", type=_path, metavar="OUT.nc")
 
-    from .plot import KINDS
-
     p = sub.add_parser("plot", parents=[common], help="plot a sweep's dataset (warp_tensegrity.plot)",
                        description="Draw one figure of OUT.nc with warp_tensegrity.plot and save it.")
     p.add_argument("dataset", type=_path, metavar="OUT.nc", help="a sweep's netCDF output (or a work-precision study's)")
@@ -150,11 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sel", action="append", default=[], metavar="NAME=VALUE",
                    help="pick one value of a dimension (nearest), e.g. --sel base_rigidity=1 --sel case=3")
     p.add_argument("--times", default=None, metavar="T1,T2,...", help="profile: output times [s]")
-    from .init_spec import add_init_parser  # `init [--example ...]`: a commented starting spec
-    from .lens.command import add_lens_parser  # `lens SPEC -o OUT.nc`: the lens package owns it
-
-    add_lens_parser(sub, parents=[common])
-    add_init_parser(sub, parents=[common])
+    add_lens_parser(sub, parents=[common])  # `lens SPEC -o OUT.nc`: the lens package owns it
+    add_init_parser(sub, parents=[common])  # `init [--example ...]`: a commented starting spec
     _add_validate_parser(sub, common)
     return parser
 
@@ -171,9 +180,6 @@ def _add_validate_parser(sub, common) -> None:
 
 
 def _validate(args) -> int:
-    from .runtime import init_warp
-    from .validation import report, run_validation
-
     init_warp(verbose=bool(args.verbose))
     try:
         groups = run_validation(args.only, device=None if args.device == "auto" else args.device)
@@ -182,8 +188,6 @@ def _validate(args) -> int:
         return EXIT_ERROR
     print(report(groups))
     if args.output:
-        from .validation.figures import write_figures
-
         for path in write_figures(groups, args.output):
             log.info("wrote %s", path)
     return EXIT_OK if all(g.passed for g in groups) else EXIT_ERROR
@@ -252,18 +256,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     setup_logging(args.verbose, args.quiet)
     if args.version:
-        from .provenance import version_text
-        from .runtime import init_warp, warp_facts
-
         init_warp(verbose=bool(args.verbose))
         print(version_text(warp_facts()))
         return EXIT_OK
     if args.command is None:
         parser.error("give a COMMAND (run, resume, status, combine, plot, lens, init, validate) or --version")
-    from .options import OptionError
-    from .plot import PlotError
-    from .scene.network import NetworkError
-    from .sweep.errors import SweepError
+    from .sweep.errors import SweepError  # the sweep package imports xarray: not at `--help`
 
     try:
         return _dispatch(args)
@@ -279,28 +277,19 @@ def _dispatch(args) -> int:
     if args.command == "validate":
         return _validate(args)
     if args.command == "init":
-        from .init_spec import run_init
-
         return run_init(args)
     if args.command == "lens":
-        from .lens.command import run_lens_command
-        from .runtime import init_warp
-
         init_warp(verbose=bool(args.verbose))
         return run_lens_command(args)
-    from .sweep import plan as sweep_plan
-    from .sweep import run as sweep
-    from .sweep.errors import SweepError
-    from .sweep.spec import load_spec
+    from .sweep import plan as sweep_plan  # the sweep package imports xarray: not at `--help`
+    from .sweep import run as sweep  # imports xarray: not at `--help`
+    from .sweep.errors import SweepError  # imports xarray: not at `--help`
+    from .sweep.spec import load_spec  # imports xarray: not at `--help`
 
     if args.command in ("run", "resume"):
-        from .runtime import init_warp
-
         init_warp(verbose=bool(args.verbose))
         device = None if args.device == "auto" else args.device
         if args.command == "run":
-            from .overrides import parse_set
-
             spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
             plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size,
@@ -318,13 +307,11 @@ def _dispatch(args) -> int:
                     raise SweepError("give either resume OUT.nc or resume SPEC -o OUT.nc")
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size,
                                                      memory_limit=args.memory_limit)
-        from .sweep import budget
+        from .sweep import budget  # imports xarray: not at `--help`
 
         limits = {"time_limit": args.time_limit or budget.DEFAULT_TIME_LIMIT}
         cost = None
         if args.dry_run or not args.ignore_estimate:
-            from .policy.calibrate import estimate_plan  # a probe on the target device, cached
-
             cost = estimate_plan(plan, recalibrate=args.recalibrate)  # the one estimate: dry run and limits
         if args.dry_run:
             print(sweep_plan.dry_run(plan, cost))
@@ -362,9 +349,6 @@ def _dispatch(args) -> int:
 
 
 def _plot(args) -> int:
-    from . import plot
-    from .plot import PlotError
-
     sel = {}
     for item in args.sel:
         name, sep, value = item.partition("=")
@@ -389,8 +373,7 @@ def _plot(args) -> int:
 
 def _log_nan_summary(path) -> None:
     """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons)."""
-    from .io import open_sweep
-    from .measure.nan_reasons import dataset_summary
+    from .io import open_sweep  # imports xarray: not at `--help`
 
     for line in dataset_summary(open_sweep(path)):
         log.info("%s", line)

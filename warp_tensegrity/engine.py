@@ -43,7 +43,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         expect("run_batch", "settings", settings, RunSettings)
         plan = decide_batch(batch, settings)
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
-    from .integrate import Integrator  # Warp loads with the first run, not with the package
+    from .integrate import Integrator  # imports Warp: not at package import, loads with the first run
 
     settings, dt, every, n_steps, n_out, path = plan.settings, plan.dt, plan.output_every, plan.n_steps, plan.n_out, plan.path
     device = resolve_device(plan.device)
@@ -55,7 +55,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
     measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"
     if measure_here:
-        from .measure.device import load_kernels, measure_record  # imports Warp
+        from .measure.device import load_kernels, measure_record  # imports Warp: not at package import
 
         t0 = time.perf_counter()
         load_kernels(integ.device)
@@ -160,7 +160,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     if n_sim < n:
         _pad_to_full_column(result, config, sim_config, params, n, n_sim)
     if plan.settings.measure == "host":
-        from .measure.device import measure_host  # the host measures load Warp's record helpers
+        from .measure.device import measure_host  # imports Warp (the record helpers): not at package import
 
         measure_host(result, config.height, keep_strain=plan.settings.record_strain)
     result.info["choices"] = plan.choices()

@@ -13,6 +13,10 @@ import sys
 import textwrap
 from pathlib import Path
 
+from .options_docs import lens_options_table, options_table
+from .options_lens import LENS_SECTIONS
+from .scene.columns import ColumnConfig  # noqa: F401 - registers the [scene] options
+
 EXAMPLES = {
     "paper": "the paper's Sec. 4 column (50 prisms), four of its impact cases as a case list",
     "phase": "a phase diagram: a prestrain x impact-speed grid of short rigid-base columns",
@@ -72,10 +76,6 @@ def _option_lines(row: dict, value=None) -> list[str]:
 
 def sweep_spec_text(example: str) -> str:
     """The commented sweep spec of ``example`` ('paper' or 'phase')."""
-    from .scene.columns import ColumnConfig  # noqa: F401 - registers the [scene] options
-
-    from .options_docs import options_table
-
     ex = _VALUES[example]
     out = _comment(f"warp_tensegrity sweep spec: {EXAMPLES[example]}. Written by `warp-tensegrity init "
                    f"--example {example}` from the options model; run it with `warp-tensegrity run "
@@ -99,9 +99,6 @@ def sweep_spec_text(example: str) -> str:
 
 def lens_spec_text() -> str:
     """The commented lens spec (every option of :mod:`warp_tensegrity.options_lens`, the CI lens's values)."""
-    from .options_docs import lens_options_table
-    from .options_lens import LENS_SECTIONS
-
     values = {"": {"title": "My lens"}, "column": {"base_rigidity": 1.0, "scene": {"n_prisms": 10}},
               "array": {"count": 8, "spacing": 0.012}, "calibration": {"count": 64},
               "design": {"focal_points": [[0.0, 0.0, 0.06], [0.015, 0.0, 0.07]]},

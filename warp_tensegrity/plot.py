@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .scene.columns import ColumnConfig
 from .types import TIME  # xarray and matplotlib load on first use: `warp-tensegrity --help` stays instant
+from .validation.dispersion import Bands, bands, ringing_frequency
 
 KINDS = {
     "phase": "a measured variable over two swept parameters",
@@ -253,8 +255,6 @@ def _column_scene(ds, sel: dict | None):
     """(ColumnConfig, prestrain, base_rigidity, cable_EA, unit_mass, column) of one column of a dataset."""
     import dataclasses
 
-    from .scene.columns import ColumnConfig
-
     kw = {}
     for f in dataclasses.fields(ColumnConfig):
         key = f"scene_{f.name}"
@@ -290,8 +290,6 @@ def dispersion(data, ax=None, sel: dict | None = None, speed: float | None = Non
     when the strain is recorded) the speed and cut-off, unless given. ``omega_max``: upper limit of
     the axis (default: 1.1 x the highest branch). Returns the Axes; ``ax.lines`` keep the numbers
     (symmetric branches labelled ``symmetric branch i``)."""
-    from .validation.dispersion import Bands, bands, ringing_frequency
-
     title = None
     if isinstance(data, Bands):
         b = data
@@ -328,7 +326,7 @@ def dispersion(data, ax=None, sel: dict | None = None, speed: float | None = Non
 # ---------------------------------------------------------------------- the CLI's entry
 def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None):
     """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure."""
-    from .io import open_sweep
+    from .io import open_sweep  # imports xarray: not at `--help`
 
     if kind not in KINDS:
         raise PlotError(f"plot kind {kind!r}: give one of {', '.join(sorted(KINDS))}")

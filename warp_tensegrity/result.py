@@ -10,6 +10,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .measure.nan_reasons import measure_columns
+from .provenance import provenance_attrs
+from .runtime import warp_facts
+
 
 @dataclass
 class BatchResult:
@@ -66,10 +70,7 @@ class BatchResult:
         parameters as coordinates, time axis ``t`` [s]), with the pulse measurements when the
         strain was kept. ``config``: the ColumnConfig (default: the prism height recorded by
         :func:`simulate_batch`). Built by :func:`warp_tensegrity.io.result_dataset`."""
-        from .io import result_dataset  # xarray loads here, not with the package
-        from .measure.nan_reasons import measure_columns
-        from .provenance import provenance_attrs
-        from .runtime import warp_facts
+        from .io import result_dataset  # imports xarray: not at package import
 
         height = float(config.height) if config is not None else self.info.get("prism_height")
         meas = None

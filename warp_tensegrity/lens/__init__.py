@@ -8,24 +8,31 @@ verification batches), :mod:`.io` (CF netCDF), :mod:`.command` (``warp-tensegrit
 Warp is imported only when a batch runs.
 """
 
-_DESIGN = ("CalibrationError", "Design", "ExitLaw", "common_arrival", "design_focus", "fit_exit_law")
-_HOST = ("column_positions", "field", "focal_map", "map_grid", "map_peak", "peak_over_time", "plane_wave_delays",
-         "spreading")
-_SPEC = ("LensSpec", "LensSpecError", "load_lens_spec", "parse_lens_spec")
+from .host import (
+    column_positions,
+    field,
+    focal_map,
+    map_grid,
+    map_peak,
+    peak_over_time,
+    plane_wave_delays,
+    spreading,
+)
+from .spec import LensSpec, LensSpecError, load_lens_spec, parse_lens_spec
 
-__all__ = sorted(_DESIGN + _HOST + _SPEC + ("run_lens",))
+_DESIGN = ("CalibrationError", "Design", "ExitLaw", "common_arrival", "design_focus", "fit_exit_law")
+
+__all__ = sorted(_DESIGN + ("column_positions", "field", "focal_map", "map_grid", "map_peak", "peak_over_time",
+                            "plane_wave_delays", "spreading", "LensSpec", "LensSpecError", "load_lens_spec",
+                            "parse_lens_spec", "run_lens"))
 
 
 def __getattr__(name):
-    # lazy: the CLI imports lens.command at start-up, and SciPy/pydantic/Warp load only when used
+    # lazy: the CLI imports lens.command at start-up; design and run load SciPy (run: xarray, Warp at a batch)
     if name in _DESIGN:
-        from . import design as mod
-    elif name in _HOST:
-        from . import host as mod
-    elif name in _SPEC:
-        from . import spec as mod
+        from . import design as mod  # imports SciPy: not at `--help`
     elif name == "run_lens":
-        from . import run as mod
+        from . import run as mod  # imports SciPy and xarray: not at `--help`
     else:
         raise AttributeError(name)
     return getattr(mod, name)

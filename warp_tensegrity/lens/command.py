@@ -5,6 +5,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from ..options import SettingsError
+from ..scene.network import NetworkError
+from .spec import LensSpecError, load_lens_spec
+
 
 def add_lens_parser(sub, parents=()) -> None:
     p = sub.add_parser("lens", parents=list(parents), help="design and verify a tunable-focus acoustic lens (docs/lens.md)",
@@ -16,16 +20,13 @@ def add_lens_parser(sub, parents=()) -> None:
 
 
 def run_lens_command(args) -> int:
-    from ..scene.network import NetworkError
-    from ..options import SettingsError
-    from .design import CalibrationError
-    from .spec import LensSpecError, load_lens_spec
+    from .design import CalibrationError  # imports SciPy: not at `--help`
 
     log = (lambda *a: None) if getattr(args, "quiet", False) else (lambda msg: print(msg, file=sys.stderr))
     try:
         spec = load_lens_spec(args.spec)
-        from .io import write_lens
-        from .run import run_lens
+        from .io import write_lens  # imports xarray: not at `--help`
+        from .run import run_lens  # imports SciPy and xarray: not at `--help`
 
         ds = run_lens(spec, device=args.device, log=log)
         path = write_lens(ds, Path(args.output))

@@ -9,6 +9,7 @@ import time as _time
 import numpy as np
 import xarray as xr
 
+from .. import io as D
 from ..provenance import provenance_attrs
 from ..types import TIME
 from .spec import LensSpec
@@ -24,8 +25,6 @@ def _v(dims, data, units, long_name, **extra):
 
 
 def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_ver, axes, foci, wall) -> xr.Dataset:
-    from .. import io as D
-
     x, y, z = axes
     f0 = foci[0]
     d0 = f0["design"]
@@ -141,6 +140,4 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
 
 def write_lens(ds: xr.Dataset, path):
     """Write atomically (netCDF4, compressed)."""
-    from .. import io as D
-
     return D.write_netcdf(ds, path)

@@ -14,9 +14,16 @@ import time as _time
 
 import numpy as np
 
+from ..engine import simulate_batch
+from ..measure.pulse import peak_track
+from ..measure.pulse_core import measure_pulse
+from ..options import RunSettings
+from ..policy.cost import fmt_bytes
+from ..sweep.budget import host_memory_available
 from . import host as H
 from .design import ExitLaw, design_focus, fit_exit_law
-from .spec import LensSpec
+from .io import lens_dataset
+from .spec import LensSpec, LensSpecError
 
 
 def exit_signals(strain: np.ndarray) -> np.ndarray:
@@ -27,8 +34,6 @@ def exit_signals(strain: np.ndarray) -> np.ndarray:
 def measure_exit(result, prism_height: float) -> dict:
     """Exit time [s] and exit amplitude [1] (exit prism's leading peak), and the sweeps' pulse
     measures (amplitude, speed, FWHM width), NaN for failed columns."""
-    from ..measure.pulse import measure_pulse, peak_track
-
     with np.errstate(all="ignore"):
         m = measure_pulse(result.strain, result.time, prism_height)
         track = peak_track(result.strain, result.time)
@@ -46,8 +51,6 @@ def measure_exit(result, prism_height: float) -> dict:
 
 
 def _settings(spec: LensSpec, device: str | None, **over):
-    from ..options import RunSettings
-
     r = spec.run
     kw = dict(t_end=r.t_end, output_interval=r.output_interval, method=r.method, precision=r.precision,
               dt=r.dt, device=device or r.device, record_strain=True, truncate=False)
@@ -56,8 +59,6 @@ def _settings(spec: LensSpec, device: str | None, **over):
 
 
 def _simulate(spec: LensSpec, prestrain: np.ndarray, settings, progress=None):
-    from ..engine import simulate_batch
-
     params = {"prestrain": np.asarray(prestrain, float), "v0": spec.incident.v0,
               "base_rigidity": spec.column.base_rigidity}
     return simulate_batch(spec.column.config(), params, settings, progress=progress)
@@ -71,10 +72,6 @@ device, its float64 copy, the measures' temporaries)."""
 def check_memory(spec: LensSpec, available: int | None = None) -> None:
     """Refuse up front (LensSpecError, with the figures) a calibration whose strain record would not
     fit in host memory: the whole column is recorded at every output, count x n_out x n_prisms."""
-    from ..policy.cost import fmt_bytes
-    from ..sweep.budget import host_memory_available
-    from .spec import LensSpecError
-
     n_out = int(spec.run.t_end / spec.run.output_interval) + 1
     n_prisms, count = spec.column.config().n_prisms, spec.calibration.count
     need = RECORD_COPIES * 8 * count * n_out * n_prisms
@@ -110,7 +107,6 @@ def _maps_spread(spec, positions, delays, axes, chunk: int = 4096) -> float:
 
 def run_lens(spec: LensSpec, device: str | None = None, progress=None, log=print):
     """Run the whole job; returns the CF dataset (see :func:`warp_tensegrity.lens.io.lens_dataset`)."""
-    from .io import lens_dataset
 
     t0 = _time.perf_counter()
     cfg = spec.column.config()

@@ -1,9 +1,47 @@
 """Pulse measures of a strain history: arrival, leading peak, amplitude, speed, width.
 
-:mod:`.pulse` is the reference NumPy implementation (definitions: ``docs/measurements.md``);
-:mod:`.device` computes the same on the Warp device from the engine's record (import it directly:
-it loads Warp, this package does not).
+:mod:`.pulse_core` (:func:`measure_pulse`, the window, the threshold, the constants) and :mod:`.pulse`
+(the single measures) are the reference NumPy implementation (definitions: ``docs/measurements.md``);
+this package's namespace offers the public names of both. :mod:`.device` computes the same on the Warp
+device from the engine's record (import it directly: it loads Warp, this package does not).
 """
 
-from .pulse import *  # noqa: F403
-from .pulse import __all__  # noqa: F401
+from .pulse import (
+    PulseSpeed,
+    arrival_times,
+    leading_pulse_amplitude,
+    peak_location,
+    peak_track,
+    pulse_speed,
+    pulse_width,
+    width_at_mid_column,
+)
+from .pulse_core import (
+    DEFAULT_END_FRACTION,
+    DEFAULT_SKIP_FRACTION,
+    DEFAULT_THRESHOLD_FRACTION,
+    PeakTrack,
+    default_skip,
+    default_threshold,
+    measure_pulse,
+    measurement_window,
+)
+
+__all__ = [
+    "DEFAULT_THRESHOLD_FRACTION",
+    "DEFAULT_END_FRACTION",
+    "DEFAULT_SKIP_FRACTION",
+    "PeakTrack",
+    "PulseSpeed",
+    "default_skip",
+    "measurement_window",
+    "default_threshold",
+    "arrival_times",
+    "peak_track",
+    "leading_pulse_amplitude",
+    "pulse_speed",
+    "peak_location",
+    "pulse_width",
+    "width_at_mid_column",
+    "measure_pulse",
+]

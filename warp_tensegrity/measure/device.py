@@ -1,4 +1,4 @@
-"""Pulse measurement on the Warp device: every output of :func:`warp_tensegrity.measure.pulse.measure_pulse`
+"""Pulse measurement on the Warp device: every output of :func:`warp_tensegrity.measure.pulse_core.measure_pulse`
 computed from the strain record where the engine keeps it, so only the per-column measures cross
 to the host.
 
@@ -54,6 +54,7 @@ from .pulse_core import (
     REFINED_THRESHOLD_FRACTION,
     _check_fraction,
     _check_history,
+    measure_pulse,
     measurement_window,
 )
 
@@ -188,8 +189,6 @@ def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact
 def measure_host(result, prism_height, keep_strain: bool = True) -> None:
     """The fallback (RunSettings.measure = 'host'): NumPy reference on the host copy of the record;
     sets ``result.measurements`` and the ``measurement`` stage seconds; drops the strain unless kept."""
-    from .pulse_core import measure_pulse
-
     t0 = _time.perf_counter()
     if result.strain is not None:
         s = np.asarray(result.strain, dtype=np.float64)

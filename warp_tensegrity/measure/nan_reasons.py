@@ -62,7 +62,7 @@ _PEAK_CLEARANCE = 4
 
 def measure_columns(result, prism_height: float) -> dict:
     """Leading-pulse measurements per column: the engine's device measures, else
-    :func:`~warp_tensegrity.measure.pulse.measure_pulse` on the record; NaN where undefined and for
+    :func:`~warp_tensegrity.measure.pulse_core.measure_pulse` on the record; NaN where undefined and for
     every column whose status is not ok, with the flag saying why. ``prism_height`` [m]."""
     status = np.asarray(result.status)
     m = getattr(result, "measurements", None)  # taken by the engine (on the device by default)

@@ -11,9 +11,9 @@ Pure NumPy, float64. Undefined or unmeasurable quantities (no arrival, flat sign
 non-finite samples, too short a record) come back as NaN; nothing raises on signal values,
 only on malformed inputs (shapes, time axis, out-of-range options).
 
-The single-measure functions live here; :func:`measure_pulse` (all of them in one call), the
-measurement window, the default threshold, the constants and the shared stages live in
-:mod:`.pulse_core` and are re-exported here.
+The single-measure functions live here; :func:`~.pulse_core.measure_pulse` (all of them in one
+call), the measurement window, the default threshold, the constants and the shared stages live in
+:mod:`.pulse_core` (import them from there; the package :mod:`warp_tensegrity.measure` offers both).
 """
 
 from __future__ import annotations
@@ -24,10 +24,6 @@ import numpy as np
 
 from .pulse_core import (
     DEFAULT_END_FRACTION,
-    DEFAULT_SKIP_FRACTION,
-    DEFAULT_THRESHOLD_FRACTION,
-    MIN_WINDOW,  # noqa: F401  (re-exported: was defined here)
-    REFINED_THRESHOLD_FRACTION,  # noqa: F401  (re-exported: was defined here)
     PeakTrack,
     _amplitude,
     _arrival,
@@ -40,21 +36,11 @@ from .pulse_core import (
     _threshold,
     _track,
     _width,
-    default_skip,
-    default_threshold,
-    measure_pulse,
     measurement_window,
 )
 
 __all__ = [
-    "DEFAULT_THRESHOLD_FRACTION",
-    "DEFAULT_END_FRACTION",
-    "DEFAULT_SKIP_FRACTION",
-    "PeakTrack",
     "PulseSpeed",
-    "default_skip",
-    "measurement_window",
-    "default_threshold",
     "arrival_times",
     "peak_track",
     "leading_pulse_amplitude",
@@ -62,7 +48,6 @@ __all__ = [
     "peak_location",
     "pulse_width",
     "width_at_mid_column",
-    "measure_pulse",
 ]
 
 

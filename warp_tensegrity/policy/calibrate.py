@@ -170,7 +170,7 @@ def _io_rates(tmp: Path) -> dict:
     """netCDF write and read seconds per byte (and per file) on this host, from a few-MB file."""
     import xarray as xr  # xarray (and pandas) load with a probe, not with the package
 
-    from .. import io as D  # imports xarray
+    from .. import io as D  # imports xarray: not at package import
 
     rng = np.random.default_rng(0)
     out = {}
@@ -212,8 +212,8 @@ def probe(config, params: dict, run: RunPlan, shard_size: int, use_cache: bool =
 def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
     import warp as wp  # Warp and the kernels load with a probe, not with the package
 
-    from ..integrate import Integrator  # imports Warp
-    from ..measure.device import load_kernels, measure_record  # imports Warp
+    from ..integrate import Integrator  # imports Warp: not at package import
+    from ..measure.device import load_kernels, measure_record  # imports Warp: not at package import
 
     busy = busy_start()
     device = resolve_device(run.device)
