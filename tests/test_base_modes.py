@@ -90,15 +90,12 @@ def test_the_amplitude_gate():
     assert np.isnan(f["base_mode_ratio"][3]) and f["base_mode_ratio"][0] == pytest.approx(1.062, abs=2e-3)
 
 
-def test_sweep_datasets_carry_the_flag(tmp_path):
-    """ci_small through the CLI: both variables per case, CF attributes, NaN/rigid at beta = 1."""
-    from warp_tensegrity.cli import main as cli_main
+def test_sweep_datasets_carry_the_flag(ci_small_nc):
+    """ci_small through the CLI (conftest's session run): both variables per case, CF attributes,
+    NaN/rigid at beta = 1."""
     from warp_tensegrity.io import open_sweep
 
-    out = tmp_path / "ci_small.nc"
-    assert cli_main(["run", str(ROOT / "sweeps" / "ci_small.toml"), "-o", str(out), "--device", "cpu",
-                     "--no-progress"]) == 0
-    ds = open_sweep(out)
+    ds = open_sweep(ci_small_nc)
     r, f = ds["base_mode_ratio"], ds["beta_limit_flag"]
     assert r.attrs["units"] == "1" and "long_name" in r.attrs
     assert f.attrs["flag_meanings"].split() == list(BM.BETA_LIMIT_FLAGS)

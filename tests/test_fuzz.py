@@ -653,6 +653,7 @@ def _python_m(args, cwd, timeout=120):
                           env=env, cwd=cwd, timeout=timeout)
 
 
+@pytest.mark.slow  # a dozen fresh interpreters, each importing Warp (~4 s)
 def test_subprocess_clear_errors_and_refusals(tmp_path):
     """As a user sees it: one clear message, exit 1, no traceback; a run that would not finish
     (or does not fit) is refused up front by the estimate with its figures, never started."""

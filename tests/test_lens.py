@@ -276,6 +276,7 @@ def test_shipped_specs_validate():
 
 
 # ---------------------------------------------------------------------- the command, on the CPU
+@pytest.mark.slow  # the lens command end to end: calibration and verification batches (~6 s)
 def test_lens_command_ci_spec(tmp_path, capsys):
     import xarray as xr
 

@@ -293,6 +293,7 @@ def test_engine_ci_small(spec_name):
     assert r.info["stages"]["measurement"] > 0
 
 
+@pytest.mark.slow  # needs the README's main job (conftest paper_2017_nc, ~15 s)
 def test_engine_paper_cases(paper_2017_nc):
     """The 12 cases of Fabbrocino & Carpentieri (2017) as the README's main job writes them (CLI, CPU,
     fp64, strain recorded): the measures the run stored (taken on the device during the run) and the

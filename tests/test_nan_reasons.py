@@ -27,11 +27,8 @@ def _check_every_nan_flagged(ds):
 
 
 @pytest.fixture(scope="module")
-def ci_small(tmp_path_factory):
-    out = tmp_path_factory.mktemp("ci_small_flags") / "ci_small.nc"
-    assert cli_main(["run", str(ROOT / "sweeps" / "ci_small.toml"), "-o", str(out), "--device", "cpu",
-                     "--no-progress"]) == 0
-    return out
+def ci_small(ci_small_nc):
+    return ci_small_nc  # conftest's session run of sweeps/ci_small.toml through the CLI
 
 
 def test_ci_small_every_case_measured_and_flagged(ci_small):

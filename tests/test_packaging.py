@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # a clone, a wheel and sdist build and a fresh virtual environment (~30 s)
+
 ROOT = Path(__file__).resolve().parent.parent
 HEX40 = re.compile(r"[0-9a-f]{40}")
 

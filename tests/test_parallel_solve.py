@@ -265,6 +265,7 @@ def test_lane_parallel_step_with_massive_bars(lanes):
     assert np.all(b.bar_length_error <= 1e-12)
 
 
+@pytest.mark.slow  # builds 65,536-column batches on the host for the dry run (15 s)
 def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
     """decide (the dry run's run plan) reports the path the policy picks on a GPU: the lane step for
     columns it takes (flexible, elastic or rigid bases up to 64 prisms) at any width; RB columns

@@ -12,6 +12,8 @@ import xarray as xr
 from warp_tensegrity import sweep
 from warp_tensegrity.io import drop_run_dependent, open_sweep
 
+pytestmark = pytest.mark.slow  # Dask LocalClusters of worker processes, each importing Warp
+
 distributed = pytest.importorskip("distributed")
 
 REPO = Path(__file__).resolve().parents[1]

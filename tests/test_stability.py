@@ -155,6 +155,7 @@ def _energy_deviation(method, n_steps, frac, device):
     return r.time[1:], (np.abs(E - E[:, :1]) / r.kinetic_energy[:, :1])[:, 1:]
 
 
+@pytest.mark.slow  # 1e5 steps (~4 s)
 def test_rattle_energy_has_no_secular_trend_over_1e5_steps(device):
     t, dev = _energy_deviation("rattle", 100_000, 0.5, device)  # large dt: error far above round-off
     for d in dev:  # FB and RB, taut cables

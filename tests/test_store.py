@@ -334,6 +334,7 @@ def _kill_run(args, point: str, hit: int, action: str, delay: float, tmp_path: P
 
 
 @pytest.mark.parametrize("seed", [int(os.environ.get("WT_KILL_SEED", 18))])
+@pytest.mark.slow  # three killed subprocess runs and resumes (~11 s)
 def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, reference, seed):
     """SIGKILL during stepping, mid-write and during finalise (point, arrival and delay drawn from a
     seeded RNG; the second and third kills hit `resume` runs), then `resume`: bit-identical."""
@@ -417,6 +418,7 @@ def test_case_list_kill_and_resume_recomputes_only_missing_shards(tmp_path, caps
     assert list(open_nc(out)["case_label"].values) == ["FB soft", "RB", "mid"]
 
 
+@pytest.mark.slow  # needs the README's main job (conftest paper_2017_nc, ~15 s)
 def test_paper_2017_store_checks_out(paper_2017_nc, tmp_path):
     """The README's main job (a case-list spec): status counts every shard done and combine
     re-exports it (on a copy, so the shared output stays as it was)."""

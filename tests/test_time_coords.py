@@ -1,17 +1,12 @@
 """Output times are exact: time = step * dt rounded to the output interval's decimals, so every
 printed time selects (issue 16, part 4)."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
-from warp_tensegrity.cli import main as cli_main
 from warp_tensegrity.io import open_sweep
 from warp_tensegrity.policy.accuracy import output_times
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_output_times_round_to_the_interval():
@@ -37,11 +32,8 @@ def test_engine_times_select_exactly():
 
 
 @pytest.fixture(scope="module")
-def ci_small(tmp_path_factory):
-    out = tmp_path_factory.mktemp("ci_small_time") / "ci_small.nc"
-    assert cli_main(["run", str(ROOT / "sweeps" / "ci_small.toml"), "-o", str(out), "--device", "cpu",
-                     "--no-progress"]) == 0
-    return open_sweep(out)
+def ci_small(ci_small_nc):
+    return open_sweep(ci_small_nc)  # conftest's session run of sweeps/ci_small.toml through the CLI
 
 
 def test_every_printed_time_selects(ci_small):
