@@ -281,12 +281,12 @@ def _column_scene(ds, sel: dict | None):
 def dispersion(data, ax=None, sel: dict | None = None, speed: float | None = None, cutoff: float | None = None,
                n_k: int = 121, omega_max: float | None = None):
     """Band diagram of the periodic column: omega [rad s-1] against the Bloch wavenumber k h0 [rad]
-    (:func:`warp_tensegrity.checks.dispersion.bands`). Every branch in grey, the 3-fold symmetric
+    (:func:`warp_tensegrity.validation.dispersion.bands`). Every branch in grey, the 3-fold symmetric
     (axial-torsional) branches an axial impact excites in colour; a measured front ``speed`` [m s-1]
     as the line omega = speed k (dashed) and a measured ``cutoff`` [rad s-1] as a horizontal line
-    (dotted). ``data``: a :class:`~warp_tensegrity.checks.dispersion.Bands`, or a dataset with
+    (dotted). ``data``: a :class:`~warp_tensegrity.validation.dispersion.Bands`, or a dataset with
     ``sel`` picking one column: its scene, prestrain and base rigidity give the bands, its
-    ``speed`` measure and the ringing of its struck prism (``checks.dispersion.ringing_frequency``,
+    ``speed`` measure and the ringing of its struck prism (``validation.dispersion.ringing_frequency``,
     when the strain is recorded) the speed and cut-off, unless given. ``omega_max``: upper limit of
     the axis (default: 1.1 x the highest branch). Returns the Axes; ``ax.lines`` keep the numbers
     (symmetric branches labelled ``symmetric branch i``)."""

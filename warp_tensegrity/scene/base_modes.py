@@ -37,7 +37,7 @@ Float64 NumPy on the host. The modes are those of the linearised constrained sys
 reference state (:func:`modes`: tangent stiffness of the cables and of the bars' prestress on the
 tangent space of the bar constraints). This module computes them itself, so the sweeps that
 record the flag do not depend on :mod:`warp_tensegrity.checks`; ``tests/test_base_modes.py``
-checks them against :func:`warp_tensegrity.checks.linear.modal_analysis`.
+checks them against :func:`warp_tensegrity.validation.linear.modal_analysis`.
 """
 
 from __future__ import annotations

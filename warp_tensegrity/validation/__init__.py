@@ -4,7 +4,7 @@
 * ``soliton``: the unstressed RB column's solitary wave against the cubic chain's (Nesterenko);
 * ``dispersion``: Bloch bands of the periodic column, FB and RB, their RB long-wave limit against
   c0, and the simulated speed against the same measure on the Bessel form;
-* ``fb_modal``: the flexible-base (FB) small impact against the modal sum of :mod:`.checks.linear`.
+* ``fb_modal``: the flexible-base (FB) small impact against the modal sum of :mod:`.linear`.
 
 ``warp-tensegrity validate`` runs :func:`run_validation` and draws :mod:`.figures`;
 ``tests/test_validation.py`` runs each check.

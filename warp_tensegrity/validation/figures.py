@@ -64,7 +64,7 @@ def figure_bessel(g):
 
 def figure_fb_modal(g):
     n = g.data["engine"].shape[1]
-    fig = _record_vs_reference(g, "modal", "modal sum (checks.linear)", [n - 1, n // 2, 0])
+    fig = _record_vs_reference(g, "modal", "modal sum (validation.linear)", [n - 1, n // 2, 0])
     fig.suptitle("FB, p = 0.002: the engine's strain against the modal sum", fontsize=10)
     return fig
 
