@@ -4,9 +4,9 @@ Each ``check_*`` function runs small scenes of the paper's prism (:class:`Column
 a = 5 mm, h0 = 6.2 mm, EA = 0.337 N, m = 0.0249 kg; massless bars, masses on the bases, the
 half-mass end base and the default ``rigid_members`` impact) and returns a :class:`CheckGroup`:
 its numbers against their tolerances, and the arrays its figure draws. Closed forms come from
-:mod:`warp_tensegrity.checks.closed_forms` (the RB chain, the Bessel response, the cubic chain's
-solitary wave) and :mod:`warp_tensegrity.checks.dispersion` (Bloch bands); the FB modal sum from
-:mod:`warp_tensegrity.checks.linear`. Nothing is compared with stored engine output.
+:mod:`warp_tensegrity.validation.closed_forms` (the RB chain, the Bessel response, the cubic chain's
+solitary wave) and :mod:`warp_tensegrity.validation.dispersion` (Bloch bands); the FB modal sum from
+:mod:`warp_tensegrity.validation.linear`. Nothing is compared with stored engine output.
 """
 
 from __future__ import annotations
@@ -218,7 +218,7 @@ def check_dispersion(n_prisms: int = 20, prestrain: float = 0.002, peak_of_p: fl
 # ---------------------------------------------------------------------- 4. FB modal sum
 def modal_strain(scene, time) -> np.ndarray:
     """Linear strain history (n_time, n_prisms) of ``scene``'s impact as a sum over the modes of
-    :func:`warp_tensegrity.checks.linear.modal_analysis`: u(t) = sum_n phi_n (phi_n^T M v) sin(w_n t)/w_n,
+    :func:`warp_tensegrity.validation.linear.modal_analysis`: u(t) = sum_n phi_n (phi_n^T M v) sin(w_n t)/w_n,
     strain = the change of each prism's mean base height over h0."""
     net, topo = scene.network, scene.topology
     r = modal_analysis(net)
@@ -233,7 +233,7 @@ def modal_strain(scene, time) -> np.ndarray:
 
 def check_fb_modal(n_prisms: int = 8, prestrain: float = 0.002, v0: float = 1e-7, t_end: float = 3.0,
                    tolerance: float = 1e-4, device: str = "cpu") -> CheckGroup:
-    """The FB column's small impact (no 1-D reduction) against the modal sum of checks.linear."""
+    """The FB column's small impact (no 1-D reduction) against the modal sum of validation.linear."""
     cfg = ColumnConfig(n_prisms=n_prisms)
     r = _run(cfg, {"prestrain": prestrain, "v0": v0, "base_rigidity": 0.0}, t_end, 0.01, device)
     ref = modal_strain(build_column(cfg, prestrain=prestrain, v0=v0, base_rigidity=0.0), r.time)
