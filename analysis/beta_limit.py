@@ -135,7 +135,7 @@ def part_f():
 
 
 def main_pulse_speed(q, t, h, t0=0.2, t1=1.0, start=(30, 45)):
-    """Independent of the measure (as tests/test_measure.py): the largest compression of the main
+    """Independent of the measure (as tests/measure/test_measure.py): the largest compression of the main
     pulse tracked snapshot by snapshot (searched from 2 prisms behind to 1 ahead of the last
     location, parabolic), its location fitted linearly in time over [t0, t1]."""
     k0, k1 = np.searchsorted(t, [t0, t1])

@@ -9,7 +9,7 @@ Five choices the engine takes by itself, each measured against the more expensiv
    against a float64 RK4 reference at dt = 2e-4 s (10-12x below the engine's dt) and against
    each other.
 2. Massless bars (no partner-mass path) when the bar mass is zero: free single T3 prisms
-   (as ``tests/test_against_reference.py``), random admissible velocities, 0.1 s. Timed three
+   (as ``tests/validation/test_against_reference.py``), random admissible velocities, 0.1 s. Timed three
    ways: massless bars with the bar mass lumped on the nodes (m/2 per end), the partner-mass
    path with the same lumped masses plus a negligible bar mass (1e-12 kg: the same physics, the
    massive code path; the pure cost of that path), and the consistent-inertia bars

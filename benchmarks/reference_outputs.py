@@ -1,5 +1,5 @@
 """Reference outputs for refactors: runs ``ci_small``, ``paper_2017`` (truncated in time) and the
-holdout scenes of ``tests/test_against_reference.py`` in fp64 on Warp's CPU device and writes every
+holdout scenes of ``tests/validation/test_against_reference.py`` in fp64 on Warp's CPU device and writes every
 output array (strain histories, energies, errors, status, final state, pulse measures) to one
 compressed npz. A refactor that must not change results re-runs this and compares bit for bit
 (``tests/test_reference_outputs.py``).
@@ -51,7 +51,7 @@ def _sweep_arrays(name: str, overrides: dict | None = None) -> dict:
 
 
 def _holdout_arrays() -> dict:
-    """The scenes of tests/test_against_reference.py, with the settings used there."""
+    """The scenes of tests/validation/test_against_reference.py, with the settings used there."""
     from warp_tensegrity import (
         ColumnConfig,
         Network,

@@ -283,7 +283,7 @@ def one_probe(monkeypatch, tmp_path_factory):
     """The dry run's calibration probe (seconds of stepping plus a fresh process, cached per
     scene) would run for every valid fuzzed scene: far too long (a fuzzed 200-prism column on the
     CPU alone takes minutes). The harness judges input handling, not the estimate
-    (tests/test_calibrate.py does), so every dry run here reuses ONE real probe, of ci_small's
+    (tests/policy/test_decide_and_cost.py does), so every dry run here reuses ONE real probe, of ci_small's
     scene; the prediction from it (calibrate.predict) still runs on each fuzzed plan."""
     from warp_tensegrity.policy import calibrate
     from warp_tensegrity.sweep import plan as sweep_plan

@@ -22,7 +22,7 @@ from ..types import Method
 HOST_COPIES = 4
 """Host bytes a shard needs while stepping and measuring, in units of its output bytes
 (engine arrays, their float64 copies, measurement temporaries); calibrated by
-tests/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
+tests/sweep/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
 MEASURE_VALUES = 10
 """Per-column scalars of the output (pulse measures, flags, errors)."""
 

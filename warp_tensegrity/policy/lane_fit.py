@@ -1,7 +1,7 @@
 """Which T3 columns the one-warp-per-column step (:mod:`warp_tensegrity.kernels.lanes`) takes, in
 NumPy alone, so the policy decides without loading Warp: the lane map's shape (:func:`lane_shape`),
 a built batch (:func:`lane_support`) and a scene before any batch is built (:func:`lane_refusal`);
-the two agree on column batches (tests/test_lanes.py)."""
+the two agree on column batches (tests/kernels/test_lanes.py)."""
 
 from __future__ import annotations
 

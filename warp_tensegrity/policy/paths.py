@@ -20,7 +20,7 @@ from ..types import Method, Path
 # fused='auto' on a GPU, where the lane step does not take the batch: the fastest measured of the
 # fused step with its constraint solve by block cyclic reduction ("fused"), the fused step with
 # lane 0's serial banded Cholesky ("fused-serial") and the staged kernels, per (band, precision, columns). H100, 50 prisms, RATTLE, column-steps/s
-# (benchmarks/results/throughput_h100_solver.json, commit 0ac0606; tests/test_parallel_solve.py checks
+# (benchmarks/results/throughput_h100_solver.json, commit 0ac0606; tests/kernels/test_parallel_solve.py checks
 # this table against it): {band: {precision: {B: (fused, fused-serial, staged)}}}; band 3 = FB, 6 = RB.
 MEASURED_H100 = {
     3: {

@@ -36,7 +36,7 @@ scaled by n_exact / n (its 1/n law) and the RB band top taken as is (it converge
 Float64 NumPy on the host. The modes are those of the linearised constrained system about the
 reference state (:func:`modes`: tangent stiffness of the cables and of the bars' prestress on the
 tangent space of the bar constraints). This module computes them itself, so the sweeps that
-record the flag do not depend on the validation gallery (:mod:`warp_tensegrity.validation`); ``tests/test_base_modes.py``
+record the flag do not depend on the validation gallery (:mod:`warp_tensegrity.validation`); ``tests/scene/test_base_modes.py``
 checks them against :func:`warp_tensegrity.validation.linear.modal_analysis`.
 """
 

@@ -6,7 +6,7 @@ Gram matrix J M^-1 J^T is banded and its sparse LU has O(n) fill).
 Up to :data:`DENSE_MAX_DOF` free degrees of freedom the scene keeps its dense NumPy solves (the
 numbers of every column of up to 100 prisms stay bit for bit those of earlier releases); above,
 the dense solves are O(n^3) in time and O(n^2) in memory (1.96 TiB at 100,000 prisms) and these
-take over. Both agree to round-off (tests/test_columns.py).
+take over. Both agree to round-off (tests/scene/test_columns.py).
 
 A leaf of the import graph: NumPy and SciPy only.
 """

@@ -7,7 +7,7 @@
 * ``fb_modal``: the flexible-base (FB) small impact against the modal sum of :mod:`.linear`.
 
 ``warp-tensegrity validate`` runs :func:`run_validation` and draws :mod:`.figures`;
-``tests/test_validation.py`` runs each check.
+``tests/validation/test_validation.py`` runs each check.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ from warp_tensegrity.sweep import manifest as zmanifest
 from warp_tensegrity.sweep import run as sweep_run
 from warp_tensegrity.sweep import store as zstore
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 GRID_SPEC = """
 title = "store test grid"

@@ -13,7 +13,7 @@ from warp_tensegrity import ColumnConfig
 from warp_tensegrity.scene import base_modes as BM
 from warp_tensegrity.scene.impact import kinematic_lock_strain
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PAPER = ColumnConfig()
 LOCK = -kinematic_lock_strain(PAPER.radius, PAPER.height, PAPER.twist)
 

@@ -14,7 +14,7 @@ from warp_tensegrity.io import open_sweep
 from warp_tensegrity.measure.nan_reasons import FLAG, FLAGGED, FLAGS, dataset_summary, measurement_flags, t_end_needed
 from warp_tensegrity.sweep.shard import measure_columns
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _check_every_nan_flagged(ds):

@@ -16,7 +16,7 @@ from warp_tensegrity.measure.device import measure_pulse_device, measure_record
 from warp_tensegrity.options import RunSettings, SettingsError
 from warp_tensegrity.sweep.spec import load_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 H = 6.2e-3
 RTOL = 1e-12
 
@@ -131,7 +131,7 @@ def test_adversarial_records(adversarial):
 
 
 def test_engine_record_with_a_captured_threshold():
-    """The stored 50-prism record (beta = 0.9999 and 1, tests/test_measure.py::captured_record):
+    """The stored 50-prism record (beta = 0.9999 and 1, tests/measure/test_measure.py::captured_record):
     the device follows the pulse as the host does, and its speed at 0.9999 is within 5 % of 1's."""
     from test_measure import captured_record
 

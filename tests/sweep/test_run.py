@@ -19,7 +19,7 @@ from warp_tensegrity import cli, sweep
 from warp_tensegrity.io import drop_run_dependent, open_sweep
 from warp_tensegrity.sweep import SpecError, parse_spec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 GRID_SPEC = """
 title = "test grid"

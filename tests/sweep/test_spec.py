@@ -15,7 +15,7 @@ import pytest
 from warp_tensegrity import estimate_batch
 from warp_tensegrity.sweep import SpecError, load_spec, parse_spec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SWEEPS = REPO / "sweeps"
 
 BASE = """

@@ -22,7 +22,7 @@ from warp_tensegrity.policy.cost import fmt_seconds, predict
 from warp_tensegrity.sweep import plan as sweep
 from warp_tensegrity.sweep.spec import load_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture

@@ -240,7 +240,7 @@ def test_lens_options_are_declared_in_the_options_layer():
     from warp_tensegrity import options as O
     from warp_tensegrity import options_lens as OL
 
-    src = (Path(__file__).resolve().parents[1] / "warp_tensegrity" / "lens" / "spec.py").read_text()
+    src = (Path(__file__).resolve().parents[2] / "warp_tensegrity" / "lens" / "spec.py").read_text()
     import re
 
     assert "Field(" not in src and "BaseModel" not in src and not re.search(r"\b(ge|gt|le|lt)=", src)
@@ -268,7 +268,7 @@ def test_shipped_specs_validate():
 
     from warp_tensegrity.lens import load_lens_spec
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     ci = load_lens_spec(root / "sweeps/lens_ci.toml")
     demo = load_lens_spec(root / "sweeps/lens_demo.toml")
     assert ci.array.shape[0] <= 8 and ci.column.config().n_prisms <= 10
@@ -361,7 +361,7 @@ def test_reading_a_lens_spec_and_cli_help_do_not_import_warp():
     import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     code = ("from warp_tensegrity.lens import load_lens_spec; load_lens_spec('sweeps/lens_demo.toml'); "
             "import warp_tensegrity.cli as c; c.build_parser(); import sys; print('warp' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
@@ -376,7 +376,7 @@ def test_calibration_that_never_exits_is_a_clear_error(tmp_path, capsys):
 
     from warp_tensegrity.cli import main
 
-    text = (Path(__file__).resolve().parents[1] / "sweeps/lens_ci.toml").read_text()
+    text = (Path(__file__).resolve().parents[2] / "sweeps/lens_ci.toml").read_text()
     text = text.replace("t_end = 0.9 ", "t_end = 0.1 ")
     spec = tmp_path / "short.toml"
     spec.write_text(text.replace("count = 64 ", "count = 8 "))
@@ -392,10 +392,10 @@ def test_a_calibration_that_does_not_fit_in_memory_is_refused_up_front(tmp_path,
     from warp_tensegrity.lens.run import check_memory
     from warp_tensegrity.lens.spec import LensSpecError, load_lens_spec
 
-    text = (Path(__file__).resolve().parents[1] / "sweeps/lens_ci.toml").read_text()
+    text = (Path(__file__).resolve().parents[2] / "sweeps/lens_ci.toml").read_text()
     spec = tmp_path / "long.toml"
     spec.write_text(text.replace("n_prisms = 10", "n_prisms = 100000"))
-    check_memory(load_lens_spec(Path(__file__).resolve().parents[1] / "sweeps/lens_ci.toml"))  # the CI lens fits
+    check_memory(load_lens_spec(Path(__file__).resolve().parents[2] / "sweeps/lens_ci.toml"))  # the CI lens fits
     with pytest.raises(LensSpecError, match=r"64 columns x 451 outputs x 100,000 prisms .* is available"):
         check_memory(load_lens_spec(spec), available=10**9)
     spec.write_text(text.replace("n_prisms = 10", "n_prisms = 100000").replace("count = 64", "count = 1048576"))

@@ -174,7 +174,7 @@ def test_auto_path_policy_picks_the_fastest_measured_path():
     from warp_tensegrity.policy.paths import FUSED_MAX_BANDWIDTH, MEASURED_H100, MEASURED_PATHS, choose_path
     from warp_tensegrity.types import Path
 
-    res = FsPath(__file__).parents[1] / "benchmarks/results"
+    res = FsPath(__file__).parents[2] / "benchmarks/results"
     doc = json.loads((res / "throughput_h100_solver.json").read_text())
     assert "H100" in doc["meta"]["device_name"]
     seen = 0

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.slow  # Dask LocalClusters of worker processes, each im
 
 distributed = pytest.importorskip("distributed")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 SPEC = """
 [scene]

@@ -338,7 +338,7 @@ def test_a_disturbance_from_the_clamp_does_not_capture_the_speed():
 
 def test_a_disturbance_over_most_of_the_window_leaves_no_speed():
     """A fast bump captures the threshold at most window prisms: no measure (NaN), cut reported
-    (measurement_flag leading_pulse_captured, tests/test_nan_reasons.py)."""
+    (measurement_flag leading_pulse_captured, tests/measure/test_nan_reasons.py)."""
     t, s = _with_disturbance(c2=150.0)
     m = M.measure_pulse(s, t, 6.2e-3)
     assert m["pulse_captured"] == 1
@@ -367,7 +367,7 @@ def captured_record():
     RunSettings(t_end=1.6, output_interval=0.002, device='cpu', dt_safety=0.25), one batch."""
     from pathlib import Path
 
-    d = np.load(Path(__file__).parent / "data" / "captured_pulse_50.npz")
+    d = np.load(Path(__file__).parents[1] / "data" / "captured_pulse_50.npz")
     return d["strain"].astype(np.float64), d["time"], d["base_rigidity"]
 
 
