@@ -668,7 +668,7 @@ def test_subprocess_clear_errors_and_refusals(tmp_path):
     r = _python_m(["run", tmp_path / "slow.toml", "-o", tmp_path / "slow.nc", "--device", "cpu", "--time-limit", "60"],
                   tmp_path, timeout=120)
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
-    assert "does not fit" in r.stderr and "time limit is 1 min" in r.stderr and "20,000,000 steps" in r.stderr, r.stderr
+    assert "does not fit" in r.stderr and "time limit is 1m00s" in r.stderr and "20,000,000 steps" in r.stderr, r.stderr
     assert not (tmp_path / "slow.nc").exists()
 
     never = _with("run", "dt", 1e-12)
@@ -798,6 +798,7 @@ PUBLIC_CALLS = {  # each public function: valid arguments, and the names of thos
     "simulate_batch": (["config", "params", "settings"], {"progress": None, "prisms_simulated": 1}),
     "run_batch": (["batch", "settings"], {"progress": None, "pulse": None}),
     "estimate_batch": (["config", "params", "settings"], {}),
+    "decide": (["config", "params", "settings"], {"prisms_simulated": 1}),
     "column_batch": (["config", "params"], {}),
     "build_column": (["config", "prestrain", "v0", "base_rigidity"], {}),
     "column_topology": (["config"], {}),
@@ -833,7 +834,7 @@ def test_fuzz_wrong_argument_types_for_every_public_function():
 
     public = {n for n in W.__all__ if callable(getattr(W, n, None))}
     containers = {"BatchResult", "ColumnScene", "Network", "NetworkBatch", "Method", "Status", "NetworkError",
-                  "SettingsError"}  # data classes, enums and exception classes: nothing to check
+                  "SettingsError", "RunPlan"}  # data classes, enums and exception classes: nothing to check
     assert public - containers == set(PUBLIC_CALLS), public - containers - set(PUBLIC_CALLS)
     valid = _valid_arguments
     rng = random.Random(SEED)
@@ -888,7 +889,7 @@ def test_fuzz_long_columns_plan_or_refuse(mode, tmp_path):
     huge = load_spec(VALID_TEXT.decode(), overrides={"scene": {"n_prisms": 100_000, "impact_admissibility": mode},
                                                       "sweep": {"grid": {"v0": {"start": 0.001, "stop": 0.1,
                                                                                 "num": 20_000}}}})
-    with pytest.raises(budget.BudgetError, match=r"planning builds every column .* about .* \(limit 10 min\)"):
+    with pytest.raises(budget.BudgetError, match=r"planning builds every column .* about .* \(limit 10m00s\)"):
         budget.check_plan(huge, available=10**15)  # (here its memory is refused first)
     n = 100_000 if EXPLORE else 5_000
     spec = load_spec(VALID_TEXT.decode(), overrides={"scene": {"n_prisms": n, "impact_admissibility": mode}})

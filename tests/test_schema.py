@@ -112,6 +112,27 @@ def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
         assert np.array_equal(getattr(integ.data, name).numpy(), getattr(base.data, name).numpy()), name
 
 
+def test_a_batch_array_is_one_edit_in_types(monkeypatch, fresh_fused):
+    """A field whose host values the batch holds (``source``): its declaration in types.MODEL_FIELDS is
+    the only edit. Model, the table, the fused struct and its argument group carry it, with the
+    batch's values laid out as declared, and the step runs as before."""
+    base = _integrator()
+    base.run(10)
+    extra = Field("cab_c", "real", "(ne, Bp)", "N s m-1", "a per-column cable parameter", ("fused",),
+                  source="cable_rest_length")
+    monkeypatch.setattr(types, "MODEL_FIELDS", MODEL_FIELDS + (extra,))
+    for f in FUSED_CACHES:
+        f.cache_clear()
+    integ = _integrator()
+    m = integ.model
+    assert np.array_equal(m.cab_c.numpy(), m.cab_L.numpy())  # (ne, Bp), the column index fastest
+    assert "Model.cab_c" in types.field_table() and integ.fk.cm.cab_c.shape == m.cab_c.shape
+    assert "cab_c" in fused.make_node_funcs(wp.float64).ColumnModel.vars
+    integ.run(10)
+    for name in ("u", "v", "a"):
+        assert np.array_equal(getattr(integ.data, name).numpy(), getattr(base.data, name).numpy()), name
+
+
 def test_an_undeclared_host_array_is_an_error(monkeypatch):
     host_arrays = model.host_arrays
     monkeypatch.setattr(model, "host_arrays", lambda b, p: (host_arrays(b, p)[0], {**host_arrays(b, p)[1], "x": 0}))

@@ -90,16 +90,16 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
                  n_cables=len(cab), bandwidth=int(bw), n_prisms=n_prisms)
     arrays = dict(
         con_i=cons[:, 0].astype(np.int32), con_j=cons[:, 1].astype(np.int32), con_dref=dref_c, con_L=L_c,
-        con_active=batch.constraint_active,
         cpl_start=cpl_start, cpl_l=cpl_l, cpl_a=cpl_a, cpl_cross=cpl_cross, cpl_sign=cpl_sign,
         ncon_start=ncon_start, ncon_member=ncon_member,
         cab_i=cab[:, 0].astype(np.int32), cab_j=cab[:, 1].astype(np.int32), cab_dref=dref_e,
-        cab_EA=batch.cable_EA, cab_EAc=batch.cable_EA_compression, cab_L=batch.cable_rest_length,
         node_start=node_start, node_member=node_member, node_other=node_other, node_dref=node_dref,
         partner=partner, mass_blocks=mass_blocks(partner_full),
         m_self=m_self, m_cross=m_cross, minv_self=minv_self, minv_cross=minv_cross,
         level_nodes=level_nodes, h0=h0,
     )
+    # the batch's own arrays, by their declared source (types.Field.source)
+    arrays.update({f.name: getattr(batch, f.source) for f in types.MODEL_FIELDS if f.source})
     return sizes, arrays
 
 

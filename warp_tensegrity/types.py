@@ -168,6 +168,10 @@ class Field(NamedTuple):
     """The :data:`ARGUMENT_GROUPS` that take it."""
     optional: bool = False
     """None when the batch has no prism levels."""
+    source: str | None = None
+    """The :class:`~warp_tensegrity.scene.batch.NetworkBatch` attribute holding its host values, as
+    the batch holds them ((Bp, k) for a per-column parameter); None: computed by
+    :func:`warp_tensegrity.model.host_arrays`. With a source, declaring a field is its only edit."""
 
     @property
     def ndim(self) -> int:
@@ -203,7 +207,8 @@ MODEL_FIELDS = (
     Field("con_j", "int32", "(nc,)", "--", "second node of the rigid member", _BAR),
     Field("con_dref", "vec3", "(nc,)", "m", "reference bar vector X_j - X_i", _BAR),
     Field("con_L", "real", "(nc,)", "m", "bar length (of the rounded con_dref)", ("fused", "positions")),
-    Field("con_active", "real", "(nc, Bp)", "1", "1 if the rigid member exists in the column", _BAR),
+    Field("con_active", "real", "(nc, Bp)", "1", "1 if the rigid member exists in the column", _BAR,
+          source="constraint_active"),
     Field("cpl_start", "int32", "(nc+1,)", "--", "CSR row starts of the Gram matrix's coupling terms", _CPL),
     Field("cpl_l", "int32", "(ncp,)", "--", "coupling term's column l <= k of row k", _CPL),
     Field("cpl_a", "int32", "(ncp,)", "--", "coupling term's node a of row k", _CPL),
@@ -214,9 +219,9 @@ MODEL_FIELDS = (
     Field("cab_i", "int32", "(ne,)", "--", "first node of the cable", ("energy",)),
     Field("cab_j", "int32", "(ne,)", "--", "second node of the cable", ("energy",)),
     Field("cab_dref", "vec3", "(ne,)", "m", "reference cable vector", ("energy",)),
-    Field("cab_EA", "real", "(ne, Bp)", "N", "tension stiffness EA", _CAB),
-    Field("cab_EAc", "real", "(ne, Bp)", "N", "compression stiffness EA_c", _CAB),
-    Field("cab_L", "real", "(ne, Bp)", "m", "rest length", _CAB),
+    Field("cab_EA", "real", "(ne, Bp)", "N", "tension stiffness EA", _CAB, source="cable_EA"),
+    Field("cab_EAc", "real", "(ne, Bp)", "N", "compression stiffness EA_c", _CAB, source="cable_EA_compression"),
+    Field("cab_L", "real", "(ne, Bp)", "m", "rest length", _CAB, source="cable_rest_length"),
     Field("node_start", "int32", "(n+1,)", "--", "CSR node -> cables", _NODE),
     Field("node_member", "int32", "(2 ne,)", "--", "cables of the node", _NODE),
     Field("node_other", "int32", "(2 ne,)", "--", "other end of node_member's cable", _NODE),

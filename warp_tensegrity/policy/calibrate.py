@@ -45,6 +45,8 @@ from .paths import lane_emulation
 PROBE_STEPS = 300
 """Steps timed by the probe (after a first segment of PROBE_WARM_STEPS)."""
 PROBE_WARM_STEPS = 60
+PROBE_SAMPLES = 4000
+"""Outputs of the synthetic record whose measurement the probe times (at most)."""
 CPU_PROBE_COLUMNS = 4
 CACHE_VERSION = 4
 BUILD_PROBE_COLUMNS = 8
@@ -247,8 +249,9 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
         c_state = max(t_distinct - t_same, 0.0) / (m - 1)
         a_batch = max(t1 - b_col - c_state, 0.0)
     batch = column_batch(sim_cfg, pp)
-    every, spg = run.output_every, int(s.steps_per_graph)
-    # whole graph periods (as a run replays them): the fused paths capture output periods
+    # outputs every few steps at most: the step's cost, not the output stride's (a run may output every
+    # million steps); whole graph periods (as a run replays them), the fused paths capture output periods
+    every, spg = min(run.output_every, PROBE_STEPS // 6), int(s.steps_per_graph)
     period = every * max(1, -(-spg // every)) if run.path != StepPath.STAGED else spg
     seg_steps = period * max(1, -(-(PROBE_STEPS // 3) // period))
     warm_steps = period * max(1, -(-PROBE_WARM_STEPS // period))
@@ -274,9 +277,10 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
                 seg.append((time.perf_counter() - t0) / seg_steps)
             t_step = float(np.min(seg))
             per_col, fixed = _array_bytes((integ.model, integ.data, integ.kinetic, integ.elastic), B)
-            # measurement of a record of the run's length (sech^2 pulses crossing the column)
-            T_full = run.n_out
-            tt = run.output_times
+            # measurement of a record of the run's length, up to PROBE_SAMPLES outputs (the cost model
+            # scales it to the run's; sech^2 pulses crossing the column)
+            T_full = min(run.n_out, PROBE_SAMPLES)
+            tt = run.output_times[:T_full]
             j = np.arange(n_sim)
             c = max(n_sim, 4) / max(float(tt[-1]), 1e-30) * 0.8
             rec = -1e-3 / np.cosh((j[None, :] - (n_sim - 1 + 4 - c * tt[:, None])) / 2.0) ** 2
