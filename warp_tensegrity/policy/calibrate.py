@@ -4,7 +4,7 @@ the target device, not taken from constants.
 The probe (:func:`probe`) runs the plan's own step (method, precision, dt, output stride, path) on
 a few of its columns: the CPU backend steps columns one after another, so 4 columns give the cost
 per column-step; on a GPU it takes the shard's width, since the step time there is set by latency
-up to thousands of columns. It times the batch build, the stepping (the fastest of three segments,
+up to thousands of columns. It times the batch build, the stepping (the median of three segments,
 after a first one that loads kernels and captures graphs), the device measurement of a record of
 the run's length, the device-to-host copy and a netCDF write and read of a few MB; import and
 kernel-load seconds are this process's own. :func:`.cost.predict` turns it into stage seconds and
@@ -269,13 +269,13 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
             t_init = time.perf_counter() - t0
             integ.advance(warm_steps)  # loads, graph capture
             wp.synchronize_device(integ.device)
-            seg = []  # three segments, the fastest: a neighbour's burst only slows the others
+            seg = []  # three segments, their median (a probe under load is marked: others_busy)
             for _ in range(3):
                 t0 = time.perf_counter()
                 integ.advance(seg_steps)
                 wp.synchronize_device(integ.device)
                 seg.append((time.perf_counter() - t0) / seg_steps)
-            t_step = float(np.min(seg))
+            t_step = float(np.median(seg))
             per_col, fixed = _array_bytes((integ.model, integ.data, integ.kinetic, integ.elastic), B)
             # measurement of a record of the run's length, up to PROBE_SAMPLES outputs (the cost model
             # scales it to the run's; sech^2 pulses crossing the column)
