@@ -148,6 +148,9 @@ def dry_run(plan: SweepPlan, cost: dict) -> str:
         f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
         f"({p['column_step_seconds']:.3g} s per column-step; cached {p['created']}; --recalibrate renews it)",
     ]
+    if p.get("compiled_modules"):
+        lines.append(f"             the probe compiled {p['compiled_modules']} kernel modules ({p['probe_compile']:.3g} s) into "
+                     "Warp's cache: the run loads them from there")
     if p.get("under_load"):
         lines.append(f"             taken while other work kept {100 * p['others_busy']:.0f} % of the cores busy: "
                      "the time may be high; it is re-measured once the host is idle")
