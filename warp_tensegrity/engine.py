@@ -148,7 +148,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
         plan = decide(config, params, settings, prisms_simulated=prisms_simulated)
     else:
         expect("simulate_batch", "plan", plan, RunPlan)
-    params = check_batch_arguments("simulate_batch", config, params, plan.settings, progress)
+    params = column_params(config, check_batch_arguments("simulate_batch", config, params, plan.settings, progress))
     n, n_sim = config.n_prisms, plan.prisms_simulated
     sim_config = far_end(config, n_sim) if n_sim < n else config
     t_build = time.perf_counter()

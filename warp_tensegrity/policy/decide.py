@@ -131,7 +131,7 @@ def omega_bound(config: ColumnConfig, params: dict) -> float:
     (each column's bound depends on its own parameters only)."""
     p = column_params(config, params)
     B, chunk = p["prestrain"].size, max(16, ESTIMATE_CHUNK_BYTES // (400 * config.n_prisms))
-    return max(float(omega_max_bound(column_batch(config, {k: v[i:i + chunk] for k, v in p.items()})).max())
+    return max(float(omega_max_bound(column_batch(config, p.take(slice(i, i + chunk)))).max())
                for i in range(0, B, chunk))
 
 
@@ -153,7 +153,7 @@ def _topology_batch(config: ColumnConfig, params: dict) -> NetworkBatch:
     from its first column and its first rigid-base column."""
     rigid = np.flatnonzero(params["base_rigidity"] >= Base.RIGID)
     rows = [0] + ([int(rigid[0])] if rigid.size and rigid[0] != 0 else [])
-    return column_batch(config, {k: v[rows] for k, v in params.items()})
+    return column_batch(config, params.take(rows))
 
 
 def decide(config: ColumnConfig, params: dict, settings: RunSettings, *, n_columns: int | None = None,

@@ -104,9 +104,22 @@ def network_batch(networks: list[Network], velocities: list[np.ndarray] | None =
     )
 
 
-def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarray]:
-    """Fill defaults and broadcast the per-column parameters to a common length B; validate."""
+class ColumnParams(dict):
+    """Per-column parameters filled, broadcast to (B,) and validated once, at entry
+    (:func:`column_params`), which passes them through unchanged afterwards; :meth:`take` keeps the
+    mark on a subset of the columns."""
+
+    def take(self, index) -> ColumnParams:
+        """The parameters of the columns ``index`` (a slice, or an integer array)."""
+        return ColumnParams({k: v[index] for k, v in self.items()})
+
+
+def column_params(config: col.ColumnConfig, params: dict) -> ColumnParams:
+    """Fill defaults and broadcast the per-column parameters to a common length B; validate. Parameters
+    this function returned already come back as they are (validated once)."""
     expect("column_batch", "config", config, col.ColumnConfig)
+    if isinstance(params, ColumnParams):
+        return params
     params = expect_params("column_batch", params)
     unknown = sorted(set(params) - set(COLUMN_PARAMETERS))
     if unknown:
@@ -123,7 +136,7 @@ def column_params(config: col.ColumnConfig, params: dict) -> dict[str, np.ndarra
             raise NetworkError(f"parameter {k}: shape {a.shape} does not broadcast to ({B},)")
         arrays[k] = np.broadcast_to(a, (B,)).copy()
     col.check_column_params(*(arrays[k] for k in ("prestrain", "v0", "base_rigidity", "cable_EA", "unit_mass")))
-    return arrays
+    return ColumnParams(arrays)
 
 
 @functools.lru_cache(maxsize=32)
