@@ -46,7 +46,7 @@ LAYERS = [
     # applications: sweeps, the lens, the validation gallery, figures, the public facade
     {"sweep.manifest", "sweep.budget", "sweep.progress", "sweep.parse", "sweep.spec", "sweep.store", "sweep.status",
      "sweep.plan", "sweep.shard", "sweep.dask", "sweep.run", "sweep", "lens.host", "lens.design", "lens.spec",
-     "lens.io", "lens.run", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
+     "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
      "validation.linear", "validation.dispersion", "validation.checks", "validation.figures", "validation", "plot",
      "init_spec", ""},
     {"cli", "__main__"},

@@ -6,7 +6,7 @@
     warp-tensegrity combine OUT.nc
     warp-tensegrity plot OUT.nc KIND [-o FIG.png]      (phase, spacetime, profile, work-precision)
     warp-tensegrity --version
-    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N]   (acoustic lens, docs/lens.md)
+    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--time-limit S]   (docs/lens.md)
     warp-tensegrity validate [-o FIGDIR] [--only NAME ...]   (closed-form gallery, docs/validation.md)
     warp-tensegrity init [--example paper|phase|lens] [-o SPEC.toml]  (a commented starting spec)
 
@@ -31,6 +31,7 @@ from .options import OptionError
 from .overrides import parse_set
 from .plot import KINDS, PlotError
 from .policy.calibrate import estimate_plan
+from .policy.cost import DEFAULT_TIME_LIMIT, positive_seconds
 from .provenance import version_text
 from .runtime import init_warp, warp_facts
 from .scene.network import NetworkError
@@ -67,18 +68,6 @@ def _path(value: str) -> str:
     return value
 
 
-def _positive_float(value: str) -> float:
-    import math
-
-    try:
-        x = float(value)
-    except ValueError:
-        x = -1.0
-    if not (math.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"{value!r} is not a positive number of seconds")
-    return x
-
-
 def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
     p.add_argument("--device", type=_device, default=None,
                    help="Warp device: cpu, cuda:N or auto (default: the spec's run.device, else the GPU if there is one, else the CPU)")
@@ -94,7 +83,7 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
                        help="print the number of columns and shards and the estimated memory and time; run nothing")
     p.add_argument("--memory-limit", default=None, metavar="SIZE",
                    help="host memory for the shards in flight, e.g. 512MB (lowers the shard size to fit)")
-    p.add_argument("--time-limit", type=_positive_float, default=None, metavar="SECONDS",
+    p.add_argument("--time-limit", type=positive_seconds, default=None, metavar="SECONDS",
                    help="refuse a run estimated to take longer (default: 7 days)")
     p.add_argument("--ignore-estimate", action="store_true",
                    help="run even when the estimate says the run exceeds this machine's memory, disk or time limit "
@@ -309,7 +298,7 @@ def _dispatch(args) -> int:
                                                      memory_limit=args.memory_limit)
         from .sweep import budget  # imports xarray: not at `--help`
 
-        limits = {"time_limit": args.time_limit or budget.DEFAULT_TIME_LIMIT}
+        limits = {"time_limit": args.time_limit or DEFAULT_TIME_LIMIT}
         cost = None
         if args.dry_run or not args.ignore_estimate:
             cost = estimate_plan(plan, recalibrate=args.recalibrate)  # the one estimate: dry run and limits

@@ -55,7 +55,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
     measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"
     if measure_here:
-        from .measure.device import load_kernels, measure_record  # imports Warp: not at package import
+        from .measure.device import measure_record  # imports Warp: not at package import
+        from .measure.device_kernels import load_kernels  # imports Warp
 
         t0 = time.perf_counter()
         load_kernels(integ.device)

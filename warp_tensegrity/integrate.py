@@ -27,7 +27,7 @@ from .kernels.lanes import LaneStep
 from .kernels.staged import make_kernels
 from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
-from .runtime import default_device, resolve_device  # noqa: F401 (the device a batch runs on)
+from .runtime import resolve_device
 from .options import RunSettings, SettingsError
 from .types import ARGUMENT_GROUPS, Method, Path, RKStage, group_fields
 

@@ -402,3 +402,31 @@ def test_a_calibration_that_does_not_fit_in_memory_is_refused_up_front(tmp_path,
     assert main(["lens", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu"]) == 1  # ~1 PB: on any host
     err = capsys.readouterr().err
     assert "1,048,576 columns x 451 outputs x 100,000 prisms" in err and "Traceback" not in err, err
+
+
+def test_lens_dry_run_and_time_limit_quote_one_estimate(tmp_path, capsys, monkeypatch):
+    """The lens job is priced before it runs, by the sweeps' cost model (its two batches decided as
+    they will run, one probe): --dry-run prints it and runs nothing; --time-limit refuses a job over it
+    with the same figure; a legal but endless job (t_end = 1e6 s) is refused at once."""
+    import re
+
+    from warp_tensegrity.cli import main
+
+    monkeypatch.setenv("WARP_TENSEGRITY_CACHE", str(tmp_path / "cache"))
+    ci = str(Path(__file__).resolve().parents[2] / "sweeps/lens_ci.toml")
+    out = tmp_path / "o.nc"
+    assert main(["lens", ci, "-o", str(out), "--device", "cpu", "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "calibration:  64 columns x" in text and "verification: 48 columns x" in text and "fits:        yes" in text
+    quoted = re.search(r"time:        ~(\S+) wall", text).group(1)
+    assert not out.exists()
+    assert main(["lens", ci, "-o", str(out), "--device", "cpu", "--time-limit", "0.5"]) == 1
+    err = capsys.readouterr().err
+    assert f"the estimate is {quoted} and the time limit is 0.5s" in err and "Traceback" not in err, err
+    assert not out.exists()
+    endless = tmp_path / "endless.toml"
+    endless.write_text(Path(ci).read_text().replace("t_end = 0.9 ", "t_end = 1e6 ").replace(
+        "output_interval = 0.002 ", "output_interval = 1e4 ").replace("count = 64 ", "count = 8 "))
+    assert main(["lens", str(endless), "-o", str(out), "--device", "cpu"]) == 1
+    err = capsys.readouterr().err
+    assert re.search(r"the estimate is [\d.]+ days and the time limit is 168h00m", err), err

@@ -29,7 +29,6 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from ..policy.lane_fit import WARP
 
 def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # once per cached kernel
     """The lane pieces for scalar type ``real``, P levels per lane and G lanes per column, over the

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..options import SettingsError
 from ..scene.network import NetworkError
+from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_seconds, positive_seconds
 from .spec import LensSpecError, load_lens_spec
 
 
@@ -17,6 +18,12 @@ def add_lens_parser(sub, parents=()) -> None:
     p.add_argument("spec", metavar="SPEC", help="lens spec (TOML), e.g. sweeps/lens_ci.toml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="netCDF output")
     p.add_argument("--device", default=None, help="Warp device: cpu or cuda:N (default: the spec's run.device, else the GPU if there is one)")
+    p.add_argument("--dry-run", action="store_true", help="print the two batches and the estimated time; run nothing")
+    p.add_argument("--time-limit", type=positive_seconds, default=None, metavar="SECONDS",
+                   help="refuse a job estimated to take longer (default: 7 days)")
+    p.add_argument("--ignore-estimate", action="store_true", help="run even when the estimate exceeds the time limit "
+                                                                  "(no calibration probe is taken)")
+    p.add_argument("--recalibrate", action="store_true", help="take the calibration probe again instead of the cached one")
 
 
 def run_lens_command(args) -> int:
@@ -25,8 +32,23 @@ def run_lens_command(args) -> int:
     log = (lambda *a: None) if getattr(args, "quiet", False) else (lambda msg: print(msg, file=sys.stderr))
     try:
         spec = load_lens_spec(args.spec)
+        from .run import check_memory, run_lens  # imports SciPy and xarray: not at `--help`
+
+        check_memory(spec)  # before anything is built: a record that cannot fit is refused with its figures
+        if args.dry_run or not args.ignore_estimate:
+            from .estimate import describe, estimate_lens  # imports SciPy: not at `--help`
+
+            est = estimate_lens(spec, device=args.device, recalibrate=args.recalibrate)
+            limit = DEFAULT_TIME_LIMIT if args.time_limit is None else args.time_limit
+            if args.dry_run:
+                print(describe(est))
+                print("fits:        " + ("yes (time limit)" if est["seconds"] <= limit else "NO: over the time limit"))
+                return 0
+            if est["seconds"] > limit:
+                print(f"warp-tensegrity lens: error: the estimate is {fmt_seconds(est['seconds'])} and the time limit is "
+                      f"{fmt_seconds(limit)} (--time-limit SECONDS; --ignore-estimate runs it anyway)", file=sys.stderr)
+                return 1
         from .io import write_lens  # imports xarray: not at `--help`
-        from .run import run_lens  # imports SciPy and xarray: not at `--help`
 
         ds = run_lens(spec, device=args.device, log=log)
         path = write_lens(ds, Path(args.output))

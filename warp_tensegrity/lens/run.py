@@ -8,7 +8,6 @@ samples.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time as _time
 
@@ -17,13 +16,12 @@ import numpy as np
 from ..engine import simulate_batch
 from ..measure.pulse import peak_track
 from ..measure.pulse_core import measure_pulse
-from ..options import RunSettings
 from ..policy.cost import fmt_bytes
 from ..sweep.budget import host_memory_available
 from . import host as H
-from .design import ExitLaw, design_focus, fit_exit_law
+from .design import design_focus, fit_exit_law
 from .io import lens_dataset
-from .spec import LensSpec, LensSpecError
+from .spec import LensSpec, LensSpecError, lens_settings
 
 
 def exit_signals(strain: np.ndarray) -> np.ndarray:
@@ -48,14 +46,6 @@ def measure_exit(result, prism_height: float) -> dict:
     for v in out.values():
         v[np.asarray(result.status) != 0] = np.nan
     return out
-
-
-def _settings(spec: LensSpec, device: str | None, **over):
-    r = spec.run
-    kw = dict(t_end=r.t_end, output_interval=r.output_interval, method=r.method, precision=r.precision,
-              dt=r.dt, device=device or r.device, record_strain=True, truncate=False)
-    kw.update(over)
-    return RunSettings(**kw)
 
 
 def _simulate(spec: LensSpec, prestrain: np.ndarray, settings, progress=None):
@@ -88,7 +78,7 @@ def calibrate(spec: LensSpec, device: str | None = None, progress=None):
     check_memory(spec)
     c = spec.calibration
     p = np.linspace(c.prestrain_min, c.prestrain_max, c.count)
-    result = _simulate(spec, p, _settings(spec, device), progress)
+    result = _simulate(spec, p, lens_settings(spec, device), progress)
     meas = measure_exit(result, spec.column.config().height)
     return p, meas, fit_exit_law(p, meas["exit_time"]), result
 
@@ -134,7 +124,7 @@ def run_lens(spec: LensSpec, device: str | None = None, progress=None, log=print
         float(np.ptp(d.target_exit_time)) for d in designs)
     t_end_v = math.ceil((spec.run.t_end + extra) / interval) * interval
     p_ver = np.concatenate([d.prestrain for d in designs] + [np.full(N, u) for u in uniform])
-    r_ver = _simulate(spec, p_ver, _settings(spec, device, t_end=t_end_v, dt=float(r_cal.dt)), progress)
+    r_ver = _simulate(spec, p_ver, lens_settings(spec, device, t_end=t_end_v, dt=float(r_cal.dt)), progress)
     m_ver = measure_exit(r_ver, cfg.height)
     sig = exit_signals(r_ver.strain)
     failed = np.flatnonzero(np.asarray(r_ver.status) != 0)

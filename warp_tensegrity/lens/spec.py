@@ -15,7 +15,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..options import OptionError, build, unknown_key
+from ..options import OptionError, RunSettings, build, unknown_key
 from ..options_lens import (
     LENS_SECTIONS, LensArray, LensCalibration, LensDesign, LensHost, LensIncident, LensMap, LensRun,
 )
@@ -144,3 +144,12 @@ def load_lens_spec(path) -> LensSpec:
     except TomlError as e:
         raise LensSpecError(f"lens spec {str(path)!r}: {e.reason}") from None
     return parse_lens_spec(data, str(path))
+
+
+def lens_settings(spec: LensSpec, device: str | None, **over):
+    """The run settings of the lens's batches (the whole column recorded, never truncated)."""
+    r = spec.run
+    kw = dict(t_end=r.t_end, output_interval=r.output_interval, method=r.method, precision=r.precision,
+              dt=r.dt, device=device or r.device, record_strain=True, truncate=False)
+    kw.update(over)
+    return RunSettings(**kw)

@@ -40,7 +40,6 @@ from .device_funcs import f64
 from .device_kernels import (
     column_measures,
     init_threshold,
-    load_kernels,  # noqa: F401  (re-exported: engine and calibrate import it from here)
     prism_stats,
     refine,
     snapshot_fit,

@@ -23,7 +23,6 @@ import dataclasses
 import functools
 import hashlib
 import json
-import math
 import os
 import platform
 import resource
@@ -226,7 +225,8 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
     import warp as wp  # Warp and the kernels load with a probe, not with the package
 
     from ..integrate import Integrator  # imports Warp: not at package import
-    from ..measure.device import load_kernels, measure_record  # imports Warp: not at package import
+    from ..measure.device import measure_record  # imports Warp: not at package import
+    from ..measure.device_kernels import load_kernels  # imports Warp
 
     busy = busy_start()
     device = resolve_device(run.device)

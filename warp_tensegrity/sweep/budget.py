@@ -19,13 +19,11 @@ import os
 import shutil
 from pathlib import Path
 
-from ..policy.cost import fmt_bytes, fmt_seconds
+from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_bytes, fmt_seconds
 from .errors import SweepError
 
 MAX_STEPS = 2**31 - 1
 """The device's step counter is a Warp ``int`` (int32)."""
-DEFAULT_TIME_LIMIT = 7 * 86400.0
-"""Seconds a run may be estimated to take before it is refused (CLI ``--time-limit``)."""
 PLAN_BYTES_PER_LEVEL = 720
 """Host bytes per column and per base level that planning needs: tracemalloc peak of
 ``estimate_batch`` measured at 5.9 kB per column for 8 prisms and 35 kB for 50 prisms."""

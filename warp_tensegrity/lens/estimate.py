@@ -1,0 +1,70 @@
+"""The lens job's cost before it runs, from the one cost model (:mod:`warp_tensegrity.policy.cost`):
+its two batches decided as they will run (:func:`~warp_tensegrity.policy.decide.decide`) and priced
+from one calibration probe of the first. The calibration batch runs ``calibration.count`` columns
+to ``run.t_end``; the verification batch the designed and uniform arrays of every focal point
+(2 x foci x array columns) to at least ``run.t_end`` (its end waits on the designed exit times),
+so its figure is a lower bound. ``warp-tensegrity lens --dry-run`` prints it and ``--time-limit``
+holds the run to it, as for sweeps."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..policy.calibrate import probe, reference_state_count
+from ..policy.cost import fmt_seconds, predict
+from ..policy.decide import decide
+from ..scene.batch import column_params
+from ..sweep.budget import MAX_STEPS
+from . import host as H
+from .spec import LensSpec, LensSpecError, lens_settings
+
+
+def lens_batches(spec: LensSpec, device: str | None):
+    """(config, [(name, filled params, settings)]) of the calibration and verification batches."""
+    cfg = spec.column.config()
+    c = spec.calibration
+    common = {"v0": spec.incident.v0, "base_rigidity": spec.column.base_rigidity}
+    p_cal = np.linspace(c.prestrain_min, c.prestrain_max, c.count)
+    n_ver = 2 * len(spec.design.focal_points) * len(H.column_positions(spec.array.layout, spec.array.shape,
+                                                                        spec.array.spacing))
+    p_ver = np.linspace(c.prestrain_min, c.prestrain_max, n_ver)  # designed prestrains lie in the calibrated range
+    return cfg, [("calibration", column_params(cfg, {"prestrain": p_cal, **common}), lens_settings(spec, device)),
+                 ("verification", column_params(cfg, {"prestrain": p_ver, **common}), lens_settings(spec, device))]
+
+
+def estimate_lens(spec: LensSpec, device: str | None = None, recalibrate: bool = False) -> dict:
+    """{"seconds", "stages_s" (both batches), "batches": {name: (columns, steps, seconds)}, "device"}."""
+    cfg, batches = lens_batches(spec, device)
+    out, cal, total = {}, None, {}
+    for name, params, settings in batches:
+        run = decide(cfg, params, settings)
+        if run.n_steps > MAX_STEPS:
+            raise LensSpecError(f"the {name} batch needs {run.n_steps:.3g} steps (run.t_end = {settings.t_end!r} s at dt = "
+                                f"{run.dt:.3g} s), more than the device's step counter holds ({MAX_STEPS:,}); "
+                                "lower run.t_end or raise run.dt")
+        B = int(params["prestrain"].size)
+        if cal is None:  # one probe: the step and its rates are the same in both batches
+            cal = probe(cfg, params, run, B, use_cache=not recalibrate)
+        states = reference_state_count(params)
+        pred = predict(cal, run, [B], True, shard_states=[states], planned=(B, states))
+        st = dict(pred["stages_s"])
+        if total:  # imports and kernel loads are paid once
+            st["import"] = st["compile"] = 0.0
+        total = {k: total.get(k, 0.0) + v for k, v in st.items()}
+        out[name] = (B, run.n_steps, sum(st.values()))
+    return {"seconds": float(sum(total.values())), "stages_s": total, "batches": out, "device": cal["device_label"],
+            "probe": cal}
+
+
+def describe(est: dict) -> str:
+    """The dry run's lines."""
+    lines = [f"device:      {est['device']}"]
+    for name, (B, steps, secs) in est["batches"].items():
+        lines.append(f"{name + ':':<13} {B:,} columns x {steps:,} steps, ~{fmt_seconds(secs)}"
+                     + (" (at least: it ends when the designed exit times are past)" if name == "verification" else ""))
+    lines.append(f"time:        ~{fmt_seconds(est['seconds'])} wall ("
+                 + ", ".join(f"{k} {v:.3g} s" for k, v in est["stages_s"].items()) + ")")
+    p = est["probe"]
+    lines.append(f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
+                 f"({p['column_step_seconds']:.3g} s per column-step; cached {p['created']}; --recalibrate renews it)")
+    return "\n".join(lines)
