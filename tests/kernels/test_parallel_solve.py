@@ -265,12 +265,12 @@ def test_lane_parallel_step_with_massive_bars(lanes):
     assert np.all(b.bar_length_error <= 1e-12)
 
 
-@pytest.mark.slow  # builds 65,536-column batches on the host for the dry run (15 s)
 def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
     """decide (the dry run's run plan) reports the path the policy picks on a GPU: the lane step for
     columns it takes (flexible, elastic or rigid bases up to 64 prisms) at any width; RB columns
     longer than that (the lane step refuses them) the measured table's RB rows: fused-serial at
-    4,096 and 1,024 columns, staged at 65,536 (a stand-in device: CI has no GPU)."""
+    4,096 and 1,024 columns, staged at 65,536 (a stand-in device: CI has no GPU). The width is the
+    plan's shard width (``n_columns``), so no 65,536-column batch is built."""
     from types import SimpleNamespace
 
     from warp_tensegrity.policy import decide as policy_decide
@@ -278,18 +278,16 @@ def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
 
     monkeypatch.setattr(policy_decide, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0"))
 
-    def estimate_batch(cfg, params, s):  # the run plan the dry run prints
-        return {"step_path": str(decide(cfg, params, s).path.value)}
+    def path(cfg, betas, width):  # the run plan the dry run prints, for shards of ``width`` columns
+        return str(decide(cfg, {"base_rigidity": np.asarray(betas, float)}, s, n_columns=width).path.value)
 
     cfg = ColumnConfig(n_prisms=3)
     s = RunSettings(t_end=0.01, precision="fp32", truncate=False)
-    assert estimate_batch(cfg, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "lanes"
-    assert estimate_batch(cfg, {"base_rigidity": np.zeros(65536)}, s)["step_path"] == "lanes"
-    assert estimate_batch(cfg, {"base_rigidity": np.zeros(1024)}, s)["step_path"] == "lanes"
+    assert path(cfg, [1.0, 1.0], 4096) == "lanes"
+    assert path(cfg, [0.0, 0.0], 65536) == path(cfg, [0.0, 0.0], 1024) == "lanes"
     long = ColumnConfig(n_prisms=65, impact_admissibility="end_twist")
-    assert estimate_batch(long, {"base_rigidity": np.ones(4096)}, s)["step_path"] == "fused-serial"
-    one_rb = np.zeros(65536)
-    one_rb[-1] = 1.0
-    assert estimate_batch(cfg, {"base_rigidity": one_rb}, s)["step_path"] == "lanes"
-    assert estimate_batch(long, {"base_rigidity": one_rb}, s)["step_path"] == "staged"
-    assert estimate_batch(long, {"base_rigidity": one_rb[-1024:]}, s)["step_path"] == "fused-serial"
+    assert path(long, [1.0, 1.0], 4096) == "fused-serial"
+    one_rb = [0.0, 0.0, 1.0]  # a rigid-base column anywhere in the sweep keeps the lane step from long columns
+    assert path(cfg, one_rb, 65536) == "lanes"
+    assert path(long, one_rb, 65536) == "staged"
+    assert path(long, one_rb, 1024) == "fused-serial"
