@@ -297,11 +297,13 @@ def _dispatch(args) -> int:
                 plan = sweep.load_plan_from_manifest(out, device=device, shard_size=args.shard_size,
                                                      memory_limit=args.memory_limit)
         from .sweep import budget  # imports xarray: not at `--help`
+        from .sweep.status import shards_to_run  # imports xarray: not at `--help`
 
         limits = {"time_limit": args.time_limit or DEFAULT_TIME_LIMIT}
         cost = None
         if args.dry_run or not args.ignore_estimate:
-            cost = estimate_plan(plan, recalibrate=args.recalibrate)  # the one estimate: dry run and limits
+            todo = shards_to_run(plan) if args.command == "resume" else None  # a resume prices what is left
+            cost = estimate_plan(plan, recalibrate=args.recalibrate, shards=todo)  # the one estimate: dry run and limits
         if args.dry_run:
             print(sweep_plan.dry_run(plan, cost))
             found = budget.hard_problems(plan) + budget.problems(plan, cost, **limits)

@@ -221,3 +221,29 @@ def test_exported_estimate_batch_takes_every_parameter_form(form, cache):
     r = simulate_batch(cfg, params, s)
     assert est["dt"] == r.dt and est["n_steps"] == r.n_steps and est["step_path"] in r.info["step_path"]
     assert est["seconds_estimate"] > 0 and est["device_bytes_estimate"] > 0
+
+
+def test_a_resume_is_priced_for_the_shards_left(tmp_path, cache, capsys):
+    """The estimate of a resume (its dry run and its time limit) covers the shards its manifest does
+    not record as done: none after a finished run, one of three after one is forgotten."""
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    out = tmp_path / "o.nc"
+    assert main(["run", str(spec), "-o", str(out), "--device", "cpu", "--no-progress"]) == 0
+
+    def stepping(args):
+        capsys.readouterr()
+        assert main(args) == 0
+        return float(re.search(r"stepping ([\d.e+-]+) s", capsys.readouterr().out).group(1))
+
+    full = stepping(["run", str(spec), "-o", str(tmp_path / "other.nc"), "--device", "cpu", "--dry-run"])
+    assert full > 0 and stepping(["resume", str(out), "--device", "cpu", "--dry-run"]) == 0
+    from warp_tensegrity.sweep.manifest import Manifest
+    from warp_tensegrity.sweep.store import SweepStore
+
+    path = SweepStore(out).manifest_path
+    content, _ = Manifest.read(path)
+    del content["shards"]["1"]  # shard 1 forgotten, as after a kill while it ran
+    Manifest(path, content).save()
+    left = stepping(["resume", str(out), "--device", "cpu", "--dry-run"])
+    assert left == pytest.approx(full / 3, rel=1e-2), (left, full)

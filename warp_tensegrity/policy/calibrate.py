@@ -336,15 +336,17 @@ def reference_state_count(params: dict) -> int:
     return int(reference_states(params)[0]["prestrain"].size)
 
 
-def estimate_plan(plan, recalibrate: bool = False) -> dict:
+def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = None) -> dict:
     """The cost of a sweep plan (``sweep.plan.SweepPlan``): :func:`.cost.predict` from the probe of
-    its run plan on its first shard's width; ``recalibrate`` renews the probe."""
+    its run plan on its widest shard; ``shards``: the indices still to run (a resume; default all);
+    ``recalibrate`` renews the probe."""
     spec = plan.spec
-    shards = [b - a for a, b in plan.shards]
-    cal = probe(spec.scene, plan.params, plan.run, max(shards), use_cache=not recalibrate)
-    states = [reference_state_count({k: v[a:b] for k, v in plan.params.items()}) for a, b in plan.shards]
-    return predict(cal, plan.run, shards, bool(spec.run["record_strain"]), bool(spec.run["record_energy"]),
-                   shard_states=states, planned=(plan.n_columns, reference_state_count(plan.params))) | {"probe": cal}
+    todo = [plan.shards[i] for i in (range(plan.n_shards) if shards is None else shards)]
+    cal = probe(spec.scene, plan.params, plan.run, max(b - a for a, b in plan.shards), use_cache=not recalibrate)
+    states = [reference_state_count({k: v[a:b] for k, v in plan.params.items()}) for a, b in todo]
+    return predict(cal, plan.run, [b - a for a, b in todo], bool(spec.run["record_strain"]),
+                   bool(spec.run["record_energy"]), shard_states=states,
+                   planned=(plan.n_columns, reference_state_count(plan.params))) | {"probe": cal}
 
 
 def estimate_batch(config, params: dict, settings, recalibrate: bool = False) -> dict:

@@ -105,6 +105,20 @@ def read_run(out) -> dict:
     return content
 
 
+def shards_to_run(plan) -> list[int]:
+    """Shards a resume of ``plan`` would run, by its manifest (not re-verified: what the estimate of
+    a resume prices; ``resume`` itself checks every recorded shard): all of them when the store was
+    made for another fingerprint or shard size, or has no manifest."""
+    try:
+        content = read_run(plan.out)
+    except SweepError:
+        return list(range(plan.n_shards))
+    if content.get("fingerprint") != plan.fingerprint or content.get("shard_size") != plan.shard_size:
+        return list(range(plan.n_shards))
+    done = {int(i) for i in content.get("shards", {})}
+    return [i for i in range(plan.n_shards) if i not in done]
+
+
 def status_from_output(out) -> dict:
     """Status of an exported netCDF output whose store is gone (deleted after the run)."""
     try:
