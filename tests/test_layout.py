@@ -48,7 +48,7 @@ LAYERS = [
      "sweep.plan", "sweep.shard", "sweep.dask", "sweep.run", "sweep", "lens.host", "lens.design", "lens.spec",
      "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
      "validation.linear", "validation.dispersion", "validation.checks", "validation.figures", "validation", "plot",
-     "init_spec", ""},
+     "init_spec", "cli_args", ""},
     {"cli", "__main__"},
 ]
 LAYER = {m: i for i, layer in enumerate(LAYERS) for m in layer}

@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from . import plot
+from .cli_args import add_device, add_estimate_options, file_name, positive_int
 from .init_spec import add_init_parser, run_init
 from .lens.command import add_lens_parser, run_lens_command
 from .measure.nan_reasons import dataset_summary
@@ -31,7 +32,7 @@ from .options import OptionError
 from .overrides import parse_set
 from .plot import KINDS, PlotError
 from .policy.calibrate import estimate_plan
-from .policy.cost import DEFAULT_TIME_LIMIT, positive_seconds
+from .policy.cost import DEFAULT_TIME_LIMIT
 from .provenance import version_text
 from .runtime import init_warp, warp_facts
 from .scene.network import NetworkError
@@ -43,54 +44,19 @@ log = logging.getLogger("warp_tensegrity")
 EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE = 0, 1, 3
 
 
-def _device(value: str) -> str:
-    import re
-
-    if not re.match(r"^(cpu|cuda|cuda:\d+|auto)$", value):
-        raise argparse.ArgumentTypeError(f"--device {value!r}: give cpu, cuda, cuda:N or auto")
-    return value
-
-
-def _positive_int(value: str) -> int:
-    try:
-        n = int(value)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"{value!r} is not a positive integer")
-    return n
-
-
-def _path(value: str) -> str:
-    """A file name: not empty, not a bare directory such as '.' (a usage error, not a traceback)."""
-    if not value.strip() or Path(value).name in ("", ".", ".."):
-        raise argparse.ArgumentTypeError(f"{value!r} is not a file name")
-    return value
-
-
 def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
-    p.add_argument("--device", type=_device, default=None,
-                   help="Warp device: cpu, cuda:N or auto (default: the spec's run.device, else the GPU if there is one, else the CPU)")
-    p.add_argument("--shard-size", type=_positive_int, default=None, metavar="N",
+    add_device(p)
+    p.add_argument("--shard-size", type=positive_int, default=None, metavar="N",
                    help="columns per shard (default: the spec's run.shard_size)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--dask", type=_positive_int, default=None, metavar="N",
+    g.add_argument("--dask", type=positive_int, default=None, metavar="N",
                    help="run shards on a local Dask cluster of N worker processes (one per GPU, or N CPU workers)")
     g.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run shards on an existing Dask cluster (e.g. tcp://host:8786)")
-    if dry_run:
-        p.add_argument("--dry-run", action="store_true",
-                       help="print the number of columns and shards and the estimated memory and time; run nothing")
     p.add_argument("--memory-limit", default=None, metavar="SIZE",
                    help="host memory for the shards in flight, e.g. 512MB (lowers the shard size to fit)")
-    p.add_argument("--time-limit", type=positive_seconds, default=None, metavar="SECONDS",
-                   help="refuse a run estimated to take longer (default: 7 days)")
-    p.add_argument("--ignore-estimate", action="store_true",
-                   help="run even when the estimate says the run exceeds this machine's memory, disk or time limit "
-                        "(no calibration probe is taken)")
-    p.add_argument("--recalibrate", action="store_true",
-                   help="take the calibration probe again instead of the cached one (the estimate of --dry-run "
-                        "and --time-limit)")
+    add_estimate_options(p, "the run plan (columns, shards, dt, steps, path) and the estimated memory and time"
+                         if dry_run else "")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (it shows only when stderr is a terminal anyway)")
     p.add_argument("--keep-store", action=argparse.BooleanOptionalAction, default=True,
@@ -116,8 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", parents=[common], help="run a sweep spec into a netCDF file",
                        description="Run SPEC: shards stream into the Zarr store OUT.sweep/ as they finish; "
                                    "OUT is exported from it (netCDF).")
-    p.add_argument("spec", type=_path, metavar="SPEC", help="sweep spec (TOML)")
-    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.nc",
+    p.add_argument("spec", type=file_name, metavar="SPEC", help="sweep spec (TOML)")
+    p.add_argument("-o", "--output", type=file_name, required=True, metavar="OUT.nc",
                    help="netCDF output (the store goes to OUT.nc.sweep/)")
     p.add_argument("--overwrite", action="store_true", help="discard an earlier run's store and output")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="overrides",
@@ -128,20 +94,20 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("resume", parents=[common], help="finish an interrupted run",
                        description="Reuse the shards that check out (same spec, code and columns), "
                                    "recompute the others, combine. Give OUT.nc, or SPEC -o OUT.nc.")
-    p.add_argument("target", type=_path, metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
-    p.add_argument("-o", "--output", type=_path, default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
+    p.add_argument("target", type=file_name, metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
+    p.add_argument("-o", "--output", type=file_name, default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
     _add_exec_options(p)
 
     p = sub.add_parser("status", parents=[common], help="cases done, diverged and remaining")
-    p.add_argument("output", type=_path, metavar="OUT.nc")
+    p.add_argument("output", type=file_name, metavar="OUT.nc")
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
     p = sub.add_parser("combine", parents=[common], help="export a finished run's store to OUT.nc again")
-    p.add_argument("output", type=_path, metavar="OUT.nc")
+    p.add_argument("output", type=file_name, metavar="OUT.nc")
 
     p = sub.add_parser("plot", parents=[common], help="plot a sweep's dataset (warp_tensegrity.plot)",
                        description="Draw one figure of OUT.nc with warp_tensegrity.plot and save it.")
-    p.add_argument("dataset", type=_path, metavar="OUT.nc", help="a sweep's netCDF output (or a work-precision study's)")
+    p.add_argument("dataset", type=file_name, metavar="OUT.nc", help="a sweep's netCDF output (or a work-precision study's)")
     p.add_argument("kind", choices=sorted(KINDS), help="; ".join(f"{k}: {v}" for k, v in sorted(KINDS.items())))
     p.add_argument("-o", "--output", default=None, metavar="FIG.png",
                    help="figure file (default: OUT-KIND.png beside the dataset)")
@@ -165,7 +131,7 @@ def _add_validate_parser(sub, common) -> None:
     p.add_argument("-o", "--output", default=None, metavar="FIGDIR", help="write one figure per check into FIGDIR")
     p.add_argument("--only", nargs="+", default=None, metavar="NAME",
                    help="run these checks only: bessel, soliton, dispersion, fb_modal")
-    p.add_argument("--device", type=_device, default="cpu", help="Warp device (default: cpu)")
+    add_device(p, "cpu", "cpu")
 
 
 def _validate(args) -> int:

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from ..options import SettingsError
 from ..scene.network import NetworkError
-from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_seconds, positive_seconds
+from ..cli_args import add_device, add_estimate_options
+from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_seconds
 from .spec import LensSpecError, load_lens_spec
 
 
@@ -17,13 +18,8 @@ def add_lens_parser(sub, parents=()) -> None:
                                    "focal point, verify the array in one batch, write OUT.nc.")
     p.add_argument("spec", metavar="SPEC", help="lens spec (TOML), e.g. sweeps/lens_ci.toml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="netCDF output")
-    p.add_argument("--device", default=None, help="Warp device: cpu or cuda:N (default: the spec's run.device, else the GPU if there is one)")
-    p.add_argument("--dry-run", action="store_true", help="print the two batches and the estimated time; run nothing")
-    p.add_argument("--time-limit", type=positive_seconds, default=None, metavar="SECONDS",
-                   help="refuse a job estimated to take longer (default: 7 days)")
-    p.add_argument("--ignore-estimate", action="store_true", help="run even when the estimate exceeds the time limit "
-                                                                  "(no calibration probe is taken)")
-    p.add_argument("--recalibrate", action="store_true", help="take the calibration probe again instead of the cached one")
+    add_device(p)
+    add_estimate_options(p, "the two batches and the estimated time")
 
 
 def run_lens_command(args) -> int:

@@ -101,7 +101,7 @@ def busy_start() -> tuple[float, float, float]:
     return (time.perf_counter(), *_busy_seconds())
 
 
-def host_idle(window: float = 0.5) -> bool:
+def host_idle(window: float = 0.2) -> bool:
     """Whether other processes keep less than BUSY_SHARE of the cores busy (sampled for ``window`` s)."""
     start = busy_start()
     time.sleep(window)

@@ -44,12 +44,12 @@ def fmt_bytes(b: float) -> str:
 
 
 def fmt_seconds(s: float) -> str:
-    """A duration: '0.5s', '45s', '2m05s', '9h48m', '32.4 days', '?' when unknown."""
+    """A duration: '0.5s', '45s', '2m05s', '9h48m', '7 days', '32.4 days', '?' when unknown."""
     if not math.isfinite(s):
         return "?"
     if s < 9.5:
         return f"{s:.2g}s"
-    if s >= 10 * 86400:
+    if s >= 2 * 86400:
         return f"{s / 86400:.3g} days"
     s = int(round(s))
     if s >= 3600:
@@ -57,19 +57,6 @@ def fmt_seconds(s: float) -> str:
     if s >= 60:
         return f"{s // 60}m{s % 60:02d}s"
     return f"{s}s"
-
-
-def positive_seconds(value: str) -> float:
-    """``--time-limit``'s type: a positive, finite number of seconds (argparse's usage error otherwise)."""
-    import argparse  # its usage-error type; the command lines (cli, lens) already loaded it
-
-    try:
-        x = float(value)
-    except ValueError:
-        x = -1.0
-    if not (math.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"{value!r} is not a positive number of seconds")
-    return x
 
 
 def output_bytes_per_column(n_out: int, n_prisms: int, record_strain: bool, record_energy: bool = True) -> int:
