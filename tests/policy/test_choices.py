@@ -103,3 +103,22 @@ def test_mixed_handed_rigid_base_columns_are_never_truncated(handedness, device)
     auto = simulate_batch(cfg, CASES, RunSettings(truncate=True, **s))
     assert auto.info["choices"]["prisms_simulated"] == 45
     np.testing.assert_array_equal(auto.strain, full.strain)
+
+
+def test_run_batch_with_the_default_settings_decides_dt_as_the_stability_rule_does():
+    """run_batch(batch, RunSettings()) (dt 'auto', no dt_safety, no accuracy): the plan takes the
+    default accuracy's fraction of the stability limit over the reference column, as the time-step
+    rule does on its own, and says so in its reasons (it raised a TypeError formatting them)."""
+    from warp_tensegrity import column_batch, run_batch
+    from warp_tensegrity.policy.accuracy import choose_timestep, default_dt_safety
+    from warp_tensegrity.policy.decide import decide_batch
+    from warp_tensegrity.scene.batch import omega_max_bound
+
+    batch = column_batch(ColumnConfig(n_prisms=2), {"v0": [0.01, 0.02]})
+    s = RunSettings(t_end=0.01, device="cpu")
+    plan = decide_batch(batch, s)
+    dt, limit, n_steps, _ = choose_timestep(s, float(omega_max_bound(batch).max()))
+    assert (plan.dt, plan.dt_limit, plan.n_steps) == (dt, limit, n_steps)
+    assert plan.settings.dt_safety == default_dt_safety("rattle")[0] and "x the stability limit" in plan.reasons[0]
+    r = run_batch(batch, s)
+    assert r.dt == dt and (r.status == 0).all()

@@ -21,7 +21,7 @@ from ..runtime import resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
 from ..types import Base, Path
-from .accuracy import apply_accuracy, choose_timestep, output_times, reachable_prisms
+from .accuracy import apply_accuracy, choose_timestep, default_dt_safety, output_times, reachable_prisms
 from .lane_fit import lane_refusal, lane_support
 from .paths import choose_path, gram_bandwidth
 
@@ -183,6 +183,8 @@ def decide_batch(batch: NetworkBatch, settings: RunSettings, lanes_refused: str 
     for more columns than this batch's, not to take the lane step."""
     expect("run_batch", "batch", batch, NetworkBatch), expect("run_batch", "settings", settings, RunSettings)
     settings, acc = apply_accuracy(settings) if settings.accuracy is not None else (settings, {})
+    if settings.dt == "auto" and settings.dt_safety is None:  # the default accuracy over the reference column
+        settings = replace(settings, dt_safety=default_dt_safety(settings.method)[0])
     n = 0 if batch.level_nodes is None else batch.level_nodes.shape[0] - 1
     return _finish(settings, acc, float(omega_max_bound(batch).max()), batch, lane_support(batch) or lanes_refused,
                    batch.n_columns, n, n, [])
