@@ -32,7 +32,7 @@ def run_lens_command(args) -> int:
 
         check_memory(spec)  # before anything is built: a record that cannot fit is refused with its figures
         if args.dry_run or not args.ignore_estimate:
-            from .estimate import describe, estimate_lens  # imports SciPy: not at `--help`
+            from .estimate import describe, estimate_lens  # imports xarray (sweep.budget): not at `--help`
 
             est = estimate_lens(spec, device=args.device, recalibrate=args.recalibrate)
             limit = DEFAULT_TIME_LIMIT if args.time_limit is None else args.time_limit
