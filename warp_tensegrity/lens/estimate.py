@@ -19,41 +19,39 @@ from . import host as H
 from .spec import LensSpec, LensSpecError, lens_settings
 
 
-def lens_batches(spec: LensSpec, device: str | None):
-    """(config, [(name, filled params, settings)]) of the calibration and verification batches."""
-    cfg = spec.column.config()
-    c = spec.calibration
+def estimate_lens(spec: LensSpec, device: str | None = None, recalibrate: bool = False) -> dict:
+    """{"seconds", "stages_s" (both batches), "batches": {name: (columns, steps, seconds)}, "device", "probe"}."""
+    cfg, c = spec.column.config(), spec.calibration
     common = {"v0": spec.incident.v0, "base_rigidity": spec.column.base_rigidity}
-    p_cal = np.linspace(c.prestrain_min, c.prestrain_max, c.count)
     n_ver = 2 * len(spec.design.focal_points) * len(H.column_positions(spec.array.layout, spec.array.shape,
                                                                         spec.array.spacing))
-    p_ver = np.linspace(c.prestrain_min, c.prestrain_max, n_ver)  # designed prestrains lie in the calibrated range
-    return cfg, [("calibration", column_params(cfg, {"prestrain": p_cal, **common}), lens_settings(spec, device)),
-                 ("verification", column_params(cfg, {"prestrain": p_ver, **common}), lens_settings(spec, device))]
-
-
-def estimate_lens(spec: LensSpec, device: str | None = None, recalibrate: bool = False) -> dict:
-    """{"seconds", "stages_s" (both batches), "batches": {name: (columns, steps, seconds)}, "device"}."""
-    cfg, batches = lens_batches(spec, device)
-    out, cal, total = {}, None, {}
-    for name, params, settings in batches:
-        run = decide(cfg, params, settings)
-        if run.n_steps > MAX_STEPS:
-            raise LensSpecError(f"the {name} batch needs {run.n_steps:.3g} steps (run.t_end = {settings.t_end!r} s at dt = "
-                                f"{run.dt:.3g} s), more than the device's step counter holds ({MAX_STEPS:,}); "
-                                "lower run.t_end or raise run.dt")
-        B = int(params["prestrain"].size)
-        if cal is None:  # one probe: the step and its rates are the same in both batches
-            cal = probe(cfg, params, run, B, use_cache=not recalibrate)
-        states = reference_state_count(params)
-        pred = predict(cal, run, [B], True, shard_states=[states], planned=(B, states))
-        st = dict(pred["stages_s"])
+    cal_params = column_params(cfg, {"prestrain": np.linspace(c.prestrain_min, c.prestrain_max, c.count), **common})
+    # the designed prestrains lie in the calibrated range; the verification steps with the calibration's dt
+    ver_params = column_params(cfg, {"prestrain": np.linspace(c.prestrain_min, c.prestrain_max, n_ver), **common})
+    cal_run = _decide(cfg, cal_params, lens_settings(spec, device), "calibration")
+    ver_run = _decide(cfg, ver_params, lens_settings(spec, device, dt=cal_run.dt), "verification")
+    B = int(cal_params["prestrain"].size)
+    cal = probe(cfg, cal_params, cal_run, B, use_cache=not recalibrate)  # one probe: the same step in both
+    out, total = {}, {}
+    for name, params, run in (("calibration", cal_params, cal_run), ("verification", ver_params, ver_run)):
+        B, states = int(params["prestrain"].size), reference_state_count(params)
+        st = dict(predict(cal, run, [B], True, shard_states=[states], planned=(B, states))["stages_s"])
         if total:  # imports and kernel loads are paid once
             st["import"] = st["compile"] = 0.0
         total = {k: total.get(k, 0.0) + v for k, v in st.items()}
         out[name] = (B, run.n_steps, sum(st.values()))
     return {"seconds": float(sum(total.values())), "stages_s": total, "batches": out, "device": cal["device_label"],
             "probe": cal}
+
+
+def _decide(cfg, params, settings, name: str):
+    """The batch's run plan; a LensSpecError if it needs more steps than the device's counter holds."""
+    run = decide(cfg, params, settings)
+    if run.n_steps > MAX_STEPS:
+        raise LensSpecError(f"the {name} batch needs {run.n_steps:.3g} steps (run.t_end = {settings.t_end!r} s at dt = "
+                            f"{run.dt:.3g} s), more than the device's step counter holds ({MAX_STEPS:,}); "
+                            "lower run.t_end or raise run.dt")
+    return run
 
 
 def describe(est: dict) -> str:
@@ -65,6 +63,6 @@ def describe(est: dict) -> str:
     lines.append(f"time:        ~{fmt_seconds(est['seconds'])} wall ("
                  + ", ".join(f"{k} {v:.3g} s" for k, v in est["stages_s"].items()) + ")")
     p = est["probe"]
-    lines.append(f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
+    lines.append(f"probe:       {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
                  f"({p['column_step_seconds']:.3g} s per column-step; cached {p['created']}; --recalibrate renews it)")
     return "\n".join(lines)

@@ -6,16 +6,8 @@ this package's namespace offers the public names of both. :mod:`.device` compute
 device from the engine's record (import it directly: it loads Warp, this package does not).
 """
 
-from .pulse import (
-    PulseSpeed,
-    arrival_times,
-    leading_pulse_amplitude,
-    peak_location,
-    peak_track,
-    pulse_speed,
-    pulse_width,
-    width_at_mid_column,
-)
+from . import pulse
+from .pulse import *  # noqa: F403 (pulse.__all__: the single measures)
 from .pulse_core import (
     DEFAULT_END_FRACTION,
     DEFAULT_SKIP_FRACTION,
@@ -27,21 +19,5 @@ from .pulse_core import (
     measurement_window,
 )
 
-__all__ = [
-    "DEFAULT_THRESHOLD_FRACTION",
-    "DEFAULT_END_FRACTION",
-    "DEFAULT_SKIP_FRACTION",
-    "PeakTrack",
-    "PulseSpeed",
-    "default_skip",
-    "measurement_window",
-    "default_threshold",
-    "arrival_times",
-    "peak_track",
-    "leading_pulse_amplitude",
-    "pulse_speed",
-    "peak_location",
-    "pulse_width",
-    "width_at_mid_column",
-    "measure_pulse",
-]
+__all__ = [*pulse.__all__, "DEFAULT_THRESHOLD_FRACTION", "DEFAULT_END_FRACTION", "DEFAULT_SKIP_FRACTION", "PeakTrack",
+           "default_skip", "default_threshold", "measurement_window", "measure_pulse"]

@@ -122,10 +122,10 @@ def predict(cal: dict, run, shard_sizes: list[int], record_strain: bool, record_
     dev_bytes = cal["device_bytes_fixed"] + bmax * (cal["device_bytes_per_column"] + cal["strain_bytes_per_sample"] * n_out
                                                     + 8 * (12 * P + 3 * n_out + 12))
     # imports and kernels, the shards in flight, and the combine (every shard + the result)
-    host_peak = cal["base_rss"] + bmax * host_bytes_per_column(run, record_strain, record_energy) + 2 * out_total
+    host_col = host_bytes_per_column(run, record_strain, record_energy)
+    host_peak = cal["base_rss"] + bmax * host_col + 2 * out_total
     return {"stages_s": st, "seconds": float(sum(st.values())), "device_bytes_per_shard": int(dev_bytes),
-            "host_bytes_per_shard": int(bmax * host_bytes_per_column(run, record_strain, record_energy)),
-            "host_bytes_per_column": int(host_bytes_per_column(run, record_strain, record_energy)),
+            "host_bytes_per_shard": int(bmax * host_col), "host_bytes_per_column": int(host_col),
             "device_bytes_per_column": int(dev_bytes - cal["device_bytes_fixed"]) // max(bmax, 1),
             "host_peak_bytes": int(host_peak), "output_bytes": int(out_total), "device": cal["device_label"],
             "column_step_seconds": float(cal["column_step_seconds"]), "under_load": bool(cal.get("under_load"))}

@@ -99,8 +99,6 @@ class RunPlan:
     def choices(self) -> dict:
         """The choices a result reports (``BatchResult.info['choices']``)."""
         out = {} if self.accuracy_source is None else {"accuracy": self.accuracy, "accuracy_source": self.accuracy_source}
-        if self.accuracy_source == "run.accuracy":
-            out.update(method=self.method, precision=self.precision)
         return out | {"dt_safety": self.settings.dt_safety, "prisms_simulated": self.prisms_simulated,
                       "prisms": self.prisms, "method": self.method, "precision": self.precision, "dt": self.dt,
                       "record_strain": self.settings.record_strain}
