@@ -7,9 +7,9 @@ from pathlib import Path
 # top of that oversubscribe the cores and spin (the small dense solves of the fp64 references went
 # from 0.04 s alone to 8-20 s in a loaded 2-core run). Set here, before any worker imports NumPy:
 # the xdist workers and the CLI subprocesses inherit it. An explicit setting wins.
-# The committed reference outputs hold one result that depends on the BLAS thread count (the
-# eigensolve of scene/base_modes' base_mode_ratio, at round-off), so tests/test_reference_outputs.py
-# runs with the default again: WT_TEST_BLAS_CAPPED names what was set here.
+# The committed reference outputs were made under one OpenBLAS kernel set and thread count, which
+# tests/test_reference_outputs.py pins again for its own subprocess: WT_TEST_BLAS_CAPPED names what
+# was set here, for it to undo.
 _capped = [v for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS") if v not in os.environ]
 for _var in _capped:
     os.environ[_var] = "1"
