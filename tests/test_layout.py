@@ -34,7 +34,7 @@ LAYERS = [
     {"scene.network", "scene.impact", "scene.sparse", "scene.columns", "scene.batch", "scene.coupling",
      "scene.base_modes", "scene"},
     # policy: the run decided once, and its price
-    {"policy", "policy.accuracy", "policy.cost", "policy.lane_fit", "policy.paths", "policy.decide"},
+    {"policy", "policy.accuracy", "policy.cost", "policy.lane_fit", "policy.paths", "policy.decide", "policy.groups"},
     # sim: the device model, kernels, the Integrator
     {"kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver", "kernels.fused", "kernels.lane_ops",
      "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes", "kernels", "model", "integrate"},

@@ -1,0 +1,127 @@
+"""A sweep's columns in groups of like stiffness, each run with its own plan: :func:`decide_groups`.
+
+One dt for a whole sweep is set by its stiffest column: in ``phase_large`` the beta = 0.95 columns
+(omega_max bound 880 rad/s) set dt for the flexible-base ones (249 rad/s) and the rigid-base ones
+(156 rad/s), which then step 3.5-5.6x more often than their own accuracy needs. So a sweep is cut
+into groups, and each group is decided once (:func:`.decide.decide`: its own method, precision,
+dt, step count, truncation and launch path, each with its reason):
+
+* rigid-base columns (beta = 1) never share a group with the others: their base links are
+  constraints, a different Gram band (6 against 3) and step kernel, and the lowest stiffness;
+* within each base class, columns are sorted by their omega_max bound (the bound that sets the
+  stability limit, so dt is proportional to 1/omega) and cut into bands of at most
+  :data:`GROUP_RATIO` in omega: no column steps more than that many times as often as its own dt
+  would have it;
+* a band of fewer than ``min_columns`` columns joins its stiffer neighbour (on a GPU a narrow
+  launch costs nearly what a full one does: :func:`min_group_columns`).
+
+Output times do not depend on dt (dt divides the output interval), so every group writes the same
+time axis. An explicit dt, or grouping switched off, gives one group: the run of today.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..options import RunSettings
+from ..scene.batch import ColumnParams, column_batch, column_params, omega_max_bound
+from ..scene.columns import ColumnConfig
+from ..types import Base
+from .decide import ESTIMATE_CHUNK_BYTES, RunPlan, decide, far_end
+
+GROUP_RATIO = 2.0
+"""Largest ratio of omega_max bounds (so of stable dt) within one group."""
+MIN_GROUP_COLUMNS_GPU = 256
+"""On a GPU, a band of fewer columns joins its stiffer neighbour: a launch of a few hundred columns
+fills a fraction of the device and costs nearly as much per step as a full one."""
+
+
+@dataclass(frozen=True)
+class RunGroup:
+    """Columns of a sweep that run with one plan."""
+
+    columns: np.ndarray
+    """Indices of the sweep's columns in the group, ascending."""
+    plan: RunPlan
+    """The group's run, decided once."""
+    label: str
+    """What the group holds: base class and omega_max bounds [rad s-1]."""
+
+    @property
+    def n_columns(self) -> int:
+        return int(self.columns.size)
+
+
+def column_omega(config: ColumnConfig, params: ColumnParams) -> np.ndarray:
+    """(B,) omega_max bound [rad s-1] of each column, from its last few prisms (the bound is a
+    maximum over nodes, so a short piece of a uniform column gives the whole column's), a few MB of
+    columns at a time."""
+    piece = far_end(config, min(4, config.n_prisms))
+    B = params["prestrain"].size
+    chunk = max(16, ESTIMATE_CHUNK_BYTES // (400 * piece.n_prisms))
+    return np.concatenate([omega_max_bound(column_batch(piece, params.take(slice(i, i + chunk))))
+                           for i in range(0, B, chunk)])
+
+
+def stiffness_bands(omega: np.ndarray, rigid: np.ndarray, ratio: float = GROUP_RATIO,
+                    min_columns: int = 1) -> list[np.ndarray]:
+    """Column indices in groups: rigid and non-rigid apart, each cut into bands of omega within
+    ``ratio`` (from the softest up), bands of fewer than ``min_columns`` joined to their stiffer
+    neighbour (the last to its softer one). Groups in order: rigid first, then by omega."""
+    groups = []
+    for cls in (True, False):
+        idx = np.flatnonzero(rigid == cls)
+        if idx.size == 0:
+            continue
+        idx = idx[np.argsort(omega[idx], kind="stable")]
+        bands, start = [], 0
+        for i in range(1, idx.size + 1):
+            if i == idx.size or omega[idx[i]] > ratio * omega[idx[start]]:
+                bands.append(idx[start:i])
+                start = i
+        merged = []
+        for b in bands:
+            if merged and merged[-1].size < min_columns:
+                merged[-1] = np.concatenate([merged[-1], b])  # a narrow band runs at its stiffer neighbour's dt
+            else:
+                merged.append(b)
+        if len(merged) > 1 and merged[-1].size < min_columns:
+            last = merged.pop()
+            merged[-1] = np.concatenate([merged[-1], last])
+        groups += [np.sort(b) for b in merged]
+    return groups
+
+
+def min_group_columns(on_gpu: bool) -> int:
+    return MIN_GROUP_COLUMNS_GPU if on_gpu else 1
+
+
+def decide_groups(config: ColumnConfig, params: dict, settings: RunSettings, *, n_columns: int | None = None,
+                  grouping: bool = True, on_gpu: bool | None = None) -> tuple[RunGroup, ...]:
+    """The sweep of scene ``config`` over ``params`` as groups of like stiffness, each decided once
+    (:func:`.decide.decide`, ``n_columns`` columns per launch at most). One group when ``grouping``
+    is off, dt is given, or the columns are alike. ``on_gpu``: the device the groups' widths are
+    chosen for (None: the device ``settings`` resolves to, as decide's)."""
+    params = column_params(config, params)
+    B = int(params["prestrain"].size)
+    width = B if n_columns is None else int(n_columns)
+    whole = np.arange(B)
+    if not grouping or settings.dt != "auto" or B == 1:
+        plan = decide(config, params, settings, n_columns=min(width, B))
+        return (RunGroup(whole, plan, "every column"),)
+    omega = column_omega(config, params)
+    rigid = params["base_rigidity"] >= Base.RIGID
+    if on_gpu is None:
+        on_gpu = decide(config, params.take(slice(0, 1)), settings, n_columns=1).on_gpu
+    bands = stiffness_bands(omega, rigid, GROUP_RATIO, min_group_columns(on_gpu))
+    out = []
+    for cols in bands:
+        plan = decide(config, params.take(cols), settings, n_columns=min(width, cols.size))
+        cls = "rigid bases" if rigid[cols[0]] else ("flexible bases" if np.all(params["base_rigidity"][cols] == 0)
+                                                     else "flexible or elastic bases")
+        out.append(RunGroup(cols, plan, f"{cls}, omega_max {omega[cols].min():.4g}-{omega[cols].max():.4g} rad/s"))
+    if len({g.plan.n_out for g in out}) != 1:  # pragma: no cover - dt divides the output interval
+        raise AssertionError("groups with different output times")
+    return tuple(out)
