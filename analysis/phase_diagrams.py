@@ -367,7 +367,7 @@ if os.environ.get("WT_PHASE_RERUN", "1") != "0":
             "lead_share": (snap.sum_q2 / snap.sum_q2_behind).values,
             "qmax_over_amp": (snap.q_max / rr.amplitude).values,
         }).set_index(["base_rigidity", "prestrain", "v0"])
-    print(f"rerun on {rr.attrs['device']}, dt = {rr.attrs['dt']} s")
+    print(f"rerun on {rr.attrs['device']}, dt = {sorted(set(rr.time_step.values.tolist()))} s")
     print(check.to_string(float_format=lambda x: f"{x:.3g}"))
 
 # %% [markdown]

@@ -682,18 +682,35 @@ def rerun_cells(ds: xr.Dataset, points, device: str | None = None) -> xr.Dataset
         if sel not in cells:
             cells.append(sel)
     params = {d: np.array([c[d] for c in cells]) for d in GRID_DIMS}
-    dt = ds.attrs.get("dt", "auto")
-    df, r = simulate_cases(params, scene_config(ds), t_end=float(ds.attrs["t_end"]),
-                           output_interval=float(ds.attrs["output_interval"]),
-                           dt=float(dt) if not isinstance(dt, str) else dt, device=device, keep_strain=True)
-    out = xr.Dataset({"strain": (("cell", TIME, "prism"), np.asarray(r.strain))},
+    # each cell at the dt it was stepped with: its run group's (the time_step variable), else the sweep's
+    if "time_step" in ds:
+        dts = np.array([float(ds["time_step"].sel(c)) for c in cells])
+    else:
+        dt = ds.attrs.get("dt", "auto")
+        dts = np.full(len(cells), np.nan if isinstance(dt, str) else float(dt))
+    frames, strain, rows = [], np.empty(len(cells), dtype=object), []
+    for dt in dict.fromkeys(dts.tolist()):  # distinct dts, in order (NaN: "auto")
+        idx = np.flatnonzero((dts == dt) | (np.isnan(dts) & np.isnan(dt)))
+        df, r = simulate_cases({d: v[idx] for d, v in params.items()}, scene_config(ds), t_end=float(ds.attrs["t_end"]),
+                               output_interval=float(ds.attrs["output_interval"]),
+                               dt="auto" if np.isnan(dt) else dt, device=device, keep_strain=True)
+        frames.append(df.set_index(idx))
+        for i, s in zip(idx, np.asarray(r.strain)):
+            strain[i] = s
+        rows.append(r)
+    import pandas as pd
+
+    df = pd.concat(frames).sort_index()
+    r = rows[0]
+    out = xr.Dataset({"strain": (("cell", TIME, "prism"), np.stack(list(strain)))},
                      coords={"cell": np.arange(len(cells)), TIME: r.time, "prism": np.arange(r.strain.shape[-1]),
                              **{d: ("cell", params[d]) for d in GRID_DIMS}})
     for k in ("amplitude", "speed", "width", "width_10", "energy_error", "status"):
         out[k] = ("cell", df[k].to_numpy())
         if k in ds:
             out[f"sweep_{k}"] = ("cell", np.array([float(ds[k].sel(c)) for c in cells]))
-    out.attrs.update(device=r.device, dt=float(r.dt))
+    out["time_step"] = ("cell", df["dt"].to_numpy())
+    out.attrs.update(device=r.device)
     return out
 
 

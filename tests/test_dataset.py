@@ -197,8 +197,15 @@ def test_to_xarray_is_the_cli_layout(case_run):
     d, out = case_run
     spec = parse_spec(CASES)
     params = spec.column_params()
-    res = simulate_batch(spec.scene, params, spec.run_settings(device="cpu", dt=float(D.open_sweep(out).attrs["dt"])))
+    from warp_tensegrity.sweep import plan_sweep
+    from warp_tensegrity.sweep.shard import run_groups
+
+    plan = plan_sweep(spec, device="cpu")
+    assert len(plan.groups) == 2  # the rigid-base case apart: each group at its own dt, merged back in order
+    res = run_groups(plan, 0, plan.n_columns)
     mine = res.to_xarray()
+    one = simulate_batch(spec.scene, params, spec.run_settings(device="cpu", dt=float(D.open_sweep(out).attrs["dt"])))
+    assert set(one.to_xarray().data_vars) == set(mine.data_vars)  # one plan: the same layout
     cli = D.open_sweep(out)
     assert set(mine.data_vars) == set(cli.data_vars)
     for k in cli.variables:
@@ -208,6 +215,8 @@ def test_to_xarray_is_the_cli_layout(case_run):
         assert {a: str(v) for a, v in mine[k].attrs.items()} == {a: str(v) for a, v in cli[k].attrs.items()}, k
     for k in ("strain", "amplitude", "speed", "status", "kinetic_energy"):
         np.testing.assert_allclose(mine[k].values, cli[k].values, rtol=1e-12, atol=0, equal_nan=True)
+    np.testing.assert_array_equal(mine["time_step"].values, cli["time_step"].values)
+    assert len(set(cli["time_step"].values.tolist())) == 2 and set(cli["run_group"].values.tolist()) == {0, 1}
     for k in ("git_commit", "warp_version", "device", "method", "dt", "n_steps"):
         assert mine.attrs[k] == cli.attrs[k], k
 

@@ -116,6 +116,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
             "omega_max_bound": plan.omega_max_bound,
             "output_every": every,
             "output_step": plan.output_steps,
+            "column_dt": np.full(batch.n_columns, dt),
+            "column_group": np.zeros(batch.n_columns, dtype=np.int32),
             "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
             "bandwidth": integ.model.bandwidth,
             "n_constraints": integ.model.n_constraints,

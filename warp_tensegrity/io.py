@@ -114,6 +114,9 @@ VAR_ATTRS = {
                                    "docs/measurements.md)", dict(enumerate(MEASUREMENT_FLAGS))),
     "status": flag_attrs("column status at the end of the run", STATUS_MEANINGS),
     "fail_step": {"units": "1", "long_name": "time step at which a failed column was frozen (-1: never failed)"},
+    "time_step": {"units": "s", "long_name": "time step dt the case was stepped with (its run group's)"},
+    "run_group": {"units": "1", "long_name": "run group of the case: columns of like stiffness stepped with one plan "
+                  "(dt, steps, path; the dataset attribute run_groups describes each)"},
     "energy_error": {
         "units": "1",
         "long_name": "max relative energy drift max_t |E(t) - E(0)| / KE(0) over the outputs",
@@ -252,6 +255,9 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
     dv.update({
         "status": (C, np.asarray(result.status, dtype=np.int8)),
         "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),
+        **({"time_step": (C, np.asarray(result.info["column_dt"], dtype=np.float64))} if "column_dt" in result.info else {}),
+        **({"run_group": (C, np.asarray(result.info["column_group"], dtype=np.int8))}
+           if "column_group" in result.info else {}),
         "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
         "bar_length_error": (C, np.asarray(result.bar_length_error, dtype=np.float64)),
     })
@@ -345,7 +351,7 @@ def sweep_attrs(layout: Layout, shard_attrs: list[dict], history: str, extra_att
     attrs = spec_attrs(layout)
     a0 = shard_attrs[0]
     for k in ("code_version", "fingerprint", "dt", "dt_limit", "n_steps", "output_interval",
-              "dt_safety_used", "accuracy_target"):
+              "dt_safety_used", "accuracy_target", "run_groups"):
         if k not in a0:
             continue
         attrs[k] = a0[k]

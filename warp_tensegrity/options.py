@@ -443,6 +443,10 @@ class RunSettings:
     """Simulate only the prisms a disturbance can reach within t_end (plus a margin), clamping the
     column there; results are padded back to the full column (the far prisms stay at rest).
     Mixed-handed columns with rigid bases are never truncated (see :mod:`warp_tensegrity.engine`)."""
+    groups: Annotated[bool, Opt("bool")] = True
+    """Sweeps: run the columns in groups of like stiffness, each with its own plan (dt, steps, path;
+    :mod:`warp_tensegrity.policy.groups`: rigid bases apart, omega_max within 2x), so no column steps
+    at the stiffest column's dt; False: one plan, one dt, for every column. Only with dt = 'auto'."""
     measure: Annotated[str, Opt("choice", choices=("device", "host", "none"))] = "device"
     """Pulse measures (``BatchResult.measurements``) of :func:`~warp_tensegrity.engine.simulate_batch`:
     'device' (Warp kernels on the device record; only the measures cross to the host), 'host'

@@ -7,6 +7,7 @@ Apart from :mod:`.options` (what goes into a run) so that the result may know it
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -82,3 +83,95 @@ class BatchResult:
                 meas.update(self.info["beta_limit"](meas["max_compression"]))
         attrs = {**provenance_attrs(), "cuda_driver": warp_facts(self.device)["cuda_driver"]}
         return result_dataset(self, config=config, measurements=meas, attrs=attrs)
+
+
+_PER_COLUMN = ("strain", "kinetic_energy", "elastic_energy", "energy_error", "bar_length_error", "status", "fail_step",
+               "final_displacement", "final_velocity")
+
+
+def merge_results(parts: list, n_columns: int, group_ids: list[int] | None = None) -> BatchResult:
+    """One BatchResult of ``n_columns`` columns from runs of groups of them (a sweep's groups of like
+    stiffness, :mod:`warp_tensegrity.policy.groups`): ``parts`` = [(column indices, BatchResult)],
+    every column once, all on one output time axis. Per-column arrays are put back in column order;
+    ``dt`` and ``dt_limit`` are the smallest, ``n_steps`` the largest, ``wall_time`` and the stage
+    seconds the sums; ``info['column_dt']`` and ``info['column_group']`` give each column's dt [s]
+    and group (``group_ids[k]`` for part k; default k), ``info['groups']`` each group's facts. One
+    part comes back as it is (with those two)."""
+    cols = [np.asarray(c, dtype=np.int64) for c, _ in parts]
+    results = [r for _, r in parts]
+    if sorted(np.concatenate(cols).tolist()) != list(range(n_columns)):
+        raise ValueError("merge_results: the parts do not hold every column exactly once")
+    first = results[0]
+    for r in results[1:]:
+        if not np.array_equal(r.time, first.time):
+            raise ValueError("merge_results: the groups have other output times")
+
+    def stitch(name):
+        arrays = [getattr(r, name) for r in results]
+        if any(a is None for a in arrays):
+            return None
+        out = np.empty((n_columns,) + arrays[0].shape[1:], dtype=arrays[0].dtype)
+        for c, a in zip(cols, arrays):
+            out[c] = a
+        return out
+
+    column_dt = np.empty(n_columns)
+    column_group = np.empty(n_columns, dtype=np.int32)
+    for g, c, r in zip(group_ids or range(len(parts)), cols, results):
+        column_dt[c], column_group[c] = r.dt, g
+    if len(results) == 1:
+        first.info.update(column_dt=column_dt, column_group=column_group)
+        return first
+    measurements = None
+    if all(r.measurements is not None for r in results):
+        measurements = {}
+        for k in first.measurements:
+            vals = [np.asarray(r.measurements[k]) for r in results]
+            if vals[0].ndim >= 1 and vals[0].shape[0] == first.n_columns and all(
+                    v.shape[:1] == (r.n_columns,) for v, r in zip(vals, results)):
+                out = np.empty((n_columns,) + vals[0].shape[1:], dtype=vals[0].dtype)
+                for c, v in zip(cols, vals):
+                    out[c] = v
+                measurements[k] = out
+            else:  # a run-level figure (timings): the first group's
+                measurements[k] = first.measurements[k]
+    stages = {}
+    for r in results:
+        for k, v in r.info.get("stages", {}).items():
+            stages[k] = stages.get(k, 0.0) + v
+    params = {k: np.empty(n_columns, dtype=np.asarray(v).dtype) for k, v in first.params.items()}
+    for c, r in zip(cols, results):
+        for k in params:
+            params[k][c] = np.broadcast_to(r.params[k], (r.n_columns,))
+    step_paths = []
+    for r in results:
+        if r.info.get("step_path") not in step_paths:
+            step_paths.append(r.info.get("step_path"))
+    # the output steps and the beta-limit closure are one group's: not the merged columns'
+    info = {k: v for k, v in first.info.items() if k not in ("output_step", "stages", "beta_limit")}
+    if all("beta_limit" in r.info for r in results):  # each part's closure on its columns, stitched
+        info["beta_limit"] = partial(_stitched_beta_limit, [(c, r.info["beta_limit"]) for c, r in zip(cols, results)],
+                                     n_columns)
+    info.update(stages=stages, column_dt=column_dt, column_group=column_group, step_path="; ".join(map(str, step_paths)),
+                groups=[{"group": int(g), "columns": int(c.size), "dt": float(r.dt), "n_steps": int(r.n_steps),
+                         "step_path": r.info.get("step_path"), "wall_time": float(r.wall_time)}
+                        for g, c, r in zip(group_ids or range(len(parts)), cols, results)])
+    return BatchResult(
+        params=params, time=first.time, **{k: stitch(k) for k in _PER_COLUMN},
+        dt=min(r.dt for r in results), n_steps=max(r.n_steps for r in results), method=first.method,
+        precision=first.precision, device=first.device, device_name=first.device_name,
+        wall_time=float(sum(r.wall_time for r in results)), dt_limit=min(r.dt_limit for r in results),
+        info=info, measurements=measurements)
+
+
+def _stitched_beta_limit(parts, n_columns: int, max_compression) -> dict:
+    """The beta-limit measures of merged groups: each group's closure on its columns."""
+    mc = np.asarray(max_compression)
+    out = {}
+    for c, f in parts:
+        for k, v in f(mc[c]).items():
+            v = np.asarray(v)
+            if k not in out:
+                out[k] = np.empty((n_columns,) + v.shape[1:], dtype=v.dtype)
+            out[k][c] = v
+    return out

@@ -186,7 +186,9 @@ def test_estimate_plan_and_run_name_the_same_path(device):
     plan = plan_sweep(spec, shard_size=1)
     assert plan.run.path == Path.LANES
     assert compute_shard(plan, 1).attrs["step_path"].startswith("lanes")
-    plan.run = dataclasses.replace(plan.run, path=Path.STAGED)  # a shard runs the plan's path, whatever its columns
+    # a shard runs its group's plan and path, whatever its columns (one group here: dt is given)
+    (g,) = plan.groups
+    plan.groups = (dataclasses.replace(g, plan=dataclasses.replace(g.plan, path=Path.STAGED)),)
     assert compute_shard(plan, 0).attrs["step_path"].startswith("staged")
 
 

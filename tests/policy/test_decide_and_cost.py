@@ -36,8 +36,8 @@ def test_probe_is_cached_and_feeds_the_dry_run(cache, tmp_path, monkeypatch):
     plan = sweep.plan_sweep(spec, tmp_path / "out.nc", device="cpu")
     est = C.estimate_plan(plan)
     files = list(cache.glob("*.json"))
-    assert len(files) == 1
-    cal = json.loads(files[0].read_text())
+    assert len(plan.groups) == 2 and len(files) == 2  # a probe per group: ci_small's rigid bases run apart
+    cal = est["probe"]
     assert cal["describe"]["device"].startswith("cpu (") and cal["step_path"] == "fused"
     assert cal["probe_columns"] == 4 and cal["column_step_seconds"] > 0 and cal["import"] > 0
     assert set(est["stages_s"]) == {"import", "build", "compile", "stepping", "measurement", "transfer", "write",
@@ -115,7 +115,11 @@ t_end = 0.05
 output_interval = 0.01
 precision = "fp64"
 shard_size = 2
+groups = false
 """
+"""A tiny sweep with one plan for all its columns: the probe, cache and estimate tests (one probe
+each); TINY_GROUPED runs its rigid-base columns as a group of their own."""
+TINY_GROUPED = TINY.replace("groups = false\n", "")
 
 
 def _wrap_everywhere(monkeypatch, name, log, inside=None):
@@ -132,34 +136,41 @@ def _wrap_everywhere(monkeypatch, name, log, inside=None):
         monkeypatch.setattr(m, name, counted)
 
 
-def test_a_sweep_decides_once(tmp_path, cache, monkeypatch):
-    """A 3-shard CLI sweep: one decide(); the omega bound, the Gram band and the path are computed
-    inside it only (the estimate, the probe, the store template and every shard read the plan)."""
+@pytest.mark.parametrize("text, n_groups", [(TINY, 1), (TINY_GROUPED, 2)], ids=["one plan", "two groups"])
+def test_a_sweep_decides_once(tmp_path, cache, monkeypatch, text, n_groups):
+    """A 3-shard CLI sweep: one decide() per group (its rigid-base columns a group of their own unless
+    run.groups = false), all in one decide_groups(); the omega bound, the Gram band and the path are
+    computed inside them only (the estimate, the probe, the store template and every shard read the
+    plans)."""
     import warp_tensegrity.engine  # noqa: F401 (every module that could hold the functions is loaded)
     import warp_tensegrity.policy.calibrate  # noqa: F401
     import warp_tensegrity.sweep.run  # noqa: F401
+    from warp_tensegrity.policy import groups as G
 
     spec = tmp_path / "tiny.toml"
-    spec.write_text(TINY)
-    log, inside = [], [False]
+    spec.write_text(text)
+    log, inside = [], [0]
     for name in ("omega_max_bound", "gram_bandwidth", "choose_path"):
         _wrap_everywhere(monkeypatch, name, log, inside)
-    real = D.decide
 
-    def decide(*a, **k):
-        log.append(("decide", True))
-        inside[0] = True
-        try:
-            return real(*a, **k)
-        finally:
-            inside[0] = False
+    def scope(name, real):
+        def wrapped(*a, **k):
+            log.append((name, True))
+            inside[0] += 1
+            try:
+                return real(*a, **k)
+            finally:
+                inside[0] -= 1
+        return wrapped
 
-    for m in [m for k, m in list(sys.modules.items()) if k.startswith("warp_tensegrity") and getattr(m, "decide", None) is real]:
-        monkeypatch.setattr(m, "decide", decide)
+    for name, real in (("decide", D.decide), ("decide_groups", G.decide_groups)):
+        for m in [m for k, m in list(sys.modules.items())
+                  if k.startswith("warp_tensegrity") and getattr(m, name, None) is real]:
+            monkeypatch.setattr(m, name, scope(name, real))
     assert main(["run", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu", "--no-progress"]) == 0
     names = [n for n, _ in log]
-    assert names.count("decide") == 1, names
-    assert names.count("gram_bandwidth") == 1 and names.count("choose_path") == 1, names
+    assert names.count("decide_groups") == 1 and names.count("decide") == n_groups, names
+    assert names.count("gram_bandwidth") == n_groups and names.count("choose_path") == n_groups, names
     assert names.count("omega_max_bound") >= 1 and all(ins for _, ins in log), log
     import xarray as xr
 
@@ -168,6 +179,7 @@ def test_a_sweep_decides_once(tmp_path, cache, monkeypatch):
     assert json.loads(SweepStore(tmp_path / "o.nc").manifest_path.read_text())["n_shards"] == 3
     with xr.open_dataset(tmp_path / "o.nc") as ds:
         assert int((ds.status == 0).sum()) == 6
+        assert len(set(ds.time_step.values.ravel().tolist())) == n_groups
 
 
 def _estimate_line(text):

@@ -31,17 +31,18 @@ def test_column_omega_is_each_columns_bound():
 
 def test_groups_step_each_at_its_own_dt():
     cfg = ColumnConfig(n_prisms=8)
-    beta = np.array([0.0, 0.0, 0.95, 1.0, 1.0, 0.5])
+    beta = np.repeat([0.0, 0.95, 1.0, 0.5], 70)  # bands of 70 columns: none narrower than MIN_GROUP_COLUMNS
     params = {"prestrain": 0.002, "v0": 0.01, "base_rigidity": beta}
     s = RunSettings(t_end=0.5, output_interval=0.01, device="cpu")
-    groups = decide_groups(cfg, params, s, on_gpu=False)
+    groups = decide_groups(cfg, params, s)
     one = decide(cfg, params, s)
-    assert sorted(np.concatenate([g.columns for g in groups]).tolist()) == list(range(6))
+    assert sorted(np.concatenate([g.columns for g in groups]).tolist()) == list(range(beta.size))
     assert {g.plan.n_out for g in groups} == {one.n_out}
     assert max(g.plan.dt for g in groups) > 3 * one.dt  # the rigid-base group steps far less often
     assert min(g.plan.dt for g in groups) == one.dt  # the stiffest group sets the one-plan dt
+    assert len(groups) == 3  # rigid; FB with beta = 0.5 (omega 1.3x); beta = 0.95 (omega 3.5x FB)
     for g in groups:  # each group's dt is the plan decide gives its columns alone
-        assert g.plan.dt == decide(cfg, {k: np.broadcast_to(v, 6)[g.columns] for k, v in params.items()}, s).dt
+        assert g.plan.dt == decide(cfg, {k: np.broadcast_to(v, beta.size)[g.columns] for k, v in params.items()}, s).dt
     # grouping off, or an explicit dt: one group, the one plan
     (only,) = decide_groups(cfg, params, s, grouping=False)
-    assert only.plan.dt == one.dt and only.n_columns == 6
+    assert only.plan.dt == one.dt and only.n_columns == beta.size

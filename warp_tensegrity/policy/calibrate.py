@@ -342,11 +342,27 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
     ``recalibrate`` renews the probe."""
     spec = plan.spec
     todo = [plan.shards[i] for i in (range(plan.n_shards) if shards is None else shards)]
-    cal = probe(spec.scene, plan.params, plan.run, max(b - a for a, b in plan.shards), use_cache=not recalibrate)
+    width = max(b - a for a, b in plan.shards)
+    cal = probe(spec.scene, plan.params, plan.run, width, use_cache=not recalibrate)
     states = [reference_state_count({k: v[a:b] for k, v in plan.params.items()}) for a, b in todo]
-    return predict(cal, plan.run, [b - a for a, b in todo], bool(spec.run["record_strain"]),
-                   bool(spec.run["record_energy"]), shard_states=states,
-                   planned=(plan.n_columns, reference_state_count(plan.params))) | {"probe": cal}
+    rec = (bool(spec.run["record_strain"]), bool(spec.run["record_energy"]))
+    out = predict(cal, plan.run, [b - a for a, b in todo], *rec, shard_states=states,
+                  planned=(plan.n_columns, reference_state_count(plan.params)))
+    if len(plan.groups) > 1:  # each group steps its share of every shard at its own dt, priced by its own probe
+        group = plan.column_group
+        st = out["stages_s"]
+        st["stepping"] = st["measurement"] = 0.0
+        for gi, g in enumerate(plan.groups):
+            sizes = [n for n in (int(np.count_nonzero(group[a:b] == gi)) for a, b in todo) if n]
+            if sizes:
+                params = {k: v[g.columns] for k, v in plan.params.items()}
+                cal_g = cal if g.plan is plan.run else probe(spec.scene, params, g.plan, min(width, g.n_columns),
+                                                             use_cache=not recalibrate)
+                part = predict(cal_g, g.plan, sizes, *rec)["stages_s"]
+                st["stepping"] += part["stepping"]
+                st["measurement"] += part["measurement"]
+        out["seconds"] = float(sum(st.values()))
+    return out | {"probe": cal}
 
 
 def estimate_batch(config, params: dict, settings, recalibrate: bool = False) -> dict:

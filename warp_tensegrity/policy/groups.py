@@ -12,8 +12,9 @@ dt, step count, truncation and launch path, each with its reason):
   stability limit, so dt is proportional to 1/omega) and cut into bands of at most
   :data:`GROUP_RATIO` in omega: no column steps more than that many times as often as its own dt
   would have it;
-* a band of fewer than ``min_columns`` columns joins its stiffer neighbour (on a GPU a narrow
-  launch costs nearly what a full one does: :func:`min_group_columns`).
+* a band of fewer than :data:`MIN_GROUP_COLUMNS` columns joins its stiffer neighbour (a narrow
+  launch costs nearly what a full one does on a GPU). The rule reads the spec alone, never the
+  device, so a sweep's results do not depend on where it runs.
 
 Output times do not depend on dt (dt divides the output interval), so every group writes the same
 time axis. An explicit dt, or grouping switched off, gives one group: the run of today.
@@ -33,9 +34,9 @@ from .decide import ESTIMATE_CHUNK_BYTES, RunPlan, decide, far_end
 
 GROUP_RATIO = 2.0
 """Largest ratio of omega_max bounds (so of stable dt) within one group."""
-MIN_GROUP_COLUMNS_GPU = 256
-"""On a GPU, a band of fewer columns joins its stiffer neighbour: a launch of a few hundred columns
-fills a fraction of the device and costs nearly as much per step as a full one."""
+MIN_GROUP_COLUMNS = 64
+"""A band of fewer columns joins its stiffer neighbour: on a GPU a launch of a few dozen columns
+fills a sliver of the device and costs nearly as much per step as a full one."""
 
 
 @dataclass(frozen=True)
@@ -94,16 +95,11 @@ def stiffness_bands(omega: np.ndarray, rigid: np.ndarray, ratio: float = GROUP_R
     return groups
 
 
-def min_group_columns(on_gpu: bool) -> int:
-    return MIN_GROUP_COLUMNS_GPU if on_gpu else 1
-
-
 def decide_groups(config: ColumnConfig, params: dict, settings: RunSettings, *, n_columns: int | None = None,
-                  grouping: bool = True, on_gpu: bool | None = None) -> tuple[RunGroup, ...]:
+                  grouping: bool = True) -> tuple[RunGroup, ...]:
     """The sweep of scene ``config`` over ``params`` as groups of like stiffness, each decided once
     (:func:`.decide.decide`, ``n_columns`` columns per launch at most). One group when ``grouping``
-    is off, dt is given, or the columns are alike. ``on_gpu``: the device the groups' widths are
-    chosen for (None: the device ``settings`` resolves to, as decide's)."""
+    is off, dt is given, or the columns are alike."""
     params = column_params(config, params)
     B = int(params["prestrain"].size)
     width = B if n_columns is None else int(n_columns)
@@ -113,9 +109,7 @@ def decide_groups(config: ColumnConfig, params: dict, settings: RunSettings, *, 
         return (RunGroup(whole, plan, "every column"),)
     omega = column_omega(config, params)
     rigid = params["base_rigidity"] >= Base.RIGID
-    if on_gpu is None:
-        on_gpu = decide(config, params.take(slice(0, 1)), settings, n_columns=1).on_gpu
-    bands = stiffness_bands(omega, rigid, GROUP_RATIO, min_group_columns(on_gpu))
+    bands = stiffness_bands(omega, rigid, GROUP_RATIO, MIN_GROUP_COLUMNS)
     out = []
     for cols in bands:
         plan = decide(config, params.take(cols), settings, n_columns=min(width, cols.size))

@@ -9,8 +9,11 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from ..policy.cost import fmt_bytes, fmt_seconds, host_bytes_per_column
-from ..policy.decide import RunPlan, decide
+from ..policy.decide import RunPlan
+from ..policy.groups import RunGroup, decide_groups
 from ..provenance import code_version
 from .budget import check_plan
 from .errors import SpecError
@@ -35,7 +38,11 @@ class SweepPlan:
     device: str | None
     """Requested device (None: the GPU if there is one, else the CPU)."""
     run: RunPlan | None = None
-    """The run of every shard, decided once (None until decided: :func:`decide_sweep`)."""
+    """The run of the stiffest group (the most steps; with one group, of every column), decided once
+    (None until decided: :func:`decide_sweep`)."""
+    groups: tuple[RunGroup, ...] = ()
+    """The columns in groups of like stiffness, each with its run decided once
+    (:func:`warp_tensegrity.policy.groups.decide_groups`); a shard runs its columns group by group."""
     memory_limit: int | None = None
     """Host bytes for the sweep's data (``memory_limit`` of :func:`plan_sweep`); None: no limit."""
 
@@ -58,7 +65,22 @@ class SweepPlan:
 
     @property
     def dt(self) -> float:
+        """The smallest dt of the groups [s]."""
         return float(self.run.dt)
+
+    @property
+    def column_group(self) -> np.ndarray:
+        """(N,) the group of every column (index into ``groups``)."""
+        out = np.empty(self.n_columns, dtype=np.int32)
+        for i, g in enumerate(self.groups):
+            out[g.columns] = i
+        return out
+
+    def column_steps(self, shards=None) -> int:
+        """Column-steps of the shards (default: all): what the groups save."""
+        cg = self.column_group
+        steps = np.array([g.plan.n_steps for g in self.groups])
+        return int(sum(steps[cg[a:b]].sum() for a, b in (self.shards if shards is None else shards)))
 
     @property
     def dt_limit(self) -> float:
@@ -106,10 +128,13 @@ def decide_sweep(plan: SweepPlan) -> SweepPlan:
     the memory limit."""
     spec = plan.spec
     settings = dataclasses.replace(spec.run_settings(device=plan.device), allow_unstable_dt=True)
-    run = decide(spec.scene, plan.params, settings, n_columns=max(b - a for a, b in plan.shards))
-    spec.check_dt(run.dt_limit)
-    plan.run = dataclasses.replace(run, settings=dataclasses.replace(
-        run.settings, allow_unstable_dt=spec.run["allow_unstable_dt"]))
+    groups = decide_groups(spec.scene, plan.params, settings, n_columns=max(b - a for a, b in plan.shards),
+                           grouping=bool(spec.run["groups"]))
+    spec.check_dt(min(g.plan.dt_limit for g in groups))
+    allow = spec.run["allow_unstable_dt"]
+    plan.groups = tuple(dataclasses.replace(g, plan=dataclasses.replace(g.plan, settings=dataclasses.replace(
+        g.plan.settings, allow_unstable_dt=allow))) for g in groups)
+    plan.run = max((g.plan for g in plan.groups), key=lambda r: (r.n_steps, -r.dt))
     if plan.memory_limit is not None:
         per = host_bytes_per_column(plan.run, bool(spec.run["record_strain"]), bool(spec.run["record_energy"]))
         n = limit_shard_size(plan.shard_size, per, plan.memory_limit)
@@ -136,6 +161,7 @@ def dry_run(plan: SweepPlan, cost: dict) -> str:
         f"shards:      {plan.n_shards} of up to {plan.shard_size} columns -> {plan.shard_dir}/ (Zarr store)",
         f"method:      {run.method} {run.precision}, dt = {dt_txt}",
         f"steps:       {run.n_steps} to t_end = {r['t_end']} s, {run.n_out} outputs",
+        *_group_lines(plan),
         f"prisms:      {run.prisms_simulated} of {run.prisms} simulated",
         f"device:      {cost['device']}{auto}",
         f"step path:   {run.path.value} (decided for shards of {run.n_columns} columns)",
@@ -155,3 +181,17 @@ def dry_run(plan: SweepPlan, cost: dict) -> str:
         lines.append(f"             taken while other work kept {100 * p['others_busy']:.0f} % of the cores busy: "
                      "the time may be high; it is re-measured once the host is idle")
     return "\n".join(lines)
+
+
+def _group_lines(plan: SweepPlan) -> list[str]:
+    """The dry run's lines on the groups: one per group (columns, dt, steps, path) and the saving."""
+    if len(plan.groups) < 2:
+        return []
+    lines = [f"groups:      {len(plan.groups)} of like stiffness, each at its own dt (run.groups; "
+             f"{plan.column_steps() / (plan.n_columns * plan.run.n_steps):.2f} x the column-steps of one dt):"]
+    for i, g in enumerate(plan.groups):
+        p = g.plan
+        lines.append(f"  group {i}:   {g.n_columns} columns ({g.label}): dt = {p.dt:.4g} s "
+                     f"({p.settings.dt_safety:.3g} x limit {p.dt_limit:.4g} s), {p.n_steps} steps, "
+                     f"{p.prisms_simulated} prisms, path {p.path.value}")
+    return lines

@@ -70,6 +70,9 @@ def _header(plan, time: np.ndarray) -> dict:
         "output": plan.out.name,
         "time_sha256": array_sha256(time),
         "n_time": int(len(time)),
+        # the groups of like stiffness and their dt: a resume under another grouping recomputes
+        "groups": [[g.n_columns, float(g.plan.dt), int(g.plan.n_steps)] for g in plan.groups],
+        "groups_sha256": array_sha256(plan.column_group),
     }
 
 
