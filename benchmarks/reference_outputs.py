@@ -8,6 +8,7 @@ compressed npz. A refactor that must not change results re-runs this and compare
     python -m benchmarks.reference_outputs --check    # compare (see below), exit 1 on a change
     python -m benchmarks.reference_outputs --check --exact   # exit 1 on any bit that differs
     python -m benchmarks.reference_outputs --remeasure  # only the sweeps' measures, from the stored strain
+    python -m benchmarks.reference_outputs --add-new    # add new outputs; every existing entry kept
 
 ``--remeasure`` (for a change of the measures alone, issue 25) recomputes each stored sweep shard's
 per-case measures (device measure on the CPU, measure_columns, the beta_limit variables) from its
@@ -261,6 +262,8 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="compare against the committed file instead of writing it")
     ap.add_argument("--remeasure", action="store_true", help="rewrite only the sweeps' measures from the stored strain")
     ap.add_argument("--exact", action="store_true", help="with --check: fail on any bit that differs")
+    ap.add_argument("--add-new", action="store_true",
+                    help="add the arrays a run has and the file lacks (new outputs); every existing entry kept")
     args = ap.parse_args(argv)
     import warp as wp
 
@@ -276,6 +279,13 @@ def main(argv=None) -> int:
         print(f"wrote {REFERENCE_FILE} ({len(changed)} entries rewritten)")
         return 0
     out = compute()
+    if args.add_new:
+        with np.load(REFERENCE_FILE) as ref:
+            kept = {k: ref[k] for k in ref.files}
+        new = {k: v for k, v in out.items() if k not in {_renamed(n) for n in kept}}
+        np.savez_compressed(REFERENCE_FILE, **kept, **new)
+        print("\n".join(f"{k}: new" for k in sorted(new)) + f"\nwrote {REFERENCE_FILE} ({len(new)} entries added)")
+        return 0
     if args.check:
         print(summary(out))
         return 1 if compare(out, exact=args.exact) else 0

@@ -39,7 +39,7 @@ LAYERS = [
     {"kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver", "kernels.fused", "kernels.lane_ops",
      "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes", "kernels", "model", "integrate"},
     # measure
-    {"measure.pulse_core", "measure.pulse", "measure", "measure.device_funcs", "measure.device_kernels",
+    {"measure.pulse_core", "measure.pulse", "measure", "measure.device_funcs", "measure.device_kernels", "measure.errors",
      "measure.device", "measure.nan_reasons"},
     # a run's datasets, its execution and its calibration
     {"io", "result", "engine", "policy.calibrate"},

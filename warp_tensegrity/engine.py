@@ -118,6 +118,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
             "output_step": plan.output_steps,
             "column_dt": np.full(batch.n_columns, dt),
             "column_group": np.zeros(batch.n_columns, dtype=np.int32),
+            "column_bits": np.full(batch.n_columns, 32 if settings.precision == "fp32" else 64, dtype=np.int8),
             "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
             "bandwidth": integ.model.bandwidth,
             "n_constraints": integ.model.n_constraints,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import gc
 import time
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -29,7 +30,7 @@ from .kernels.staged_solver import make_solver_kernels
 from .model import REAL, Data, Model, build_model, make_data
 from .runtime import resolve_device
 from .options import RunSettings, SettingsError
-from .types import ARGUMENT_GROUPS, Method, Path, RKStage, group_fields
+from .types import ARGUMENT_GROUPS, Method, Path, Precision, RKStage, group_fields
 
 if TYPE_CHECKING:
     from .scene.batch import NetworkBatch
@@ -60,6 +61,8 @@ class Integrator:
         fused path runs RATTLE only."""
         if path in (Path.FUSED, Path.FUSED_SERIAL, Path.LANES) and settings.method != Method.RATTLE:
             raise SettingsError(f"the fused path needs method = 'rattle' (got method = {settings.method!r})")
+        if settings.precision == Precision.AUTO:  # a batch stepped directly: no twin to verify fp32 (policy.groups)
+            settings = replace(settings, precision=Precision.FP64)
         self.settings = settings
         self.path = Path(path)
         self.device = resolve_device(settings.device)

@@ -35,7 +35,7 @@ import xarray as xr
 
 from .scene.impact import kinematic_lock_strain
 from .options import COLUMN_PARAMETERS, ColumnParameters, opt_of
-from .types import BETA_LIMIT_FLAGS, MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME, Layout
+from .types import BETA_LIMIT_FLAGS, ERROR_ESTIMATED, ERROR_FLAGS, MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME, Layout
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 
@@ -113,8 +113,13 @@ VAR_ATTRS = {
     "measurement_flag": flag_attrs("why the pulse measures of the column are NaN (ok: all defined; "
                                    "docs/measurements.md)", dict(enumerate(MEASUREMENT_FLAGS))),
     "status": flag_attrs("column status at the end of the run", STATUS_MEANINGS),
+    "error_flag": flag_attrs("whether the error estimates of the case's measures can be trusted: no_twin (no "
+                             "estimate), twin_undefined (a measure defined, its twin's not), over_target (an estimate "
+                             "above the accuracy target; docs/measurements.md)", dict(enumerate(ERROR_FLAGS))),
     "fail_step": {"units": "1", "long_name": "time step at which a failed column was frozen (-1: never failed)"},
     "time_step": {"units": "s", "long_name": "time step dt the case was stepped with (its run group's)"},
+    "precision_used": flag_attrs("floating point the case's results came from: fp32, or fp64 where precision "
+                                 "'auto' did not verify fp32 (docs/measurements.md)", {32: "fp32", 64: "fp64"}),
     "run_group": {"units": "1", "long_name": "run group of the case: columns of like stiffness stepped with one plan "
                   "(dt, steps, path; the dataset attribute run_groups describes each)"},
     "energy_error": {
@@ -129,6 +134,10 @@ VAR_ATTRS = {
         "long_name": "axial prism strain (h - h0) / h, negative in compression",
     },
 }
+for _k in ERROR_ESTIMATED:  # <measure>_error: the measure's units, its estimate's method in docs/measurements.md
+    VAR_ATTRS[f"{_k}_error"] = {"units": VAR_ATTRS[_k]["units"],
+                                "long_name": f"estimated numerical error of {_k} (from a twin run at ~4x dt; "
+                                             "docs/measurements.md)"}
 
 _COMPRESS = {"zlib": True, "complevel": 1, "shuffle": True}
 
@@ -247,6 +256,12 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
     if measurements is not None:
         dv.update({k: (C, measurements[k]) for k in MEASUREMENTS if k != "arrival_time" and k in measurements})
         dv["arrival_time"] = (("case", "prism"), measurements["arrival_time"])
+        for k in ERROR_ESTIMATED:
+            if f"{k}_error" in measurements:
+                e = np.asarray(measurements[f"{k}_error"], dtype=np.float64)
+                dv[f"{k}_error"] = (("case", "prism") if e.ndim == 2 else C, e)
+        if "error_flag" in measurements:
+            dv["error_flag"] = (C, np.asarray(measurements["error_flag"], dtype=np.int8))
         if "measurement_flag" in measurements:
             dv["measurement_flag"] = (C, np.asarray(measurements["measurement_flag"], dtype=np.int8))
         if "base_mode_ratio" in measurements:
@@ -256,6 +271,8 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
         "status": (C, np.asarray(result.status, dtype=np.int8)),
         "fail_step": (C, np.asarray(result.fail_step, dtype=np.int64)),
         **({"time_step": (C, np.asarray(result.info["column_dt"], dtype=np.float64))} if "column_dt" in result.info else {}),
+        **({"precision_used": (C, np.asarray(result.info["column_bits"], dtype=np.int8))}
+           if "column_bits" in result.info else {}),
         **({"run_group": (C, np.asarray(result.info["column_group"], dtype=np.int8))}
            if "column_group" in result.info else {}),
         "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
@@ -274,6 +291,9 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
         k: xr.Variable(d, np.asarray(v, dtype=np.float64) if k in MEASUREMENTS else v, attrs=dict(VAR_ATTRS[k]))
         for k, (d, v) in dv.items()
     }
+    for k in ERROR_ESTIMATED:  # CF: a measure names its error estimate and the estimate's flag
+        if f"{k}_error" in data_vars and k in data_vars:
+            data_vars[k].attrs["ancillary_variables"] = f"{k}_error error_flag"
     ds = xr.Dataset(data_vars, coords=coords)
     ds.attrs = {k: _attr(v) for k, v in attrs.items()}
     return ds

@@ -37,7 +37,7 @@ from pydantic_core import PydanticCustomError, core_schema
 
 METHODS = ("rattle", "rk4", "yoshida4", "symplectic_euler")
 """The values of :class:`warp_tensegrity.types.Method` (a leaf cannot import it; a test checks)."""
-PRECISIONS = ("fp32", "fp64")
+PRECISIONS = ("fp32", "fp64", "auto")
 """The values of :class:`warp_tensegrity.types.Precision`."""
 # Physical ranges of the per-column parameters (the scene's are in scene.columns): wide enough for
 # any laboratory or built tensegrity column, narrow enough that derived quantities stay normal floats.
@@ -387,8 +387,11 @@ class RunSettings:
     method: Annotated[str, Opt("choice", choices=METHODS)] = "rattle"
     """'rattle' (default: velocity Verlet + position/velocity projection), 'rk4' (the paper's
     RK4 with projection), 'yoshida4' (RATTLE triple-jump composition), 'symplectic_euler'."""
-    precision: Annotated[str, Opt("choice", choices=PRECISIONS)] = "fp64"
-    """Floating point of the state: 'fp32' or 'fp64'."""
+    precision: Annotated[str, Opt("choice", choices=PRECISIONS)] = "auto"
+    """Floating point of the state: 'fp32', 'fp64' or 'auto' (default): a sweep on a GPU runs fp32,
+    verifies every case by its error estimate (``error_estimate``) and reruns in fp64 the cases it does
+    not verify (the dataset's ``precision_used`` says which answered); fp64 everywhere else (the CPU,
+    where fp32 buys little, and single runs, which have no twin to verify them)."""
     output_interval: Annotated[float | None, Opt("real", "s", ge=MIN_TIME, optional=True, special=(("auto", None),))] = None
     """Time between recorded outputs [s], <= t_end; None ('auto'): t_end / 200."""
     record_strain: Annotated[bool, Opt("bool")] = True
@@ -447,6 +450,10 @@ class RunSettings:
     """Sweeps: run the columns in groups of like stiffness, each with its own plan (dt, steps, path;
     :mod:`warp_tensegrity.policy.groups`: rigid bases apart, omega_max within 2x), so no column steps
     at the stiffest column's dt; False: one plan, one dt, for every column. Only with dt = 'auto'."""
+    error_estimate: Annotated[bool, Opt("bool")] = True
+    """Sweeps: step every group's columns a second time at about 4x its dt (a twin on the same output
+    times, about a quarter of the steps) and give each measure an error estimate from the two
+    (``<measure>_error``, docs/measurements.md); False: no twin, no estimate."""
     measure: Annotated[str, Opt("choice", choices=("device", "host", "none"))] = "device"
     """Pulse measures (``BatchResult.measurements``) of :func:`~warp_tensegrity.engine.simulate_batch`:
     'device' (Warp kernels on the device record; only the measures cross to the host), 'host'
@@ -468,7 +475,7 @@ class RunSettings:
     def tolerance(self) -> float:
         if self.projection_tol is not None:
             return self.projection_tol
-        return 1e-13 if self.precision == "fp64" else 3e-7
+        return 3e-7 if self.precision == "fp32" else 1e-13
 
 
 EXECUTION_KEYS = ("device", "shard_size", "fused")

@@ -117,10 +117,13 @@ def merge_results(parts: list, n_columns: int, group_ids: list[int] | None = Non
 
     column_dt = np.empty(n_columns)
     column_group = np.empty(n_columns, dtype=np.int32)
+    column_bits = np.empty(n_columns, dtype=np.int8)
     for g, c, r in zip(group_ids or range(len(parts)), cols, results):
-        column_dt[c], column_group[c] = r.dt, g
+        column_dt[c] = r.info.get("column_dt", r.dt)
+        column_group[c] = g
+        column_bits[c] = r.info.get("column_bits", precision_bits(r.precision))
     if len(results) == 1:
-        first.info.update(column_dt=column_dt, column_group=column_group)
+        first.info.update(column_dt=column_dt, column_group=column_group, column_bits=column_bits)
         return first
     measurements = None
     if all(r.measurements is not None for r in results):
@@ -152,7 +155,7 @@ def merge_results(parts: list, n_columns: int, group_ids: list[int] | None = Non
     if all("beta_limit" in r.info for r in results):  # each part's closure on its columns, stitched
         info["beta_limit"] = partial(_stitched_beta_limit, [(c, r.info["beta_limit"]) for c, r in zip(cols, results)],
                                      n_columns)
-    info.update(stages=stages, column_dt=column_dt, column_group=column_group, step_path="; ".join(map(str, step_paths)),
+    info.update(stages=stages, column_dt=column_dt, column_group=column_group, column_bits=column_bits, step_path="; ".join(map(str, step_paths)),
                 groups=[{"group": int(g), "columns": int(c.size), "dt": float(r.dt), "n_steps": int(r.n_steps),
                          "step_path": r.info.get("step_path"), "wall_time": float(r.wall_time)}
                         for g, c, r in zip(group_ids or range(len(parts)), cols, results)])
@@ -175,3 +178,35 @@ def _stitched_beta_limit(parts, n_columns: int, max_compression) -> dict:
                 out[k] = np.empty((n_columns,) + v.shape[1:], dtype=v.dtype)
             out[k][c] = v
     return out
+
+
+def precision_bits(precision: str) -> int:
+    """32 or 64: the bits of a precision name ('fp32', 'fp64')."""
+    return 32 if str(precision) == "fp32" else 64
+
+
+def overwrite_columns(result: BatchResult, index, other: BatchResult) -> None:
+    """Put the columns of ``other`` (a run of ``result``'s columns ``index``, on the same output times)
+    in their places in ``result``, in place: every per-column array, the measures, each column's dt and
+    precision bits (``info['column_dt']``, ``info['column_bits']``). A precision 'auto' rerun in fp64."""
+    index = np.asarray(index, dtype=np.int64)
+    if other.n_columns != index.size or not np.array_equal(other.time, result.time):
+        raise ValueError("overwrite_columns: other is not a run of those columns on the same output times")
+    for name in _PER_COLUMN:
+        a, b = getattr(result, name), getattr(other, name)
+        if a is not None and b is not None:
+            a[index] = b
+    if result.measurements is not None and other.measurements is not None:
+        for k, v in other.measurements.items():
+            mine = result.measurements.get(k)
+            if isinstance(mine, np.ndarray) and mine.ndim >= 1 and mine.shape[0] == result.n_columns:
+                mine[index] = np.asarray(v)
+    B = result.n_columns
+    dt = np.broadcast_to(np.asarray(result.info.get("column_dt", result.dt), dtype=np.float64), (B,)).copy()
+    bits = np.broadcast_to(np.asarray(result.info.get("column_bits", precision_bits(result.precision)), dtype=np.int8),
+                           (B,)).copy()
+    dt[index], bits[index] = other.dt, precision_bits(other.precision)
+    result.info.update(column_dt=dt, column_bits=bits)
+    result.wall_time += other.wall_time
+    for k, v in other.info.get("stages", {}).items():
+        result.info.setdefault("stages", {})[k] = result.info["stages"].get(k, 0.0) + v

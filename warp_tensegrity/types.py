@@ -67,6 +67,16 @@ MEASUREMENT_FLAGS = (
 """Values 0.. of the datasets' ``measurement_flag`` (CF flag_values/flag_meanings): why a
 column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tells each case)."""
 
+ERROR_ESTIMATED = ("amplitude", "speed", "width", "width_10", "arrival_time")
+"""The pulse measures that carry an error estimate ``<measure>_error`` (same units and dims) in a
+sweep's dataset (:mod:`warp_tensegrity.measure.errors`)."""
+ERROR_FLAGS = ("ok", "no_twin", "twin_undefined", "over_target")
+"""Values 0.. of the datasets' ``error_flag`` (:mod:`warp_tensegrity.measure.errors`): whether each
+measure's error estimate can be trusted: ok; no_twin (no coarser dt on the same outputs: no
+estimate); twin_undefined (a measure is defined but its twin's is not: the estimate cannot say);
+over_target (an estimate exceeds the run's accuracy target)."""
+
+
 BETA_LIMIT_FLAGS = ("regular", "slow_convergence_possible", "rigid_bases")
 """Values 0, 1, 2 of the datasets' ``beta_limit_flag`` (:mod:`warp_tensegrity.scene.base_modes`):
 how the limit base_rigidity -> 1 converges for a case."""
@@ -91,6 +101,9 @@ FORCE_EVALS = {Method.RATTLE: 1, Method.RK4: 4, Method.YOSHIDA4: 3, Method.SYMPL
 class Precision(StrEnum):
     FP32 = "fp32"
     FP64 = "fp64"
+    AUTO = "auto"
+    """fp32 verified case by case where a sweep's twin can verify it and fp32 is worth it (a GPU),
+    with fp64 reruns of the cases it does not verify; fp64 elsewhere (:mod:`warp_tensegrity.policy.groups`)."""
 
 
 class Path(StrEnum):

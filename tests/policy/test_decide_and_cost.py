@@ -139,7 +139,7 @@ def _wrap_everywhere(monkeypatch, name, log, inside=None):
 @pytest.mark.parametrize("text, n_groups", [(TINY, 1), (TINY_GROUPED, 2)], ids=["one plan", "two groups"])
 def test_a_sweep_decides_once(tmp_path, cache, monkeypatch, text, n_groups):
     """A 3-shard CLI sweep: one decide() per group (its rigid-base columns a group of their own unless
-    run.groups = false), all in one decide_groups(); the omega bound, the Gram band and the path are
+    run.groups = false) and per group's twin, all in one decide_groups(); the omega bound, the Gram band and the path are
     computed inside them only (the estimate, the probe, the store template and every shard read the
     plans)."""
     import warp_tensegrity.engine  # noqa: F401 (every module that could hold the functions is loaded)
@@ -169,8 +169,9 @@ def test_a_sweep_decides_once(tmp_path, cache, monkeypatch, text, n_groups):
             monkeypatch.setattr(m, name, scope(name, real))
     assert main(["run", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu", "--no-progress"]) == 0
     names = [n for n, _ in log]
-    assert names.count("decide_groups") == 1 and names.count("decide") == n_groups, names
-    assert names.count("gram_bandwidth") == n_groups and names.count("choose_path") == n_groups, names
+    n = 2 * n_groups  # each group's plan and its error estimate's twin
+    assert names.count("decide_groups") == 1 and names.count("decide") == n, names
+    assert names.count("gram_bandwidth") == n and names.count("choose_path") == n, names
     assert names.count("omega_max_bound") >= 1 and all(ins for _, ins in log), log
     import xarray as xr
 

@@ -15,7 +15,7 @@ def test_default_policy_is_the_accuracy_policy():
     s, choices = apply_accuracy(RunSettings(), 50)
     assert choices == {"accuracy": DEFAULT_ACCURACY, "accuracy_source": "default", "dt_safety": s.dt_safety}
     assert s.dt_safety == dt_fraction("rattle", DEFAULT_ACCURACY, 50) == default_dt_safety("rattle", 50)[0]
-    assert s.method == "rattle" and s.precision == "fp64"  # the default keeps method and precision
+    assert s.method == "rattle" and s.precision == "auto"  # the default keeps method and precision
     # an explicit dt or dt_safety is kept as given
     assert apply_accuracy(RunSettings(dt=1e-3), 50)[0].dt_safety is None
     assert apply_accuracy(RunSettings(dt_safety=0.25), 50)[0].dt_safety == 0.25

@@ -348,19 +348,27 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
     rec = (bool(spec.run["record_strain"]), bool(spec.run["record_energy"]))
     out = predict(cal, plan.run, [b - a for a, b in todo], *rec, shard_states=states,
                   planned=(plan.n_columns, reference_state_count(plan.params)))
-    if len(plan.groups) > 1:  # each group steps its share of every shard at its own dt, priced by its own probe
+    twins = bool(spec.run.get("error_estimate"))
+    if len(plan.groups) > 1 or twins:
+        # each group steps its share of every shard at its own dt, priced by its own probe, and its twin
+        # (the error estimate) at the twin's; precision 'auto' reruns in fp64 what fp32 does not verify,
+        # which no estimate can know beforehand: not priced (the dry run says so)
         group = plan.column_group
         st = out["stages_s"]
         st["stepping"] = st["measurement"] = 0.0
+        out["twin_stepping_s"] = 0.0
         for gi, g in enumerate(plan.groups):
             sizes = [n for n in (int(np.count_nonzero(group[a:b] == gi)) for a, b in todo) if n]
             if sizes:
                 params = {k: v[g.columns] for k, v in plan.params.items()}
                 cal_g = cal if g.plan is plan.run else probe(spec.scene, params, g.plan, min(width, g.n_columns),
                                                              use_cache=not recalibrate)
-                part = predict(cal_g, g.plan, sizes, *rec)["stages_s"]
-                st["stepping"] += part["stepping"]
-                st["measurement"] += part["measurement"]
+                for run, is_twin in ((g.plan, False), (g.twin if twins else None, True)):
+                    if run is not None:
+                        part = predict(cal_g, run, sizes, *rec)["stages_s"]
+                        st["stepping"] += part["stepping"]
+                        st["measurement"] += part["measurement"]
+                        out["twin_stepping_s"] += part["stepping"] if is_twin else 0.0
         out["seconds"] = float(sum(st.values()))
     return out | {"probe": cal}
 

@@ -20,7 +20,7 @@ from ..options import RunSettings
 from ..runtime import resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
-from ..types import Base, Path
+from ..types import Base, Path, Precision
 from .accuracy import apply_accuracy, choose_timestep, default_dt_safety, output_times, reachable_prisms
 from .lane_fit import lane_refusal, lane_support
 from .paths import choose_path, gram_bandwidth
@@ -191,6 +191,9 @@ def decide_batch(batch: NetworkBatch, settings: RunSettings, lanes_refused: str 
 def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: str | None, n_columns: int, n: int,
             n_sim: int, reasons: list) -> RunPlan:
     """The plan from the bound, a batch with every member of the run's (``topology``) and the rest."""
+    auto = settings.precision == Precision.AUTO
+    if auto:  # a run alone has no twin to verify fp32 (policy.groups does)
+        settings = replace(settings, precision=Precision.FP64)
     bandwidth = gram_bandwidth(topology)
     dt, limit, n_steps, every = choose_timestep(settings, omega)
     device = resolve_device(settings.device)  # initialises Warp (quietly)
@@ -199,6 +202,8 @@ def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: st
                                           if settings.dt == "auto" else "given"))
     reasons.append(f"path {path.value}: fused = {settings.fused!r} on {device.alias}, {n_columns} columns per launch"
                    + ("" if lanes is None else f"; not the lane step: {lanes}"))
+    if auto:
+        reasons.append("precision fp64: 'auto' without a twin run to verify fp32 case by case")
     return RunPlan(settings=replace(settings, device=device.alias), dt=dt, dt_limit=limit, n_steps=n_steps,
                    output_every=every, omega_max_bound=omega, bandwidth=int(bandwidth), n_nodes=int(topology.positions.shape[0]),
                    n_constraints=len(topology.constraints), n_cables=len(topology.cables), path=path, lane_refusal=lanes,

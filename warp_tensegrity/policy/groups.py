@@ -22,16 +22,24 @@ time axis. An explicit dt, or grouping switched off, gives one group: the run of
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..options import RunSettings
 from ..scene.batch import ColumnParams, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
-from ..types import Base
+from ..runtime import resolve_device
+from ..types import Base, Precision
+from .accuracy import ERROR_MODEL, MAX_FRACTION
 from .decide import ESTIMATE_CHUNK_BYTES, RunPlan, decide, far_end
 
+TWIN_COARSENING = 4.0
+"""The error estimate's twin steps at about this many times the group's dt: a quarter of its steps."""
+AUTO_FP32_ON_CPU = False
+"""precision 'auto' verifies fp32 on a GPU only (where it is ~8x faster than fp64); on the CPU it
+buys ~1.5x and fp64 runs (the tests set this to check the verification on the CPU)."""
 GROUP_RATIO = 2.0
 """Largest ratio of omega_max bounds (so of stable dt) within one group."""
 MIN_GROUP_COLUMNS = 64
@@ -49,6 +57,13 @@ class RunGroup:
     """The group's run, decided once."""
     label: str
     """What the group holds: base class and omega_max bounds [rad s-1]."""
+    twin: RunPlan | None = None
+    """The error estimate's twin: the same columns at about TWIN_COARSENING x dt, on the same output
+    times (:func:`twin_plan`); None where there is none."""
+    fallback: RunPlan | None = None
+    """precision 'auto' verified: the fp64 plan (and ``fallback_twin``, its twin) that reruns the
+    cases whose fp32 measures the twin does not verify; None otherwise."""
+    fallback_twin: RunPlan | None = None
 
     @property
     def n_columns(self) -> int:
@@ -95,27 +110,65 @@ def stiffness_bands(omega: np.ndarray, rigid: np.ndarray, ratio: float = GROUP_R
     return groups
 
 
+def twin_plan(config: ColumnConfig, params: ColumnParams, plan: RunPlan) -> RunPlan | None:
+    """The error estimate's twin of ``plan`` (:data:`TWIN_COARSENING`): the same columns and method
+    at dt_twin = interval / ceil(output_every / r), so both record the same output times, with r at
+    most TWIN_COARSENING and dt_twin at most MAX_FRACTION of the stability limit. None when no
+    coarser dt keeps the outputs (one step per output) or stays stable."""
+    interval = plan.dt * plan.output_every
+    r = min(TWIN_COARSENING, MAX_FRACTION * plan.dt_limit / plan.dt)
+    every = math.ceil(plan.output_every / r - 1e-9) if r > 1 else plan.output_every
+    if every >= plan.output_every:
+        return None
+    settings = replace(plan.settings, dt=interval / every, dt_safety=None, output_interval=interval)
+    return decide(config, params, settings, n_columns=plan.n_columns, prisms_simulated=plan.prisms_simulated)
+
+
+def twin_ratio(plan: RunPlan, twin: RunPlan) -> float:
+    """The factor (dt_twin / dt)^p - 1 by which the twin's error exceeds the plan's (order p of the
+    method, :data:`~.accuracy.ERROR_MODEL`; Richardson): |m - m_twin| / it estimates m's error."""
+    p = ERROR_MODEL.get(plan.method, (None, 2))[1]
+    return (twin.dt / plan.dt) ** p - 1.0
+
+
+def verifies_fp32(settings: RunSettings, twins: bool) -> bool:
+    """Whether precision 'auto' runs fp32 verified by the twins (else fp64): on a GPU, with twins."""
+    return settings.precision == Precision.AUTO and twins and (AUTO_FP32_ON_CPU or resolve_device(settings.device).is_cuda)
+
+
+def _group(config: ColumnConfig, params: ColumnParams, settings: RunSettings, width: int, columns: np.ndarray,
+           label: str, twins: bool, verify: bool) -> RunGroup:
+    """One group decided: its plan, twin, and (``verify``) its fp32 plan with the fp64 fallback."""
+    if verify:
+        plan = decide(config, params, replace(settings, precision=Precision.FP32), n_columns=width)
+        back = decide(config, params, replace(settings, precision=Precision.FP64), n_columns=width)
+        return RunGroup(columns, plan, label, twin_plan(config, params, plan), back, twin_plan(config, params, back))
+    plan = decide(config, params, settings, n_columns=width)
+    return RunGroup(columns, plan, label, twin_plan(config, params, plan) if twins else None)
+
+
 def decide_groups(config: ColumnConfig, params: dict, settings: RunSettings, *, n_columns: int | None = None,
-                  grouping: bool = True) -> tuple[RunGroup, ...]:
+                  grouping: bool = True, twins: bool = False) -> tuple[RunGroup, ...]:
     """The sweep of scene ``config`` over ``params`` as groups of like stiffness, each decided once
     (:func:`.decide.decide`, ``n_columns`` columns per launch at most). One group when ``grouping``
-    is off, dt is given, or the columns are alike."""
+    is off, dt is given, or the columns are alike. ``twins``: decide each group's error-estimate twin
+    too (:func:`twin_plan`)."""
     params = column_params(config, params)
     B = int(params["prestrain"].size)
     width = B if n_columns is None else int(n_columns)
     whole = np.arange(B)
+    verify = verifies_fp32(settings, twins)
     if not grouping or settings.dt != "auto" or B == 1:
-        plan = decide(config, params, settings, n_columns=min(width, B))
-        return (RunGroup(whole, plan, "every column"),)
+        return (_group(config, params, settings, min(width, B), whole, "every column", twins, verify),)
     omega = column_omega(config, params)
     rigid = params["base_rigidity"] >= Base.RIGID
     bands = stiffness_bands(omega, rigid, GROUP_RATIO, MIN_GROUP_COLUMNS)
     out = []
     for cols in bands:
-        plan = decide(config, params.take(cols), settings, n_columns=min(width, cols.size))
         cls = "rigid bases" if rigid[cols[0]] else ("flexible bases" if np.all(params["base_rigidity"][cols] == 0)
                                                      else "flexible or elastic bases")
-        out.append(RunGroup(cols, plan, f"{cls}, omega_max {omega[cols].min():.4g}-{omega[cols].max():.4g} rad/s"))
+        out.append(_group(config, params.take(cols), settings, min(width, cols.size), cols,
+                          f"{cls}, omega_max {omega[cols].min():.4g}-{omega[cols].max():.4g} rad/s", twins, verify))
     if len({g.plan.n_out for g in out}) != 1:  # pragma: no cover - dt divides the output interval
         raise AssertionError("groups with different output times")
     return tuple(out)

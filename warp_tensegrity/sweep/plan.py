@@ -129,7 +129,7 @@ def decide_sweep(plan: SweepPlan) -> SweepPlan:
     spec = plan.spec
     settings = dataclasses.replace(spec.run_settings(device=plan.device), allow_unstable_dt=True)
     groups = decide_groups(spec.scene, plan.params, settings, n_columns=max(b - a for a, b in plan.shards),
-                           grouping=bool(spec.run["groups"]))
+                           grouping=bool(spec.run["groups"]), twins=bool(spec.run["error_estimate"]))
     spec.check_dt(min(g.plan.dt_limit for g in groups))
     allow = spec.run["allow_unstable_dt"]
     plan.groups = tuple(dataclasses.replace(g, plan=dataclasses.replace(g.plan, settings=dataclasses.replace(
@@ -174,6 +174,13 @@ def dry_run(plan: SweepPlan, cost: dict) -> str:
         f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "
         f"({p['column_step_seconds']:.3g} s per column-step; cached {p['created']}; --recalibrate renews it)",
     ]
+    if "twin_stepping_s" in cost:
+        share = cost["twin_stepping_s"] / max(cost["stages_s"]["stepping"] - cost["twin_stepping_s"], 1e-30)
+        lines.insert(-1, f"errors:      every measure's error estimated from a twin at ~4x dt (run.error_estimate): "
+                         f"+{100 * share:.0f} % of the stepping, {cost['twin_stepping_s']:.3g} s, in the time above")
+    if any(g.fallback is not None for g in plan.groups):
+        lines.insert(-1, "precision:   auto: fp32, verified case by case by the twins; the cases it does not verify "
+                         "are rerun in fp64 (not in the time above: how many is known only after)")
     if p.get("compiled_modules"):
         lines.append(f"             the probe compiled {p['compiled_modules']} kernel modules ({p['probe_compile']:.3g} s) into "
                      "Warp's cache: the run loads them from there")

@@ -10,9 +10,12 @@ import numpy as np
 from .. import io as D
 from ..scene.base_modes import beta_limit_measures
 from ..engine import simulate_batch
+from ..measure.errors import FLAG as ERROR_FLAG
+from ..measure.errors import error_estimates
 from ..measure.nan_reasons import measure_columns  # shared with BatchResult.to_xarray
+from ..policy.groups import twin_ratio
 from ..provenance import provenance_attrs
-from ..result import merge_results
+from ..result import merge_results, overwrite_columns
 from ..runtime import warp_facts
 from .plan import SweepPlan, decide_sweep
 from .store import SweepStore, time_coord
@@ -31,9 +34,12 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     spec = plan.spec
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
-    result = run_groups(plan, start, stop, device, progress)
+    twins = bool(spec.run["error_estimate"])
+    result = run_groups(plan, start, stop, device, progress, twins=twins)
+    result, errors = result if twins else (result, {})
     meas = measure_columns(result, spec.scene.height)
     meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"]))
+    meas.update(errors)
     attrs = {
         "Conventions": D.CONVENTIONS,
         "fingerprint": plan.fingerprint,
@@ -65,30 +71,65 @@ def run_groups_attr(plan: SweepPlan) -> str:
                      f"path {g.plan.path.value}" for i, g in enumerate(plan.groups))
 
 
-def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None, progress=None):
+VERIFY_FAILS = (ERROR_FLAG["over_target"], ERROR_FLAG["twin_undefined"])
+"""error_flag values a precision 'auto' fp32 case is rerun in fp64 for."""
+
+
+def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None, progress=None,
+               twins: bool = False):
     """Columns ``start:stop`` of the sweep run group by group, each with its group's plan (decided once
     for the sweep, :attr:`SweepPlan.groups`), merged back in column order (one BatchResult).
-    ``progress(steps_done, n_steps, n_failed)`` sees the shard's column-steps as one run."""
+
+    ``twins``: each group's error-estimate twin too (:attr:`RunGroup.twin`); a group that verifies
+    fp32 (precision 'auto', :attr:`RunGroup.fallback`) reruns in fp64 the columns whose error_flag
+    is over_target or twin_undefined. Then returns (result, errors): every measure's error estimate
+    and ``error_flag`` (:func:`warp_tensegrity.measure.errors.error_estimates`), in column order.
+    ``progress(done, total, n_failed)`` sees the shard's column-steps (twins included) as one run."""
     group = plan.column_group[start:stop]
-    parts, work = [], []
-    for gi, g in enumerate(plan.groups):
-        cols = np.flatnonzero(group == gi)
-        if cols.size:
-            parts.append((gi, cols))
-            work.append(cols.size * g.plan.n_steps)
-    total, done, failed = float(sum(work)), 0.0, 0
-    results = []
-    for (gi, cols), w in zip(parts, work):
+    n = stop - start
+    jobs = [(gi, cols) for gi in range(len(plan.groups)) if (cols := np.flatnonzero(group == gi)).size]
+    total = float(sum(cols.size * (plan.groups[gi].plan.n_steps + (plan.groups[gi].twin.n_steps
+                                   if twins and plan.groups[gi].twin is not None else 0)) for gi, cols in jobs))
+    state = {"done": 0.0, "failed": 0}
+
+    def run(cols, rp):
+        if rp is None:
+            return None
         cb = None
         if progress is not None:
-            def cb(steps_done, n_steps, n_failed, _w=w, _done=done, _failed=failed):
-                progress(_done + _w * steps_done / max(n_steps, 1), total, _failed + n_failed)
+            w, d0, f0 = cols.size * rp.n_steps, state["done"], state["failed"]
+
+            def cb(steps_done, n_steps, n_failed):
+                progress(min(d0 + w * steps_done / max(n_steps, 1), total), total, f0 + n_failed)
         params = {k: np.ascontiguousarray(v[start:stop][cols]) for k, v in plan.params.items()}
-        r = simulate_batch(plan.spec.scene, params, progress=cb, plan=plan.groups[gi].plan.with_device(device))
-        results.append((cols, r))
-        done += w
-        failed += int(np.count_nonzero(r.status))
-    return merge_results(results, stop - start, [gi for gi, _ in parts])
+        r = simulate_batch(plan.spec.scene, params, progress=cb, plan=rp.with_device(device))
+        state["done"] += cols.size * rp.n_steps
+        return r
+
+    def estimate(r, rp, twin_r, twin):
+        height = plan.spec.scene.height
+        return error_estimates(measure_columns(r, height), None if twin_r is None else measure_columns(twin_r, height),
+                               1.0 if twin is None else twin_ratio(rp, twin), rp.precision, rp.accuracy)
+
+    results, errors = [], {}
+    for gi, cols in jobs:
+        g = plan.groups[gi]
+        r = run(cols, g.plan)
+        if twins:
+            err = estimate(r, g.plan, run(cols, g.twin), g.twin)
+            redo = np.flatnonzero(np.isin(err["error_flag"], VERIFY_FAILS)) if g.fallback is not None else []
+            if len(redo):  # fp32 not verified: fp64, with its own twin and estimate
+                rb = run(cols[redo], g.fallback)
+                err_b = estimate(rb, g.fallback, run(cols[redo], g.fallback_twin), g.fallback_twin)
+                overwrite_columns(r, redo, rb)
+                for k, v in err_b.items():
+                    err[k][redo] = v
+            for k, v in err.items():
+                errors.setdefault(k, np.empty((n,) + v.shape[1:], dtype=v.dtype))[cols] = v
+        state["failed"] += int(np.count_nonzero(r.status))
+        results.append((gi, cols, r))
+    merged = merge_results([(c, r) for _, c, r in results], n, [gi for gi, _, _ in results])
+    return (merged, errors) if twins else merged
 
 
 def template_dataset(plan: SweepPlan):
@@ -107,10 +148,12 @@ def template_dataset(plan: SweepPlan):
         n_columns=1, status=np.zeros(1, np.int8), fail_step=np.full(1, -1, np.int64), energy_error=z(1),
         bar_length_error=z(1), kinetic_energy=z(1, T), elastic_energy=z(1, T), strain=z(1, T, P), time=time,
         info={"output_step": steps if len(plan.groups) < 2 else None, "column_dt": np.full(1, plan.dt),
-              "column_group": np.zeros(1, np.int32)})
+              "column_group": np.zeros(1, np.int32), "column_bits": np.full(1, 64, np.int8)})
     with np.errstate(all="ignore"):
         meas = measure_columns(result, spec.scene.height)
     meas.update(beta_limit_measures(spec.scene, {k: v[:1] for k, v in plan.params.items()}, 1, meas["max_compression"]))
+    if spec.run["error_estimate"]:
+        meas.update(error_estimates(meas, meas, 1.0))
     return D.shard_dataset(spec.layout(), plan.params, 0, 1, result, meas, {})
 
 

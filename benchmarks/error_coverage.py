@@ -1,0 +1,176 @@
+"""Do the error estimates cover the real error? (issue 31, Must show 2 and 3.)
+
+Runs a sweep the way the CLI does (groups, twins, precision as asked) and a reference of every case
+in fp64 at a quarter of its group's dt, then reports per measure how many feasible cases have
+
+* a number within the accuracy target of the reference (unflagged ones: all of them should);
+* an error estimate at least as large as the real difference (the coverage), and at least half of it;
+* which flag took the others (measurement_flag, error_flag) and which precision answered.
+
+    python -m benchmarks.error_coverage                         # the built-in 200-case CPU set
+    python -m benchmarks.error_coverage --spec sweeps/phase_large.toml --device cuda:0 \\
+        --precision auto fp32 fp64 --reference-cache /tmp/ref.npz
+
+Feasible: max_compression < 1 and, where base_rigidity >= 0.9, v0 < 0.045 m/s (the issue's filter:
+past that the twist passes pi; docs/measurements.md), and a feasibility flag of 0 where the dataset
+has one. JSON under benchmarks/results/ with the device and the commit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.common import run_metadata, write_json
+
+ROOT = Path(__file__).resolve().parents[1]
+MEASURES = ("amplitude", "speed", "width", "width_10", "arrival_time")
+CPU_SET = """title = "error-estimate coverage set"
+[scene]
+n_prisms = 16
+[sweep]
+grid.prestrain = { start = 0.0, stop = 0.01, num = 5 }
+grid.v0 = { start = 3.0e-3, stop = 0.04, num = 8, spacing = "log" }
+grid.base_rigidity = [0.0, 0.5, 0.9, 0.95, 1.0]
+[run]
+t_end = 1.5
+output_interval = 0.002
+record_strain = false
+shard_size = 100
+"""
+
+
+def _stack(ds):
+    dims = [d for d in ds.dims if d not in ("prism", "t")]
+    return ds.stack(case_=dims).transpose("case_", ...) if dims != ["case"] else ds
+
+
+def run_sweep(text: str, device: str, precision: str) -> tuple:
+    """(stacked dataset, seconds, stepping seconds, plan) of the spec run as the CLI runs it."""
+    import xarray as xr
+
+    from warp_tensegrity.sweep import compute_shard, load_spec, plan_sweep
+
+    spec = load_spec(text, overrides={"run": {"precision": precision, "error_estimate": True, "record_strain": False}})
+    plan = plan_sweep(spec, device=device)
+    t0 = time.perf_counter()
+    parts = [compute_shard(plan, i) for i in range(plan.n_shards)]
+    wall = time.perf_counter() - t0
+    stepping = sum(float(p.attrs.get("wall_time", 0.0)) for p in parts)
+    return xr.concat(parts, "case"), wall, stepping, plan
+
+
+def reference(plan, device: str) -> dict:
+    """Every case of ``plan`` in fp64 at a quarter of its group's dt: the measures, in case order."""
+    from dataclasses import replace
+
+    from warp_tensegrity import simulate_batch
+    from warp_tensegrity.measure.nan_reasons import measure_columns
+    from warp_tensegrity.policy.decide import decide
+
+    spec, out = plan.spec, {}
+    settings = replace(spec.run_settings(device=device), precision="fp64", record_strain=False)
+    for g in plan.groups:
+        params = {k: v[g.columns] for k, v in plan.params.items()}
+        s = replace(settings, dt=g.plan.dt / 4, dt_safety=None, output_interval=g.plan.dt * g.plan.output_every)
+        run = decide(spec.scene, params, s, n_columns=min(plan.shard_size, g.n_columns),
+                     prisms_simulated=g.plan.prisms_simulated)
+        for a in range(0, g.n_columns, plan.shard_size):
+            sl = slice(a, a + plan.shard_size)
+            r = simulate_batch(spec.scene, {k: v[sl] for k, v in params.items()}, plan=run)
+            m = measure_columns(r, spec.scene.height)
+            for k in MEASURES + ("max_compression",):
+                v = np.asarray(m[k])
+                out.setdefault(k, np.full((plan.n_columns,) + v.shape[1:], np.nan))[g.columns[sl]] = v
+    return out
+
+
+def feasible(ds) -> np.ndarray:
+    ok = (ds.max_compression.values < 1) & ~((ds.base_rigidity.values >= 0.9) & (ds.v0.values >= 0.045))
+    if "feasibility_flag" in ds:
+        ok &= ds.feasibility_flag.values == 0
+    return ok
+
+
+def evaluate(ds, ref: dict, target: float) -> dict:
+    """Per measure: cases compared, within target, covered by the estimate (and by twice it), by flag."""
+    ok = feasible(ds)
+    flag = ds.measurement_flag.values
+    eflag = ds.error_flag.values
+    res = {"cases": int(ds.sizes["case"]), "feasible": int(ok.sum()),
+           "measurement_flag": {int(f): int(((flag == f) & ok).sum()) for f in np.unique(flag)},
+           "error_flag": {int(f): int(((eflag == f) & ok).sum()) for f in np.unique(eflag)},
+           "precision_used": {int(p): int((ds.precision_used.values == p).sum()) for p in np.unique(ds.precision_used)}}
+    for k in MEASURES:
+        x, e, y = ds[k].values, ds[f"{k}_error"].values, ref[k]
+        use = ok.reshape(ok.shape + (1,) * (x.ndim - 1)) & np.isfinite(x) & np.isfinite(y) & np.isfinite(e)
+        real = np.abs(x - y)
+        scale = np.abs(y)
+        if k == "arrival_time":  # an arrival's error relative to the time the pulse took to cross the column
+            scale = np.broadcast_to(np.nanmax(np.where(np.isfinite(y), y, np.nan), axis=-1, keepdims=True), y.shape)
+        rel = real / scale
+        unflagged = use & (flag == 0).reshape(use.shape[:1] + (1,) * (x.ndim - 1)) & \
+            (eflag == 0).reshape(use.shape[:1] + (1,) * (x.ndim - 1))
+        res[k] = {
+            "compared": int(use.sum()),
+            "unflagged": int(unflagged.sum()),
+            "unflagged_within_target": int((unflagged & (rel <= target)).sum()),
+            "unflagged_worst_relative_error": float(np.nanmax(np.where(unflagged, rel, np.nan), initial=0.0)),
+            "covered": float((e[use] >= real[use]).mean()) if use.any() else None,
+            "covered_half": float((e[use] >= 0.5 * real[use]).mean()) if use.any() else None,
+            "median_estimate_over_real": float(np.median(e[use] / np.maximum(real[use], 1e-300))) if use.any() else None,
+        }
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spec", default=None, help="a sweep spec (default: the built-in 200-case CPU set)")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--precision", nargs="+", default=["fp64"], help="modes to run: fp32, fp64, auto")
+    ap.add_argument("--reference-cache", default=None, help="npz of the reference (made if missing)")
+    ap.add_argument("--auto-fp32-on-cpu", action="store_true", help="precision auto verifies fp32 on the CPU too")
+    ap.add_argument("--out", default=None, help="JSON (default benchmarks/results/error_coverage_<set>_<device>.json)")
+    args = ap.parse_args(argv)
+    import warp as wp
+
+    wp.config.quiet = True
+    if args.auto_fp32_on_cpu:
+        from warp_tensegrity.policy import groups
+
+        groups.AUTO_FP32_ON_CPU = True
+    text = Path(args.spec).read_text() if args.spec else CPU_SET
+    name = Path(args.spec).stem if args.spec else "cpu_set"
+    out = {"meta": run_metadata(wp.get_device(args.device)), "set": name, "modes": {}}
+    ref = None
+    for prec in args.precision:
+        ds, wall, stepping, plan = run_sweep(text, args.device, prec)
+        ds = _stack(ds)
+        if ref is None:
+            cache = Path(args.reference_cache) if args.reference_cache else None
+            if cache is not None and cache.exists():
+                with np.load(cache) as z:
+                    ref = {k: z[k] for k in z.files}
+            else:
+                t0 = time.perf_counter()
+                ref = reference(plan, args.device)
+                out["reference_seconds"] = time.perf_counter() - t0
+                if cache is not None:
+                    np.savez_compressed(cache, **ref)
+        target = float(plan.run.accuracy or 1e-3)
+        res = evaluate(ds, ref, target) | {"wall_seconds": wall, "stepping_seconds": stepping, "target": target,
+                                           "groups": [[g.n_columns, g.plan.dt, g.plan.n_steps] for g in plan.groups]}
+        out["modes"][prec] = res
+        print(prec, {k: (v["covered"], v["unflagged_within_target"], v["unflagged"]) for k, v in res.items()
+                     if isinstance(v, dict) and "covered" in v}, f"{wall:.1f} s")
+    path = Path(args.out) if args.out else ROOT / "benchmarks" / "results" / f"error_coverage_{name}_{args.device.split(':')[0]}.json"
+    write_json(path, out)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
