@@ -4,6 +4,7 @@ output that is a directory or special file (6), `resume` over finished work (2),
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import signal
@@ -190,6 +191,19 @@ def test_unwritable_kernel_cache(tmp_path):
     assert not (tmp_path / "x.nc").exists()
 
 
+def test_kernel_cache_that_exists_but_takes_no_file(tmp_path):
+    """A cache directory that exists but cannot take a file (read-only, or not a directory) passes
+    wp.init(); init_warp(kernels=True) then probes it with a file and words the refusal."""
+    from warp_tensegrity import runtime
+
+    blocked = tmp_path / "cache"
+    blocked.write_text("")
+    e = runtime._cache_problem(blocked)
+    assert isinstance(e, OSError) and e.errno == errno.ENOTDIR and runtime._cache_problem(tmp_path) is None
+    msg = str(runtime._cache_error(blocked, e))
+    assert f"{blocked}" in msg and "ENOTDIR" in msg and "WARP_CACHE_PATH" in msg, msg
+
+
 # ---------------------------------------------------------------------- item 6: -o a directory
 def test_output_that_is_a_directory_or_special_file(tmp_path, capsys):
     """`run -o DIR --overwrite` raised IsADirectoryError; without --overwrite the message suggested
@@ -255,22 +269,26 @@ def test_resume_with_no_store_keeps_an_output_of_another_run(tmp_path, capsys):
     assert "complete (its store was removed)" in capsys.readouterr().err and not SweepStore(out).dir.exists()
     edited = write(tmp_path, SPEC.replace("0.002]", "0.003]"), "edited.toml")
     assert run_cli("resume", edited, "-o", out) == 1
-    assert "output of another run" in capsys.readouterr().err and out.read_bytes() == data
+    assert "is not this run's export" in capsys.readouterr().err and out.read_bytes() == data
 
 
 def test_resume_spec_takes_the_recorded_shard_size(tmp_path, capsys):
     """`resume SPEC -o OUT.nc` planned with the spec's shard size: after `run --shard-size 1` every
     done shard was 'stale' and recomputed. It now takes the run's, as `resume OUT.nc` does; an
-    explicit other --shard-size is refused while shards are done (naming both sizes)."""
+    explicit other --shard-size is refused while shards are done (naming both sizes), and so is a
+    file at OUT.nc that is not this run's export."""
     spec = write(tmp_path)
     out = tmp_path / "o.nc"
     assert run_cli("run", spec, "-o", out, "--shard-size", 1) == 0
     content, _ = zmanifest.Manifest.read(SweepStore(out).manifest_path)
     content["shards"].pop("1")  # as if killed before shard 1 was recorded
     zmanifest.Manifest(SweepStore(out).manifest_path, content).save()
-    out.unlink()
+    out.write_bytes(b"someone else's file")  # not this run's export: kept, whatever the store holds
     mtimes = chunk_mtimes(out)
     capsys.readouterr()
+    assert run_cli("resume", out) == 1
+    assert "is not this run's export" in capsys.readouterr().err and out.read_bytes() == b"someone else's file"
+    out.unlink()
     assert run_cli("resume", spec, "-o", out, "--shard-size", 2) == 1
     err = capsys.readouterr().err
     assert "its shard size is 1, this run's 2" in err and "--overwrite" in err, err

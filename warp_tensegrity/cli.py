@@ -1,18 +1,20 @@
 """``warp-tensegrity`` (also ``python -m warp_tensegrity``): run sweep specs.
 
     warp-tensegrity run SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--dask N | --scheduler ADDR]
-    warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc)
+    warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc) [--overwrite]
     warp-tensegrity status OUT.nc
     warp-tensegrity combine OUT.nc
     warp-tensegrity plot OUT.nc KIND [-o FIG.png]      (phase, spacetime, profile, work-precision)
     warp-tensegrity --version
-    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--time-limit S]   (docs/lens.md)
+    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--time-limit S] [--overwrite]  (docs/lens.md)
     warp-tensegrity validate [-o FIGDIR] [--only NAME ...]   (closed-form gallery, docs/validation.md)
     warp-tensegrity init [--example paper|phase|lens] [-o SPEC.toml]  (a commented starting spec)
 
 Messages go through :mod:`logging` on stderr (``-v``: debug and Warp's own start-up lines,
 ``-q``: warnings only, no progress bar); command results (status, dry run) go to stdout.
-Warp is imported only when a command needs the engine, so ``--help`` is instant.
+Warp is imported only when a command needs the engine, so ``--help`` is instant. Ctrl-C and
+SIGTERM unwind a command alike (finished shards kept, lock released; exit 130 and 143); an
+OSError that no command words itself ends as one line with its errno and path.
 """
 
 from __future__ import annotations

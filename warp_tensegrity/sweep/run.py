@@ -75,10 +75,10 @@ def execute(
         if store.dir.exists():
             store.clean_tmp()
         manifest, why = store.open(plan, time) if resume else (None, "")
+        if resume and not overwrite:
+            _refuse_to_replace(store, plan, time, manifest is not None)
         if manifest is None:
             if resume:
-                if not overwrite:
-                    _refuse_to_replace(store, plan, time)
                 if plan.out.exists() and not store.exists() and output_fingerprint(plan.out) == plan.fingerprint:
                     _log(f"{plan.out} is complete (its store was removed): nothing to resume", stream)
                     return plan.out
@@ -97,15 +97,10 @@ def execute(
                 manifest.save()
         done = [i for i, s, _ in states if s == ShardState.DONE]
         todo = [i for i, s, _ in states if s != ShardState.DONE]
-        if resume and not todo and plan.out.exists():
-            if output_fingerprint(plan.out) == plan.fingerprint:
-                _log(f"{plan.out} is complete: nothing to resume (`warp-tensegrity combine {plan.out}` "
-                     "exports it again)", stream)
-                return plan.out
-            if not overwrite:
-                raise StoreError(f"{plan.out} is not the export of the finished run in {store.dir} (its fingerprint "
-                                 f"differs, or it does not open); keep it: give another output; replace it: "
-                                 f"`warp-tensegrity combine {plan.out}`")
+        if resume and not todo and plan.out.exists() and output_fingerprint(plan.out) == plan.fingerprint:
+            _log(f"{plan.out} is complete: nothing to resume (`warp-tensegrity combine {plan.out}` exports it again)",
+                 stream)
+            return plan.out
         tally = {"cols": sum(plan.shards[i][1] - plan.shards[i][0] for i in done),
                  "failed": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done)}
         bar = ProgressBar(plan.n_columns, tally["cols"], tally["failed"], stream=stream, enabled=progress,
@@ -182,27 +177,22 @@ def _difference(content: dict, plan: SweepPlan, time) -> str | None:
     return None
 
 
-def _refuse_to_replace(store: SweepStore, plan: SweepPlan, time) -> None:
-    """A resume that cannot use the store would start the run again: refuse when that discards
-    finished work of another run (done shards recorded for another spec, code or layout, or an
-    output that is not this run's). This run's own shards in a damaged store are recomputed."""
-    content, _ = Manifest.read(store.manifest_path)
-    if content and content.get("shards"):
-        diff = _difference(content, plan, time)
-        if diff:
-            raise StoreError(
-                f"{store.dir} holds {_count(len(content['shards']), 'finished shard')} of another run: {diff}. resume keeps "
-                f"finished work: give that run's spec and options (`warp-tensegrity resume {plan.out}` takes "
-                f"those it recorded), or discard it with --overwrite")
-    if plan.out.exists():
-        fp = output_fingerprint(plan.out)
-        if fp != plan.fingerprint:
-            what = "the output of another run" if fp else "not a sweep's output (it has no fingerprint)"
-            raise StoreError(f"{plan.out} exists and is {what}; give another output, or replace it with --overwrite")
-
-
-def _count(n: int, what: str) -> str:
-    return f"{n} {what}{'' if n == 1 else 's'}"
+def _refuse_to_replace(store: SweepStore, plan: SweepPlan, time, store_ok: bool) -> None:
+    """Refuse a resume that would discard finished work of another run: done shards recorded for
+    another spec, code or layout (the store does not open for ``plan``: not ``store_ok``), or an
+    output that is not this run's export. This run's own shards in a damaged store (a manifest
+    that fails its checksum, chunks that do not open) are recomputed."""
+    content = None if store_ok else Manifest.read(store.manifest_path)[0]
+    diff = _difference(content, plan, time) if content and content.get("shards") else None
+    if diff:
+        n = len(content["shards"])
+        raise StoreError(
+            f"{store.dir} holds {n} finished shard{'' if n == 1 else 's'} of another run: {diff}. resume keeps "
+            f"finished work: give that run's spec and options (`warp-tensegrity resume {plan.out}` takes those "
+            f"it recorded), or discard it with --overwrite")
+    if plan.out.exists() and output_fingerprint(plan.out) != plan.fingerprint:
+        raise StoreError(f"{plan.out} exists and is not this run's export (another run's output, or not a "
+                         f"sweep's); give another output, or replace it with --overwrite")
 
 
 def _restore_spec_copy(store: SweepStore, plan: SweepPlan, stream=None) -> None:
