@@ -1,4 +1,4 @@
-"""Faults of issue 30 at the command line: SIGTERM (items 11), unwritable kernel caches (5), an
+"""Faults of issue 30 at the command line: SIGTERM (item 11), unwritable kernel caches (5), an
 output that is a directory or special file (6), `resume` over finished work (2), `lens` outputs
 (12), `status` while a store is initialised (16), and the last-resort one-line OSError."""
 
