@@ -1,18 +1,20 @@
 """``warp-tensegrity`` (also ``python -m warp_tensegrity``): run sweep specs.
 
     warp-tensegrity run SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--dask N | --scheduler ADDR]
-    warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc)
+    warp-tensegrity resume OUT.nc            (or: resume SPEC.toml -o OUT.nc) [--overwrite]
     warp-tensegrity status OUT.nc
     warp-tensegrity combine OUT.nc
     warp-tensegrity plot OUT.nc KIND [-o FIG.png]      (phase, spacetime, profile, work-precision)
     warp-tensegrity --version
-    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--time-limit S]   (docs/lens.md)
+    warp-tensegrity lens SPEC.toml -o OUT.nc [--device cpu|cuda:N] [--dry-run] [--time-limit S] [--overwrite]  (docs/lens.md)
     warp-tensegrity validate [-o FIGDIR] [--only NAME ...]   (closed-form gallery, docs/validation.md)
     warp-tensegrity init [--example paper|phase|lens] [-o SPEC.toml]  (a commented starting spec)
 
 Messages go through :mod:`logging` on stderr (``-v``: debug and Warp's own start-up lines,
 ``-q``: warnings only, no progress bar); command results (status, dry run) go to stdout.
-Warp is imported only when a command needs the engine, so ``--help`` is instant.
+Warp is imported only when a command needs the engine, so ``--help`` is instant. Ctrl-C and
+SIGTERM unwind a command alike (finished shards kept, lock released; exit 130 and 143); an
+OSError that no command words itself ends as one line with its errno and path.
 """
 
 from __future__ import annotations
@@ -20,7 +22,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from . import plot
@@ -29,12 +33,13 @@ from .init_spec import add_init_parser, run_init
 from .lens.command import add_lens_parser, run_lens_command
 from .measure.nan_reasons import dataset_summary
 from .options import OptionError
+from .outputs import OutputError, oserror_text
 from .overrides import parse_set
 from .plot import KINDS, PlotError
 from .policy.calibrate import estimate_plan
 from .policy.cost import DEFAULT_TIME_LIMIT
 from .provenance import version_text
-from .runtime import init_warp, warp_facts
+from .runtime import WarpSetupError, init_warp, warp_facts
 from .scene.network import NetworkError
 from .validation import report, run_validation
 from .validation.figures import write_figures
@@ -42,6 +47,7 @@ from .validation.figures import write_figures
 log = logging.getLogger("warp_tensegrity")
 
 EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE = 0, 1, 3
+EXIT_INTERRUPTED, EXIT_TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM  # 130, 143: as a shell reports them
 
 
 def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
@@ -96,6 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "recompute the others, combine. Give OUT.nc, or SPEC -o OUT.nc.")
     p.add_argument("target", type=file_name, metavar="OUT.nc|SPEC", help="the run's output (or its spec, with -o)")
     p.add_argument("-o", "--output", type=file_name, default=None, metavar="OUT.nc", help="output, when TARGET is a spec")
+    p.add_argument("--overwrite", action="store_true",
+                   help="discard finished work of another run (a store made for another spec, code or shard size, "
+                        "or an output that is not this run's) instead of refusing")
     _add_exec_options(p)
 
     p = sub.add_parser("status", parents=[common], help="cases done, diverged and remaining")
@@ -206,26 +215,55 @@ def _looks_like_spec(path: str) -> bool:
     return path.endswith(".toml")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what batch schedulers send before SIGKILL), raised in the main thread where Ctrl-C's
+    KeyboardInterrupt would be: the same unwinding keeps the finished shards and releases the lock."""
+
+
+def _on_sigterm(signum, frame):
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the unwinding short
+    raise Terminated()
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     setup_logging(args.verbose, args.quiet)
-    if args.version:
-        init_warp(verbose=bool(args.verbose))
-        print(version_text(warp_facts()))
-        return EXIT_OK
-    if args.command is None:
+    if args.command is None and not args.version:
         parser.error("give a COMMAND (run, resume, status, combine, plot, lens, init, validate) or --version")
-    from .sweep.errors import SweepError  # the sweep package imports xarray: not at `--help`
-
+    on_main = threading.current_thread() is threading.main_thread()  # signal handlers: the main thread only
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if on_main else None
     try:
-        return _dispatch(args)
-    except (OptionError, NetworkError, SweepError, PlotError) as e:  # SpecError, SettingsError: OptionError
-        log.error("error: %s", e)                                     # BudgetError: SweepError
+        return _main(args)
+    finally:
+        if on_main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(args) -> int:
+    try:
+        if args.version:
+            init_warp(verbose=bool(args.verbose), kernels=False)  # no kernels: a read-only HOME is fine
+            print(version_text(warp_facts()))
+            return EXIT_OK
+        from .sweep.errors import SweepError  # the sweep package imports xarray: not at `--help`
+
+        try:
+            return _dispatch(args)
+        except (OptionError, NetworkError, SweepError, PlotError, WarpSetupError, OutputError) as e:  # SpecError,
+            log.error("error: %s", e)                     # SettingsError: OptionError; BudgetError: SweepError
+            return EXIT_ERROR
+    except KeyboardInterrupt as e:
+        how = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+        if args.command in ("run", "resume"):
+            log.warning("%s; finished shards are kept: `warp-tensegrity resume %s` continues", how,
+                        args.output or args.target)
+        else:
+            log.warning("%s", how)
+        return EXIT_TERMINATED if isinstance(e, Terminated) else EXIT_INTERRUPTED
+    except OSError as e:  # the last resort: whatever the commands did not word themselves, in one line
+        log.error("error: %s", oserror_text(e))
         return EXIT_ERROR
-    except KeyboardInterrupt:
-        log.warning("interrupted; finished shards are kept: `warp-tensegrity resume` continues")
-        return 130
 
 
 def _dispatch(args) -> int:
@@ -240,6 +278,7 @@ def _dispatch(args) -> int:
     from .sweep import run as sweep  # imports xarray: not at `--help`
     from .sweep.errors import SweepError  # imports xarray: not at `--help`
     from .sweep.spec import load_spec  # imports xarray: not at `--help`
+    from .sweep.status import recorded_header  # imports xarray: not at `--help`
 
     if args.command in ("run", "resume"):
         init_warp(verbose=bool(args.verbose))
@@ -247,6 +286,8 @@ def _dispatch(args) -> int:
         if args.command == "run":
             spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
+            if not args.dry_run:  # a directory, an earlier run, an unwritable place: refused before any probe
+                sweep.check_output(out, overwrite=args.overwrite)
             plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size,
                                          memory_limit=args.memory_limit)
         else:
@@ -254,8 +295,11 @@ def _dispatch(args) -> int:
                 if not args.output:
                     raise SweepError("resume SPEC needs -o OUT.nc")
                 out = Path(args.output)
+                if not args.dry_run:
+                    sweep.check_output(out, resume=True)
+                recorded = recorded_header(out).get("shard_size")  # the run's, as `resume OUT.nc` takes it
                 plan = sweep_plan.plan_sweep(load_spec(Path(args.target)), out, device=device,
-                                             shard_size=args.shard_size, memory_limit=args.memory_limit)
+                                             shard_size=args.shard_size or recorded, memory_limit=args.memory_limit)
             else:
                 out = Path(args.target)
                 if args.output and Path(args.output) != out:
@@ -279,6 +323,7 @@ def _dispatch(args) -> int:
                 print(f"resume:      {st['cases_done']} columns done, {st['cases_remaining']} to run")
             return 0
         budget.check_run(plan, cost, ignore=args.ignore_estimate, **limits)
+        before = _mtime(out)
         path = sweep.execute(
             plan,
             resume=args.command == "resume",
@@ -289,9 +334,12 @@ def _dispatch(args) -> int:
             keep_store=args.keep_store,
             cost=cost,
         )
-        log.info("wrote %s", path)
+        if _mtime(path) != before:  # a resume of a finished, exported run writes nothing
+            log.info("wrote %s", path)
         _log_nan_summary(path)
         return 0
+    if args.command in ("status", "combine"):  # Warp's device facts, no kernels: a read-only HOME is fine
+        init_warp(verbose=bool(args.verbose), kernels=False)
     if args.command == "status":
         st = sweep.sweep_status(args.output)
         print(_report_status(st, args.json))
@@ -326,6 +374,13 @@ def _plot(args) -> int:
     fig.savefig(out)
     log.info("wrote %s", out)
     return 0
+
+
+def _mtime(path) -> int | None:
+    try:
+        return Path(path).stat().st_mtime_ns
+    except OSError:
+        return None
 
 
 def _log_nan_summary(path) -> None:

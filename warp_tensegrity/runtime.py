@@ -7,16 +7,24 @@ straight to file descriptor 2 and has no switch. So :func:`init_warp` runs ``wp.
 pointed at a temporary file (hand-written: no library offers this for a native library's stderr),
 drops the known driver lines, hands any other line to :mod:`logging` as a warning, and logs one
 line that the CPU will be used. :func:`warp_facts` gives the device facts every output records.
+
+Warp's kernel cache (``WARP_CACHE_PATH``, else ``~/.cache/warp``) is created by ``wp.init()``; where
+it cannot be (a read-only ``HOME``), a command that compiles kernels stops with one line
+(:class:`WarpSetupError`), and one that compiles none (``init_warp(kernels=False)``: ``--version``,
+``status``, ``combine``) goes on with a private temporary cache.
 """
 
 from __future__ import annotations
 
+import atexit
 import logging
 import os
+import shutil
 import sys
 import tempfile
 
 from .options import SettingsError
+from .outputs import oserror_text
 
 log = logging.getLogger("warp_tensegrity")
 
@@ -48,8 +56,31 @@ def startup_seconds() -> float:
     return float(_startup)
 
 
-def init_warp(verbose: bool = False):
-    """Import and initialise Warp once, quietly (``verbose``: keep Warp's own banner). Returns ``warp``."""
+class WarpSetupError(RuntimeError):
+    """Warp cannot start as asked (its kernel cache cannot be written); the message says what to do."""
+
+
+def _cache_problem(path) -> OSError | None:
+    """Why Warp's kernel cache ``path`` cannot take a file (None: it can): a file is created in it
+    and dropped (O_TMPFILE where there is one: no name ever appears)."""
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            return None
+    except OSError as e:
+        return e
+
+
+def _cache_error(path, e: OSError) -> WarpSetupError:
+    return WarpSetupError(f"Warp's kernel cache {path} cannot be written: {oserror_text(e)}; set WARP_CACHE_PATH "
+                          f"to a writable directory (Warp compiles its kernels there)")
+
+
+def init_warp(verbose: bool = False, kernels: bool = True):
+    """Import and initialise Warp once, quietly (``verbose``: keep Warp's own banner). Returns ``warp``.
+
+    ``kernels``: the caller will compile kernels, so Warp's kernel cache must be writable
+    (:class:`WarpSetupError` if not); False (no kernels: version, device facts, status) goes on
+    with a private temporary cache where the usual one cannot be created. The first call decides."""
     global _done
     import warp as wp  # with the first run, not with the package
 
@@ -57,6 +88,32 @@ def init_warp(verbose: bool = False):
         return wp
     if hasattr(wp.config, "log_level"):
         wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING
+    try:
+        _init_quietly(wp)
+    except OSError as e:
+        cache = wp.config.kernel_cache_dir  # Warp sets it before it creates the directory
+        if not (cache and e.filename and str(cache).startswith(str(e.filename))):
+            raise  # not the kernel cache
+        if kernels:
+            raise _cache_error(cache, e) from None
+        private = tempfile.mkdtemp(prefix="warp-tensegrity-kernels-")
+        atexit.register(shutil.rmtree, private, True)
+        log.debug("Warp's kernel cache %s cannot be created (%s): using %s", cache, oserror_text(e), private)
+        wp.config.kernel_cache_dir = private
+        _init_quietly(wp)
+    if kernels:
+        problem = _cache_problem(wp.config.kernel_cache_dir)
+        if problem is not None:
+            raise _cache_error(wp.config.kernel_cache_dir, problem)
+    global _startup
+    _done, _startup = True, process_age()
+    if not wp.is_cuda_available():
+        log.info("no CUDA device: Warp runs on the CPU")
+    return wp
+
+
+def _init_quietly(wp) -> None:
+    """``wp.init()`` with its native stderr lines captured and re-logged (see the module docstring)."""
     captured = ""
     try:
         sys.stderr.flush()
@@ -79,11 +136,6 @@ def init_warp(verbose: bool = False):
     for line in captured.splitlines():
         if line.strip():  # the known no-driver lines only with -v; anything else is a warning
             log.log(logging.DEBUG if any(s in line for s in _NO_DRIVER) else logging.WARNING, "%s", line)
-    global _startup
-    _done, _startup = True, process_age()
-    if not wp.is_cuda_available():
-        log.info("no CUDA device: Warp runs on the CPU")
-    return wp
 
 
 def default_device() -> str:

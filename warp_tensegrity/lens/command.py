@@ -8,6 +8,7 @@ from pathlib import Path
 from ..options import SettingsError
 from ..scene.network import NetworkError
 from ..cli_args import add_device, add_estimate_options
+from ..outputs import OutputError, check_output_file, oserror_text
 from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_seconds
 from .spec import LensSpecError, load_lens_spec
 
@@ -18,6 +19,7 @@ def add_lens_parser(sub, parents=()) -> None:
                                    "focal point, verify the array in one batch, write OUT.nc.")
     p.add_argument("spec", metavar="SPEC", help="lens spec (TOML), e.g. sweeps/lens_ci.toml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc", help="netCDF output")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     add_device(p)
     add_estimate_options(p, "the two batches and the estimated time")
 
@@ -30,6 +32,8 @@ def run_lens_command(args) -> int:
         spec = load_lens_spec(args.spec)
         from .run import check_memory, run_lens  # imports SciPy and xarray: not at `--help`
 
+        if not args.dry_run:  # an existing output, a directory, an unwritable place: before any batch
+            check_output_file(args.output, exists_ok=args.overwrite)
         check_memory(spec)  # before anything is built: a record that cannot fit is refused with its figures
         if args.dry_run or not args.ignore_estimate:
             from .estimate import describe, estimate_lens  # imports xarray (sweep.budget): not at `--help`
@@ -48,11 +52,11 @@ def run_lens_command(args) -> int:
 
         ds = run_lens(spec, device=args.device, log=log)
         path = write_lens(ds, Path(args.output))
-    except (LensSpecError, CalibrationError, SettingsError, NetworkError) as e:
+    except (LensSpecError, CalibrationError, SettingsError, NetworkError, OutputError) as e:
         print(f"warp-tensegrity lens: error: {e}", file=sys.stderr)
         return 1
-    except OSError as e:
-        print(f"warp-tensegrity lens: error: cannot write {args.output!r}: {e}", file=sys.stderr)
+    except OSError as e:  # after the output's check (a full disk, a race): the errno and the path
+        print(f"warp-tensegrity lens: error: cannot write {args.output}: {oserror_text(e)}", file=sys.stderr)
         return 1
     print(f"wrote {path}")
     return 0

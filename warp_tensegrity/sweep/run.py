@@ -4,6 +4,7 @@ export netCDF from it, and report a run's status (:mod:`.store` describes the fi
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import threading
@@ -11,16 +12,17 @@ from pathlib import Path
 
 import xarray as xr
 
+from ..outputs import check_output_file
 from ..types import ShardState
 from .dask import run_shards_dask
 from .errors import SweepError
-from .manifest import STORE, StoreError, SweepLock, fault
+from .manifest import SPEC_COPY, STORE, Manifest, StoreError, SweepLock, _atomic_write_text, fault
 from .plan import SweepPlan, decide_sweep, plan_sweep
 from .progress import ProgressBar
 from .shard import compute_and_write, compute_shard, template_dataset
 from .spec import SweepSpec, load_spec
-from .status import read_run, shard_states, status, status_from_output
-from .store import ShardWriter, SweepStore, _log, export_netcdf, time_coord
+from .status import output_fingerprint, read_run, recorded_header, shard_states, status, status_from_output
+from .store import ShardWriter, SweepStore, _header, _log, export_netcdf, time_coord
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +46,9 @@ def execute(
 
     Holds the output's lock throughout. A run refuses an existing output or store without
     ``overwrite``; a resume re-reads every recorded shard and recomputes those that do not check out.
+    No command replaces finished work without ``overwrite``: a resume refuses a store with
+    finished shards of another run (spec, code, shard size or output times), or an output that
+    is not this run's; a resume of a finished, exported run does nothing.
     ``keep_store`` False removes the store (``OUT.nc.sweep/``) once ``OUT.nc`` is written: the
     output stays complete and ``status`` still reads it, but ``combine`` and ``resume`` have
     nothing left to work from. ``cost``: the run's predicted cost
@@ -63,22 +68,26 @@ def execute(
     with SweepLock(plan.out):
         tpl = template_dataset(plan)
         time = time_coord(tpl)
+        check_output(plan.out, resume=resume, overwrite=overwrite)  # under the lock: what is there now
         if not resume and (store.exists() or plan.out.exists()):
-            if not overwrite:
-                what = f"{store.dir} already holds a run" if store.exists() else f"{plan.out} exists"
-                raise SweepError(f"{what}; continue it with `warp-tensegrity resume {plan.out}`, give another "
-                                 f"output, or start over with --overwrite")
-            store.remove()
+            store.remove()  # check_output let it through: overwrite
             plan.out.unlink(missing_ok=True)
         if store.dir.exists():
             store.clean_tmp()
         manifest, why = store.open(plan, time) if resume else (None, "")
+        if resume and not overwrite:
+            _refuse_to_replace(store, plan, time, manifest is not None)
         if manifest is None:
-            if resume and store.exists():
-                _log(f"{store.dir}: {why}; recomputing every shard", stream)
+            if resume:
+                if plan.out.exists() and not store.exists() and output_fingerprint(plan.out) == plan.fingerprint:
+                    _log(f"{plan.out} is complete (its store was removed): nothing to resume", stream)
+                    return plan.out
+                if store.exists():
+                    _log(f"{store.dir}: {why}; recomputing every shard", stream)
             manifest = store.initialise(plan, tpl)
             states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
         else:
+            _restore_spec_copy(store, plan, stream)
             states = shard_states(store, plan)
             bad = [(i, s, r) for i, s, r in states if s in (ShardState.STALE, ShardState.CORRUPT)]
             for i, s, r in bad:
@@ -88,6 +97,10 @@ def execute(
                 manifest.save()
         done = [i for i, s, _ in states if s == ShardState.DONE]
         todo = [i for i, s, _ in states if s != ShardState.DONE]
+        if resume and not todo and plan.out.exists() and output_fingerprint(plan.out) == plan.fingerprint:
+            _log(f"{plan.out} is complete: nothing to resume (`warp-tensegrity combine {plan.out}` exports it again)",
+                 stream)
+            return plan.out
         tally = {"cols": sum(plan.shards[i][1] - plan.shards[i][0] for i in done),
                  "failed": sum(int(manifest.shards[str(i)]["n_failed"]) for i in done)}
         bar = ProgressBar(plan.n_columns, tally["cols"], tally["failed"], stream=stream, enabled=progress,
@@ -137,6 +150,65 @@ def execute(
     return plan.out
 
 
+def check_output(out: Path, *, resume: bool = False, overwrite: bool = False) -> None:
+    """Refuse, before anything is computed: an earlier run's store (a run without ``overwrite``),
+    and whatever :func:`check_output_file` refuses."""
+    store = SweepStore(out)
+    if not resume and not overwrite and store.exists():
+        raise StoreError(f"{store.dir} already holds a run; continue it with `warp-tensegrity resume {out}`, "
+                         f"give another output, or start over with --overwrite")
+    check_output_file(out, exists_ok=resume or overwrite)
+
+
+def _difference(content: dict, plan: SweepPlan, time) -> str | None:
+    """What makes a store's manifest ``content`` another run than ``plan``, in words (None: the same run)."""
+    want = _header(plan, time)
+    if content.get("spec_sha256") != want["spec_sha256"]:
+        return (f"its spec differs (sha256 {str(content.get('spec_sha256'))[:12]} recorded, this one "
+                f"{want['spec_sha256'][:12]})")
+    if content.get("code_version") != want["code_version"]:
+        return f"it was made by code {content.get('code_version')}, this is {want['code_version']}"
+    if content.get("shard_size") != want["shard_size"]:
+        return (f"its shard size is {content.get('shard_size')}, this run's {want['shard_size']} "
+                f"(--shard-size, --memory-limit)")
+    for k, v in want.items():
+        if k not in ("spec_file", "output", "device") and content.get(k) != v:
+            return f"it was made with {k} = {content.get(k)!r}, this run has {v!r}"
+    return None
+
+
+def _refuse_to_replace(store: SweepStore, plan: SweepPlan, time, store_ok: bool) -> None:
+    """Refuse a resume that would discard finished work of another run: done shards recorded for
+    another spec, code or layout (the store does not open for ``plan``: not ``store_ok``), or an
+    output that is not this run's export. This run's own shards in a damaged store (a manifest
+    that fails its checksum, chunks that do not open) are recomputed."""
+    content = None if store_ok else Manifest.read(store.manifest_path)[0]
+    diff = _difference(content, plan, time) if content and content.get("shards") else None
+    if diff:
+        n = len(content["shards"])
+        raise StoreError(
+            f"{store.dir} holds {n} finished shard{'' if n == 1 else 's'} of another run: {diff}. resume keeps "
+            f"finished work: give that run's spec and options (`warp-tensegrity resume {plan.out}` takes those "
+            f"it recorded), or discard it with --overwrite")
+    if plan.out.exists() and output_fingerprint(plan.out) != plan.fingerprint:
+        raise StoreError(f"{plan.out} exists and is not this run's export (another run's output, or not a "
+                         f"sweep's); give another output, or replace it with --overwrite")
+
+
+def _restore_spec_copy(store: SweepStore, plan: SweepPlan, stream=None) -> None:
+    """Rewrite the store's spec copy when it is not the spec its manifest recorded (edited or
+    damaged; the manifest checked out against ``plan``, whose spec is the recorded one)."""
+    path = store.dir / SPEC_COPY
+    try:
+        ok = hashlib.sha256(path.read_bytes()).hexdigest() == plan.spec.text_sha256
+    except OSError:
+        ok = False
+    if not ok:
+        _log(f"{path} was not the spec its manifest recorded: restored from {plan.spec.source or 'the spec given'}",
+             stream)
+        _atomic_write_text(path, plan.spec.text)
+
+
 def _estimated_seconds(plan: SweepPlan, todo, cost: dict | None) -> float | None:
     """The cost model's stepping and measuring time for the shards still to run (None if unknown)."""
     if cost is None:
@@ -161,21 +233,28 @@ def run_sweep(spec, out, *, device=None, shard_size=None, resume=False, overwrit
 
 
 def resume_sweep(out, spec=None, *, device=None, shard_size=None, progress=None, dask_workers=None,
-                 scheduler=None, client=None, stream=None, keep_store=True) -> Path:
-    """Finish an interrupted run: reuse the shards that check out, recompute the others, export."""
+                 scheduler=None, client=None, stream=None, keep_store=True, overwrite=False) -> Path:
+    """Finish an interrupted run: reuse the shards that check out, recompute the others, export.
+    Refuses finished work of another run (a store made for another spec, code or shard size, or an
+    output that is not this run's) unless ``overwrite``; a finished, exported run is left as it is."""
     if spec is None:
         plan = load_plan_from_manifest(out, device=device, shard_size=shard_size)
     else:
         if not isinstance(spec, SweepSpec):
             spec = load_spec(spec)
-        plan = plan_sweep(spec, out, device=device, shard_size=shard_size)
-    return execute(plan, resume=True, progress=progress, dask_workers=dask_workers, scheduler=scheduler,
-                   client=client, stream=stream, keep_store=keep_store)
+        plan = plan_sweep(spec, out, device=device, shard_size=shard_size or recorded_header(out).get("shard_size"))
+    return execute(plan, resume=True, overwrite=overwrite, progress=progress, dask_workers=dask_workers,
+                   scheduler=scheduler, client=client, stream=stream, keep_store=keep_store)
 
 
 def load_plan_from_manifest(out, *, device=None, shard_size=None, estimate=True, memory_limit=None) -> SweepPlan:
     """The plan of the run at ``out``, from its spec copy and manifest header."""
-    m = read_run(out)
+    return _plan_from_run(out, read_run(out), device=device, shard_size=shard_size, estimate=estimate,
+                          memory_limit=memory_limit)
+
+
+def _plan_from_run(out, m: dict, *, device=None, shard_size=None, estimate=True, memory_limit=None) -> SweepPlan:
+    """The plan of the run at ``out`` from :func:`~.status.read_run`'s ``m``."""
     spec = load_spec(m["spec_text"])
     if m.get("spec_file"):
         spec.source = m["spec_file"]
@@ -217,8 +296,18 @@ def sweep_status(out, spec=None) -> dict:
     """Cases done, diverged and remaining, per shard state (shards verified against their checksums)."""
     if spec is None and not isinstance(out, SweepPlan) and not SweepStore(out).dir.exists() and Path(out).exists():
         return status_from_output(out)
-    plan = _plan_for(out, spec)
-    return status(plan, time_coord(template_dataset(plan)))
+    if spec is not None or isinstance(out, SweepPlan):
+        plan = _plan_for(out, spec)
+        return status(plan, time_coord(template_dataset(plan)))
+    m = read_run(out)
+    plan = _plan_from_run(out, m)
+    st = status(plan, time_coord(template_dataset(plan)))
+    if "shard_size" not in m and SweepStore(out).manifest_path.exists():
+        # planned with the spec's shard size for want of a manifest, which a run initialising the
+        # store has written since: plan again from it (its --shard-size may differ from the spec's)
+        plan = load_plan_from_manifest(out)
+        st = status(plan, time_coord(template_dataset(plan)))
+    return st
 
 
 def open_sweep(path, partial: bool = False) -> xr.Dataset:

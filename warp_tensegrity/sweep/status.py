@@ -12,7 +12,7 @@ import xarray as xr
 from .. import io as D
 from ..types import ShardState, Status
 from .errors import SweepError
-from .manifest import SPEC_COPY, Manifest
+from .manifest import SPEC_COPY, Manifest, StoreError
 from .store import SweepStore
 
 
@@ -43,24 +43,20 @@ def status(plan, time: np.ndarray) -> dict:
     store = SweepStore(plan.out)
     manifest = None
     why = "no store"
+    had_manifest = store.manifest_path.exists()  # before the read: a manifest that appears meanwhile is read
     if store.exists():
         manifest, why = store.open(plan, time)
     if manifest is None:
         states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
-        if store.exists():  # a readable manifest of another spec/code/layout: stale; else corrupt
+        if store.exists() and had_manifest:  # a readable manifest of another spec/code/layout: stale; else corrupt
             kind = ShardState.STALE if Manifest.read(store.manifest_path)[0] is not None else ShardState.CORRUPT
             states = [(i, kind, why) for i in range(plan.n_shards)]
+        # no manifest yet: a run is initialising the store (or stopped while it did): nothing is done
     else:
         states = shard_states(store, plan)
     done = [i for i, s, _ in states if s == ShardState.DONE]
     cols = sum(plan.shards[i][1] - plan.shards[i][0] for i in done)
-    exported = False
-    if plan.out.exists():
-        try:
-            with xr.open_dataset(plan.out, engine="netcdf4") as ds:
-                exported = ds.attrs.get("fingerprint") == plan.fingerprint
-        except Exception:
-            exported = False
+    exported = plan.out.exists() and output_fingerprint(plan.out) == plan.fingerprint
     return {
         "output": str(plan.out),
         "store": str(store.dir),
@@ -80,8 +76,25 @@ def status(plan, time: np.ndarray) -> dict:
     }
 
 
+def output_fingerprint(out) -> str | None:
+    """The ``fingerprint`` attribute of a netCDF output (None: it does not open, or has none)."""
+    try:
+        with xr.open_dataset(out, engine="netcdf4") as ds:
+            return ds.attrs.get("fingerprint")
+    except Exception:  # not netCDF, truncated, unreadable: not a sweep's export
+        return None
+
+
+def recorded_header(out) -> dict:
+    """The manifest's header of the run at ``out`` ({} when there is no manifest that checks out)."""
+    content, _ = Manifest.read(SweepStore(out).manifest_path)
+    return content or {}
+
+
 def read_run(out) -> dict:
-    """What ``resume OUT.nc`` needs: the spec text and the manifest header (if it checks out)."""
+    """What ``resume OUT.nc`` needs: the spec text and the manifest header. A spec copy that is not
+    the one the manifest recorded (edited or damaged) is refused (StoreError): its shards were
+    verified against another spec."""
     store = SweepStore(out)
     if not store.dir.is_dir():
         raise SweepError(f"no run found for {out}: {store.dir}/ does not exist "
@@ -89,18 +102,27 @@ def read_run(out) -> dict:
     try:
         text = (store.dir / SPEC_COPY).read_text()
     except (OSError, UnicodeDecodeError) as e:
-        raise SweepError(f"{store.dir} has no readable {SPEC_COPY} ({e}); give the spec: resume SPEC -o {out}") from None
+        how = f"({e})" if not isinstance(e, FileNotFoundError) or store.manifest_path.exists() else \
+            "(a run is initialising the store, or stopped before it wrote the copy)"
+        raise SweepError(f"{store.dir} has no readable {SPEC_COPY} {how}; give the spec: "
+                         f"`warp-tensegrity resume SPEC -o {out}`") from None
+    sha = hashlib.sha256(text.encode()).hexdigest()
     content, _ = Manifest.read(store.manifest_path)
     if content is None:  # the manifest is gone or damaged: the spec's path is also in the store's attributes
         try:
-            src = xr.open_zarr(store.zarr, consolidated=False).attrs.get("spec_source", "none")
-            content = {"spec_file": None if src == "none" else src,
-                       "spec_sha256": hashlib.sha256(text.encode()).hexdigest()}
-        except Exception:
+            import zarr
+
+            src = zarr.open_group(str(store.zarr), mode="r").attrs.get("spec_source", "none")
+            content = {"spec_file": None if src == "none" else src, "spec_sha256": sha}
+        except Exception:  # no store.zarr, or its metadata damaged
             content = None
     content = dict(content or {})
-    if content and content.get("spec_sha256") != hashlib.sha256(text.encode()).hexdigest():
-        content = {}  # the spec copy is not the one the manifest recorded: trust neither header nor shards
+    if content and content.get("spec_sha256") != sha:
+        raise StoreError(
+            f"{store.dir / SPEC_COPY} is not the spec its manifest recorded (sha256 {sha[:12]}, recorded "
+            f"{str(content.get('spec_sha256'))[:12]}): the copy was edited or damaged, so the store's shards "
+            f"cannot be matched to it. Give the run's spec: `warp-tensegrity resume SPEC -o {out}` (finished "
+            f"shards are reused and the copy restored), or start over: `warp-tensegrity run SPEC -o {out} --overwrite`")
     content["spec_text"] = text
     return content
 

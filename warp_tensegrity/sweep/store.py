@@ -110,7 +110,6 @@ class SweepStore:
 
         self.remove()
         self.dir.mkdir(parents=True)
-        _atomic_write_text(self.dir / SPEC_COPY, plan.spec.text)
         time = time_coord(tpl)
         N = plan.n_columns
         extra = (tpl["step"].values,) if "step" in tpl.coords else ()
@@ -130,6 +129,8 @@ class SweepStore:
             if ds[k].dtype.kind == "f":
                 enc[k] = {"_FillValue": None}
         ds.to_zarr(self.zarr, mode="w", compute=False, encoding=enc, consolidated=False)
+        # the spec copy after the store's attributes (spec_source): a copy never lacks its path
+        _atomic_write_text(self.dir / SPEC_COPY, plan.spec.text)
         content = _header(plan, time)
         content["coords_sha256"] = {k: array_sha256(coords[k].values) for k in coords}
         content["shards"] = {}
