@@ -87,7 +87,7 @@ def read_run(out) -> dict:
         raise SweepError(f"no run found for {out}: {store.dir}/ does not exist "
                          f"(start one with `warp-tensegrity run SPEC -o {out}`)")
     try:
-        text = (store.dir / SPEC_COPY).read_text()
+        text = (store.dir / SPEC_COPY).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise SweepError(f"{store.dir} has no readable {SPEC_COPY} ({e}); give the spec: resume SPEC -o {out}") from None
     content, _ = Manifest.read(store.manifest_path)
