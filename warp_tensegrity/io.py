@@ -436,7 +436,9 @@ def writing_netcdf(path, need: int, fsync: bool = True):
             raise
         free, written = seen.get("free", atomic.free_bytes(path)[0]), seen.get("written", 0)
         why = (e.strerror or str(e)) if isinstance(e, OSError) else str(e)
-        if atomic.is_no_space(e) or free < need - written:
+        # a netCDF error (no errno) or EACCES while netCDF-C wrote: the free space tells a full disk
+        unclear = "free" in seen and (isinstance(e, RuntimeError) or e.errno in (None, errno.EACCES))
+        if atomic.is_no_space(e) or (unclear and free < need - written):
             err = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)
                           + ("" if atomic.is_no_space(e) else f" (netCDF said: {why})"), str(path))
             err.need, err.free = int(need), int(free + written)

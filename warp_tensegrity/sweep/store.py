@@ -92,16 +92,22 @@ class SweepStore:
     def remove(self) -> None:
         if self.dir.is_symlink():  # rmtree would refuse it; what it points to is not this run's
             raise StoreError(f"{self.dir} is a symbolic link, not a store a run made; remove it, or give another output")
-        if self.dir.exists():
-            shutil.rmtree(self.dir)
+        try:
+            if self.dir.exists():
+                shutil.rmtree(self.dir)
+        except OSError as e:
+            raise StoreError(oserror_line(e, e.filename or self.dir, "cannot remove")) from None
 
     def clean_tmp(self) -> None:
         """Remove the temporaries a killed run left: files and private directories (never through a link)."""
-        for p in [*self.out.parent.glob(tmp_glob(self.out)), *self.dir.glob(".*.tmp")]:
-            remove_tmp(p)
-        if self.zarr.exists():
-            for p in self.zarr.rglob("*.partial"):  # a chunk write Zarr did not finish
-                p.unlink(missing_ok=True)
+        try:
+            for p in [*self.out.parent.glob(tmp_glob(self.out)), *self.dir.glob(".*.tmp")]:
+                remove_tmp(p)
+            if self.zarr.exists():
+                for p in self.zarr.rglob("*.partial"):  # a chunk write Zarr did not finish
+                    p.unlink(missing_ok=True)
+        except OSError as e:
+            raise StoreError(oserror_line(e, e.filename, "cannot remove a leftover temporary")) from None
 
     def write_error(self, e: OSError, plan, path=None) -> StoreError:
         """A write into the store that failed, in one line: the path, the errno and, for a full disk,
