@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import queue
 import shutil
 import sys
@@ -113,11 +112,13 @@ class SweepStore:
         """A write into the store that failed, in one line: the path, the errno and, for a full disk,
         the space the rest of the run needs (the store's shards still to do and the export) and what
         is free; resume continues (every finished shard is kept)."""
-        line = oserror_line(e, path or e.filename or self.dir)
+        return StoreError(oserror_line(e, path or e.filename or self.dir) + self._what_next(e, plan))
+
+    def _what_next(self, e: OSError, plan) -> str:
         again = f"`warp-tensegrity resume {self.out}` continues (finished shards are kept)"
         if not is_no_space(e):
-            return StoreError(f"{line}; once it can be written, {again}")
-        return StoreError(f"{line}; {self._space_needed(plan)}; free space, then {again}")
+            return f"; once it can be written, {again}"
+        return f"; {self._space_needed(plan)}; free space, then {again}"
 
     def _space_needed(self, plan) -> str:
         free, where = free_bytes(self.dir)
@@ -170,14 +171,9 @@ class SweepStore:
         content = _header(plan, time)
         content["coords_sha256"] = {k: array_sha256(coords[k].values) for k in coords}
         content["shards"] = {}
-        self.manifest = Manifest(self.manifest_path, content, lambda e: self._on_save_error(e, plan))
+        self.manifest = Manifest(self.manifest_path, content, lambda e: self._what_next(e, plan))
         self.manifest.save()
         return self.manifest
-
-    def _on_save_error(self, e: OSError, plan) -> str:
-        if is_no_space(e):
-            return f"; {self._space_needed(plan)}; free space, then `warp-tensegrity resume {self.out}` continues"
-        return f"; once it can be written, `warp-tensegrity resume {self.out}` continues"
 
     def open(self, plan, time: np.ndarray) -> tuple[Manifest | None, str]:
         """The manifest if the store belongs to ``plan`` and checks out, else (None, why not)."""
@@ -201,7 +197,7 @@ class SweepStore:
                     return None, f"coordinate {k} does not match its checksum"
         except Exception as e:  # truncated or missing metadata/chunks
             return None, f"store does not open ({type(e).__name__}: {e})"
-        self.manifest = Manifest(self.manifest_path, content, lambda e: self._on_save_error(e, plan))
+        self.manifest = Manifest(self.manifest_path, content, lambda e: self._what_next(e, plan))
         return self.manifest, ""
 
     # ------------------------------------------------------------------ shards
