@@ -28,7 +28,8 @@ scene.coupling -> scene.batch -> arguments -> options. A guard against new depth
 # lower layers and its own layer's modules (acyclic), never a higher one.
 LAYERS = [
     # foundation: names, options, arguments, start-up, provenance
-    {"types", "options", "options_lens", "options_docs", "tomlread", "arguments", "_version", "provenance", "runtime", "outputs",
+    {"types", "options", "options_lens", "options_docs", "tomlread", "atomic", "arguments", "_version", "provenance",
+     "runtime", "outputs",
      "overrides", "sweep.errors"},
     # scene: networks, columns, batches (NumPy)
     {"scene.network", "scene.impact", "scene.sparse", "scene.columns", "scene.batch", "scene.coupling",

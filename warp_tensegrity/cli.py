@@ -28,6 +28,7 @@ import threading
 from pathlib import Path
 
 from . import plot
+from .atomic import replacing
 from .cli_args import add_device, add_estimate_options, file_name, positive_int
 from .init_spec import add_init_parser, run_init
 from .lens.command import add_lens_parser, run_lens_command
@@ -371,7 +372,8 @@ def _plot(args) -> int:
             raise PlotError(f"--times {args.times!r}: give comma-separated seconds") from None
     fig = plot.plot_file(args.dataset, args.kind, var=args.var, x=args.x, y=args.y, sel=sel, times=times)
     out = Path(args.output) if args.output else Path(args.dataset).with_name(f"{Path(args.dataset).stem}-{args.kind}.png")
-    fig.savefig(out)
+    with replacing(out) as tmp:  # atomically, never through a link (warp_tensegrity.atomic)
+        fig.savefig(tmp, format=out.suffix[1:] or "png")  # the format savefig would infer from `out`
     log.info("wrote %s", out)
     return 0
 

@@ -13,6 +13,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+from .atomic import create_text
 from .options_docs import lens_options_table, options_table
 from .options_lens import LENS_SECTIONS
 from .scene.columns import ColumnConfig  # noqa: F401 - registers the [scene] options
@@ -142,7 +143,7 @@ def run_init(args) -> int:
         print(f"warp-tensegrity: error: {path} exists; give another file name", file=sys.stderr)
         return 1
     try:
-        path.write_text(text)
+        create_text(path, text)  # UTF-8; refused if a file or link appeared at the name meanwhile
     except OSError as e:
         print(f"warp-tensegrity: error: cannot write {path}: {e.strerror or e}", file=sys.stderr)
         return 1

@@ -24,7 +24,9 @@ Shards are always case-stacked (a contiguous block of columns ``case_start:case_
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import json
 import os
 import time as _time
@@ -33,6 +35,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from . import atomic
+from .policy.cost import netcdf_bytes
 from .scene.impact import kinematic_lock_strain
 from .options import COLUMN_PARAMETERS, ColumnParameters, opt_of
 from .types import BETA_LIMIT_FLAGS, ERROR_ESTIMATED, ERROR_FLAGS, MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME, Layout
@@ -425,24 +429,49 @@ def _encoding(ds: xr.Dataset) -> dict:
 
 
 def write_netcdf(ds: xr.Dataset, path, fsync: bool = True) -> Path:
-    """Write ``ds`` to ``path`` atomically: a temporary file in the same directory, then
-    os.replace. Always engine='netcdf4'."""
+    """Write ``ds`` to ``path`` atomically (:func:`writing_netcdf`). Always engine='netcdf4'."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
+    with writing_netcdf(path, netcdf_bytes(ds.nbytes), fsync) as tmp:
         ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=_encoding(ds))
-        if fsync:
-            fd = os.open(tmp, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path
+
+
+@contextlib.contextmanager
+def writing_netcdf(path, need: int, fsync: bool = True):
+    """Yields the name to write ``path``'s netCDF under: a file in a private directory beside it
+    (:func:`warp_tensegrity.atomic.replacing`: never a name someone could plant a link at), moved
+    onto ``path`` once the block ends. A failure is raised as an OSError naming ``path``, with its
+    true cause: netCDF-C may report a full disk as 'NetCDF: HDF error' (a RuntimeError), or even
+    as a PermissionError (issue 30); when the disk had less room left than the ``need`` bytes
+    the file takes at most (:func:`warp_tensegrity.policy.cost.netcdf_bytes`) minus what it had
+    written, it is ENOSPC, and the error carries ``need`` and ``free`` (bytes free once the partial
+    file is gone: netCDF-C may keep it open until the process ends)."""
+    path = Path(path)
+    seen: dict = {}
+    try:
+        with atomic.replacing(path, fsync) as tmp:
+            try:
+                yield tmp
+            except BaseException:
+                seen["free"] = atomic.free_bytes(path)[0]  # before the partial file is removed
+                seen["written"] = tmp.stat().st_blocks * 512 if tmp.exists() else 0  # on disk, not its length
+                raise
+    except (OSError, RuntimeError) as e:
+        if isinstance(e, RuntimeError) and not str(e).startswith("NetCDF"):
+            raise
+        free, written = seen.get("free", atomic.free_bytes(path)[0]), seen.get("written", 0)
+        why = (e.strerror or str(e)) if isinstance(e, OSError) else str(e)
+        # a netCDF error (no errno) or EACCES while netCDF-C wrote: the free space tells a full disk
+        unclear = "free" in seen and (isinstance(e, RuntimeError) or e.errno in (None, errno.EACCES))
+        if atomic.is_no_space(e) or (unclear and free < need - written):
+            err = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)
+                          + ("" if atomic.is_no_space(e) else f" (netCDF said: {why})"), str(path))
+            err.need, err.free = int(need), int(free + written)
+            raise err from e
+        if isinstance(e, OSError):
+            raise OSError(e.errno, why, str(path)) from e
+        raise OSError(None, why, str(path)) from e  # netCDF-C gave no errno
 
 
 def open_sweep(path, load: bool = True) -> xr.Dataset:

@@ -98,8 +98,8 @@ def render_docs(text: str) -> str:
 def update_docs(path) -> bool:
     """Rewrite the generated tables in ``path`` (docs/sweeps.md, docs/lens.md); True if it changed."""
     p = Path(path)
-    old = p.read_text()
+    old = p.read_text(encoding="utf-8")
     new = render_docs(old)
     if new != old:
-        p.write_text(new)
+        p.write_text(new, encoding="utf-8")
     return new != old

@@ -1,15 +1,20 @@
 """The one entry for every TOML the project reads: sweep specs, lens specs and ``--set`` values.
 
-:func:`read_toml` turns any failure of reading (bytes that are not UTF-8, TOML syntax, integers
-longer than Python converts, nesting deeper than Python's recursion limit or than any spec needs)
-into a :class:`TomlError` whose message names the file or option, so callers raise their own
-clean error (``SpecError``, ``LensSpecError``, ``OptionError``) and no input ends in a traceback.
+:func:`read_file` reads a spec file, bounded: a regular file of at most MAX_BYTES (a FIFO, a
+device such as ``/dev/zero`` or a directory is refused without a read that could block or never
+end). :func:`read_toml` turns any failure of reading (bytes that are not UTF-8, TOML syntax,
+integers longer than Python converts, nesting deeper than Python's recursion limit or than any
+spec needs) into a :class:`TomlError` whose message names the file or option, so callers raise
+their own clean error (``SpecError``, ``LensSpecError``, ``OptionError``) and no input ends in a
+traceback.
 
 A leaf of the import graph: nothing of the package, no Warp.
 """
 
 from __future__ import annotations
 
+import os
+import stat
 import sys
 import tomllib
 
@@ -19,8 +24,13 @@ MAX_DEPTH = 16
 before anything walks it recursively (copies, validation, messages)."""
 
 
+MAX_BYTES = 8 * 2**20
+"""Largest spec file read (8 MiB). The largest committed spec is a few kB; a case list of 50,000
+cases is about 4 MB (a grid says the same in a line)."""
+
+
 class TomlError(ValueError):
-    """TOML input that cannot be read. ``kind``: 'encoding', 'syntax', 'integer' or 'depth'
+    """TOML input that cannot be read. ``kind``: 'file', 'encoding', 'syntax', 'integer' or 'depth'
     (``--set`` takes a value that is not TOML syntax as a bare string)."""
 
     def __init__(self, reason: str, kind: str, where: str | None = None):
@@ -36,6 +46,40 @@ def decode(raw: bytes, where: str | None = None) -> str:
         line = raw[: e.start].count(b"\n") + 1
         raise TomlError(f"not UTF-8 text (TOML must be): byte {raw[e.start:e.start + 1]!r} at line {line}, "
                         f"byte offset {e.start}", "encoding", where) from None
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISDIR, "a directory"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"  # pragma: no cover
+
+
+def read_file(path, where: str | None = None) -> bytes:
+    """The bytes of the spec file ``path``: a regular file (or a link to one) of at most MAX_BYTES;
+    :class:`TomlError` (kind 'file') for anything else, found before a read that could block (a
+    FIFO) or never end (``/dev/zero``). An OSError of the file system is raised as it comes."""
+    where = where or str(path)
+    mode = os.stat(path).st_mode
+    if stat.S_ISREG(mode):
+        # O_NONBLOCK: should the name become a FIFO after the stat, open does not wait for a writer
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        try:
+            mode = os.fstat(fd).st_mode
+            if stat.S_ISREG(mode):
+                chunks, size = [], 0
+                while size <= MAX_BYTES:  # at most one byte past the limit, however large the file
+                    chunk = os.read(fd, MAX_BYTES + 1 - size)
+                    if not chunk:
+                        return b"".join(chunks)
+                    chunks.append(chunk)
+                    size += len(chunk)
+                raise TomlError(f"larger than a spec may be ({MAX_BYTES // 2**20} MiB); a grid says in one line "
+                                "what a long case list does", "file", where)
+        finally:
+            os.close(fd)
+    raise TomlError(f"{_kind(mode)}, not a spec file: give a TOML file", "file", where)
 
 
 def depth(value) -> int:

@@ -139,5 +139,6 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
 
 
 def write_lens(ds: xr.Dataset, path):
-    """Write atomically (netCDF4, compressed)."""
+    """Write atomically (netCDF4, compressed; :func:`warp_tensegrity.io.write_netcdf`: never through a
+    link, a full disk raised as an OSError naming the path with ENOSPC)."""
     return D.write_netcdf(ds, path)

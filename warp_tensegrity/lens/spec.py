@@ -21,7 +21,7 @@ from ..options_lens import (
 )
 from ..scene.columns import ColumnConfig
 from ..scene.network import NetworkError
-from ..tomlread import TomlError, read_toml
+from ..tomlread import TomlError, read_file, read_toml
 
 COLUMN_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
 
@@ -136,7 +136,7 @@ def load_lens_spec(path) -> LensSpec:
     """Read and validate a lens spec (TOML)."""
     path = Path(path)
     try:
-        data = read_toml(path.read_bytes())
+        data = read_toml(read_file(path))
     except FileNotFoundError:
         raise LensSpecError(f"lens spec {str(path)!r} does not exist") from None
     except OSError as e:

@@ -23,6 +23,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import logging
 import os
 import platform
 import resource
@@ -33,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from ..atomic import oserror_line, write_text
 from ..provenance import code_version
 from ..runtime import resolve_device, startup_seconds
 from ..scene.batch import column_batch, column_params, reference_states
@@ -206,19 +208,39 @@ def probe(config, params: dict, run: RunPlan, shard_size: int, use_cache: bool =
     ``shard_size`` columns. ``use_cache`` False renews it. Returns the measured rates (dict)."""
     key, desc = _key(config, params, run, shard_size)
     path = cache_dir() / f"{key}.json"
-    if use_cache and path.exists():
-        try:
-            cal = json.loads(path.read_text())
-            if not cal.get("under_load") or not host_idle():
-                return cal
-        except (OSError, ValueError):
-            pass
+    cal = _read_cache(path) if use_cache else None
+    if cal is not None and (not cal.get("under_load") or not host_idle()):
+        return cal
     cal = _measure(config, params, run, shard_size) | {"key": key, "describe": desc, "device_label": desc["device"]}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(cal, indent=1))
-    os.replace(tmp, path)
+    _write_cache(path, cal)
     return cal
+
+
+def _read_cache(path: Path) -> dict | None:
+    """A cached probe, or None (none, or one that does not read: it is measured again)."""
+    try:
+        cal = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return cal if isinstance(cal, dict) else None
+
+
+_cache_warned: set = set()
+
+
+def _write_cache(path: Path, cal: dict) -> None:
+    """Cache a probe (atomically, never through a link: :func:`warp_tensegrity.atomic.write_text`).
+    The cache only saves time: a directory that cannot be written is said once, in one line, and
+    the run goes on without it."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_text(path, json.dumps(cal, indent=1), fsync=False)
+    except OSError as e:
+        if path.parent not in _cache_warned:
+            _cache_warned.add(path.parent)
+            logging.getLogger(__name__).warning(
+                "%s; going on without the calibration cache (set WARP_TENSEGRITY_CACHE to a writable directory "
+                "to keep probes)", oserror_line(e, path.parent, "calibration cache not written:"))
 
 
 def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:

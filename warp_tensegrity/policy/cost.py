@@ -2,6 +2,7 @@
 and the one formatter of each unit.
 
 * bytes: :func:`output_bytes_per_column` (what a column leaves in the output),
+  :func:`disk_bytes` (the disk a sweep's store and netCDF export take, at most),
   :func:`state_bytes_per_column` (the engine's arrays), :func:`host_bytes_per_column` (what a
   shard holds on the host while it steps, is measured and written);
 * seconds and memory from a calibration probe (:func:`predict`; the probe is
@@ -65,6 +66,48 @@ def output_bytes_per_column(n_out: int, n_prisms: int, record_strain: bool, reco
     return 8 * (MEASURE_VALUES + n_prisms + (2 * n_out if record_energy else 0) + (n_out * n_prisms if record_strain else 0))
 
 
+BLOCK = 4096
+"""Bytes a file or a directory takes on disk at least (a block of ext4 or XFS, a page of tmpfs)."""
+STORE_BLOCKS_PER_SHARD = 24
+"""Files and directories a shard adds to the Zarr store, at most: a chunk file per variable (17 with
+strain and energies) and the directories of the multi-dimensional ones' chunk keys; 17 files and
+2-3 directories measured per shard (sweeps/ci_small.toml, tests/test_faults.py)."""
+STORE_BLOCKS_FIXED = 128
+"""Files and directories of the store whatever its shards: each variable's and coordinate's
+directory, metadata and coordinate chunks, the manifest and the spec copy (86 measured)."""
+MANIFEST_BYTES_PER_SHARD = 4096
+"""Bytes a done shard adds to manifest.json (a sha256 per variable and the shard's attributes;
+2.8 kB measured), counted twice: the manifest is replaced through a temporary copy."""
+COLUMN_EXTRA_BYTES = 256
+"""Bytes per column beyond its data in each file: per-column coordinates, labels, the spec text."""
+NC_FIXED_BYTES = 65536
+"""The netCDF file's own bytes whatever its size: HDF5 superblock, object headers and attributes of
+its ~25 variables, the global attributes (16-22 kB measured for sweeps/ci_small.toml)."""
+NC_BYTES_PER_SHARD = 2048
+"""The netCDF file's chunk index per shard (one chunk per variable and shard; ~360 B measured)."""
+
+
+def netcdf_bytes(data_bytes: int, n_chunks: int = 1) -> int:
+    """Bytes of disk a netCDF file of ``data_bytes`` of data (uncompressed), in ``n_chunks`` chunks
+    per variable, takes at most."""
+    return int(data_bytes) + NC_FIXED_BYTES + NC_BYTES_PER_SHARD * max(int(n_chunks), 1)
+
+
+def disk_bytes(run, shard_sizes: list[int], n_columns: int, n_shards: int, record_strain: bool,
+               record_energy: bool = True) -> dict:
+    """Bytes of disk a sweep needs at most, its data uncompressed: ``store`` for the Zarr store's
+    shards of ``shard_sizes`` columns (their data, files and directories, and their manifest
+    records) and ``netcdf`` for the export of all ``n_columns`` columns in ``n_shards`` shards; both
+    are on disk when the export ends (``--no-keep-store`` removes the store only after it)."""
+    col = output_bytes_per_column(run.n_out, run.prisms, record_strain, record_energy) + COLUMN_EXTRA_BYTES
+    time = 16 * run.n_out  # the output times and steps, in each file
+    store = (col * sum(shard_sizes) + time
+             + BLOCK * (STORE_BLOCKS_PER_SHARD * len(shard_sizes) + STORE_BLOCKS_FIXED)
+             + 2 * MANIFEST_BYTES_PER_SHARD * n_shards)
+    netcdf = netcdf_bytes(col * n_columns + time, n_shards)
+    return {"store": int(store), "netcdf": int(netcdf), "total": int(store + netcdf)}
+
+
 def state_bytes_per_column(run) -> int:
     """The engine's device arrays per column (state, constraint band, cable rest lengths, energies;
     the strain record when kept)."""
@@ -124,8 +167,11 @@ def predict(cal: dict, run, shard_sizes: list[int], record_strain: bool, record_
     # imports and kernels, the shards in flight, and the combine (every shard + the result)
     host_col = host_bytes_per_column(run, record_strain, record_energy)
     host_peak = cal["base_rss"] + bmax * host_col + 2 * out_total
+    n_cols = planned[0] if planned else sum(shard_sizes)
+    disk = disk_bytes(run, shard_sizes, n_cols, -(-n_cols // max(bmax, 1)), record_strain, record_energy)
     return {"stages_s": st, "seconds": float(sum(st.values())), "device_bytes_per_shard": int(dev_bytes),
             "host_bytes_per_shard": int(bmax * host_col), "host_bytes_per_column": int(host_col),
             "device_bytes_per_column": int(dev_bytes - cal["device_bytes_fixed"]) // max(bmax, 1),
-            "host_peak_bytes": int(host_peak), "output_bytes": int(out_total), "device": cal["device_label"],
+            "host_peak_bytes": int(host_peak), "output_bytes": int(out_total), "store_bytes": disk["store"],
+            "netcdf_bytes": disk["netcdf"], "disk_bytes": disk["total"], "device": cal["device_label"],
             "column_step_seconds": float(cal["column_step_seconds"]), "under_load": bool(cal.get("under_load"))}

@@ -6,9 +6,10 @@ Two checks, both before any kernel runs:
   that planning itself needs (the per-column parameters and the engine's estimate, which builds
   every column of the sweep once) against the memory available.
 * :func:`check_run` (the CLI calls it before a run; ``--ignore-estimate`` skips it): the
-  cost model's device memory and host memory per shard, the output size against the free disk,
-  the step count against the device's int32 step counter, and the estimated time against a
-  time limit: the figures the dry run prints (:mod:`warp_tensegrity.policy.cost`).
+  cost model's device memory and host memory per shard, the disk the store and the netCDF export
+  take together against the free disk, the step count against the device's int32 step counter,
+  and the estimated time against a time limit: the figures the dry run prints
+  (:mod:`warp_tensegrity.policy.cost`).
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ from __future__ import annotations
 import logging
 import math
 import os
-import shutil
 from pathlib import Path
 
+from ..atomic import free_bytes
 from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_bytes, fmt_seconds
 from .errors import SweepError
 
@@ -38,7 +39,7 @@ class BudgetError(SweepError):
 def host_memory_available() -> int:
     """Bytes of host memory available now (MemAvailable; total physical memory elsewhere)."""
     try:
-        with open("/proc/meminfo") as f:
+        with open("/proc/meminfo", encoding="ascii") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
                     return int(line.split()[1]) * 1024
@@ -146,12 +147,11 @@ def problems(plan, cost: dict, *, time_limit: float = DEFAULT_TIME_LIMIT, device
                    + (f"use --shard-size {fit:,} or less" if fit >= 1 else "raise run.output_interval"))
     if plan.out is not None:
         if disk_bytes is None:
-            d = Path(plan.out).parent
-            while not d.exists() and d != d.parent:
-                d = d.parent
-            disk_bytes = shutil.disk_usage(d).free
-        if need["output_bytes"] > disk_bytes:
-            out.append(f"the output needs up to {fmt_bytes(need['output_bytes'])} (uncompressed) and "
+            disk_bytes = free_bytes(plan.out)[0]
+        if need["disk_bytes"] > disk_bytes:
+            out.append(f"the output needs up to {fmt_bytes(need['disk_bytes'])} of disk, uncompressed (the store "
+                       f"{Path(plan.out).name}.sweep/ {fmt_bytes(need['store_bytes'])} and {Path(plan.out).name} "
+                       f"{fmt_bytes(need['netcdf_bytes'])}, both there when the export ends) and "
                        f"{fmt_bytes(disk_bytes)} is free on {Path(plan.out).parent}")
     if math.isfinite(need["seconds"]) and need["seconds"] > time_limit:
         out.append(f"the estimate is {fmt_seconds(need['seconds'])} ({plan.n_columns:,} columns x "

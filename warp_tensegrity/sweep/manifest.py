@@ -7,16 +7,20 @@ Nothing here imports xarray, Zarr or Warp.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
 import signal
+import stat
 import threading
 import time as _time
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import fsync_path as _fsync_path
+from ..atomic import oserror_line, write_text
 from .errors import SweepError
 
 STORE = "store.zarr"
@@ -57,7 +61,7 @@ def fault(point: str) -> None:
     action = action or "kill"
     marker = os.environ.get(FAULT_FILE_ENV)
     if marker and action in ("pause", "mark"):
-        Path(marker).write_text(point)
+        Path(marker).write_text(point, encoding="utf-8")
     if action == "kill":
         os.kill(os.getpid(), signal.SIGKILL)
     elif action == "pause":
@@ -81,23 +85,10 @@ def shard_dir_for(out) -> Path:
     return work_dir_for(out)
 
 
-def _fsync_path(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def _atomic_write_text(path: Path, text: str) -> None:
-    """Temporary file in the same directory, fsync, os.replace, fsync of the directory."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_path(path.parent)
+    """UTF-8 text written atomically (:func:`warp_tensegrity.atomic.write_text`: an exclusive
+    temporary beside it, never opened through a link; fsync, os.replace, fsync of the directory)."""
+    write_text(path, text)
 
 
 # ---------------------------------------------------------------------- locking
@@ -116,7 +107,7 @@ class SweepLock:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({e.filename})") from None
+            raise StoreError(f"cannot write the output {self.out}: {oserror_line(e, self.path.parent, 'directory')}") from None
         self._fd: int | None = None
         self._lock = None
 
@@ -131,9 +122,15 @@ class SweepLock:
             return self._enter_filelock()
         for _ in range(100):
             try:
-                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+                # never through a link planted at the lock's name (O_NOFOLLOW): it is refused
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | getattr(os, "O_NOFOLLOW", 0), 0o644)
             except OSError as e:
-                raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({self.path})") from None
+                if e.errno == errno.ELOOP or self.path.is_symlink():
+                    raise self._not_a_lock("a symbolic link") from None
+                raise StoreError(f"cannot write the output {self.out}: {oserror_line(e, self.path, 'lock')}") from None
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                os.close(fd)
+                raise self._not_a_lock("not a regular file")
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
@@ -149,6 +146,10 @@ class SweepLock:
             os.close(fd)  # locked a file its holder had just removed: take the new one
         raise self._held()  # pragma: no cover
 
+    def _not_a_lock(self, what: str) -> StoreError:
+        return StoreError(f"the lock {self.path} is {what}, not a lock file a run made; nothing was written "
+                          "through it: remove it and run again")
+
     def _enter_filelock(self):  # pragma: no cover - not POSIX
         from filelock import FileLock, Timeout
 
@@ -158,7 +159,7 @@ class SweepLock:
         except Timeout:
             raise self._held() from None
         except OSError as e:
-            raise StoreError(f"cannot write the output {self.out}: {e.strerror or e} ({self.path})") from None
+            raise StoreError(f"cannot write the output {self.out}: {oserror_line(e, self.path, 'lock')}") from None
         return self
 
     def __exit__(self, *exc):
@@ -210,10 +211,12 @@ def _content_sha(content: dict) -> str:
 class Manifest:
     """The store's header and done-shard records; rewritten atomically on every change."""
 
-    def __init__(self, path: Path, content: dict):
+    def __init__(self, path: Path, content: dict, on_error=None):
         self.path = path
         self.content = content
         self._lock = threading.Lock()
+        # called with a save's OSError: the rest of its one-line message (the store's: the space needed)
+        self.on_error = on_error or (lambda e: "")
 
     @property
     def shards(self) -> dict:
@@ -222,7 +225,10 @@ class Manifest:
     def save(self) -> None:
         with self._lock:
             body = json.dumps({**self.content, "sha256": _content_sha(self.content)}, indent=1, sort_keys=True)
-            _atomic_write_text(self.path, body + "\n")
+            try:
+                _atomic_write_text(self.path, body + "\n")
+            except OSError as e:
+                raise StoreError(oserror_line(e, self.path) + self.on_error(e)) from None
 
     def mark_done(self, index: int, record: dict) -> None:
         self.shards[str(index)] = record
@@ -232,7 +238,7 @@ class Manifest:
     def read(path: Path) -> tuple[dict | None, str]:
         """(content, '') or (None, why it cannot be used)."""
         try:
-            raw = json.loads(path.read_text())
+            raw = json.loads(path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             return None, "no manifest"
         except (OSError, ValueError, UnicodeDecodeError) as e:

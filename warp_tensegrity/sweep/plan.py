@@ -168,7 +168,9 @@ def dry_run(plan: SweepPlan, cost: dict) -> str:
         f"memory:      {fmt_bytes(cost['device_bytes_per_shard'])} device memory per shard, "
         f"{fmt_bytes(cost['host_peak_bytes'])} peak host memory",
         f"output:      {fmt_bytes(cost['output_bytes'])} uncompressed"
-        + ("" if r["record_strain"] else " (strain not stored: record_strain = false)"),
+        + ("" if r["record_strain"] else " (strain not stored: record_strain = false)")
+        + f"; disk up to {fmt_bytes(cost['disk_bytes'])} (store {fmt_bytes(cost['store_bytes'])} + "
+          f"{plan.out.name if plan.out else 'netCDF'} {fmt_bytes(cost['netcdf_bytes'])})",
         f"time:        ~{fmt_seconds(cost['seconds'])} wall ("
         + ", ".join(f"{k} {v:.3g} s" for k, v in cost["stages_s"].items()) + ")",
         f"calibration: {p['probe_columns']} columns x {p['probe_steps']} steps on this device "

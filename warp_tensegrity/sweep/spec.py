@@ -34,7 +34,7 @@ from ..policy.accuracy import for_accuracy
 from ..options import COLUMN_PARAMETERS, EXECUTION_KEYS, ColumnParameters, OptionError, RunSettings
 from ..provenance import code_version
 from ..scene.columns import ColumnConfig
-from ..tomlread import TomlError, decode, read_toml
+from ..tomlread import TomlError, decode, read_file, read_toml
 from ..types import Layout
 from .errors import SpecError
 from .parse import SCENE_FIELDS, _Checker, _parse_run, _parse_scene, _parse_sweep
@@ -247,9 +247,11 @@ def load_spec(source, overrides: dict | None = None) -> SweepSpec:
     if isinstance(source, Path) or ("\n" not in source and (source.endswith(".toml") or _is_file(source))):
         path = Path(source)
         try:
-            raw = path.read_bytes()
+            raw = read_file(path)
         except OSError as e:
             raise SpecError(f"cannot read spec: {e}", str(path)) from None
+        except TomlError as e:  # a FIFO, a device, a directory, a file larger than a spec may be
+            raise SpecError(e.reason, str(path)) from None
         try:
             text = decode(raw)
         except TomlError as e:

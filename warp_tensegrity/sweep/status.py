@@ -100,7 +100,7 @@ def read_run(out) -> dict:
         raise SweepError(f"no run found for {out}: {store.dir}/ does not exist "
                          f"(start one with `warp-tensegrity run SPEC -o {out}`)")
     try:
-        text = (store.dir / SPEC_COPY).read_text()
+        text = (store.dir / SPEC_COPY).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         how = f"({e})" if not isinstance(e, FileNotFoundError) or store.manifest_path.exists() else \
             "(a run is initialising the store, or stopped before it wrote the copy)"

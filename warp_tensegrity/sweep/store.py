@@ -14,6 +14,7 @@ Files for ``OUT.nc``::
 A shard is visible only when complete: its region of the store is written (each chunk file
 replaced atomically by Zarr's LocalStore), the chunk files fsync'd, and only then is the shard
 recorded as done, with a sha256 per variable, in the manifest (temporary file, fsync, os.replace).
+Every temporary is created exclusively and never through a link (:mod:`warp_tensegrity.atomic`).
 Resume re-reads every recorded shard and recomputes the ones whose checksums do not match.
 See ``docs/guarantees.md`` for what is guaranteed and how each guarantee is tested.
 """
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import queue
 import shutil
 import sys
@@ -34,6 +34,8 @@ import numpy as np
 import xarray as xr
 
 from .. import io as D
+from ..atomic import free_bytes, is_no_space, oserror_line, remove_tmp, tmp_glob
+from ..policy.cost import disk_bytes, fmt_bytes, netcdf_bytes
 from ..provenance import warp_version
 from ..types import ShardState
 from .manifest import (
@@ -90,22 +92,61 @@ class SweepStore:
         return self.dir.exists() and (self.manifest_path.exists() or self.zarr.exists())
 
     def remove(self) -> None:
-        if self.dir.exists():
-            shutil.rmtree(self.dir)
+        if self.dir.is_symlink():  # rmtree would refuse it; what it points to is not this run's
+            raise StoreError(f"{self.dir} is a symbolic link, not a store a run made; remove it, or give another output")
+        try:
+            if self.dir.exists():
+                shutil.rmtree(self.dir)
+        except OSError as e:
+            raise StoreError(oserror_line(e, e.filename or self.dir, "cannot remove")) from None
 
     def clean_tmp(self) -> None:
-        for d in (self.dir, self.out.parent):
-            for p in d.glob(f".{self.out.name}.*.tmp") if d == self.out.parent else d.glob(".*.tmp"):
-                p.unlink(missing_ok=True)
-        if self.zarr.exists():
-            for p in self.zarr.rglob("*.partial"):  # a chunk write Zarr did not finish
-                p.unlink(missing_ok=True)
+        """Remove the temporaries a killed run left: files and private directories (never through a link)."""
+        try:
+            for p in [*self.out.parent.glob(tmp_glob(self.out)), *self.dir.glob(".*.tmp")]:
+                remove_tmp(p)
+            if self.zarr.exists():
+                for p in self.zarr.rglob("*.partial"):  # a chunk write Zarr did not finish
+                    p.unlink(missing_ok=True)
+        except OSError as e:
+            raise StoreError(oserror_line(e, e.filename, "cannot remove a leftover temporary")) from None
+
+    def write_error(self, e: OSError, plan, path=None) -> StoreError:
+        """A write into the store that failed, in one line: the path, the errno and, for a full disk,
+        the space the rest of the run needs (the store's shards still to do and the export) and what
+        is free; resume continues (every finished shard is kept)."""
+        return StoreError(oserror_line(e, path or e.filename or self.dir) + self._what_next(e, plan))
+
+    def _what_next(self, e: OSError, plan) -> str:
+        again = f"`warp-tensegrity resume {self.out}` continues (finished shards are kept)"
+        if not is_no_space(e):
+            return f"; once it can be written, {again}"
+        return f"; {self._space_needed(plan)}; free space, then {again}"
+
+    def _space_needed(self, plan) -> str:
+        free, where = free_bytes(self.dir)
+        try:
+            done = set(self.manifest.shards) if self.manifest else set()
+            todo = [b - a for i, (a, b) in enumerate(plan.shards) if str(i) not in done]
+            r = plan.spec.run
+            need = disk_bytes(plan.run, todo, plan.n_columns, plan.n_shards, bool(r["record_strain"]),
+                              bool(r["record_energy"]))
+        except (AttributeError, KeyError, TypeError):  # a plan without its run decided: no figure
+            return f"{fmt_bytes(free)} is free on {where}"
+        return (f"the rest of the run needs up to {fmt_bytes(need['total'])} (store {fmt_bytes(need['store'])} + "
+                f"{self.out.name} {fmt_bytes(need['netcdf'])}) and {fmt_bytes(free)} is free on {where}")
 
     # ------------------------------------------------------------------ create / open
     def initialise(self, plan, tpl: xr.Dataset) -> Manifest:
         """A fresh store for ``plan``: coordinates written, data variables empty, no shard done.
         ``tpl``: a one-column shard dataset (:func:`~warp_tensegrity.sweep.shard.template_dataset`),
         whose variables, dims, dtypes and attributes every shard has."""
+        try:
+            return self._initialise(plan, tpl)
+        except OSError as e:
+            raise self.write_error(e, plan) from None
+
+    def _initialise(self, plan, tpl: xr.Dataset) -> Manifest:
         import dask.array as da
 
         self.remove()
@@ -134,7 +175,7 @@ class SweepStore:
         content = _header(plan, time)
         content["coords_sha256"] = {k: array_sha256(coords[k].values) for k in coords}
         content["shards"] = {}
-        self.manifest = Manifest(self.manifest_path, content)
+        self.manifest = Manifest(self.manifest_path, content, lambda e: self._what_next(e, plan))
         self.manifest.save()
         return self.manifest
 
@@ -160,7 +201,7 @@ class SweepStore:
                     return None, f"coordinate {k} does not match its checksum"
         except Exception as e:  # truncated or missing metadata/chunks
             return None, f"store does not open ({type(e).__name__}: {e})"
-        self.manifest = Manifest(self.manifest_path, content)
+        self.manifest = Manifest(self.manifest_path, content, lambda e: self._what_next(e, plan))
         return self.manifest, ""
 
     # ------------------------------------------------------------------ shards
@@ -205,10 +246,13 @@ class SweepStore:
         region = {"case": slice(a, b)}
         fault("write-begin")
         half = len(names) // 2
-        for part in (names[:half], names[half:]):
-            body[part].to_zarr(self.zarr, region=region, mode="r+", consolidated=False)
-            fault("mid-write")
-        self._fsync_chunks(names, index)
+        try:
+            for part in (names[:half], names[half:]):
+                body[part].to_zarr(self.zarr, region=region, mode="r+", consolidated=False)
+                fault("mid-write")
+            self._fsync_chunks(names, index)
+        except OSError as e:
+            raise self.write_error(e, plan) from None
         attrs = {k: D._attr(v) for k, v in ds.attrs.items()}
         status = ds["status"].values
         return {"case_start": a, "case_stop": b, "sha256": sha, "n_failed": int(np.count_nonzero(status)),
@@ -337,12 +381,13 @@ def _to_grid_lazy(layout, ds: xr.Dataset, zarr_path=None, shard_size: int = 0) -
 
 # ---------------------------------------------------------------------- export
 def export_netcdf(ds: xr.Dataset, path) -> Path:
-    """Write a lazy dataset to netCDF4 atomically (temporary file, fsync, os.replace), one dask
-    chunk at a time on this thread, so the host holds a few chunks, never the sweep."""
+    """Write a lazy dataset to netCDF4 atomically (:func:`warp_tensegrity.io.writing_netcdf`: a
+    private temporary directory beside ``path``, fsync, os.replace), one dask chunk at a time on this
+    thread, so the host holds a few chunks, never the sweep. A failure is a one-line StoreError with
+    the path, the errno and, for a full disk, the space the file needs; the store is kept."""
     import dask
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     enc = D._encoding(ds)
     for k, v in ds.data_vars.items():
         if v.chunks and "zlib" in enc.get(k, {}):  # compressed: one netCDF chunk per dask chunk
@@ -355,18 +400,22 @@ def export_netcdf(ds: xr.Dataset, path) -> Path:
     biggest = max([v.dtype.itemsize * int(np.prod(enc[k]["chunksizes"])) for k, v in ds.data_vars.items()
                    if "chunksizes" in enc.get(k, {})] or [0])
     netCDF4.set_chunk_cache(max(2 * biggest, 2**20), cache[1], cache[2])
+    need = netcdf_bytes(ds.nbytes, max([len(c) for v in ds.data_vars.values() for c in (v.chunks or ())] or [1]))
     try:
-        with dask.config.set(scheduler="synchronous"):
+        with D.writing_netcdf(path, need) as tmp, dask.config.set(scheduler="synchronous"):
             job = ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=enc, compute=False)
             fault("mid-export")
             job.compute()
-        _fsync_path(tmp)
-        fault("before-replace")
-        os.replace(tmp, path)
-        _fsync_path(path.parent)
+            fault("before-replace")
+    except OSError as e:
+        again = f"`warp-tensegrity combine {path}` exports it again from the store, where every shard is kept"
+        if is_no_space(e):
+            free, where = free_bytes(path)
+            raise StoreError(f"{oserror_line(e, path)}; {path.name} needs up to {fmt_bytes(need)} and "
+                             f"{fmt_bytes(getattr(e, 'free', free))} is free on {where}; free space, then {again}") from None
+        raise StoreError(f"{oserror_line(e, path)}; once it can be written, {again}") from None
     finally:
         netCDF4.set_chunk_cache(*cache)
-        tmp.unlink(missing_ok=True)
     return path
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import replacing
 from ..plot import PRISM_LABEL, dispersion
 
 __all__ = ["FIGURES", "write_figures", "figure_bessel", "figure_soliton", "figure_dispersion", "figure_fb_modal"]
@@ -144,6 +145,7 @@ def write_figures(groups, directory) -> list[Path]:
     for g in groups:
         fig = FIGURES[g.name](g)
         paths.append(out / f"validation_{g.name}.png")
-        fig.savefig(paths[-1], dpi=110)
+        with replacing(paths[-1]) as tmp:  # atomically, never through a link
+            fig.savefig(tmp, dpi=110)
         plt.close(fig)
     return paths
