@@ -6,8 +6,10 @@ run, resume), the Python API and the lens, with the figure and a remedy; the pla
 output times only for the run itself; the probe neither builds them nor caches a peak RSS that
 earlier work left."""
 
+import contextlib
 import os
 import re
+import resource
 import subprocess
 import sys
 import time
@@ -48,6 +50,19 @@ ITEM_1 = {
                                        "run.output_interval=1e-7"], ["--dry-run"],
                                       r"1,000,000,001 outputs per column .* the strain of 400 prisms"),
 }
+
+
+@contextlib.contextmanager
+def address_space_cap(extra: float = 2e9):
+    """Allocations beyond ``extra`` bytes more address space fail (MemoryError) inside: an in-process
+    regression fails its test instead of taking the machine (the unfixed code grew to 24 GB)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = psutil.Process().memory_info().vms + int(extra)
+    resource.setrlimit(resource.RLIMIT_AS, (cap if hard == resource.RLIM_INFINITY else min(cap, hard), hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
 def run_measured(argv, cwd, timeout=60.0) -> tuple[int, float, float, int, str]:
@@ -112,6 +127,11 @@ def test_ignore_estimate_and_resume_refuse_too(tmp_path, capsys):
     from warp_tensegrity.cli import main
 
     out = tmp_path / "o.nc"
+    with address_space_cap():
+        _ignore_estimate_and_resume(out, tmp_path, capsys, main)
+
+
+def _ignore_estimate_and_resume(out, tmp_path, capsys, main):
     for argv in (["run", CI_SMALL, "-o", out, "--ignore-estimate", "--set", "run.output_interval=1e-9"],
                  ["run", CI_SMALL, "-o", out, "--memory-limit", "64MB", "--set", "run.output_interval=1e-9"]):
         assert main([str(a) for a in [*argv, "--device", "cpu"]]) == 1
@@ -139,7 +159,7 @@ def test_the_python_api_refuses_before_allocating(call):
          "run_batch": lambda: W.run_batch(W.column_batch(cfg, params), settings)}[call]
     tracemalloc.start()
     try:
-        with pytest.raises(SettingsError) as e:
+        with address_space_cap(), pytest.raises(SettingsError) as e:
             f()
         peak = tracemalloc.get_traced_memory()[1]
     finally:
@@ -212,7 +232,8 @@ def test_the_lens_names_the_batch_it_refuses(tmp_path, capsys):
     spec = tmp_path / "lens.toml"
     spec.write_text((ROOT / "sweeps" / "lens_ci.toml").read_text().replace("t_end = 0.9 ", "t_end = 1e9 ").replace(
         "output_interval = 0.002 ", "output_interval = 1e7 "))
-    assert main(["lens", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu", "--dry-run"]) == 1
+    with address_space_cap():
+        assert main(["lens", str(spec), "-o", str(tmp_path / "o.nc"), "--device", "cpu", "--dry-run"]) == 1
     err = capsys.readouterr().err
     assert "the calibration batch: the run cannot be done: " in err and "step counter" in err, err
     assert "Traceback" not in err
