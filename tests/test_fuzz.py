@@ -10,6 +10,11 @@ command line and the Python API. Every input must end in one of two ways:
 :func:`physics_problems` states the physical rules of a spec (SI units, the paper's model) and a
 spec it finds invalid must be refused; a spec it finds valid must be accepted.
 
+Two classes hold sizes and settings to the budget (issue 30): ``run sizes`` draws every [run]
+size (t_end, output_interval, dt, n_prisms, record_strain) and a spec must be refused up front
+with its figure or planned with bounded memory; ``api to_xarray`` runs ``simulate_batch`` with any
+combination of what it keeps and measures, then ``.to_xarray()``.
+
 Per-class counts are printed and, with ``FUZZ_COUNTS_DIR=dir``, written there as JSON
 (``tests/artifacts/fuzz_counts.json`` holds the committed record).
 """
@@ -21,6 +26,7 @@ import io
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import tomllib
@@ -44,8 +50,9 @@ EXPLORE = int(os.environ.get("FUZZ_EXPLORE", "0"))
 FUZZ = settings(derandomize=not EXPLORE, deadline=None, database=None, print_blob=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much,
                                        HealthCheck.function_scoped_fixture])
-QUOTAS = {"spec values": 260, "spec structure": 220, "spec bytes": 170, "cli arguments": 220, "python api": 300}
-"""Generated inputs per class (1,170 in all). Derandomized Hypothesis may stop a little early
+QUOTAS = {"spec values": 260, "spec structure": 220, "spec bytes": 170, "cli arguments": 220, "python api": 300,
+          "run sizes": 100, "api to_xarray": 80}
+"""Generated inputs per class (1,350 in all). Derandomized Hypothesis may stop a little early
 once it has exhausted a strategy, so each class asserts at least 90 % of its quota."""
 
 
@@ -232,7 +239,8 @@ def judge_spec(cls: str, tmp_path: Path, data: dict, key: str | None = None, val
         _count(cls, "valid (dry run)" if "fits:        yes" in out else "valid, refused by the estimate")
     else:  # valid by the oracle but refused: only the estimate may do that, with its figures
         check_clear_error(rc, out, err)
-        assert "needs about" in err or "need about" in err or "estimate" in err or "stability limit" in err, err
+        assert ("needs about" in err or "need about" in err or "estimate" in err or "stability limit" in err
+                or "cannot be done" in err), err
         _count(cls, "refused by the estimate")
 
 
@@ -644,6 +652,190 @@ def test_fuzz_python_api():
     _report("python api", int(0.9 * QUOTAS["python api"]))
 
 
+
+
+# ---------------------------------------------------------------------- 5b. [run] sizes against the budget (issue 30)
+MAX_STEPS = 2**31 - 1  # the device's int32 step counter
+PLAN_PEAK_BYTES = 16e6
+"""What planning and pricing a fuzzed spec of at most 2,000 prisms may allocate (tracemalloc peak;
+measured: under 1 MB), whatever its output count: nothing of the run's size is built before it is
+refused or run."""
+
+
+def _e(lo, hi):
+    """A power of ten with 3 significant digits, 10**lo .. 10**hi."""
+    return st.floats(lo, hi).map(lambda e: float(f"{10 ** e:.3g}"))
+
+
+@st.composite
+def run_sizes(draw):
+    """A valid base spec with its sizes drawn: t_end from 1 us to 1e9 s, output intervals down to
+    1e-16 of it, explicit steps down to 1e-16 of it, up to 2,000 prisms, strain and energy kept or not."""
+    data = json.loads(json.dumps(BASE))
+    t_end = draw(_e(-6, 9))
+    run = data["run"] = {"t_end": t_end}
+    if draw(st.integers(0, 4)):
+        run["output_interval"] = float(f"{t_end * draw(_e(-16, 0)):.3g}")
+    if not draw(st.integers(0, 3)):
+        run["dt"] = float(f"{t_end * draw(_e(-16, 0)):.3g}")
+        run["allow_unstable_dt"] = True
+    for k in ("record_strain", "record_energy", "truncate"):
+        if draw(st.booleans()):
+            run[k] = draw(st.booleans())
+    run["method"] = draw(st.sampled_from(["rattle", "rk4"]))
+    run["precision"] = draw(st.sampled_from(["fp32", "fp64"]))
+    # (not 9-100 prisms: their dense equilibrium check takes ~1 s a plan on the 2-core host; beyond 100
+    # it is sparse, tests/test_fuzz.py::test_fuzz_long_columns_plan_or_refuse)
+    data["scene"]["n_prisms"] = draw(st.sampled_from([1, 2, 3, 8, 400, 2000]))
+    return data
+
+
+def size_oracle(data) -> tuple[float, float]:
+    """(steps, host bytes of one column) at least, by the [run] rules alone: dt <= the output
+    interval when 'auto'; outputs every round(interval / dt) steps otherwise; a column's time axis
+    (16 B), energies (16 B) and strain (8 B a prism, when kept) per output."""
+    run = data["run"]
+    t_end, dt = run["t_end"], run.get("dt", "auto")
+    interval = run.get("output_interval", t_end / 200)
+    steps = t_end / (interval if dt == "auto" else dt)
+    outputs = t_end / (interval if dt == "auto" else 2 * max(interval, dt))  # round(): at most 2x fewer
+    per_output = 32 + (8 * data["scene"]["n_prisms"] if run.get("record_strain", True) else 0)
+    return steps, outputs * per_output
+
+
+def _host_total() -> int:
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+@contextlib.contextmanager
+def _capped(extra: float = 2e9):
+    """Address space capped at ``extra`` bytes more: a size that escapes the budget fails as a
+    MemoryError here instead of taking the machine."""
+    import resource
+
+    import psutil
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = psutil.Process().memory_info().vms + int(extra)
+    resource.setrlimit(resource.RLIMIT_AS, (cap if hard == resource.RLIM_INFINITY else min(cap, hard), hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
+@fuzz("run sizes")
+@given(data=run_sizes())
+@example(data={**BASE, "scene": {"n_prisms": 8}, "run": {"t_end": 2.0, "output_interval": 1e-9}})  # issue 30 item 1
+@example(data={**BASE, "scene": {"n_prisms": 8}, "run": {"t_end": 1e3, "output_interval": 1e-9}})
+@example(data={**BASE, "scene": {"n_prisms": 8}, "run": {"t_end": 1e9, "output_interval": 1.0}})
+@example(data={**BASE, "scene": {"n_prisms": 400}, "run": {"t_end": 100.0, "output_interval": 1e-7}})
+@example(data={**BASE, "run": {"t_end": 1e9, "output_interval": 1e-15}})  # the extremes of [run]
+@example(data={**BASE, "run": {"t_end": 1e-6, "dt": 1e-15, "allow_unstable_dt": True}})
+def _run_sizes(work, data):
+    """Every [run] size against the budget: a spec is refused up front with its figure and a remedy
+    when a column's records cannot fit this machine or its steps the step counter (by the oracle),
+    or planned and priced (dry run) with at most PLAN_PEAK_BYTES allocated; never a MemoryError, a
+    traceback or a plan that admits more than the machine holds."""
+    import tracemalloc
+
+    steps, column = size_oracle(data) if not physics_problems(data) else (0.0, 0.0)
+    traced = column > 1e8  # where an O(n_out) array would show (tracemalloc triples a dry run's time)
+    if traced:
+        tracemalloc.start()
+    try:
+        with _capped():
+            rc, out, err = dry_run_spec(work, tomli_w.dumps(data).encode())
+        peak = tracemalloc.get_traced_memory()[1] if traced else 0
+    finally:
+        tracemalloc.stop()
+    assert "Traceback" not in err and "MemoryError" not in err, err
+    assert peak < PLAN_PEAK_BYTES, (data, peak)
+    bad = physics_problems(data)
+    if bad:
+        check_clear_error(rc, out, err, bad[0])
+        _count("run sizes", "clear error (spec)")
+        return
+    if steps > 1.01 * MAX_STEPS or column > 1.01 * _host_total():
+        check_clear_error(rc, out, err)
+        assert "the run cannot be done" in err and "lower run.t_end" in err, (data, err)
+        assert "step counter" in err or re.search(r"outputs per column .* need about [\d.]+ [kMGTP]B", err), err
+        _count("run sizes", "refused up front (cannot be done)")
+    elif rc != 0:  # by the plan's own figures, which count more than the oracle (the engine's arrays)
+        check_clear_error(rc, out, err)
+        assert "cannot be done" in err, (data, err)
+        _count("run sizes", "refused up front (by the plan's figures)")
+    else:
+        m = re.search(r"steps: +(\d+) to t_end = \S+ s, (\d+) outputs", out)
+        assert m and "fits:" in out, out
+        n_steps, n_out = int(m.group(1)), int(m.group(2))
+        per_output = 32 + (8 * data["scene"]["n_prisms"] if data["run"].get("record_strain", True) else 0)
+        assert n_steps <= MAX_STEPS and n_out * per_output <= _host_total(), (data, out)  # a bounded plan
+        _count("run sizes", "planned (dry run)" + ("" if "fits:        yes" in out else ", refused by the estimate"))
+
+
+def test_fuzz_run_sizes(work):
+    COUNTS.pop("run sizes", None)
+    _run_sizes(work)
+    _report("run sizes", int(0.9 * QUOTAS["run sizes"]))
+
+
+@st.composite
+def small_runs(draw):
+    """Settings of a cheap real run (a few prisms and columns, tens of steps), any combination of
+    what it keeps and measures; now and then sizes the budget refuses."""
+    t_end = draw(_e(-4, -1.3))
+    kw = {"t_end": t_end, "device": "cpu"}
+    if draw(st.integers(0, 3)):
+        kw["output_interval"] = float(f"{t_end * draw(_e(-2.5, 0)):.3g}")
+    for k in ("record_strain", "record_energy", "truncate"):
+        if draw(st.booleans()):
+            kw[k] = draw(st.booleans())
+    if draw(st.booleans()):
+        kw["measure"] = draw(st.sampled_from(["device", "host", "none"]))
+    if not draw(st.integers(0, 7)):  # beyond the budget: refused before anything is built
+        kw.update(t_end=draw(st.sampled_from([2.0, 1e3, 1e9])), output_interval=draw(st.sampled_from([1e-9, 1e-12])))
+    n = draw(st.integers(1, 6))
+    cols = draw(st.integers(1, 3))
+    params = {"prestrain": [draw(st.sampled_from([0.0, 0.001, 0.002])) for _ in range(cols)],
+              "v0": draw(st.sampled_from([0.001, 0.005, 0.02]))}
+    return n, params, kw
+
+
+@fuzz("api to_xarray")
+@given(case=small_runs())
+@example(case=(3, {"prestrain": [0.0, 0.001], "v0": 0.01}, {"t_end": 0.01, "output_interval": 0.002, "device": "cpu",
+                                                            "record_strain": False}))  # issue 30 item 17
+def _api_to_xarray(case):
+    """simulate_batch with any combination of the settings, then .to_xarray(): a dataset with one
+    case per column and one time per output (the strain when kept), or, for sizes beyond the
+    budget, a SettingsError naming t_end and output_interval before anything is built."""
+    import warp_tensegrity as W
+    from warp_tensegrity.options import SettingsError
+
+    n, params, kw = case
+    settings = RunSettings(**kw)
+    try:
+        with _capped():
+            r = W.simulate_batch(ColumnConfig(n_prisms=n), params, settings)
+    except SettingsError as e:
+        assert "the run cannot be done" in str(e) and "run.t_end" in str(e) and "run.output_interval" in str(e), e
+        assert kw["t_end"] >= 2.0, (kw, str(e))  # only the sizes drawn beyond the budget
+        _count("api to_xarray", "refused up front")
+        return
+    ds = r.to_xarray()
+    B, T = len(params["prestrain"]), len(r.time)
+    assert ds.sizes["case"] == B and ds.sizes["t"] == T, (kw, dict(ds.sizes))
+    assert ("strain" in ds) == settings.record_strain, (kw, list(ds))
+    if settings.record_strain:
+        assert ds["strain"].shape == (B, T, n), (kw, ds["strain"].shape)
+    _count("api to_xarray", "dataset")
+
+
+def test_fuzz_api_settings_to_xarray():
+    COUNTS.pop("api to_xarray", None)
+    _api_to_xarray()
+    _report("api to_xarray", int(0.9 * QUOTAS["api to_xarray"]))
 
 
 # ---------------------------------------------------------------------- subprocess checks and tiny real runs

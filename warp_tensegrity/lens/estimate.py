@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..policy.calibrate import probe, reference_state_count
+from ..options import SettingsError
 from ..policy.cost import fmt_seconds, predict
 from ..policy.decide import decide
 from ..scene.batch import column_params
-from ..sweep.budget import MAX_STEPS
 from . import host as H
 from .spec import LensSpec, LensSpecError, lens_settings
 
@@ -45,13 +45,13 @@ def estimate_lens(spec: LensSpec, device: str | None = None, recalibrate: bool =
 
 
 def _decide(cfg, params, settings, name: str):
-    """The batch's run plan; a LensSpecError if it needs more steps than the device's counter holds."""
-    run = decide(cfg, params, settings)
-    if run.n_steps > MAX_STEPS:
-        raise LensSpecError(f"the {name} batch needs {run.n_steps:.3g} steps (run.t_end = {settings.t_end!r} s at dt = "
-                            f"{run.dt:.3g} s), more than the device's step counter holds ({MAX_STEPS:,}); "
-                            "lower run.t_end or raise run.dt")
-    return run
+    """The batch's run plan; a LensSpecError naming the batch where decide refuses its sizes (more
+    steps than the device's counter holds, or a column's records beyond the machine's memory:
+    :func:`~warp_tensegrity.policy.cost.size_problems`), before anything of that size is built."""
+    try:
+        return decide(cfg, params, settings)
+    except SettingsError as e:
+        raise LensSpecError(f"the {name} batch: {e}") from None
 
 
 def describe(est: dict) -> str:

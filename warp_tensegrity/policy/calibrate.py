@@ -26,7 +26,6 @@ import json
 import logging
 import os
 import platform
-import resource
 import tempfile
 import time
 from pathlib import Path
@@ -317,7 +316,7 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
             # measurement of a record of the run's length, up to PROBE_SAMPLES outputs (the cost model
             # scales it to the run's; sech^2 pulses crossing the column)
             T_full = min(run.n_out, PROBE_SAMPLES)
-            tt = run.output_times[:T_full]
+            tt = run.first_output_times(T_full)  # the head only: a run's n_out may be ~1e9
             j = np.arange(n_sim)
             c = max(n_sim, 4) / max(float(tt[-1]), 1e-30) * 0.8
             rec = -1e-3 / np.cosh((j[None, :] - (n_sim - 1 + 4 - c * tt[:, None])) / 2.0) ** 2
@@ -348,7 +347,9 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
         # this process's start-up (interpreter, imports, Warp) and the probe's kernel loads: what a run pays once
         "import": startup_seconds(), "compile": WARM_LOAD_SECONDS if compiled else t_init,
         "probe_compile": t_init if compiled else 0.0, "compiled_modules": len(compiled),
-        "base_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        # what this process holds after imports, kernel loads and the probe: not its lifetime peak
+        # (ru_maxrss), which carries whatever it did before and would be cached with the probe
+        "base_rss": psutil.Process().memory_info().rss,
         "others_busy": share, "under_load": bool(share > BUSY_SHARE),
     }
 

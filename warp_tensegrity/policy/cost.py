@@ -5,6 +5,12 @@ and the one formatter of each unit.
   :func:`disk_bytes` (the disk a sweep's store and netCDF export take, at most),
   :func:`state_bytes_per_column` (the engine's arrays), :func:`host_bytes_per_column` (what a
   shard holds on the host while it steps, is measured and written);
+* the sizes no machine setting can shrink (:func:`size_problems`): the step count against the
+  device's int32 step counter (:data:`MAX_STEPS`), and the records of ONE column (the output
+  count times the energies and the strain record, :func:`column_bytes`) against the memory of
+  this machine: a run that breaks either is refused when it is decided, before any array of its
+  size exists (:func:`warp_tensegrity.policy.decide.decide`), whatever the shard size or
+  ``--ignore-estimate``;
 * seconds and memory from a calibration probe (:func:`predict`; the probe is
   :func:`warp_tensegrity.policy.calibrate.probe`): every figure the dry run prints, the time
   limit and the memory checks read (:mod:`warp_tensegrity.sweep.budget`) and the progress bar's
@@ -17,6 +23,7 @@ load says so (``under_load``) and is taken again once the host is idle (:mod:`.c
 from __future__ import annotations
 
 import math
+import os
 
 from ..types import Method
 
@@ -29,6 +36,12 @@ HOST_COPIES = 4
 tests/sweep/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
 MEASURE_VALUES = 10
 """Per-column scalars of the output (pulse measures, flags, errors)."""
+MAX_STEPS = 2**31 - 1
+"""The device's step counter is a Warp ``int`` (int32), and so is every dimension of a Warp array:
+the output axis (at most one output per step) is bounded with it."""
+TIME_AXIS_BYTES = 16
+"""Host bytes per output of a run's time axis: the output times (float64) and steps (int64) of
+:class:`~.decide.RunPlan`, built once per run and held by every result and the store's template."""
 
 
 def fmt_bytes(b: float) -> str:
@@ -110,10 +123,11 @@ def disk_bytes(run, shard_sizes: list[int], n_columns: int, n_shards: int, recor
 
 def state_bytes_per_column(run) -> int:
     """The engine's device arrays per column (state, constraint band, cable rest lengths, energies;
-    the strain record when kept)."""
+    the strain record when kept, or when the pulse measures read it on the device)."""
     r = 4 if run.precision == "fp32" else 8
     state_vecs = 5 + (6 if run.method == Method.RK4 else 0)
-    record = run.n_out * run.prisms_simulated if run.settings.record_strain else 0
+    kept = run.settings.record_strain or run.settings.measure != "none"  # as engine.run_batch keeps it
+    record = run.n_out * run.prisms_simulated if kept else 0
     return int(r * (3 * run.n_nodes * state_vecs + run.n_constraints * (run.bandwidth + 2) + 3 * run.n_cables
                     + 2 * run.n_out + record))
 
@@ -123,6 +137,62 @@ def host_bytes_per_column(run, record_strain: bool, record_energy: bool = True) 
     arrays too when the engine runs on the CPU)."""
     out = output_bytes_per_column(run.n_out, run.prisms, record_strain, record_energy)
     return HOST_COPIES * out + (0 if run.on_gpu else state_bytes_per_column(run))
+
+
+def column_bytes(run) -> tuple[int, int]:
+    """(host, device) bytes that one column of ``run`` needs, the least any shard size can give it:
+    the time axis, the energy histories and the strain record when kept (float64, on the host,
+    where every result crosses), and the engine's arrays (:func:`state_bytes_per_column`: device
+    memory on a GPU, host memory on the CPU)."""
+    host = TIME_AXIS_BYTES * run.n_out + output_bytes_per_column(run.n_out, run.prisms, run.settings.record_strain)
+    state = state_bytes_per_column(run)
+    return (host, state) if run.on_gpu else (host + state, 0)
+
+
+def host_memory_total() -> int:
+    """Bytes of physical memory of this host (what no run can exceed, whatever else runs)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 2**63
+
+
+def size_problems(run, host_bytes: int | None = None, device_bytes: int | None = None) -> list[str]:
+    """What no shard size and no override can run, one line each with its figure and a remedy ([] if
+    none): more steps than :data:`MAX_STEPS`, or one column whose records (:func:`column_bytes`)
+    exceed this host's physical memory (``host_bytes``; default :func:`host_memory_total`) or, on a
+    GPU, the device's (``device_bytes``; default its total memory). Arithmetic on the plan's counts
+    only: nothing of the run's size is built."""
+    s = run.settings
+    span = f"run.t_end = {s.t_end:g} s"
+    out = []
+    if run.n_steps > MAX_STEPS:
+        remedy = ["lower run.t_end"] + (["raise run.dt"] if s.dt != "auto" else
+                                        ["raise run.output_interval"] if run.output_every == 1 else [])
+        out.append(f"{run.n_steps:.3g} steps ({span} at dt = {run.dt:.3g} s) exceed the device's step counter "
+                   f"({MAX_STEPS:,} steps); {' or '.join(remedy)}")
+    host, dev = column_bytes(run)
+    interval = "auto (t_end / 200)" if s.output_interval is None else f"{s.output_interval:g} s"
+    what = "the time axis, energies" + (f", the strain of {run.prisms:,} prisms" if s.record_strain else "")
+    remedy = ("raise run.output_interval, lower run.t_end or set run.record_strain = false" if s.record_strain
+              else "raise run.output_interval or lower run.t_end")
+    for need, have, where in ((host, host_bytes, "host"), (dev, device_bytes, run.device)):
+        if not need:
+            continue
+        if have is None:
+            have = host_memory_total() if where == "host" else _device_total(run.device)
+        if need > have:
+            out.append(f"{run.n_out:,} outputs per column ({span} / run.output_interval = {interval}): one column's "
+                       f"records ({what}) need about {fmt_bytes(need)} of {where} memory and this machine has "
+                       f"{fmt_bytes(have)}; {remedy}")
+    return out
+
+
+def _device_total(device: str) -> int:
+    """Total memory of a CUDA device [bytes] (Warp is initialised: the run was decided on it)."""
+    from ..runtime import resolve_device  # initialises Warp
+
+    return int(resolve_device(device).total_memory)
 
 
 HOST_STAGES = ("import", "build", "compile", "transfer", "write", "finalise")

@@ -2,6 +2,10 @@
 batch) turn the settings into a frozen :class:`RunPlan`: method, precision and dt from the accuracy
 (:mod:`.accuracy`), the prisms simulated (truncation), the stability bound, the output stride, the
 Gram band and the launch path (:mod:`.paths`, :mod:`.lane_fit`), each with the reason it was taken.
+A plan whose step count or one column's records no machine setting can hold is refused as it is
+decided (:func:`.cost.size_problems`, a SettingsError with the figures): the output times and steps
+(O(n_out)) are built only by the run itself; a head of them needs only its head
+(:meth:`RunPlan.first_output_times`).
 
 Everything downstream reads the plan and recomputes nothing: the engine steps it, the cost model
 prices it (:mod:`.cost`), the calibration probe times it (:mod:`.calibrate`), a sweep stores it
@@ -16,12 +20,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..arguments import expect, expect_callable, expect_count, expect_params
-from ..options import RunSettings
+from ..options import RunSettings, SettingsError
 from ..runtime import resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
 from ..types import Base, Path, Precision
 from .accuracy import apply_accuracy, choose_timestep, default_dt_safety, output_times, reachable_prisms
+from .cost import size_problems
 from .lane_fit import lane_refusal, lane_support
 from .paths import choose_path, gram_bandwidth
 
@@ -89,12 +94,22 @@ class RunPlan:
 
     @property
     def output_steps(self) -> np.ndarray:
-        return np.arange(self.n_out, dtype=np.int64) * self.output_every
+        """Steps of every output (n_out,): for the run itself; a count or a head needs none of it."""
+        return self.first_output_steps(self.n_out)
 
     @property
     def output_times(self) -> np.ndarray:
-        """Output times [s] (:func:`.accuracy.output_times`)."""
-        return output_times(self.output_steps, self.dt)
+        """Output times [s] (:func:`.accuracy.output_times`) of every output (n_out,)."""
+        return self.first_output_times(self.n_out)
+
+    def first_output_steps(self, n: int) -> np.ndarray:
+        """Steps of the first ``n`` outputs (at most n_out), without building the others."""
+        return np.arange(min(int(n), self.n_out), dtype=np.int64) * self.output_every
+
+    def first_output_times(self, n: int) -> np.ndarray:
+        """Times [s] of the first ``n`` outputs, equal to the head of :attr:`output_times` (the
+        rounding reads the interval only)."""
+        return output_times(self.first_output_steps(n), self.dt)
 
     def choices(self) -> dict:
         """The choices a result reports (``BatchResult.info['choices']``)."""
@@ -202,11 +217,17 @@ def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: st
                                           if settings.dt == "auto" else "given"))
     reasons.append(f"path {path.value}: fused = {settings.fused!r} on {device.alias}, {n_columns} columns per launch"
                    + ("" if lanes is None else f"; not the lane step: {lanes}"))
+    run = RunPlan(settings=replace(settings, device=device.alias), dt=dt, dt_limit=limit, n_steps=n_steps,
+                  output_every=every, omega_max_bound=omega, bandwidth=int(bandwidth), n_nodes=int(topology.positions.shape[0]),
+                  n_constraints=len(topology.constraints), n_cables=len(topology.cables), path=path, lane_refusal=lanes,
+                  device=device.alias, on_gpu=bool(device.is_cuda), n_columns=n_columns, prisms=n,
+                  prisms_simulated=n_sim, accuracy=acc.get("accuracy"), accuracy_source=acc.get("accuracy_source"),
+                  reasons=tuple(reasons))
     if auto:
-        reasons.append("precision fp64: 'auto' without a twin run to verify fp32 case by case")
-    return RunPlan(settings=replace(settings, device=device.alias), dt=dt, dt_limit=limit, n_steps=n_steps,
-                   output_every=every, omega_max_bound=omega, bandwidth=int(bandwidth), n_nodes=int(topology.positions.shape[0]),
-                   n_constraints=len(topology.constraints), n_cables=len(topology.cables), path=path, lane_refusal=lanes,
-                   device=device.alias, on_gpu=bool(device.is_cuda), n_columns=n_columns, prisms=n,
-                   prisms_simulated=n_sim, accuracy=acc.get("accuracy"), accuracy_source=acc.get("accuracy_source"),
-                   reasons=tuple(reasons))
+        run = replace(run, reasons=run.reasons + ("precision fp64: 'auto' without a twin run to verify fp32 case by case",))
+    # every size that follows from the plan, checked before anything of the run's size is built
+    # (its output times included): a run no shard size can fit is refused here, with its figures
+    found = size_problems(run, device_bytes=int(device.total_memory) if device.is_cuda else None)
+    if found:
+        raise SettingsError("the run cannot be done: " + "; ".join(found))
+    return run

@@ -6,10 +6,12 @@ Two checks, both before any kernel runs:
   that planning itself needs (the per-column parameters and the engine's estimate, which builds
   every column of the sweep once) against the memory available.
 * :func:`check_run` (the CLI calls it before a run; ``--ignore-estimate`` skips it): the
-  cost model's device memory and host memory per shard, the disk the store and the netCDF export
-  take together against the free disk, the step count against the device's int32 step counter,
+  cost model's device memory and host memory per shard, the disk the store and the netCDF export take
+  together against the free disk,
   and the estimated time against a time limit: the figures the dry run prints
-  (:mod:`warp_tensegrity.policy.cost`).
+  (:mod:`warp_tensegrity.policy.cost`). What no override can run (the step count against the
+  device's int32 step counter, one column's records against the machine's memory:
+  :func:`hard_problems`) is refused before that, when the run is decided.
 """
 
 from __future__ import annotations
@@ -20,11 +22,9 @@ import os
 from pathlib import Path
 
 from ..atomic import free_bytes
-from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_bytes, fmt_seconds
+from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_bytes, fmt_seconds, size_problems
 from .errors import SweepError
 
-MAX_STEPS = 2**31 - 1
-"""The device's step counter is a Warp ``int`` (int32)."""
 PLAN_BYTES_PER_LEVEL = 720
 """Host bytes per column and per base level that planning needs: tracemalloc peak of
 ``estimate_batch`` measured at 5.9 kB per column for 8 prisms and 35 kB for 50 prisms."""
@@ -114,12 +114,11 @@ def check_plan(spec, available: int | None = None) -> None:
 
 
 def hard_problems(plan) -> list[str]:
-    """What no override can run: more steps than the device's int32 step counter holds."""
-    n_steps = plan.run.n_steps
-    if n_steps > MAX_STEPS:
-        return [f"{n_steps:.3g} steps (t_end = {plan.spec.run['t_end']!r} s at dt = {plan.dt:.3g} s) exceed the "
-                f"device's step counter ({MAX_STEPS:,} steps); raise run.dt or lower run.t_end"]
-    return []
+    """What no override can run (:func:`warp_tensegrity.policy.cost.size_problems`): more steps than
+    the device's int32 step counter holds, or one column whose records exceed the machine's memory.
+    :func:`~warp_tensegrity.policy.decide.decide` refuses such a run already; this lists them for a
+    plan whose run was decided elsewhere."""
+    return size_problems(plan.run)
 
 
 def problems(plan, cost: dict, *, time_limit: float = DEFAULT_TIME_LIMIT, device_bytes: int | None = None,
