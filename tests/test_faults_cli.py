@@ -410,4 +410,4 @@ def test_oserror_reaching_the_cli_is_one_line(tmp_path, capsys):
     from warp_tensegrity.outputs import oserror_text
 
     e = OSError(13, "Permission denied", "/a/b.png")
-    assert oserror_text(e) == "Permission denied [EACCES]: /a/b.png"
+    assert oserror_text(e) == "Permission denied [Errno 13 EACCES]: /a/b.png"

@@ -4,11 +4,12 @@ takes a file; and an OSError in one line (what failed, the errno's name, the pat
 
 from __future__ import annotations
 
-import errno
 import os
 import stat
 import tempfile
 from pathlib import Path
+
+from .atomic import errno_text
 
 
 class OutputError(ValueError):
@@ -16,12 +17,10 @@ class OutputError(ValueError):
 
 
 def oserror_text(e: OSError) -> str:
-    """One line: the error, its errno's name and the path(s), e.g.
-    ``Permission denied [EACCES]: /data/fig.png``."""
-    name = errno.errorcode.get(e.errno) if isinstance(e.errno, int) else None
+    """One line: the error, its errno and the path(s), e.g.
+    ``Permission denied [Errno 13 EACCES]: /data/fig.png`` (:func:`.atomic.errno_text`)."""
     paths = " -> ".join(str(f) for f in (e.filename, e.filename2) if f is not None)
-    text = e.strerror or str(e) or type(e).__name__
-    return f"{text}{f' [{name}]' if name else ''}{': ' + paths if paths else ''}"
+    return f"{errno_text(e)}{': ' + paths if paths else ''}"
 
 
 def check_output_file(out, *, exists_ok: bool = False) -> None:
