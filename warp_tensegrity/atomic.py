@@ -99,7 +99,10 @@ def replacing(path, fsync: bool = True):
     beside ``path`` (same file system, same extension). When the block ends without an exception the
     file is fsync'd and moved onto ``path``; the directory is removed in every case."""
     path = Path(path)
-    d = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=TMP_SUFFIX))
+    try:
+        d = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=TMP_SUFFIX))
+    except OSError as e:  # name the file the user asked for, not our temporary's random name
+        raise type(e)(e.errno, e.strerror, str(path)) from None
     try:
         tmp = d / path.name
         yield tmp

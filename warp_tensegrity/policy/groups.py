@@ -115,12 +115,12 @@ def twin_plan(config: ColumnConfig, params: ColumnParams, plan: RunPlan) -> RunP
     at dt_twin = interval / ceil(output_every / r), so both record the same output times, with r at
     most TWIN_COARSENING and dt_twin at most MAX_FRACTION of the stability limit. None when no
     coarser dt keeps the outputs (one step per output) or stays stable."""
-    interval = plan.dt * plan.output_every
+    interval = plan.settings.output_interval or plan.settings.t_end / 200.0  # as choose_timestep has it
     r = min(TWIN_COARSENING, MAX_FRACTION * plan.dt_limit / plan.dt)
     every = math.ceil(plan.output_every / r - 1e-9) if r > 1 else plan.output_every
     if every >= plan.output_every:
         return None
-    settings = replace(plan.settings, dt=interval / every, dt_safety=None, output_interval=interval)
+    settings = replace(plan.settings, dt=min(interval / every, plan.settings.t_end), dt_safety=None)
     return decide(config, params, settings, n_columns=plan.n_columns, prisms_simulated=plan.prisms_simulated)
 
 
