@@ -321,9 +321,8 @@ def _plot(args) -> int:
             times = [float(t) for t in args.times.split(",")]
         except ValueError:
             raise PlotError(f"--times {args.times!r}: give comma-separated seconds") from None
-    fig = plot.plot_file(args.dataset, args.kind, var=args.var, x=args.x, y=args.y, sel=sel, times=times)
     out = Path(args.output) if args.output else Path(args.dataset).with_name(f"{Path(args.dataset).stem}-{args.kind}.png")
-    fig.savefig(out)
+    plot.plot_file(args.dataset, args.kind, var=args.var, x=args.x, y=args.y, sel=sel, times=times, output=out)
     log.info("wrote %s", out)
     return 0
 

@@ -12,6 +12,12 @@ Units: strain [1] ((h - h0)/h, negative in compression), time ``t`` [s], speed [
 
 from __future__ import annotations
 
+import errno as _errno
+import os
+import re
+import secrets
+from pathlib import Path
+
 import numpy as np
 
 from .scene.columns import ColumnConfig
@@ -42,15 +48,32 @@ def _axes(ax):
     return ax
 
 
+def _drawable(text: str) -> str:
+    """``text`` as a figure may show it: unchanged where it holds no mathtext (``$...$``) or its
+    mathtext parses; else with every ``$`` escaped, so it is drawn as plain text. A dataset's title,
+    labels and attributes are the user's, and matplotlib raises on bad mathtext only when the figure
+    is drawn."""
+    from matplotlib import cbook
+    from matplotlib.mathtext import MathTextParser
+
+    if not cbook.is_math_text(text):
+        return text
+    try:
+        MathTextParser("path").parse(text)
+    except ValueError:  # pyparsing's ParseException, as matplotlib raises it
+        return re.sub(r"(?<!\\)\$", r"\\$", text)
+    return text
+
+
 def _label(da, name: str) -> str:
     lab = da.attrs.get("long_name", name)
     units = da.attrs.get("units")
-    return f"{lab} [{units}]" if units and units != "1" else lab
+    return _drawable(f"{lab} [{units}]" if units and units != "1" else str(lab))
 
 
 def _short_label(da, name: str) -> str:
     units = da.attrs.get("units")
-    return f"{name} [{units}]" if units and units != "1" else name
+    return _drawable(f"{name} [{units}]" if units and units != "1" else name)
 
 
 def robust_limit(values, q: float = 99.5) -> float:
@@ -75,15 +98,32 @@ def cell_edges(centres, log: bool = False) -> np.ndarray:
 
 
 def _select(obj, sel: dict | None):
-    """Nearest-value selection that names the dimension and the values on a miss."""
+    """Nearest-value selection that names the dimension and the values on a miss. A parameter
+    fixed in the file (a scalar coordinate) may be given at its value, which selects nothing."""
     for name, value in (sel or {}).items():
         if name not in obj.dims and name not in obj.coords:
             raise PlotError(f"no dimension {name!r} to select (dims: {', '.join(map(str, obj.dims))})")
+        if name not in obj.dims:  # a coordinate without an index: xarray's error names its internals
+            _check_fixed(obj[name], name, value)
+            continue
         try:
             obj = obj.sel({name: value}, method=None if isinstance(value, str) or name == "case" else "nearest")
         except (KeyError, ValueError, TypeError) as e:
             raise PlotError(f"{name} = {value!r} not found ({e})") from None
     return obj
+
+
+def _check_fixed(coord, name: str, value) -> None:
+    """PlotError unless ``value`` is the value of ``name``, a parameter fixed in the file; or, for a
+    coordinate along another dimension (a case list's parameters along ``case``), how to pick."""
+    if coord.ndim:
+        raise PlotError(f"{name} is not a dimension of this file: it lies along {', '.join(map(str, coord.dims))} "
+                        f"({_how_to_select(str(coord.dims[0]))})")
+    fixed = coord.values.item()
+    same = fixed == value if isinstance(fixed, str) or isinstance(value, str) else bool(np.isclose(fixed, value, rtol=1e-9, atol=0.0))
+    if not same:
+        shown = f"{fixed:g}" if isinstance(fixed, float) else str(fixed)
+        raise PlotError(f"{name} = {value!r}: {name} is fixed at {shown} in this file (not swept); leave it out")
 
 
 def _how_to_select(dim: str) -> str:
@@ -324,16 +364,31 @@ def dispersion(data, ax=None, sel: dict | None = None, speed: float | None = Non
 
 
 # ---------------------------------------------------------------------- the CLI's entry
-def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None):
-    """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure."""
+def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None,
+              output=None):
+    """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure.
+    ``output``: also save it there, atomically (format from the suffix, png without one); a place
+    that cannot be written is refused before anything is opened or drawn."""
     from .io import open_sweep  # imports xarray: not at `--help`
 
     if kind not in KINDS:
         raise PlotError(f"plot kind {kind!r}: give one of {', '.join(sorted(KINDS))}")
+    target = _FigureFile(output) if output is not None else None
     try:
-        ds = open_sweep(path)
-    except (OSError, ValueError) as e:
-        raise PlotError(f"{path} does not open as netCDF ({e})") from None
+        try:
+            ds = open_sweep(path)
+        except (OSError, ValueError) as e:
+            raise PlotError(f"{path} does not open as netCDF ({e})") from None
+        fig = _draw(ds, kind, var, x, y, sel, times)
+        if target is not None:
+            target.save(fig)
+    finally:
+        if target is not None:
+            target.discard()
+    return fig
+
+
+def _draw(ds, kind: str, var: str, x, y, sel: dict | None, times):
     sel = dict(sel or {})
     if kind == "phase":
         ax = phase_diagram(ds, var=var, x=x, y=y, sel=sel)
@@ -351,5 +406,45 @@ def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | N
         shown = selection_text(ds, sel, exclude=axes | {"case"} if kind == "phase" else axes)
         title = "\n".join(t for t in (title, shown) if t)
     if title:
-        ax.set_title(title, fontsize=9)
+        ax.set_title(_drawable(title), fontsize=9)
     return ax.figure
+
+
+class _FigureFile:
+    """A figure's file: a temporary file beside it, created exclusively at once (so an unwritable
+    place is found before the figure is drawn, and a link planted there is never followed), then
+    renamed over it. Every OSError is a PlotError naming the path and the errno. Hand-written (a few
+    os calls): the atomic-write packages open the file only when it is written, after the drawing."""
+
+    def __init__(self, path):
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        self.path = Path(path)
+        self.format = self.path.suffix[1:].lower() or "png"
+        formats = FigureCanvasBase.get_supported_filetypes()
+        if self.format not in formats:
+            raise PlotError(f"{self.path}: no figure format {self.format!r} (give one of {', '.join(sorted(formats))})")
+        if self.path.is_dir():
+            raise self._error(IsADirectoryError(_errno.EISDIR, os.strerror(_errno.EISDIR)))
+        # os.open rather than tempfile.mkstemp: mkstemp's mode 0600 would become the figure's
+        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+        try:
+            fd = os.open(self.tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        except OSError as e:
+            raise self._error(e) from None
+        self.file = os.fdopen(fd, "wb")
+
+    def _error(self, e: OSError) -> PlotError:
+        return PlotError(f"cannot write {self.path}: [Errno {e.errno}] {e.strerror or e}")
+
+    def save(self, fig) -> None:
+        try:
+            with self.file:
+                fig.savefig(self.file, format=self.format)
+            os.replace(self.tmp, self.path)
+        except OSError as e:
+            raise self._error(e) from None
+
+    def discard(self) -> None:
+        self.file.close()
+        self.tmp.unlink(missing_ok=True)
