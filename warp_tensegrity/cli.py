@@ -27,7 +27,7 @@ from . import plot
 from .cli_args import add_device, add_estimate_options, file_name, positive_int
 from .init_spec import add_init_parser, run_init
 from .lens.command import add_lens_parser, run_lens_command
-from .measure.nan_reasons import dataset_summary
+from .measure.nan_reasons import all_failed, dataset_summary
 from .options import OptionError
 from .overrides import parse_set
 from .plot import KINDS, PlotError
@@ -37,11 +37,15 @@ from .provenance import version_text
 from .runtime import init_warp, warp_facts
 from .scene.network import NetworkError
 from .validation import report, run_validation
+from .validation.closed_forms import long_wave_speeds
 from .validation.figures import write_figures
 
 log = logging.getLogger("warp_tensegrity")
 
-EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE = 0, 1, 3
+EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE, EXIT_ALL_FAILED = 0, 1, 3, 4
+EXIT_TEXT = ("Exit status: 0 done (a run also when some cases failed or have NaN measures: its summary lines say "
+             "why); 1 error; 3 status: cases remain; 4 run, resume: every case failed (the line says the likely "
+             "cause); 130 interrupted.")
 
 
 def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
@@ -68,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="warp-tensegrity",
         description="GPU batched parameter sweeps of impact waves in tensegrity columns (NVIDIA Warp).",
-        epilog="Spec reference and dataset layout: docs/sweeps.md",
+        epilog=f"Spec reference and dataset layout: docs/sweeps.md. {EXIT_TEXT}",
     )
     parser.add_argument("--version", action="store_true",
                         help="print the package version, commit, Warp version and default device, then exit")
@@ -290,8 +294,7 @@ def _dispatch(args) -> int:
             cost=cost,
         )
         log.info("wrote %s", path)
-        _log_nan_summary(path)
-        return 0
+        return _log_nan_summary(path)
     if args.command == "status":
         st = sweep.sweep_status(args.output)
         print(_report_status(st, args.json))
@@ -327,12 +330,19 @@ def _plot(args) -> int:
     return 0
 
 
-def _log_nan_summary(path) -> None:
-    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons)."""
+def _log_nan_summary(path) -> int:
+    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons), or
+    when every case failed one error line with the likely cause, and EXIT_ALL_FAILED."""
     from .io import open_sweep  # imports xarray: not at `--help`
 
-    for line in dataset_summary(open_sweep(path)):
+    ds = open_sweep(path)
+    failed = all_failed(ds, long_wave_speeds)
+    if failed:  # one line, in place of the per-kind ones
+        log.error("error: %s", failed)
+        return EXIT_ALL_FAILED
+    for line in dataset_summary(ds):
         log.info("%s", line)
+    return EXIT_OK
 
 
 if __name__ == "__main__":  # pragma: no cover
