@@ -65,3 +65,33 @@ def test_docs_build_fails_on_a_warning(tmp_path):
         f.write("\nSee [nowhere](no_such_page.md).\n")
     r = build(tmp_path / "mkdocs.yml", tmp_path / "site")
     assert r.returncode != 0 and "no_such_page.md" in r.stdout + r.stderr
+
+
+def _section(text: str, heading_start: str) -> str:
+    """The text of the markdown section whose heading starts with ``heading_start``."""
+    start = text.index("\n" + heading_start)
+    end = text.find("\n## ", start + 1)
+    return text[start:end if end > 0 else None]
+
+
+def test_conventions_mark_the_options_defaults():
+    """Issue 30 item 19: docs/conventions.md called `end_twist` the default impact after the default
+    became `rigid_members`. Each choice the page lists is marked "(default)" exactly where the
+    options model's default is."""
+    from warp_tensegrity.scene.columns import ColumnConfig
+
+    text = (ROOT / "docs" / "conventions.md").read_text()
+    for field, heading in (("impact_admissibility", "## Impact"), ("end_base_mass", "## End masses")):
+        marked = re.findall(r'`"(\w+)"` \(default\)', _section(text, heading))
+        assert marked == [getattr(ColumnConfig(), field)], (field, marked)
+
+
+def test_no_shard_files_left_in_the_docs():
+    """Issue 30 item 19: a run's shards have been blocks of one Zarr store since issue 27, yet the
+    docs, io's docstring (docs/architecture.md's module table) and the shard_size help said "one
+    file per shard"."""
+    texts = {p: p.read_text() for p in [*(ROOT / "docs").glob("*.md"), ROOT / "README.md",
+                                         *(ROOT / "warp_tensegrity").rglob("*.py")]}
+    stale = [str(p.relative_to(ROOT)) for p, t in texts.items()
+             if re.search(r"file per shard|shard files?\b", t, re.IGNORECASE)]
+    assert stale == [], stale

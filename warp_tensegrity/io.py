@@ -1,5 +1,5 @@
-"""Sweep results as CF-annotated xarray Datasets, written to netCDF4 (one file per shard, one
-combined file per sweep). The CLI (:mod:`warp_tensegrity.sweep`) and
+"""Sweep results as CF-annotated xarray Datasets, written to netCDF4 (a sweep's shards are blocks
+of one Zarr store, :mod:`warp_tensegrity.sweep.store`, exported to one file). The CLI (:mod:`warp_tensegrity.sweep`) and
 :meth:`warp_tensegrity.BatchResult.to_xarray` build their datasets here, with one function
 (:func:`batch_dataset`), so Python and CLI users share one format.
 
@@ -430,7 +430,8 @@ def write_netcdf(ds: xr.Dataset, path, fsync: bool = True) -> Path:
 
 
 def open_sweep(path, load: bool = True) -> xr.Dataset:
-    """Open a sweep or shard file (engine netcdf4; seconds stay floats)."""
+    """Open a netCDF file this module wrote: a sweep's export, a lens output (engine netcdf4;
+    seconds stay floats)."""
     ds = xr.open_dataset(path, engine="netcdf4", decode_timedelta=False)
     if load:
         with ds:
