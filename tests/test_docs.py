@@ -132,3 +132,19 @@ def test_readme_python_example_runs(tmp_path):
     r = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     assert re.search(r"step (\d+) of \1, 0 columns failed", r.stdout), r.stdout[-500:]
+
+
+def test_readme_outputs_in_the_checkout_are_git_ignored(tmp_path):
+    """Issue 30 item 19: the README's main job (`run sweeps/paper_2017.toml -o paper_2017.nc`, in the
+    checkout root) left paper_2017.nc untracked and not ignored. Every output the README's and the
+    specs' commands write there (the file, its store, the lock, a default figure) is ignored."""
+    if not (ROOT / ".git").exists() or shutil.which("git") is None:
+        pytest.skip("not a git checkout")
+    texts = [(ROOT / "README.md").read_text(), *(p.read_text() for p in (ROOT / "sweeps").glob("*.toml"))]
+    outs = sorted({m for t in texts for m in re.findall(r"-o ([\w.-]+\.nc)\b", t)})
+    assert "paper_2017.nc" in outs and "ci_small.nc" in outs, outs
+    paths = [q for o in outs for q in (o, f"{o}.sweep/store.zarr/zarr.json", f".{o}.lock", f"{o[:-3]}-phase.png")]
+    r = subprocess.run(["git", "check-ignore", "--no-index", "--verbose", "--non-matching", *paths],
+                       cwd=ROOT, capture_output=True, text=True)
+    not_ignored = [line.split("\t")[-1] for line in r.stdout.splitlines() if line.startswith("::")]
+    assert not_ignored == [], not_ignored
