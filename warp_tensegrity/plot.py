@@ -49,20 +49,21 @@ def _axes(ax):
 
 
 def _drawable(text: str) -> str:
-    """``text`` as a figure may show it: unchanged where it holds no mathtext (``$...$``) or its
-    mathtext parses; else with every ``$`` escaped, so it is drawn as plain text. A dataset's title,
-    labels and attributes are the user's, and matplotlib raises on bad mathtext only when the figure
-    is drawn."""
+    """``text`` as a figure may show it: each line unchanged where it holds no mathtext (``$...$``)
+    or its mathtext parses, else with every ``$`` escaped, so it is drawn as plain text. A dataset's
+    title, labels and attributes are the user's, and matplotlib raises on bad mathtext only when
+    the figure is drawn. Line by line, as matplotlib lays text out."""
     from matplotlib import cbook
     from matplotlib.mathtext import MathTextParser
 
-    if not cbook.is_math_text(text):
-        return text
-    try:
-        MathTextParser("path").parse(text)
-    except ValueError:  # pyparsing's ParseException, as matplotlib raises it
-        return re.sub(r"(?<!\\)\$", r"\\$", text)
-    return text
+    lines = str(text).split("\n")
+    for i, line in enumerate(lines):
+        if cbook.is_math_text(line):
+            try:
+                MathTextParser("path").parse(line)
+            except ValueError:  # pyparsing's ParseException, as matplotlib raises it
+                lines[i] = re.sub(r"(?<!\\)\$", r"\\$", line)
+    return "\n".join(lines)
 
 
 def _label(da, name: str) -> str:
@@ -120,7 +121,10 @@ def _check_fixed(coord, name: str, value) -> None:
         raise PlotError(f"{name} is not a dimension of this file: it lies along {', '.join(map(str, coord.dims))} "
                         f"({_how_to_select(str(coord.dims[0]))})")
     fixed = coord.values.item()
-    same = fixed == value if isinstance(fixed, str) or isinstance(value, str) else bool(np.isclose(fixed, value, rtol=1e-9, atol=0.0))
+    if isinstance(fixed, str) or isinstance(value, str):
+        same = fixed == value
+    else:
+        same = bool(np.isclose(fixed, value, rtol=1e-9, atol=0.0))
     if not same:
         shown = f"{fixed:g}" if isinstance(fixed, float) else str(fixed)
         raise PlotError(f"{name} = {value!r}: {name} is fixed at {shown} in this file (not swept); leave it out")
