@@ -71,3 +71,34 @@ def test_combine_and_resume_outputs_are_cf_clean(tmp_path):
     for path in (sweep.resume_sweep(out, device="cpu", progress=False), sweep.combine(out)):
         r, msgs = cf_messages(path, tmp_path)
         assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)
+
+
+@pytest.mark.parametrize("record_strain", [True, False])
+def test_to_xarray_written_by_xarray_is_cf_clean(record_strain, tmp_path):
+    """Issue 30 item 17: ``simulate_batch(...).to_xarray().to_netcdf()`` (xarray's own writer, not
+    the CLI's) gave the float coordinate ``t`` a ``_FillValue``, a CF error; the dataset now
+    carries the CLI's coordinate encoding."""
+    import numpy as np
+
+    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
+
+    params = {"v0": np.array([0.002, 0.004]), "prestrain": 0.002}
+    r = simulate_batch(ColumnConfig(n_prisms=6), params,
+                       RunSettings(t_end=0.05, output_interval=0.005, device="cpu", record_strain=record_strain))
+    path = tmp_path / "batch.nc"
+    r.to_xarray().to_netcdf(path)
+    r, msgs = cf_messages(path, tmp_path)
+    assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)
+
+
+@pytest.mark.slow
+def test_init_lens_example_output_is_cf_clean(tmp_path):
+    """Issue 30 item 17: the lens spec `init --example lens` writes has no description, and its
+    output carried an empty global ``comment`` (a CF warning); a comment is written only where there is one."""
+    from warp_tensegrity.cli import main
+
+    spec, out = tmp_path / "lens.toml", tmp_path / "lens.nc"
+    assert main(["init", "--example", "lens", "-o", str(spec)]) == 0
+    assert main(["lens", str(spec), "-o", str(out), "--device", "cpu"]) == 0
+    r, msgs = cf_messages(out, tmp_path)
+    assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)

@@ -236,3 +236,24 @@ def test_parameter_coordinates_take_their_units_from_the_options():
         o = opt_of(ColumnParameters, p)
         assert o.long_name, p
         assert D.COORD_ATTRS[p] == {"units": unit, "long_name": o.long_name}, p
+
+
+@pytest.mark.parametrize("measure", ["device", "host"])
+def test_to_xarray_without_the_strain_record(measure):
+    """Issue 30 item 17: with record_strain = false the record stays on the device, and to_xarray()
+    raised "conflicting sizes for dimension 'prism'" (a prism axis of length 0 against arrival_time's).
+    Now the prism axis has the column's prisms and the measures are those of the run that keeps the record."""
+    from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
+
+    cfg = ColumnConfig(n_prisms=6)
+    params = {"v0": np.array([0.002, 0.004]), "prestrain": 0.002, "base_rigidity": 1.0}
+    run = dict(t_end=0.1, output_interval=0.005, device="cpu", measure=measure)
+    bare = simulate_batch(cfg, params, RunSettings(record_strain=False, **run)).to_xarray()
+    full = simulate_batch(cfg, params, RunSettings(record_strain=True, **run)).to_xarray()
+    assert "strain" not in bare and "strain" in full
+    assert bare.sizes["prism"] == 6 and bare["arrival_time"].dims == ("case", "prism")
+    for k in ("amplitude", "speed", "arrival_time", "measurement_flag", "max_compression"):
+        np.testing.assert_array_equal(bare[k].values, full[k].values, err_msg=k)
+    nothing_per_prism = _fake_result(2)
+    nothing_per_prism.strain = None
+    assert "prism" not in nothing_per_prism.to_xarray(measure=False).dims  # no config: the count is unknown

@@ -114,3 +114,84 @@ def test_titles_name_the_column_and_the_fixed_parameters(tmp_path):
     title = fig.axes[0].get_title()
     assert title.endswith("case = 9, case_label = run 9, prestrain = 0.001, v0 = 0.01, base_rigidity = 1"), title
     plt.close(fig)
+
+
+def test_a_title_that_is_not_valid_mathtext_is_drawn_as_plain_text(tmp_path, capsys):
+    """Issue 30 item 7: a spec title with `$...$` that matplotlib cannot parse raised its
+    ParseSyntaxException when the figure was saved; now the `$` are escaped and it is drawn as it
+    reads. A title whose mathtext parses keeps it."""
+    bad, good = r"strain $\frac{1$ of p", r"rigid bases, $\beta = 1$"
+    for title, shown in ((bad, r"strain \$\frac{1\$ of p"), (good, good)):
+        ds = grid_dataset()
+        ds.attrs["title"] = title
+        nc = write_netcdf(ds, tmp_path / "m.nc")
+        for kind in ("spacetime", "profile", "phase"):
+            png = tmp_path / f"{kind}.png"
+            sel = ["--sel", "base_rigidity=1"] + (["--sel", "prestrain=0", "--sel", "v0=0.1"] if kind != "phase" else [])
+            assert cli.main(["plot", str(nc), kind, *sel, "-o", str(png)]) == 0, capsys.readouterr().err
+            assert png.stat().st_size > 1000
+            fig = W.plot_file(nc, kind, sel={k: float(v) for k, v in (s.split("=") for s in sel[1::2])})
+            assert fig.axes[0].get_title().split("\n")[0] == shown
+            plt.close("all")
+
+
+def test_plot_output_that_cannot_be_written_is_refused_before_drawing(tmp_path, capsys, monkeypatch):
+    """Issue 30 item 8: `plot -o` into an unwritable place drew the figure, then raised a
+    PermissionError traceback. Now one line names the path and the errno, before the dataset is
+    opened or anything drawn; an existing figure is replaced only by a complete one."""
+    nc = write_netcdf(grid_dataset(), tmp_path / "g.nc")
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    (tmp_path / "adir").mkdir()
+    drawn = []
+    real_draw = getattr(W, "_draw", None)
+    monkeypatch.setattr(W, "_draw", lambda *a: drawn.append(1) or real_draw(*a), raising=False)
+    sel = ["--sel", "base_rigidity=1"]
+    cases = [(plain / "p.png", "[Errno 20 ENOTDIR]"), (tmp_path / "missing" / "p.png", "[Errno 2 ENOENT]"),
+             (tmp_path / "adir", "[Errno 21 EISDIR]"), (tmp_path / "p.xyz", "no figure format 'xyz'")]
+    for out, words in cases:
+        assert cli.main(["plot", str(nc), "phase", *sel, "-o", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert f"error: cannot write {out}: {words}" in err or words in err, err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert drawn == []
+
+    import tempfile
+
+    def refuse(*a, **k):
+        raise PermissionError(13, "Permission denied", str(k.get("dir", "")))
+
+    monkeypatch.setattr(tempfile, "mkdtemp", refuse)
+    out = tmp_path / "ro.png"
+    assert cli.main(["plot", str(nc), "phase", *sel, "-o", str(out)]) == 1
+    assert f"error: cannot write {out}: Permission denied [Errno 13 EACCES]" in capsys.readouterr().err
+    assert drawn == [] and not out.exists()
+    monkeypatch.undo()
+    monkeypatch.setattr(W, "_draw", lambda *a: drawn.append(1) or real_draw(*a), raising=False)
+    # atomic: a figure that fails to draw leaves the earlier file as it was, and no temporary
+    fig = tmp_path / "fig.png"
+    assert cli.main(["plot", str(nc), "phase", *sel, "-o", str(fig)]) == 0
+    before = fig.read_bytes()
+    assert cli.main(["plot", str(nc), "phase", "-o", str(fig)]) == 1  # a grid dimension left free
+    assert fig.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "fig.png", "g.nc", "plain.txt"]
+    plt.close("all")
+
+
+def test_sel_on_a_parameter_fixed_in_the_file(tmp_path, capsys):
+    """Issue 30 item 15: `--sel` on a parameter the file holds fixed (a scalar coordinate) leaked
+    xarray's "Could not automatically create PandasIndex". Its own value selects nothing; another
+    value is refused with the value it is fixed at; a case list's parameter says how to pick a column."""
+    nc = write_netcdf(grid_dataset().sel(base_rigidity=1.0), tmp_path / "fixed.nc")
+    column = ["--sel", "prestrain=0", "--sel", "v0=0.1"]
+    assert cli.main(["plot", str(nc), "spacetime", *column, "--sel", "base_rigidity=1", "-o", str(tmp_path / "a.png")]) == 0
+    assert cli.main(["plot", str(nc), "spacetime", *column, "--sel", "base_rigidity=0.5", "-o", str(tmp_path / "b.png")]) == 1
+    err = capsys.readouterr().err
+    assert "base_rigidity = 0.5: base_rigidity is fixed at 1 in this file (not swept)" in err, err
+    assert "PandasIndex" not in err and not (tmp_path / "b.png").exists()
+    cases = grid_dataset().stack(case=("prestrain", "v0", "base_rigidity")).reset_index("case")
+    nc = write_netcdf(cases.assign_coords(case=np.arange(cases.sizes["case"])), tmp_path / "c.nc")
+    assert cli.main(["plot", str(nc), "profile", "--sel", "prestrain=0.001", "-o", str(tmp_path / "c.png")]) == 1
+    err = capsys.readouterr().err
+    assert "prestrain is not a dimension of this file: it lies along case (--sel case=VALUE" in err, err
+    plt.close("all")

@@ -28,11 +28,10 @@ import threading
 from pathlib import Path
 
 from . import plot
-from .atomic import replacing
 from .cli_args import add_device, add_estimate_options, file_name, positive_int
 from .init_spec import add_init_parser, run_init
 from .lens.command import add_lens_parser, run_lens_command
-from .measure.nan_reasons import dataset_summary
+from .measure.nan_reasons import all_failed, dataset_summary
 from .options import OptionError
 from .outputs import OutputError, oserror_text
 from .overrides import parse_set
@@ -43,12 +42,16 @@ from .provenance import version_text
 from .runtime import WarpSetupError, init_warp, warp_facts
 from .scene.network import NetworkError
 from .validation import report, run_validation
+from .validation.closed_forms import long_wave_speeds
 from .validation.figures import write_figures
 
 log = logging.getLogger("warp_tensegrity")
 
-EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE = 0, 1, 3
+EXIT_OK, EXIT_ERROR, EXIT_INCOMPLETE, EXIT_ALL_FAILED = 0, 1, 3, 4
 EXIT_INTERRUPTED, EXIT_TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM  # 130, 143: as a shell reports them
+EXIT_TEXT = ("Exit status: 0 done (a run also when some cases failed or have NaN measures: its summary lines say "
+             "why); 1 error; 3 status: cases remain; 4 run, resume: every case failed (the line says the likely "
+             "cause); 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).")
 
 
 def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
@@ -75,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="warp-tensegrity",
         description="GPU batched parameter sweeps of impact waves in tensegrity columns (NVIDIA Warp).",
-        epilog="Spec reference and dataset layout: docs/sweeps.md",
+        epilog=f"Spec reference and dataset layout: docs/sweeps.md. {EXIT_TEXT}",
     )
     parser.add_argument("--version", action="store_true",
                         help="print the package version, commit, Warp version and default device, then exit")
@@ -337,8 +340,7 @@ def _dispatch(args) -> int:
         )
         if _mtime(path) != before:  # a resume of a finished, exported run writes nothing
             log.info("wrote %s", path)
-        _log_nan_summary(path)
-        return 0
+        return _log_nan_summary(path)
     if args.command in ("status", "combine"):  # Warp's device facts, no kernels: a read-only HOME is fine
         init_warp(verbose=bool(args.verbose), kernels=False)
     if args.command == "status":
@@ -370,10 +372,8 @@ def _plot(args) -> int:
             times = [float(t) for t in args.times.split(",")]
         except ValueError:
             raise PlotError(f"--times {args.times!r}: give comma-separated seconds") from None
-    fig = plot.plot_file(args.dataset, args.kind, var=args.var, x=args.x, y=args.y, sel=sel, times=times)
     out = Path(args.output) if args.output else Path(args.dataset).with_name(f"{Path(args.dataset).stem}-{args.kind}.png")
-    with replacing(out) as tmp:  # atomically, never through a link (warp_tensegrity.atomic)
-        fig.savefig(tmp, format=out.suffix[1:] or "png")  # the format savefig would infer from `out`
+    plot.plot_file(args.dataset, args.kind, var=args.var, x=args.x, y=args.y, sel=sel, times=times, output=out)
     log.info("wrote %s", out)
     return 0
 
@@ -385,12 +385,19 @@ def _mtime(path) -> int | None:
         return None
 
 
-def _log_nan_summary(path) -> None:
-    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons)."""
+def _log_nan_summary(path) -> int:
+    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons), or
+    when every case failed one error line with the likely cause, and EXIT_ALL_FAILED."""
     from .io import open_sweep  # imports xarray: not at `--help`
 
-    for line in dataset_summary(open_sweep(path)):
+    ds = open_sweep(path)
+    failed = all_failed(ds, long_wave_speeds)
+    if failed:  # one line, in place of the per-kind ones
+        log.error("error: %s", failed)
+        return EXIT_ALL_FAILED
+    for line in dataset_summary(ds):
         log.info("%s", line)
+    return EXIT_OK
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,5 +1,5 @@
-"""Sweep results as CF-annotated xarray Datasets, written to netCDF4 (one file per shard, one
-combined file per sweep). The CLI (:mod:`warp_tensegrity.sweep`) and
+"""Sweep results as CF-annotated xarray Datasets, written to netCDF4 (a sweep's shards are blocks
+of one Zarr store, :mod:`warp_tensegrity.sweep.store`, exported to one file). The CLI (:mod:`warp_tensegrity.sweep`) and
 :meth:`warp_tensegrity.BatchResult.to_xarray` build their datasets here, with one function
 (:func:`batch_dataset`), so Python and CLI users share one format.
 
@@ -227,15 +227,15 @@ def _coords(layout: Layout, params: dict, start: int, stop: int, time: np.ndarra
     return coords
 
 
-def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int,
+def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int | None,
                   steps: np.ndarray | None = None) -> dict:
     """Coordinates from per-column parameter arrays (a BatchResult's ``params``): a parameter
-    that varies lies along ``case``, a constant one is a scalar coordinate (as in a sweep)."""
-    coords = {
-        "case": _var("case", "case", np.arange(n_columns, dtype=np.int64), COORD_ATTRS["case"]),
-        "prism": _var("prism", "prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"]),
-        TIME: _var(TIME, TIME, np.asarray(time, dtype=np.float64), COORD_ATTRS[TIME]),
-    }
+    that varies lies along ``case``, a constant one is a scalar coordinate (as in a sweep).
+    ``n_prisms`` None: no ``prism`` coordinate (nothing per prism in the dataset)."""
+    coords = {"case": _var("case", "case", np.arange(n_columns, dtype=np.int64), COORD_ATTRS["case"])}
+    if n_prisms is not None:
+        coords["prism"] = _var("prism", "prism", np.arange(n_prisms, dtype=np.int32), COORD_ATTRS["prism"])
+    coords[TIME] = _var(TIME, TIME, np.asarray(time, dtype=np.float64), COORD_ATTRS[TIME])
     if steps is not None:
         coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     for p in COLUMN_PARAMETERS:
@@ -325,8 +325,12 @@ def result_dataset(result, config=None, measurements: dict | None = None, attrs:
     ``config`` (the ColumnConfig) gives the scene attributes; ``measurements``: the per-column
     measures (:func:`warp_tensegrity.measure.nan_reasons.measure_columns`) or None. ``attrs``: the
     caller's provenance (:func:`warp_tensegrity.provenance.provenance_attrs`) and anything else."""
-    n_prisms = int(result.strain.shape[-1]) if result.strain is not None else (
-        int(config.n_prisms) if config is not None else 0)
+    if result.strain is not None:
+        n_prisms = int(result.strain.shape[-1])
+    elif measurements is not None:  # the record stayed on the device (record_strain = false)
+        n_prisms = int(np.shape(measurements["arrival_time"])[-1])
+    else:
+        n_prisms = int(config.n_prisms) if config is not None else None
     attrs = dict(attrs or {})
     a = {"Conventions": CONVENTIONS, "title": "warp_tensegrity batch",
          "source": f"warp_tensegrity {attrs.get('package_version', 'unknown')} on NVIDIA Warp",
@@ -337,7 +341,10 @@ def result_dataset(result, config=None, measurements: dict | None = None, attrs:
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
     a.update(attrs)
     coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
-    return batch_dataset(result, measurements, coords, a, record_energy=result.kinetic_energy is not None)
+    ds = batch_dataset(result, measurements, coords, a, record_energy=result.kinetic_energy is not None)
+    for k, enc in _coordinate_encoding(ds).items():  # ds.to_netcdf() stays CF-clean, as the CLI's files
+        ds[k].encoding.update(enc)
+    return ds
 
 
 def shard_dataset(
@@ -417,14 +424,17 @@ def to_grid(layout: Layout, ds: xr.Dataset, split=None) -> xr.Dataset:
 
 
 # ---------------------------------------------------------------------- files
+def _coordinate_encoding(ds: xr.Dataset) -> dict:
+    """CF: coordinates have no missing values, so no ``_FillValue`` (xarray gives floats NaN)."""
+    return {k: {"_FillValue": None} for k in ds.coords if ds[k].dtype.kind == "f"}
+
+
 def _encoding(ds: xr.Dataset) -> dict:
     enc = {}
     for k, v in ds.data_vars.items():
         if v.ndim >= 2 and v.size > 1024:
             enc[k] = dict(_COMPRESS)
-    for k in ds.coords:  # CF: coordinates have no missing values
-        if ds[k].dtype.kind == "f":
-            enc[k] = {"_FillValue": None}
+    enc.update(_coordinate_encoding(ds))
     return enc
 
 
@@ -475,7 +485,8 @@ def writing_netcdf(path, need: int, fsync: bool = True):
 
 
 def open_sweep(path, load: bool = True) -> xr.Dataset:
-    """Open a sweep or shard file (engine netcdf4; seconds stay floats)."""
+    """Open a netCDF file this module wrote: a sweep's export, a lens output (engine netcdf4;
+    seconds stay floats)."""
     ds = xr.open_dataset(path, engine="netcdf4", decode_timedelta=False)
     if load:
         with ds:

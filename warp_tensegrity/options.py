@@ -403,7 +403,7 @@ class RunSettings:
                                       rule_text='"cpu", "cuda", "cuda:N"', default_text='"auto"')] = None
     """Warp device ('cpu', 'cuda:0'); None ('auto'): the GPU if there is one, else the CPU."""
     shard_size: Annotated[int, Opt("int", "1", ge=1)] = 256
-    """Columns per shard of a sweep (one engine batch, one file); not part of the fingerprint."""
+    """Columns per shard of a sweep (one engine batch, one chunk of the run's Zarr store); not part of the fingerprint."""
     dt_safety: Annotated[float | None, Opt("real", "1", ge=1e-6, le=0.5, optional=True, default_text="from the default accuracy",
                                            why="strong impacts lower the stability limit to ~0.45 of the prediction")] = None
     """Fraction of the predicted stability limit used when dt = 'auto'; None (not given, and no

@@ -12,8 +12,15 @@ Units: strain [1] ((h - h0)/h, negative in compression), time ``t`` [s], speed [
 
 from __future__ import annotations
 
+import errno as _errno
+import os
+import re
+from contextlib import nullcontext
+from pathlib import Path
+
 import numpy as np
 
+from .atomic import oserror_line, replacing
 from .scene.columns import ColumnConfig
 from .types import TIME  # xarray and matplotlib load on first use: `warp-tensegrity --help` stays instant
 from .validation.dispersion import Bands, bands, ringing_frequency
@@ -42,15 +49,33 @@ def _axes(ax):
     return ax
 
 
+def _drawable(text: str) -> str:
+    """``text`` as a figure may show it: each line unchanged where it holds no mathtext (``$...$``)
+    or its mathtext parses, else with every ``$`` escaped, so it is drawn as plain text. A dataset's
+    title, labels and attributes are the user's, and matplotlib raises on bad mathtext only when
+    the figure is drawn. Line by line, as matplotlib lays text out."""
+    from matplotlib import cbook
+    from matplotlib.mathtext import MathTextParser
+
+    lines = str(text).split("\n")
+    for i, line in enumerate(lines):
+        if cbook.is_math_text(line):
+            try:
+                MathTextParser("path").parse(line)
+            except ValueError:  # pyparsing's ParseException, as matplotlib raises it
+                lines[i] = re.sub(r"(?<!\\)\$", r"\\$", line)
+    return "\n".join(lines)
+
+
 def _label(da, name: str) -> str:
     lab = da.attrs.get("long_name", name)
     units = da.attrs.get("units")
-    return f"{lab} [{units}]" if units and units != "1" else lab
+    return _drawable(f"{lab} [{units}]" if units and units != "1" else str(lab))
 
 
 def _short_label(da, name: str) -> str:
     units = da.attrs.get("units")
-    return f"{name} [{units}]" if units and units != "1" else name
+    return _drawable(f"{name} [{units}]" if units and units != "1" else name)
 
 
 def robust_limit(values, q: float = 99.5) -> float:
@@ -75,15 +100,35 @@ def cell_edges(centres, log: bool = False) -> np.ndarray:
 
 
 def _select(obj, sel: dict | None):
-    """Nearest-value selection that names the dimension and the values on a miss."""
+    """Nearest-value selection that names the dimension and the values on a miss. A parameter
+    fixed in the file (a scalar coordinate) may be given at its value, which selects nothing."""
     for name, value in (sel or {}).items():
         if name not in obj.dims and name not in obj.coords:
             raise PlotError(f"no dimension {name!r} to select (dims: {', '.join(map(str, obj.dims))})")
+        if name not in obj.dims:  # a coordinate without an index: xarray's error names its internals
+            _check_fixed(obj[name], name, value)
+            continue
         try:
             obj = obj.sel({name: value}, method=None if isinstance(value, str) or name == "case" else "nearest")
         except (KeyError, ValueError, TypeError) as e:
             raise PlotError(f"{name} = {value!r} not found ({e})") from None
     return obj
+
+
+def _check_fixed(coord, name: str, value) -> None:
+    """PlotError unless ``value`` is the value of ``name``, a parameter fixed in the file; or, for a
+    coordinate along another dimension (a case list's parameters along ``case``), how to pick."""
+    if coord.ndim:
+        raise PlotError(f"{name} is not a dimension of this file: it lies along {', '.join(map(str, coord.dims))} "
+                        f"({_how_to_select(str(coord.dims[0]))})")
+    fixed = coord.values.item()
+    if isinstance(fixed, str) or isinstance(value, str):
+        same = fixed == value
+    else:
+        same = bool(np.isclose(fixed, value, rtol=1e-9, atol=0.0))
+    if not same:
+        shown = f"{fixed:g}" if isinstance(fixed, float) else str(fixed)
+        raise PlotError(f"{name} = {value!r}: {name} is fixed at {shown} in this file (not swept); leave it out")
 
 
 def _how_to_select(dim: str) -> str:
@@ -324,16 +369,46 @@ def dispersion(data, ax=None, sel: dict | None = None, speed: float | None = Non
 
 
 # ---------------------------------------------------------------------- the CLI's entry
-def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None):
-    """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure."""
+def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | None = None, times=None,
+              output=None):
+    """Open ``path`` and draw one figure of ``kind`` (:data:`KINDS`); returns the Figure.
+    ``output``: also save it there, atomically (format from the suffix, png without one); a place
+    that cannot be written is refused before anything is opened or drawn."""
     from .io import open_sweep  # imports xarray: not at `--help`
 
     if kind not in KINDS:
         raise PlotError(f"plot kind {kind!r}: give one of {', '.join(sorted(KINDS))}")
+    fmt = _figure_format(output) if output is not None else None
     try:
-        ds = open_sweep(path)
-    except (OSError, ValueError) as e:
-        raise PlotError(f"{path} does not open as netCDF ({e})") from None
+        with replacing(output) if output is not None else nullcontext() as tmp:  # made before drawing: an
+            try:                                                                 # unwritable place is refused first
+                ds = open_sweep(path)
+            except (OSError, ValueError) as e:
+                raise PlotError(f"{path} does not open as netCDF ({e})") from None
+            fig = _draw(ds, kind, var, x, y, sel, times)
+            if tmp is not None:
+                fig.savefig(tmp, format=fmt)
+    except OSError as e:
+        raise PlotError(oserror_line(e, output)) from None
+    return fig
+
+
+def _figure_format(output) -> str:
+    """The format of a figure file from its suffix (png without one); PlotError naming the path
+    where matplotlib has no such format or the path is a directory."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    out = Path(output)
+    fmt = out.suffix[1:].lower() or "png"
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if fmt not in formats:
+        raise PlotError(f"{out}: no figure format {fmt!r} (give one of {', '.join(sorted(formats))})")
+    if out.is_dir():
+        raise PlotError(oserror_line(IsADirectoryError(_errno.EISDIR, os.strerror(_errno.EISDIR)), out))
+    return fmt
+
+
+def _draw(ds, kind: str, var: str, x, y, sel: dict | None, times):
     sel = dict(sel or {})
     if kind == "phase":
         ax = phase_diagram(ds, var=var, x=x, y=y, sel=sel)
@@ -351,5 +426,7 @@ def plot_file(path, kind: str, var: str = "speed", x=None, y=None, sel: dict | N
         shown = selection_text(ds, sel, exclude=axes | {"case"} if kind == "phase" else axes)
         title = "\n".join(t for t in (title, shown) if t)
     if title:
-        ax.set_title(title, fontsize=9)
+        ax.set_title(_drawable(title), fontsize=9)
     return ax.figure
+
+

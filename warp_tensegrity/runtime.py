@@ -149,6 +149,10 @@ def resolve_device(name: str | None):
     """The Warp device ``name`` (None: :func:`default_device`); SettingsError if there is none."""
     wp = init_warp()
     name = name or default_device()
+    if str(name).startswith("cuda") and not wp.is_cuda_available():
+        # Warp's "cuda" alias asks the driver for its current context, which prints two raw
+        # "Warp CUDA error" lines to fd 2 when there is no driver: refuse before asking
+        raise SettingsError(f"device = {name!r} is not available (no CUDA device on this machine); use 'cpu'")
     try:
         return wp.get_device(name)
     except Exception as exc:  # warp raises RuntimeError/ValueError for unknown aliases

@@ -155,7 +155,7 @@ class RKStage(IntEnum):
 
 
 class ShardState(StrEnum):
-    """State of one shard file of a sweep."""
+    """State of one shard of a sweep (its block of columns in the run's store)."""
 
     DONE = "done"
     MISSING = "missing"

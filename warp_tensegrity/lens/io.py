@@ -109,7 +109,6 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
         "institution": "warp_tensegrity",
         "source": "warp_tensegrity.lens: batched column simulation (NVIDIA Warp) + one-way Huygens host superposition",
         "references": D.REFERENCES,
-        "comment": s0.description,
         "history": f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} warp-tensegrity lens",
         "focus_error_m": float(f0["focus_error"]),
         "focal_gain": float(f0["focal_gain"]),
@@ -135,6 +134,8 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
         "wall_time": float(wall),
         **provenance_attrs(),  # package version, commit, dirty flag, Warp version, command line
     }
+    if s0.description:  # CF: a comment, where there is one, is a non-empty string
+        attrs["comment"] = s0.description
     return xr.Dataset(v, coords=coords, attrs=attrs)
 
 

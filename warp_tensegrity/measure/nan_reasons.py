@@ -59,6 +59,12 @@ reference state is ~1e-14)."""
 # prisms beyond the window's far end the front must pass for the last peak to be over
 _PEAK_CLEARANCE = 4
 
+FAILED = ("non_finite", "constraint_failure")
+"""Flags of a column that did not run to t_end (its state, or a bar constraint, failed)."""
+FAR_ABOVE_SOUND = 10.0
+"""v0 / c0 from which a run whose every case failed names the impact speed as the likely cause:
+the paper's own cases run at up to 5.7 c0 (v0 = 0.15 m s-1, c0 = 0.026 m s-1 at p = 0.002)."""
+
 
 def measure_columns(result, prism_height: float) -> dict:
     """Leading-pulse measurements per column: the engine's device measures, else
@@ -219,3 +225,43 @@ def dataset_summary(ds) -> list[str]:
     at = at.reshape(-1, at.shape[-1])
     t_end = float(ds.attrs.get("t_end", float(ds[TIME].values[-1])))
     return summary(flags, ds.sizes["prism"], t_end, t_end_needed(at, ds[TIME].values))
+
+
+def _span(values, fmt: str, unit: str = "") -> str:
+    """'3 m/s' or '3 to 5 m/s' (a unit 'x' after each end: '114x to 190x')."""
+    lo, hi = (format(float(f(values)), fmt) for f in (np.min, np.max))
+    if lo == hi:
+        return lo + unit
+    return f"{lo}x to {hi}x" if unit == "x" else f"{lo} to {hi}{unit}"
+
+
+def all_failed(ds, long_wave_speeds=None) -> str | None:
+    """None unless every case of a sweep dataset failed (``measurement_flag`` non_finite or
+    constraint_failure: no column ran to t_end); then one line that says so and names the likely
+    cause. ``long_wave_speeds(ds)``: the long-wave speed c0 [m s-1] of every column, a DataArray
+    over the per-column dimensions (:func:`warp_tensegrity.validation.closed_forms.long_wave_speeds`);
+    where v0 is :data:`FAR_ABOVE_SOUND` times c0 or more in every prestressed case, the impact
+    speed is named (a v0 given in mm/s); else a dt above its stability limit (attributes ``dt``,
+    ``dt_limit`` [s]); else a smaller dt is advised."""
+    if "measurement_flag" not in ds or ds["measurement_flag"].size == 0:
+        return None
+    flag = ds["measurement_flag"]
+    failed = np.isin(flag.values, [FLAG[f] for f in FAILED])
+    if not failed.all():
+        return None
+    line = (f"every case failed ({failed.size} of {failed.size}: the state became non-finite or a bar "
+            "constraint failed; no column ran to t_end)")
+    c0 = long_wave_speeds(ds) if long_wave_speeds is not None else None
+    if c0 is not None and "v0" in ds.coords:
+        v0, c0 = (np.asarray(a.broadcast_like(flag).transpose(*flag.dims).values, dtype=float).reshape(-1)
+                  for a in (ds["v0"], c0))
+        stressed = np.isfinite(c0) & (c0 > 0)  # an unstressed column has no long-wave speed
+        if stressed.any() and np.all(v0[stressed] / c0[stressed] >= FAR_ABOVE_SOUND):
+            ratio = v0[stressed] / c0[stressed]
+            return (f"{line}; likely cause: the impact speed v0 = {_span(v0[stressed], 'g', ' m/s')} is "
+                    f"{_span(ratio, '.0f', 'x')} the long-wave sound speed c0 = {_span(c0[stressed], '.2g', ' m/s')} "
+                    "of the columns (v0 is in m s-1: was it given in mm/s?)")
+    dt, limit = (float(ds.attrs.get(k, np.nan)) for k in ("dt", "dt_limit"))
+    if dt > limit:  # run.allow_unstable_dt
+        return f"{line}; likely cause: dt = {dt:.3g} s is {dt / limit:.1f}x its stability limit {limit:.3g} s"
+    return f"{line}: try a smaller dt (run.dt_safety or run.dt)"
