@@ -6,7 +6,11 @@ half-mass end base and the default ``rigid_members`` impact) and returns a :clas
 its numbers against their tolerances, and the arrays its figure draws. Closed forms come from
 :mod:`warp_tensegrity.validation.closed_forms` (the RB chain, the Bessel response, the cubic chain's
 solitary wave) and :mod:`warp_tensegrity.validation.dispersion` (Bloch bands); the FB modal sum from
-:mod:`warp_tensegrity.validation.linear`. Nothing is compared with stored engine output.
+:mod:`warp_tensegrity.validation.linear`. The references take the scene's constants (geometry,
+EA, masses) from the :class:`ColumnConfig` and build their networks with
+:mod:`warp_tensegrity.validation.reference_column`, never with the engine's scene builder, so an
+error there is not shared. Nothing is compared with stored engine output. A check with
+``engine=False`` checks a reference alone (the Bloch cell against the chain's closed form).
 """
 
 from __future__ import annotations
@@ -176,12 +180,15 @@ def check_soliton(n_prisms: int = 30, amplitudes=(0.01, 0.02), dt: float = 4e-3,
 # ---------------------------------------------------------------------- 3. dispersion
 def check_dispersion(n_prisms: int = 20, prestrain: float = 0.002, peak_of_p: float = 0.01, t_end: float = 6.0,
                      dt: float = 1e-3, n_k: int = 61, tolerance_c0: float = 1e-3, tolerance_speed: float = 5e-3,
-                     modes_prisms: int = 8, modes_t_end: float = 8.0, tolerance_modes: float = 2e-4,
+                     modes_prisms: int = 8, modes_t_end: float = 8.0, modes_output: float = 0.02,
+                     tolerance_modes: float = 2e-4,
                      device: str = "cpu") -> CheckGroup:
-    """Bloch bands FB and RB of the independent cell (:mod:`.dispersion`): the simulated columns' mode
-    frequencies against them, RB and FB (engine); the RB branch and its long-wave limit against the
-    chain's closed form (reference only); the simulated RB impact's speed (the datasets' ``speed``
-    measure) against the same measure on the Bessel form (engine)."""
+    """Bloch bands FB and RB of the independent cell (:mod:`.dispersion`): the mode frequencies of a
+    simulated ``modes_prisms``-prism column, RB and FB, against them at the column's k_j (engine); the RB
+    branch and its long-wave limit against the chain's closed form (reference only); the simulated RB
+    impact's speed (the datasets' ``speed`` measure) against the same measure on the Bessel form
+    (engine; a time of flight along the column, it moves by only 5e-5 under a 5 % error in the struck
+    base's mass: the record and mode checks see that one)."""
     cfg = ColumnConfig(n_prisms=n_prisms)
     ch = chain_of(cfg, prestrain)
     h0 = cfg.height
@@ -202,7 +209,7 @@ def check_dispersion(n_prisms: int = 20, prestrain: float = 0.002, peak_of_p: fl
     v50 = float(measure_pulse(-bessel_compression(t50, 50, v0, ch), t50, h0)["speed"])
     # the modes: a short column rung long enough to hold each of its modes, against the bands at its k_j
     mcfg = ColumnConfig(n_prisms=modes_prisms)
-    rm = _run(mcfg, params, modes_t_end, 0.01, device, dt=dt)
+    rm = _run(mcfg, params, modes_t_end, modes_output, device, dt=dt)  # 400 samples: the pencil's SVD stays small
     k_j = chain_wavenumbers(modes_prisms, h0)
     modes = {}
     for i, (name, beta) in enumerate((("rb", 1.0), ("fb", 0.0))):
