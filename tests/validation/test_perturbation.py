@@ -215,7 +215,7 @@ def perturbation_table() -> dict:
 
 def markdown(table) -> str:
     checks = list(table[None])
-    head = "| check | engine | " + " | ".join(f"`{n}` × {FACTOR:g}" for n in PERTURBATIONS) + " |"
+    head = "| check | true engine | " + " | ".join(f"`{n}` × {FACTOR:g}" for n in PERTURBATIONS) + " |"
     lines = [head, "|---|" + "---:|" * (len(PERTURBATIONS) + 1)]
     for c in checks:
         cells = []
