@@ -48,6 +48,7 @@ LAYERS = [
     {"sweep.manifest", "sweep.budget", "sweep.progress", "sweep.parse", "sweep.spec", "sweep.store", "sweep.status",
      "sweep.plan", "sweep.shard", "sweep.dask", "sweep.run", "sweep", "lens.host", "lens.design", "lens.spec",
      "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
+     "validation.reference_column",
      "validation.linear", "validation.dispersion", "validation.checks", "validation.figures", "validation", "plot",
      "init_spec", "cli_args", ""},
     {"cli", "__main__"},

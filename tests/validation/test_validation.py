@@ -165,6 +165,13 @@ def test_dispersion(dispersion_group):
     assert g.passed, report([g])
     names = {c.name: c for c in g.checks}
     assert names["dispersion_long_wave"].tolerance == 1e-3 and names["dispersion_speed_measure"].tolerance == 5e-3
+    assert names["dispersion_rb_modes"].tolerance == names["dispersion_fb_modes"].tolerance == 2e-4
+    # the Bloch checks of the reference alone say so; every other check runs the engine
+    assert {c.name for c in g.checks if not c.engine} == {"dispersion_long_wave", "dispersion_rb_branch"}
+    assert "reference only" in report([g])
+    for key in ("rb", "fb"):
+        w_sim, w_ref = g.data["modes"][key]
+        np.testing.assert_allclose(w_sim, w_ref, rtol=5e-5)  # measured: RB 4e-6, FB 3e-5 (its end levels)
     ch = _chain(0.002)
     assert 0.95 < g.data["speed_bessel"] / ch.c0 < 0.99  # the time-of-flight measure lags c0
     assert g.data["cutoff"][0] == pytest.approx(ch.omega_c, rel=5e-3)
@@ -182,6 +189,56 @@ def test_bands_against_the_column_modes():
     np.testing.assert_allclose(left.omega, rb.omega, rtol=1e-9, atol=1e-7 * rb.omega.max())  # k = 0: round-off
     with pytest.raises(ValueError, match="one handedness"):
         bands(ColumnConfig(handedness="alternating"), 0.002, 1.0, n_k=3)
+
+
+def test_reference_column_is_the_scene_builders_column():
+    """The references' column (closed-form self-stress, own impact solve) and the engine's scene builder
+    (SVD self-stress, scene.impact) are two independent builds of one column: they agree to round-off."""
+    from warp_tensegrity.validation.reference_column import base_member_force, reference_column
+
+    for hand in ("right", "left"):
+        for beta in (0.0, 0.5, 1.0):
+            for impact in ("rigid_members", "end_twist")[: 1 if beta == 1.0 else 2]:
+                cfg = ColumnConfig(n_prisms=5, handedness=hand, impact_admissibility=impact)
+                s = build_column(cfg, prestrain=0.002, v0=1e-3, base_rigidity=beta)
+                r = reference_column(5, cfg.radius, cfg.height, cfg.cable_EA, cfg.unit_mass, 0.002, beta, v0=1e-3,
+                                     handedness=hand, impact=impact)
+                a, b = s.network, r.network
+                assert np.abs(a.positions - b.positions).max() < 1e-15
+                assert np.array_equal(a.bars, b.bars) and np.array_equal(a.cables, b.cables)
+                np.testing.assert_allclose(b.cable_EA, a.cable_EA, rtol=1e-15)
+                np.testing.assert_allclose(b.cable_EA_compression, a.cable_EA_compression, rtol=1e-15)
+                np.testing.assert_allclose(b.cable_rest_length, a.cable_rest_length, rtol=1e-14)
+                np.testing.assert_allclose(b.node_mass, a.node_mass, rtol=1e-15)
+                assert np.abs(r.velocity - s.velocity).max() < 1e-10 * 1e-3
+    # the closed-form self-stress: a base member carries T a / s0 per prism
+    topo = build_column(ColumnConfig(n_prisms=3)).topology
+    np.testing.assert_allclose(topo.unit_base_force, np.repeat([1, 2, 2, 1], 3) * base_member_force(CFG.radius, CFG.height, 1.0),
+                               rtol=1e-12)
+    with pytest.raises(ValueError, match="end_twist"):
+        reference_column(2, CFG.radius, CFG.height, 0.3, 0.02, 0.002, 1.0, v0=1.0, impact="end_twist")
+
+
+def test_mode_frequencies_of_the_chain():
+    """The matrix pencil reads the RB chain's modes off its Bessel record exactly (they are the band at
+    k_j); the FB column's soft modes (validation.linear on the reference column) sit within 5e-5 of its
+    soft band at the same k_j (its end levels are not the periodic column's)."""
+    from warp_tensegrity.validation.dispersion import chain_wavenumbers, mode_frequencies
+    from warp_tensegrity.validation.linear import modal_analysis
+    from warp_tensegrity.validation.reference_column import reference_column
+
+    ch, n = _chain(0.002), 8
+    t = np.arange(0.0, 8.0, 0.02)
+    k = chain_wavenumbers(n, CFG.height)
+    w = mode_frequencies(-bessel_compression(t, n, 1e-6, ch), t, n)
+    np.testing.assert_allclose(w, ch.omega_c * np.sin(k * CFG.height / 2), rtol=1e-10)
+    np.testing.assert_allclose(bands(CFG, 0.002, 1.0, k=k).omega_symmetric[:, 0], w, rtol=1e-6)
+    col = reference_column(n, CFG.radius, CFG.height, CFG.cable_EA, CFG.unit_mass, 0.002, 0.0, v0=1.0)
+    r = modal_analysis(col.network)
+    excited = np.abs(np.einsum("mni,ni,n->m", r.shapes, col.velocity, col.network.node_mass)) > 1e-6
+    soft = r.omega[excited][:n]
+    fb = bands(CFG, 0.002, 0.0, k=k).omega_symmetric[:, 0]
+    assert np.abs(soft / fb - 1).max() < 5e-5
 
 
 def test_ringing_frequency_of_a_bessel_record():
@@ -226,8 +283,8 @@ def test_figures_and_plot_kind(dispersion_group, tmp_path):
 def test_validate_command(tmp_path, capsys):
     assert cli.main(["validate", "--only", "fb_modal", "-o", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "fb_modal_record" in out and "pass" in out
-    assert (tmp_path / "validation_fb_modal.png").exists()
+    assert "fb_modal_record" in out and "fb_modal_end_twist" in out and "pass" in out and "FAIL" not in out
+    assert (tmp_path / "validation_fb_modal.png").exists() and (tmp_path / "validation_fb_modal_2.png").exists()
     assert cli.main(["validate", "--only", "nope"]) == 1
     assert set(CHECKS) == {"bessel", "soliton", "dispersion", "fb_modal"}
     with pytest.raises(ValueError):

@@ -16,6 +16,10 @@ every level does at k = 0), k is moved by 1e-9 pi/h0, so every k has the same br
 axial-torsional waves sit at k -> 0 in these frames (a rigid translation across the axis shows up
 at k h0 = twist instead).
 
+The cell is built from :mod:`.reference_column` (the paper's geometry and closed-form member laws),
+independently of the engine's scene builder: the bands are a reference the simulated column can be
+held against (:func:`mode_frequencies`, ``check_dispersion``).
+
 The axial impact excites only the 3-fold symmetric motion (each node's displacement the turn of
 its neighbour's), so the **symmetric sector** (3 coordinates per level) is returned on its own:
 with rigid bases it has one branch, omega = omega_c |sin(k h0/2)| exactly (the 1-D chain of
@@ -24,15 +28,16 @@ with rigid bases it has one branch, omega = omega_c |sin(k h0/2)| exactly (the 1
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene.columns import ColumnConfig, build_column
-from .linear import tangent_stiffness
+from ..scene.columns import ColumnConfig
 from .constrained import ConstrainedNetwork
+from .linear import tangent_stiffness
+from .reference_column import TWIST, reference_column
 
-__all__ = ["BlochCell", "bloch_cell", "Bands", "bands", "ringing_frequency"]
+__all__ = ["BlochCell", "bloch_cell", "Bands", "bands", "ringing_frequency", "mode_frequencies", "chain_wavenumbers"]
 
 _CELL_LEVEL = 2  # an interior level of a 4-prism column: every member it touches is interior
 
@@ -69,28 +74,35 @@ class BlochCell:
 
 def bloch_cell(config: ColumnConfig, prestrain: float, base_rigidity: float, cable_EA: float | None = None,
                unit_mass: float | None = None) -> BlochCell:
-    """The Bloch cell of the column ``config`` describes (its n_prisms is ignored; one handedness)."""
-    if config.handedness not in ("right", "left") and len(set(config.handedness.upper())) > 1:
-        raise ValueError(f"handedness = {config.handedness!r}: a one-level cell needs one handedness")
-    hand = 1.0 if config.handedness.upper().startswith("R") else -1.0  # 'right' or 'RR...R'; else left
-    cfg = replace(config, n_prisms=2 * _CELL_LEVEL, handedness="right" if hand > 0 else "left", bar_mass=0.0)
-    scene = build_column(cfg, prestrain=prestrain, base_rigidity=base_rigidity, cable_EA=cable_EA, unit_mass=unit_mass)
-    net, topo = scene.network, scene.topology
+    """The Bloch cell of the column ``config`` describes (its n_prisms is ignored; one handedness), built
+    from :func:`.reference_column.reference_column` (the paper's geometry and closed-form member laws),
+    not from the engine's scene builder."""
+    hand_text = config.handedness
+    if hand_text not in ("right", "left") and len(set(hand_text.upper())) > 1:
+        raise ValueError(f"handedness = {hand_text!r}: a one-level cell needs one handedness")
+    if abs(config.twist - TWIST) > 1e-12:
+        raise ValueError(f"twist = {config.twist!r}: the Bloch cell is that of the regular minimal prism (5*pi/6)")
+    hand = 1.0 if hand_text.upper().startswith("R") else -1.0  # 'right' or 'RR...R'; else left
+    col = reference_column(2 * _CELL_LEVEL, config.radius, config.height,
+                           config.cable_EA if cable_EA is None else float(cable_EA),
+                           config.unit_mass if unit_mass is None else float(unit_mass), prestrain, base_rigidity,
+                           handedness="right" if hand > 0 else "left")
+    net = col.network
     rs = ConstrainedNetwork(net)
     K = tangent_stiffness(net, _rs=rs)
     G = rs.jacobian(net.positions)
-    dof = {lvl: np.concatenate([3 * rs._slot[i] + np.arange(3) for i in topo.level_nodes[lvl]])
+    dof = {lvl: np.concatenate([3 * rs._slot[i] + np.arange(3) for i in col.level_nodes[lvl]])
            for lvl in (_CELL_LEVEL, _CELL_LEVEL + 1)}
-    R = np.kron(np.eye(3), _rot_z(-hand * config.twist))  # this level's frame -> the next one's
+    R = np.kron(np.eye(3), _rot_z(-hand * TWIST))  # this level's frame -> the next one's
     here, up = dof[_CELL_LEVEL], dof[_CELL_LEVEL + 1]
     # the cell's rigid members: the bars of the prism above the level, and its own base links
-    cell_nodes = set(topo.level_nodes[_CELL_LEVEL].tolist())
+    cell_nodes = set(col.level_nodes[_CELL_LEVEL].tolist())
     rows = [b for b, (i, j) in enumerate(net.bars)
-            if (i in cell_nodes and (j in cell_nodes or j in topo.level_nodes[_CELL_LEVEL + 1]))]
+            if (i in cell_nodes and (j in cell_nodes or j in col.level_nodes[_CELL_LEVEL + 1]))]
     angles = -2.0 * np.pi * np.arange(3) / 3.0  # node j sits at angle[0] - 2 pi j / 3
     sym = np.concatenate([_rot_z(a) for a in angles]) / np.sqrt(3.0)
     return BlochCell(K0=K[np.ix_(here, here)], K1=K[np.ix_(here, up)] @ R, M=rs.M[np.ix_(here, here)],
-                     G0=G[np.ix_(rows, here)], G1=G[np.ix_(rows, up)] @ R, sym=sym, height=cfg.height)
+                     G0=G[np.ix_(rows, here)], G1=G[np.ix_(rows, up)] @ R, sym=sym, height=col.height)
 
 
 def _rank(G: np.ndarray, rtol: float = 1e-9) -> int:
@@ -158,3 +170,26 @@ def ringing_frequency(strain, time, prism: int = -1, skip: int = 1) -> float:
     if tc.size < 3:
         return float("nan")
     return float(np.pi * (tc.size - 1) / (tc[-1] - tc[0]))
+
+
+def chain_wavenumbers(n_prisms: int, height: float) -> np.ndarray:
+    """(n_prisms,) Bloch wavenumbers [rad m-1] of the modes of a clamped column struck at a half-mass end:
+    k_j h0 = (2j - 1) pi / (2 N), j = 1..N. The half-mass end is the mirror plane of a column twice as long
+    and clamped at both ends, so the RB chain's modes are exactly its branch at these k (omega_c
+    sin(k_j h0/2)); a flexible-base column's soft modes are within ~3e-5 of its soft branch there."""
+    return (2.0 * np.arange(1, n_prisms + 1) - 1.0) * np.pi / (2.0 * n_prisms * height)
+
+
+def mode_frequencies(strain, time, n_modes: int) -> np.ndarray:
+    """The ``n_modes`` angular frequencies [rad s-1] of the undamped modes in a record, ascending: a
+    matrix pencil (Hua & Sarkar 1990) over every prism's record at once. ``strain`` (n_time, n_prisms)
+    sampled at the uniform ``time`` (n_time,) [s]; the modes with the largest singular values (the
+    2 n_modes dominant exponentials, each mode a pair e^(+-i omega t)) are kept. Hand-written: SciPy has
+    no matrix pencil, and ~10 lines of NumPy do it."""
+    y = np.asarray(strain, dtype=float)
+    dt = float(np.mean(np.diff(time)))
+    L = y.shape[0] // 2  # the pencil's window: half the record
+    X = np.vstack([np.lib.stride_tricks.sliding_window_view(y[:, c], L + 1) for c in range(y.shape[1])])
+    V = np.linalg.svd(X, full_matrices=False)[2][: 2 * n_modes].T  # the signal subspace
+    z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+    return np.sort(np.abs(np.angle(z)))[::2][:n_modes] / dt

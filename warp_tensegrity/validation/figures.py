@@ -1,7 +1,8 @@
 """One figure per validation check (:mod:`.checks`), drawn with matplotlib.
 
 Each ``figure_*`` takes the :class:`~warp_tensegrity.validation.checks.CheckGroup` its check
-returned and returns a Figure; :data:`FIGURES` maps a group's name to its function.
+returned and returns a Figure (``figure_fb_modal``: a list, one per impact); :data:`FIGURES` maps a
+group's name to its function.
 """
 
 from __future__ import annotations
@@ -66,8 +67,22 @@ def figure_bessel(g):
 def figure_fb_modal(g):
     n = g.data["engine"].shape[1]
     fig = _record_vs_reference(g, "modal", "modal sum (validation.linear)", [n - 1, n // 2, 0])
-    fig.suptitle("FB, p = 0.002: the engine's strain against the modal sum", fontsize=10)
-    return fig
+    fig.suptitle("FB, p = 0.002, 'rigid_members' impact: the engine's strain against the modal sum", fontsize=10)
+    if "engine_end_twist" not in g.data:
+        return [fig]
+    twist = _SecondRecord(g, "_end_twist", 1)
+    fig2 = _record_vs_reference(twist, "modal", "modal sum (validation.linear)", [n - 1, n - 2, n // 2])
+    fig2.suptitle("FB, p = 0.002, 'end_twist' impact (the bases breathe): the engine's strain against the modal sum",
+                  fontsize=10)
+    return [fig, fig2]
+
+
+class _SecondRecord:
+    """A group's second record (``data`` keys ending in ``suffix``) and its check, as _record_vs_reference reads them."""
+
+    def __init__(self, g, suffix: str, check: int):
+        self.data = {k: g.data[k + suffix] for k in ("time", "engine", "modal")}
+        self.checks = [g.checks[check]]
 
 
 def figure_soliton(g):
@@ -122,9 +137,14 @@ def figure_dispersion(g):
     x = np.linspace(0.0, np.pi, 200)
     axes[1, 0].plot(x, d["omega_c"] * np.abs(np.sin(x / 2)), "w:", lw=1.0, label=r"$\omega_c |\sin(k h_0/2)|$")
     axes[1, 0].plot(x, d["c0"] / d["rb"].height * x, "C3-.", lw=0.8, label=f"closed-form c0 = {d['c0']:.5g} m/s")
-    axes[1, 0].legend(fontsize=7)
-    _stamp(axes[1, 0], g.checks[0], 0.98, 0.03)
-    _stamp(axes[1, 0], g.checks[2], 0.98, 0.12)
+    for col, key in enumerate(("rb", "fb")):  # the simulated short column's modes at their k_j
+        w_sim, _ = d["modes"][key]
+        axes[1, col].plot(d["k_modes"] * d[key].height, w_sim, "kx", ms=6, label="simulated modes (8 prisms)")
+        axes[1, col].legend(fontsize=7)
+    by_name = {c.name: c for c in g.checks}
+    _stamp(axes[1, 0], by_name["dispersion_rb_modes"], 0.98, 0.03)
+    _stamp(axes[1, 0], by_name["dispersion_speed_measure"], 0.98, 0.12)
+    _stamp(axes[1, 1], by_name["dispersion_fb_modes"], 0.98, 0.03)
     return fig
 
 
@@ -133,7 +153,8 @@ FIGURES = {"bessel": figure_bessel, "soliton": figure_soliton, "dispersion": fig
 
 
 def write_figures(groups, directory) -> list[Path]:
-    """One PNG per check group, ``validation_<name>.png`` in ``directory`` (made if missing)."""
+    """The PNGs of each check group, ``validation_<name>.png`` (a second figure ``validation_<name>_2.png``) in
+    ``directory`` (made if missing)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -143,9 +164,10 @@ def write_figures(groups, directory) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     for g in groups:
-        fig = FIGURES[g.name](g)
-        paths.append(out / f"validation_{g.name}.png")
-        with replacing(paths[-1]) as tmp:  # atomically, never through a link
-            fig.savefig(tmp, dpi=110)
-        plt.close(fig)
+        figs = FIGURES[g.name](g)
+        for i, fig in enumerate(figs if isinstance(figs, list) else [figs]):
+            paths.append(out / f"validation_{g.name}{'' if i == 0 else f'_{i + 1}'}.png")
+            with replacing(paths[-1]) as tmp:  # atomically, never through a link
+                fig.savefig(tmp, dpi=110)
+            plt.close(fig)
     return paths
