@@ -8,11 +8,17 @@ compressed npz. A refactor that must not change results re-runs this and compare
     python -m benchmarks.reference_outputs --check    # compare (see below), exit 1 on a change
     python -m benchmarks.reference_outputs --check --exact   # exit 1 on any bit that differs
     python -m benchmarks.reference_outputs --remeasure  # only the sweeps' measures, from the stored strain
+    python -m benchmarks.reference_outputs --add-new    # only the arrays the file lacks (new outputs)
 
 ``--remeasure`` (for a change of the measures alone, issue 25) recomputes each stored sweep shard's
 per-case measures (device measure on the CPU, measure_columns, the beta_limit variables) from its
 stored strain record and parameters, and rewrites only the entries that differ or are new; every
-simulation output stays as committed.
+simulation output stays as committed. It reads the stored ``feasibility_time`` where the file has
+it (the measures of a case that left the feasible set are NaN, docs/model.md).
+
+``--add-new`` (for a new output array, issue 32's feasibility record) runs everything and adds the
+arrays the file does not hold yet; every array it holds stays as committed (run ``--check`` first:
+it lists them as "missing in reference").
 
 **The BLAS.** The scene build (the impact's least-energy solve, the self-stress null vector, the
 base-mode eigensolve) goes through NumPy's and SciPy's OpenBLAS, which picks its kernels by CPU:
@@ -113,7 +119,8 @@ def compute() -> dict:
 META_BLAS = "meta/blas"
 """The npz entry recording the BLAS the file was made with (JSON: :func:`blas_signature`)."""
 
-ROUND_OFF = {"strain", "kinetic_energy", "elastic_energy", "final_displacement", "final_velocity"}
+ROUND_OFF = {"strain", "kinetic_energy", "elastic_energy", "final_displacement", "final_velocity",
+             "twist_max", "twist_min", "height_ratio_min"}  # the last three: extremes of a state history
 MEASURES = {"amplitude", "speed", "width", "width_10", "arrival_time", "max_compression", "base_mode_ratio"}
 TOLERANCES = {
     **{k: ("peak", 1e-10, "a state history: round-off of the BLAS-built initial state carried by the dynamics "
@@ -246,7 +253,8 @@ def remeasure(path: Path = REFERENCE_FILE) -> dict:
         B = strain.shape[0]
         with np.errstate(all="ignore"):
             dev = measure_pulse_device(strain, time, spec.scene.height, device="cpu")
-        res = SimpleNamespace(status=out[f"{sh}/status"], strain=strain, time=time, measurements=dev)
+        feas = {"feasibility_time": out[f"{sh}/feasibility_time"]} if f"{sh}/feasibility_time" in out else None
+        res = SimpleNamespace(status=out[f"{sh}/status"], strain=strain, time=time, measurements=dev, feasibility=feas)
         meas = measure_columns(res, spec.scene.height)
         params = {p: np.broadcast_to(out[f"{sh}/{p}"], (B,)) for p in COLUMN_PARAMETERS if f"{sh}/{p}" in out}
         meas.update(beta_limit_measures(spec.scene, params, B, meas["max_compression"]))
@@ -261,10 +269,20 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="compare against the committed file instead of writing it")
     ap.add_argument("--remeasure", action="store_true", help="rewrite only the sweeps' measures from the stored strain")
     ap.add_argument("--exact", action="store_true", help="with --check: fail on any bit that differs")
+    ap.add_argument("--add-new", action="store_true", help="add only the arrays the file lacks; keep the others")
     args = ap.parse_args(argv)
     import warp as wp
 
     wp.config.quiet = True
+    if args.add_new:
+        with np.load(REFERENCE_FILE) as ref:
+            before = {k: ref[k] for k in ref.files}
+        held = {_renamed(k) for k in before}
+        new = {k: v for k, v in compute().items() if k not in held and not k.startswith("meta/")}
+        print("\n".join(f"{k}: new" for k in sorted(new)))
+        np.savez_compressed(REFERENCE_FILE, **before, **new)
+        print(f"wrote {REFERENCE_FILE} ({len(new)} entries added)")
+        return 0
     if args.remeasure:
         with np.load(REFERENCE_FILE) as ref:
             before = {k: ref[k] for k in ref.files}

@@ -329,10 +329,13 @@ def _plot(args) -> int:
 
 
 def _log_nan_summary(path) -> None:
-    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons)."""
+    """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons), and
+    one per way columns left the feasible set (warp_tensegrity.measure.feasibility)."""
     from .io import open_sweep  # imports xarray: not at `--help`
+    from .measure.feasibility import dataset_summary as feasibility_summary
 
-    for line in dataset_summary(open_sweep(path)):
+    ds = open_sweep(path)
+    for line in dataset_summary(ds) + feasibility_summary(ds):
         log.info("%s", line)
 
 

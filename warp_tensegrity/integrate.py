@@ -185,6 +185,12 @@ class Integrator:
                          [self.every, d.u, d.step, self.strain], model="strain")
         self._launch(self.k.record_energy, m.n_columns,
                      [self.every, d.u, d.v, d.step, self.kinetic, self.elastic], model="energy")
+        if m.n_prisms > 0:  # the feasibility record (types.FEASIBILITY_FLAGS), whether or not the strain is kept
+            self._launch(self.k.record_feasibility, (m.n_prisms, m.n_columns), [self.every, d.u, d.status, d.step,
+                         d.twist, d.twist_max, d.twist_min, d.height_min, d.left_slot], model="feasibility")
+        elif m.n_pairs > 0:
+            self._launch(self.k.record_pairs, (m.n_pairs, m.n_columns), [self.every, d.u, d.status, d.step,
+                         d.pair_distance_min, d.pair_side, d.pair_left_slot], model="pairs")
 
     # ------------------------------------------------------------------ steps
     def load_kernels(self):
@@ -192,7 +198,7 @@ class Integrator:
         so no load happens while stepping or capturing."""
         if self.fused:
             self.fk.load()
-            for kern in (self.k.record_strain, self.k.record_energy):
+            for kern in (self.k.record_strain, self.k.record_energy, self.k.record_feasibility, self.k.record_pairs):
                 kern.module.load(self.device, self._block_dim(kern))
             return
         rk_only = {"rk_stage", "constrained_accel", "factor_only"}

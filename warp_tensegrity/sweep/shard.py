@@ -10,6 +10,7 @@ import numpy as np
 from .. import io as D
 from ..scene.base_modes import beta_limit_measures
 from ..engine import simulate_batch
+from ..measure.feasibility import feasible_record
 from ..measure.nan_reasons import measure_columns  # shared with BatchResult.to_xarray
 from ..provenance import provenance_attrs
 from ..runtime import warp_facts
@@ -72,7 +73,7 @@ def template_dataset(plan: SweepPlan):
     result = SimpleNamespace(
         n_columns=1, status=np.zeros(1, np.int8), fail_step=np.full(1, -1, np.int64), energy_error=z(1),
         bar_length_error=z(1), kinetic_energy=z(1, T), elastic_energy=z(1, T), strain=z(1, T, P), time=time,
-        info={"output_step": steps})
+        info={"output_step": steps}, feasibility=feasible_record(1))
     with np.errstate(all="ignore"):
         meas = measure_columns(result, spec.scene.height)
     meas.update(beta_limit_measures(spec.scene, {k: v[:1] for k, v in plan.params.items()}, 1, meas["max_compression"]))
