@@ -259,3 +259,31 @@ def test_dataset_carries_the_flag_with_cf_masks(rigid):
     assert flag.values.tolist() == [0, 0, 1, 1] and ds["feasibility_prism"].values.tolist() == [-1, -1, 29, 29]
     assert ds["twist_max"].attrs["units"] == "rad"
     np.testing.assert_array_equal(ds["feasibility_time_bars_crossed"].values, rigid.feasibility["feasibility_times"][:, 0])
+
+
+def test_plot_phase_hatches_the_cases_that_left():
+    """`plot phase`: one hatched patch per case with feasibility_flag != 0; the mesh keeps the variable."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import xarray as xr
+
+    from warp_tensegrity import plot as W
+
+    p, v = np.array([0.0, 0.001, 0.002]), np.array([0.01, 0.1, 0.2, 0.3])
+    flag = np.zeros((3, 4), np.int8)
+    flag[1, 2], flag[2, 3], flag[0, 3] = CROSSED, CROSSED | INVERTED, STRINGS
+    ds = xr.Dataset({"speed": (("prestrain", "v0"), np.arange(12.0).reshape(3, 4)),
+                     "status": (("prestrain", "v0"), np.zeros((3, 4), np.int8)),
+                     "feasibility_flag": (("prestrain", "v0"), flag)}, coords={"prestrain": p, "v0": v})
+    ax = W.phase_diagram(ds, "speed", x="prestrain", y="v0")
+    assert len(ax.patches) == 3 and ax.get_legend() is not None
+    np.testing.assert_array_equal(np.ma.filled(ax.collections[-1].get_array(), np.nan).ravel(),
+                                  ds.speed.transpose("v0", "prestrain").values.ravel())
+    for (x, y) in [(0.001, 0.2), (0.002, 0.3), (0.0, 0.3)]:  # each flagged cell has its patch (log y edges)
+        assert sum(r.get_x() < x < r.get_x() + r.get_width() and r.get_y() < y < r.get_y() + r.get_height()
+                   for r in ax.patches) == 1
+    ax = W.phase_diagram(ds.drop_vars("feasibility_flag"), "speed", x="prestrain", y="v0")
+    assert len(ax.patches) == 0 and ax.get_legend() is None
+    plt.close("all")

@@ -72,8 +72,8 @@ column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tell
 FEASIBILITY_FLAGS = ("bars_crossed", "strings_touched", "prism_inverted")
 """Bit i (value 2**i) of the datasets' ``feasibility_flag`` (CF flag_masks/flag_meanings): how a
 column left the feasible set of the paper's Sec. 3 (:mod:`warp_tensegrity.measure.feasibility`):
-a prism's twist reached pi (its bars touch), or pi/3 (its cross cables touch), or its height
-reached 0 (the bases passed through each other); in a network that is not a column, two bar
+a prism's twist reached pi (its bars touch), or the paper's lower bound pi/3 ("strings touching";
+docs/model.md), or its height reached 0 (the bases passed through each other); in a network that is not a column, two bar
 (cable) axes passed through each other. Several bits may be set."""
 
 BETA_LIMIT_FLAGS = ("regular", "slow_convergence_possible", "rigid_bases")

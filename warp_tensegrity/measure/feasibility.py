@@ -1,6 +1,6 @@
 """Whether each case stayed in the feasible set of the model (the paper's Sec. 3: a prism's twist
-between pi/3, where its cross cables touch, and pi, where its bars touch; and a positive height),
-from the engine's feasibility record, and the end-of-run summary of it.
+between pi/3 and pi, where its bars touch; and a positive height), from the engine's feasibility
+record, and the end-of-run summary of it.
 
 The engine keeps, per prism (or, in a network that is not a column, per member pair) and column,
 running extremes and the first output slot of each reason (:data:`~warp_tensegrity.types.FEASIBILITY_FLAGS`,
@@ -116,7 +116,8 @@ def left_before_measured(feasibility_time, peak_time) -> np.ndarray:
 WHY = {
     "bars_crossed": "a prism's twist reached pi: its bars touched and passed through each other (two bar axes "
                     "crossed, in a network)",
-    "strings_touched": "a prism's twist fell to pi/3: its cross cables touched (two cable axes crossed, in a network)",
+    "strings_touched": "a prism's twist fell to pi/3, the paper's bound for touching cross cables (two cable axes "
+                       "crossed, in a network)",
     "prism_inverted": "a prism's height reached 0: its bases passed through each other",
 }
 
