@@ -158,9 +158,12 @@ def test_flexible_base_bars_cross_at_the_impacted_end(flexible):
         assert np.all(sides == -ref) if flipped else np.all(sides == ref)
 
 
-def test_paths_record_the_same(rigid):
-    """The staged path (one kernel per stage) records what the fused one does."""
-    r = simulate_batch(RB, {"prestrain": 0.002, "v0": RB_V0, "base_rigidity": 1.0}, settings(0.4, fused=False))
+@pytest.mark.parametrize("fused", [False, "lanes"])
+def test_paths_record_the_same(rigid, fused):
+    """The staged path (one kernel per stage) and the lane step (emulated on the CPU) record what the
+    fused one does."""
+    r = simulate_batch(RB, {"prestrain": 0.002, "v0": RB_V0, "base_rigidity": 1.0}, settings(0.4, fused=fused))
+    assert r.info["step_path"].startswith("staged" if fused is False else "lanes")
     for k in ("feasibility_flag", "feasibility_prism", "feasibility_time"):
         np.testing.assert_array_equal(r.feasibility[k], rigid.feasibility[k])
     np.testing.assert_allclose(r.feasibility["prism_twist_max"], rigid.feasibility["prism_twist_max"], atol=1e-9)

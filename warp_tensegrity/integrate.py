@@ -196,14 +196,18 @@ class Integrator:
     def load_kernels(self):
         """Compile/load the kernels this method uses now, with the block size they launch with,
         so no load happens while stepping or capturing."""
+        unused = {"record_pairs" if self.model.n_prisms > 0 else "record_feasibility"}  # the other feasibility record
         if self.fused:
             self.fk.load()
-            for kern in (self.k.record_strain, self.k.record_energy, self.k.record_feasibility, self.k.record_pairs):
-                kern.module.load(self.device, self._block_dim(kern))
+            for name in ("record_strain", "record_energy", "record_feasibility", "record_pairs"):
+                if name not in unused:
+                    kern = getattr(self.k, name)
+                    kern.module.load(self.device, self._block_dim(kern))
             return
-        rk_only = {"rk_stage", "constrained_accel", "factor_only"}
+        if self.settings.method != Method.RK4:
+            unused |= {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in {**vars(self.k), **vars(self.ks)}.items():
-            if isinstance(kern, wp.Kernel) and (self.settings.method == Method.RK4 or name not in rk_only):
+            if isinstance(kern, wp.Kernel) and name not in unused:
                 kern.module.load(self.device, self._block_dim(kern))
 
     def initialize(self):
