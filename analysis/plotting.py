@@ -312,7 +312,8 @@ def reproduction_table(ds: xr.Dataset, t_read: float = 0.5, cases=PAPER_2017):
     Ours: ``amplitude``, ``speed``, ``width`` (FWHM at mid-column), ``width_10`` straight from the
     dataset (``measure_pulse``, docs/measurements.md); ``amp_t`` (leading pulse read at ``t_read``),
     ``max_t`` (largest compression anywhere at ``t_read``), ``width_t``/``width_10_t``/``support_t``
-    (snapshot widths at ``t_read``) from :func:`leading_pulse_at`; speeds also in prisms per second (``/ H0``)."""
+    (snapshot widths at ``t_read``) from :func:`leading_pulse_at`; speeds also in prisms per second (``/ H0``);
+    ``left_feasible_set_s``: when the case left the model's feasible set (NaN: never, or no record of it)."""
     import pandas as pd
 
     idx = match_cases(ds, cases)
@@ -328,6 +329,7 @@ def reproduction_table(ds: xr.Dataset, t_read: float = 0.5, cases=PAPER_2017):
             "base": c.base,
             "prestrain": c.prestrain,
             "v0": c.v0,
+            "left_feasible_set_s": float(r["feasibility_time"]) if "feasibility_time" in r else float("nan"),
             "paper_amplitude": c.amplitude,
             "amplitude": float(r["amplitude"]),
             "amp_t": float(at["amplitude"][i]),

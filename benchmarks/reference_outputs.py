@@ -13,7 +13,12 @@ compressed npz. A refactor that must not change results re-runs this and compare
 ``--remeasure`` (for a change of the measures alone, issue 25) recomputes each stored sweep shard's
 per-case measures (device measure on the CPU, measure_columns, the beta_limit variables) from its
 stored strain record and parameters, and rewrites only the entries that differ or are new; every
-simulation output stays as committed.
+simulation output stays as committed. It reads the stored ``feasibility_time`` where the file has
+it (the measures of a case that left the feasible set are NaN, docs/model.md).
+
+``--add-new`` (for a new output array, issue 32's feasibility record) runs everything and adds the
+arrays the file does not hold yet; every array it holds stays as committed (run ``--check`` first:
+it lists them as "missing in reference").
 
 **The BLAS.** The scene build (the impact's least-energy solve, the self-stress null vector, the
 base-mode eigensolve) goes through NumPy's and SciPy's OpenBLAS, which picks its kernels by CPU:
@@ -114,7 +119,8 @@ def compute() -> dict:
 META_BLAS = "meta/blas"
 """The npz entry recording the BLAS the file was made with (JSON: :func:`blas_signature`)."""
 
-ROUND_OFF = {"strain", "kinetic_energy", "elastic_energy", "final_displacement", "final_velocity"}
+ROUND_OFF = {"strain", "kinetic_energy", "elastic_energy", "final_displacement", "final_velocity",
+             "twist_max", "twist_min", "height_ratio_min"}  # the last three: extremes of a state history
 MEASURES = {"amplitude", "speed", "width", "width_10", "arrival_time", "max_compression", "base_mode_ratio"}
 TOLERANCES = {
     **{k: ("peak", 1e-10, "a state history: round-off of the BLAS-built initial state carried by the dynamics "
@@ -247,7 +253,8 @@ def remeasure(path: Path = REFERENCE_FILE) -> dict:
         B = strain.shape[0]
         with np.errstate(all="ignore"):
             dev = measure_pulse_device(strain, time, spec.scene.height, device="cpu")
-        res = SimpleNamespace(status=out[f"{sh}/status"], strain=strain, time=time, measurements=dev)
+        feas = {"feasibility_time": out[f"{sh}/feasibility_time"]} if f"{sh}/feasibility_time" in out else None
+        res = SimpleNamespace(status=out[f"{sh}/status"], strain=strain, time=time, measurements=dev, feasibility=feas)
         meas = measure_columns(res, spec.scene.height)
         params = {p: np.broadcast_to(out[f"{sh}/{p}"], (B,)) for p in COLUMN_PARAMETERS if f"{sh}/{p}" in out}
         meas.update(beta_limit_measures(spec.scene, params, B, meas["max_compression"]))
@@ -268,6 +275,15 @@ def main(argv=None) -> int:
     import warp as wp
 
     wp.config.quiet = True
+    if args.add_new:
+        with np.load(REFERENCE_FILE) as ref:
+            before = {k: ref[k] for k in ref.files}
+        held = {_renamed(k) for k in before}
+        new = {k: v for k, v in compute().items() if k not in held and not k.startswith("meta/")}
+        print("\n".join(f"{k}: new" for k in sorted(new)))
+        np.savez_compressed(REFERENCE_FILE, **before, **new)
+        print(f"wrote {REFERENCE_FILE} ({len(new)} entries added)")
+        return 0
     if args.remeasure:
         with np.load(REFERENCE_FILE) as ref:
             before = {k: ref[k] for k in ref.files}
@@ -279,13 +295,6 @@ def main(argv=None) -> int:
         print(f"wrote {REFERENCE_FILE} ({len(changed)} entries rewritten)")
         return 0
     out = compute()
-    if args.add_new:
-        with np.load(REFERENCE_FILE) as ref:
-            kept = {k: ref[k] for k in ref.files}
-        new = {k: v for k, v in out.items() if k not in {_renamed(n) for n in kept}}
-        np.savez_compressed(REFERENCE_FILE, **kept, **new)
-        print("\n".join(f"{k}: new" for k in sorted(new)) + f"\nwrote {REFERENCE_FILE} ({len(new)} entries added)")
-        return 0
     if args.check:
         print(summary(out))
         return 1 if compare(out, exact=args.exact) else 0

@@ -389,13 +389,14 @@ def _log_nan_summary(path) -> int:
     """One line per kind of NaN measurement in the output (warp_tensegrity.measure.nan_reasons), or
     when every case failed one error line with the likely cause, and EXIT_ALL_FAILED."""
     from .io import open_sweep  # imports xarray: not at `--help`
+    from .measure.feasibility import dataset_summary as feasibility_summary
 
     ds = open_sweep(path)
     failed = all_failed(ds, long_wave_speeds)
     if failed:  # one line, in place of the per-kind ones
         log.error("error: %s", failed)
         return EXIT_ALL_FAILED
-    for line in dataset_summary(ds):
+    for line in dataset_summary(ds) + feasibility_summary(ds):
         log.info("%s", line)
     return EXIT_OK
 

@@ -14,6 +14,7 @@ from functools import partial
 
 import numpy as np
 
+from .measure.feasibility import pair_record, prism_record
 from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch, far_end
 from .policy.paths import lane_emulation
 from .arguments import expect, expect_callable
@@ -29,6 +30,18 @@ from .types import FORCE_EVALS
 def _to_host(a):
     return None if a is None else a.numpy().astype(np.float64)
 
+
+
+def _feasibility(integ, time) -> dict | None:
+    """The per-case feasibility record (:mod:`warp_tensegrity.measure.feasibility`) of a run."""
+    m, d = integ.model, integ.data
+    if m.n_prisms > 0:
+        return prism_record(d.left_slot.numpy(), d.twist_max.numpy(), d.twist_min.numpy(), d.height_min.numpy(),
+                            d.twist.numpy(), time)
+    if m.n_pairs > 0:
+        return pair_record(d.pair_left_slot.numpy(), m.pair_kind.numpy(), d.pair_distance_min.numpy(),
+                           m.pair_nodes.numpy(), time)
+    return None
 
 
 def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress=None, pulse: dict | None = None,
@@ -111,6 +124,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         wall_time=wall,
         final_displacement=d.u.numpy().astype(np.float64).transpose(1, 0, 2),
         final_velocity=d.v.numpy().astype(np.float64).transpose(1, 0, 2),
+        feasibility=_feasibility(integ, plan.output_times),
         dt_limit=plan.dt_limit,
         info={
             "omega_max_bound": plan.omega_max_bound,
@@ -180,6 +194,11 @@ def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int,
     if result.strain is not None:
         B, T, _ = result.strain.shape
         result.strain = np.concatenate([np.zeros((B, T, cut)), result.strain], axis=2)
+    f = result.feasibility  # prisms numbered in the full column; the far ones at their reference
+    f["feasibility_prism"] = np.where(f["feasibility_prism"] >= 0, f["feasibility_prism"] + cut, -1).astype(np.int32)
+    for k, ref in (("prism_twist_max", config.twist), ("prism_twist_min", config.twist),
+                   ("prism_height_ratio_min", 1.0), ("prism_twist_last", config.twist)):
+        f[k] = np.concatenate([np.full((f[k].shape[0], cut), ref), f[k]], axis=1)
     # the short column starts untwisted: rotate its vectors into the full column's frame
     theta = -config.twist * float(config.prism_handedness()[:cut].sum())
     c, sn = np.cos(theta), np.sin(theta)

@@ -188,19 +188,29 @@ class Integrator:
                          [self.every, d.u, d.step, self.strain], model="strain")
         self._launch(self.k.record_energy, m.n_columns,
                      [self.every, d.u, d.v, d.step, self.kinetic, self.elastic], model="energy")
+        if m.n_prisms > 0:  # the feasibility record (types.FEASIBILITY_FLAGS), whether or not the strain is kept
+            self._launch(self.k.record_feasibility, (m.n_prisms, m.n_columns), [self.every, d.u, d.status, d.step,
+                         d.twist, d.twist_max, d.twist_min, d.height_min, d.left_slot], model="feasibility")
+        elif m.n_pairs > 0:
+            self._launch(self.k.record_pairs, (m.n_pairs, m.n_columns), [self.every, d.u, d.status, d.step,
+                         d.pair_distance_min, d.pair_side, d.pair_left_slot], model="pairs")
 
     # ------------------------------------------------------------------ steps
     def load_kernels(self):
         """Compile/load the kernels this method uses now, with the block size they launch with,
         so no load happens while stepping or capturing."""
+        unused = {"record_pairs" if self.model.n_prisms > 0 else "record_feasibility"}  # the other feasibility record
         if self.fused:
             self.fk.load()
-            for kern in (self.k.record_strain, self.k.record_energy):
-                kern.module.load(self.device, self._block_dim(kern))
+            for name in ("record_strain", "record_energy", "record_feasibility", "record_pairs"):
+                if name not in unused:
+                    kern = getattr(self.k, name)
+                    kern.module.load(self.device, self._block_dim(kern))
             return
-        rk_only = {"rk_stage", "constrained_accel", "factor_only"}
+        if self.settings.method != Method.RK4:
+            unused |= {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in {**vars(self.k), **vars(self.ks)}.items():
-            if isinstance(kern, wp.Kernel) and (self.settings.method == Method.RK4 or name not in rk_only):
+            if isinstance(kern, wp.Kernel) and name not in unused:
                 kern.module.load(self.device, self._block_dim(kern))
 
     def initialize(self):

@@ -39,7 +39,8 @@ from . import atomic
 from .policy.cost import netcdf_bytes
 from .scene.impact import kinematic_lock_strain
 from .options import COLUMN_PARAMETERS, ColumnParameters, opt_of
-from .types import BETA_LIMIT_FLAGS, ERROR_ESTIMATED, ERROR_FLAGS, MEASUREMENT_FLAGS, STATUS_MEANINGS, TIME, Layout
+from .types import (BETA_LIMIT_FLAGS, ERROR_ESTIMATED, ERROR_FLAGS, FEASIBILITY_FLAGS, MEASUREMENT_FLAGS,
+                    STATUS_MEANINGS, TIME, Layout)
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 
@@ -137,11 +138,32 @@ VAR_ATTRS = {
         "units": "1",
         "long_name": "axial prism strain (h - h0) / h, negative in compression",
     },
+    # the feasibility record (measure.feasibility; docs/model.md)
+    "feasibility_flag": {
+        "standard_name": "status_flag", "long_name": "how the column left the feasible set of the model (0: it stayed "
+        "in it; several bits may be set; docs/model.md)",
+        "flag_masks": np.array([1 << i for i in range(len(FEASIBILITY_FLAGS))], dtype=np.int8),
+        "flag_meanings": " ".join(FEASIBILITY_FLAGS)},
+    "feasibility_time": {"units": "s", "long_name": "simulated time of the first output at which the column was "
+                         "outside the feasible set (NaN: never)"},
+    **{f"feasibility_time_{r}": {"units": "s", "long_name": f"simulated time of the first output with {r} (NaN: never)"}
+       for r in FEASIBILITY_FLAGS},
+    "feasibility_prism": {"units": "1", "long_name": "prism (index from the clamped base) of the first output outside "
+                          "the feasible set (-1: never)"},
+    "twist_max": {"units": "rad", "long_name": "largest prism twist over the outputs (bars touch at pi)"},
+    "twist_min": {"units": "rad", "long_name": "smallest prism twist over the outputs (the paper's bound: pi/3)"},
+    "height_ratio_min": {"units": "1", "long_name": "smallest prism height over its reference h/h0 over the outputs "
+                         "(inverted at 0)"},
+    "member_distance_min": {"units": "m", "long_name": "smallest distance between two bar axes over the outputs"},
 }
 for _k in ERROR_ESTIMATED:  # <measure>_error: the measure's units, its estimate's method in docs/measurements.md
     VAR_ATTRS[f"{_k}_error"] = {"units": VAR_ATTRS[_k]["units"],
                                 "long_name": f"estimated numerical error of {_k} (from a twin run at ~4x dt; "
                                              "docs/measurements.md)"}
+FEASIBILITY_VARS = {"feasibility_flag": np.int8, "feasibility_time": np.float64, "feasibility_prism": np.int32,
+                    "twist_max": np.float64, "twist_min": np.float64, "height_ratio_min": np.float64,
+                    "member_distance_min": np.float64}
+"""The per-case values of BatchResult.feasibility a dataset carries (those the result has), and their dtypes."""
 
 _COMPRESS = {"zlib": True, "complevel": 1, "shuffle": True}
 
@@ -282,6 +304,11 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
         "energy_error": (C, np.asarray(result.energy_error, dtype=np.float64)),
         "bar_length_error": (C, np.asarray(result.bar_length_error, dtype=np.float64)),
     })
+    feas = getattr(result, "feasibility", None)
+    if feas is not None:
+        dv.update({k: (C, np.asarray(feas[k], dtype=t)) for k, t in FEASIBILITY_VARS.items() if k in feas})
+        for i, r in enumerate(FEASIBILITY_FLAGS if "feasibility_times" in feas else ()):
+            dv[f"feasibility_time_{r}"] = (C, np.asarray(feas["feasibility_times"][:, i], dtype=np.float64))
     if record_energy:
         dv["kinetic_energy"] = (("case", TIME), np.asarray(result.kinetic_energy, dtype=np.float64))
         dv["elastic_energy"] = (("case", TIME), np.asarray(result.elastic_energy, dtype=np.float64))

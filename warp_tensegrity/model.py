@@ -47,8 +47,33 @@ def node_member_csr(n_nodes: int, members: np.ndarray):
 
 
 MODEL_SIZES = (("precision", str), ("device", str), ("n_columns", int), ("n_nodes", int), ("n_constraints", int),
-               ("n_cables", int), ("bandwidth", int), ("n_prisms", int))
-"""Model's sizes beside its arrays (``bandwidth``: half-bandwidth of the Gram matrix in the chosen ordering)."""
+               ("n_cables", int), ("bandwidth", int), ("n_prisms", int), ("n_pairs", int))
+"""Model's sizes beside its arrays (``bandwidth``: half-bandwidth of the Gram matrix in the chosen ordering;
+``n_pairs``: member pairs checked for crossing, networks that are not columns)."""
+
+MAX_PAIRS = 1 << 16
+"""Most member pairs a network's feasibility record checks (the nearest, by reference midpoint distance)."""
+
+
+def member_pairs(X: np.ndarray, bars: np.ndarray, cables: np.ndarray):
+    """(pair_nodes (npr, 4), pair_dref (npr, 3, 3), pair_kind (npr,)): every two bars, and every two
+    cables, that share no node (those that do cannot pass through each other), at most
+    :data:`MAX_PAIRS` (the nearest at the reference)."""
+    rows = []
+    for kind, mem in enumerate((bars, cables)):
+        i, j = np.triu_indices(len(mem), 1)
+        a, b = mem[i], mem[j]
+        apart = (a[:, :1] != b).all(axis=1) & (a[:, 1:] != b).all(axis=1)
+        rows.append((np.concatenate([a[apart], b[apart]], axis=1), np.full(int(apart.sum()), kind)))
+    nodes = np.concatenate([r[0] for r in rows]).reshape(-1, 4).astype(np.int32)
+    kind = np.concatenate([r[1] for r in rows]).astype(np.int32)
+    if len(nodes) > MAX_PAIRS:
+        mid = 0.5 * (X[nodes[:, 0]] + X[nodes[:, 1]] - X[nodes[:, 2]] - X[nodes[:, 3]])
+        keep = np.sort(np.argpartition(np.linalg.norm(mid, axis=1), MAX_PAIRS)[:MAX_PAIRS])
+        nodes, kind = nodes[keep], kind[keep]
+    dref = np.stack([X[nodes[:, 1]] - X[nodes[:, 0]], X[nodes[:, 3]] - X[nodes[:, 2]], X[nodes[:, 2]] - X[nodes[:, 0]]],
+                    axis=1)
+    return nodes, dref, kind
 
 
 @functools.cache
@@ -79,15 +104,24 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
     node_start, node_member = node_member_csr(X.shape[0], cab)
     node_other, node_dref = node_incidence(node_start, node_member, cab, dref_e)
     ncon_start, ncon_member = node_member_csr(X.shape[0], cons.reshape(-1, 2))
-    level_nodes = h0 = None
-    n_prisms = 0
+    level_nodes = h0 = level_ref = prism_hand = pair_nodes = pair_dref = pair_kind = None
+    n_prisms = n_pairs = 0
     if batch.level_nodes is not None:
         level_nodes = batch.level_nodes.astype(np.int32)
         zl = X[batch.level_nodes, 2].mean(axis=1)
         h0 = np.diff(zl)
         n_prisms = len(zl) - 1
+        XL = X[batch.level_nodes]  # (np+1, 3, 3)
+        level_ref = (XL - XL.mean(axis=1, keepdims=True)).astype(npr)
+        # right-handed: the top base turned clockwise seen from +z (scene.columns), a negative z-rotation
+        prism_hand = -np.sign(np.cross(level_ref[:-1], level_ref[1:])[..., 2].sum(axis=1))
+    else:
+        pairs = member_pairs(X, cons, cab)
+        n_pairs = len(pairs[0])
+        if n_pairs:  # else None, as the optional fields of a network with no pair
+            pair_nodes, pair_dref, pair_kind = pairs[0], pairs[1].astype(npr), pairs[2]
     sizes = dict(precision=precision, n_columns=batch.n_columns, n_nodes=X.shape[0], n_constraints=len(cons),
-                 n_cables=len(cab), bandwidth=int(bw), n_prisms=n_prisms)
+                 n_cables=len(cab), bandwidth=int(bw), n_prisms=n_prisms, n_pairs=n_pairs)
     arrays = dict(
         con_i=cons[:, 0].astype(np.int32), con_j=cons[:, 1].astype(np.int32), con_dref=dref_c, con_L=L_c,
         cpl_start=cpl_start, cpl_l=cpl_l, cpl_a=cpl_a, cpl_cross=cpl_cross, cpl_sign=cpl_sign,
@@ -96,7 +130,8 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
         node_start=node_start, node_member=node_member, node_other=node_other, node_dref=node_dref,
         partner=partner, mass_blocks=mass_blocks(partner_full),
         m_self=m_self, m_cross=m_cross, minv_self=minv_self, minv_cross=minv_cross,
-        level_nodes=level_nodes, h0=h0,
+        level_nodes=level_nodes, h0=h0, level_ref=level_ref, prism_hand=prism_hand,
+        pair_nodes=pair_nodes, pair_dref=pair_dref, pair_kind=pair_kind,
     )
     # the batch's own arrays, by their declared source (types.Field.source)
     arrays.update({f.name: getattr(batch, f.source) for f in types.MODEL_FIELDS if f.source})
@@ -150,6 +185,7 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = Fal
         iters=wp.zeros(B, dtype=wp.int32, device=d),
         bar_err=wp.zeros(B, dtype=real, device=d),
         step=wp.zeros(1, dtype=wp.int32, device=d),
+        **_feasibility_data(model, real),
     )
     if fused:
         one = wp.zeros((1, 1), dtype=vec, device=d)
@@ -160,6 +196,17 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = Fal
         rk = {k: z() for k in ("u0", "v0", "acc_u", "acc_v", "us", "vs")}
     return Data(**common, u_prev=z(), imp=z(), band=wp.zeros((nc, model.bandwidth + 1, B), dtype=real, device=d),
                 lam=wp.zeros((nc, B), dtype=real, device=d), rk=rk)
+
+
+def _feasibility_data(model: Model, real) -> dict:
+    """The feasibility record's running extremes (types.DATA_FIELDS), each (items, B); (1, 1)
+    placeholders where the batch has no prisms (or no member pairs). The kernels write them at step 0."""
+    d, B, P, Q = model.device, model.n_columns, model.n_prisms, model.n_pairs
+    arr = lambda k, dtype, fill, lead=(): wp.full((*lead, k, B) if k else (*lead, 1, 1), fill, dtype=dtype,  # noqa: E731
+                                                 device=d)
+    return dict(twist=arr(P, real, 0.0), twist_max=arr(P, real, 0.0), twist_min=arr(P, real, 0.0),
+                height_min=arr(P, real, 0.0), left_slot=arr(P, wp.int32, -1, (len(types.FEASIBILITY_FLAGS),)),
+                pair_distance_min=arr(Q, real, 0.0), pair_side=arr(Q, wp.int32, 0), pair_left_slot=arr(Q, wp.int32, -1))
 
 
 def _device_velocity(velocity: np.ndarray, model: Model, vec) -> wp.array:

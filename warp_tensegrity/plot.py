@@ -171,7 +171,8 @@ def phase_diagram(data, var: str = "speed", x: str | None = None, y: str | None 
                   cbar_label: str | None = None, **pcolormesh_kw):
     """Colour map of the measured variable ``var`` over the swept parameters ``x`` and ``y`` of a
     grid sweep (defaults: the first two grid dimensions), one cell per grid point; columns whose
-    status is not ok are blank. ``data``: the dataset, or a DataArray over the grid (e.g. a derived
+    status is not ok are blank, and those that left the model's feasible set (``feasibility_flag``
+    not 0: bars crossed, cables touched, a prism inverted; docs/model.md) are hatched (``ax.patches``). ``data``: the dataset, or a DataArray over the grid (e.g. a derived
     quantity; then ``var`` is ignored). Other grid dimensions must be fixed with ``sel``. ``log_y``
     (default: when y spans more than a decade and is > 0) uses geometric cell edges. Returns the Axes;
     ``ax.collections[-1].get_array()`` is the variable with y as rows."""
@@ -201,7 +202,10 @@ def phase_diagram(data, var: str = "speed", x: str | None = None, y: str | None 
     ax = _axes(ax)
     kw = {"cmap": "viridis", "shading": "flat"}
     kw.update(pcolormesh_kw)
-    mesh = ax.pcolormesh(cell_edges(d[x].values), cell_edges(yv, log=log_y), np.ma.masked_invalid(d.values), **kw)
+    xe, ye = cell_edges(d[x].values), cell_edges(yv, log=log_y)
+    mesh = ax.pcolormesh(xe, ye, np.ma.masked_invalid(d.values), **kw)
+    if hasattr(data, "data_vars") and "feasibility_flag" in data:
+        _hatch(ax, _select(data["feasibility_flag"], sel).transpose(y, x).values != 0, xe, ye)
     if log_y:
         ax.set_yscale("log")
     from matplotlib.ticker import MaxNLocator
@@ -213,6 +217,18 @@ def phase_diagram(data, var: str = "speed", x: str | None = None, y: str | None 
         cb = ax.figure.colorbar(mesh, ax=ax, pad=0.01)
         cb.set_label(cbar_label if cbar_label is not None else _short_label(da, var))
     return ax
+
+
+def _hatch(ax, cells, xe, ye):
+    """Hatch the cells (rows y, columns x) where ``cells`` is True, with one legend entry."""
+    from matplotlib.patches import Rectangle
+
+    kw = {"fill": False, "hatch": "///", "edgecolor": "0.3", "linewidth": 0.0}
+    for k, i in zip(*np.nonzero(cells)):
+        ax.add_patch(Rectangle((xe[i], ye[k]), xe[i + 1] - xe[i], ye[k + 1] - ye[k], **kw))
+    if cells.any():
+        ax.legend(handles=[Rectangle((0, 0), 1, 1, **kw, label="left the feasible set")], loc="upper left",
+                  fontsize="small", framealpha=0.8)
 
 
 def spacetime(data, ax=None, sel: dict | None = None, vmax: float | None = None, cmap: str = "RdBu_r",

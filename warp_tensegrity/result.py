@@ -53,6 +53,12 @@ class BatchResult:
     """(B, n_nodes, 3) displacement from the reference positions at the last step [m]."""
     final_velocity: np.ndarray | None = None
     """(B, n_nodes, 3) velocity at the last step [m s-1]."""
+    feasibility: dict | None = None
+    """Whether each column stayed in the model's feasible set (docs/model.md): (B,) arrays
+    ``feasibility_flag`` (bits of :data:`~warp_tensegrity.types.FEASIBILITY_FLAGS`), ``feasibility_time``
+    [s] and ``feasibility_prism`` of the first event (NaN, -1: none), ``twist_max``, ``twist_min`` [rad],
+    ``height_ratio_min`` and more (:func:`warp_tensegrity.measure.feasibility.prism_record`; networks
+    that are not columns: :func:`~warp_tensegrity.measure.feasibility.pair_record`)."""
     dt_limit: float = float("nan")
     """Predicted stability limit of the method for the stiffest column [s]."""
     info: dict = field(default_factory=dict)

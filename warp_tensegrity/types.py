@@ -13,9 +13,10 @@ Every device array is declared once, as a :class:`Field` of :data:`MODEL_FIELDS`
 ``B`` = columns in the batch, ``Bp`` = B or 1 (a per-column parameter shared by all columns),
 ``n`` = nodes, ``nc`` = rigid members (constraints), ``ne`` = cables, ``bw`` = half-bandwidth of
 the constraint Gram matrix G M^-1 G^T, ``np`` = prisms, ``nb`` = blocks of M, ``ncp`` = coupling
-terms of the Gram matrix, ``nx`` = a column's solver reals. Batched arrays put the column index
-last (fastest), so neighbouring threads read neighbouring columns; the fused step's scratch puts
-it first (one thread block per column). Per-column parameters are read as ``param[k, b % Bp]``.
+terms of the Gram matrix, ``nx`` = a column's solver reals, ``nr`` = feasibility reasons
+(:data:`FEASIBILITY_FLAGS`), ``npr`` = member pairs checked for crossing. Batched arrays put the
+column index last (fastest), so neighbouring threads read neighbouring columns; the fused step's
+scratch puts it first (one thread block per column). Per-column parameters are read as ``param[k, b % Bp]``.
 ``real`` is fp32 or fp64 (the run's precision), ``vec3`` three reals.
 
 {field_table}
@@ -63,6 +64,7 @@ MEASUREMENT_FLAGS = (
     "speed_undefined",
     "measurement_undefined",
     "leading_pulse_captured",
+    "left_feasible_set",
 )
 """Values 0.. of the datasets' ``measurement_flag`` (CF flag_values/flag_meanings): why a
 column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tells each case)."""
@@ -75,6 +77,13 @@ ERROR_FLAGS = ("ok", "no_twin", "twin_undefined", "over_target")
 measure's error estimate can be trusted: ok; no_twin (no coarser dt on the same outputs: no
 estimate); twin_undefined (a measure is defined but its twin's is not: the estimate cannot say);
 over_target (an estimate exceeds the run's accuracy target)."""
+
+FEASIBILITY_FLAGS = ("bars_crossed", "strings_touched", "prism_inverted")
+"""Bit i (value 2**i) of the datasets' ``feasibility_flag`` (CF flag_masks/flag_meanings): how a
+column left the feasible set of the paper's Sec. 3 (:mod:`warp_tensegrity.measure.feasibility`):
+a prism's twist reached pi (its bars touch), or the paper's lower bound pi/3 ("strings touching";
+docs/model.md), or its height reached 0 (the bases passed through each other); in a network that is not a column, two bar
+(cable) axes passed through each other. Several bits may be set."""
 
 
 BETA_LIMIT_FLAGS = ("regular", "slow_convergence_possible", "rigid_bases")
@@ -180,7 +189,7 @@ class Field(NamedTuple):
     groups: tuple[str, ...] = ()
     """The :data:`ARGUMENT_GROUPS` that take it."""
     optional: bool = False
-    """None when the batch has no prism levels."""
+    """None when the batch has no prism levels (the pair fields: when it has)."""
     source: str | None = None
     """The :class:`~warp_tensegrity.scene.batch.NetworkBatch` attribute holding its host values, as
     the batch holds them ((Bp, k) for a per-column parameter); None: computed by
@@ -204,6 +213,8 @@ ARGUMENT_GROUPS = {
     "gather": "``gather_accel``",
     "energy": "``record_energy``",
     "strain": "``record_strain``",
+    "feasibility": "``record_feasibility``",
+    "pairs": "``record_pairs``",
 }
 """Model arguments of each launch: the :data:`MODEL_FIELDS` naming the group, in their order (a
 hand-written kernel lists them first, under ``# Model:``)."""
@@ -246,8 +257,17 @@ MODEL_FIELDS = (
     Field("m_cross", "real", "(n, Bp)", "kg", "mass matrix entry of the node and its partner", ("energy",)),
     Field("minv_self", "real", "(n, Bp)", "kg-1", "inverse-mass entry, 0 at fixed nodes", _MINV),
     Field("minv_cross", "real", "(n, Bp)", "kg-1", "inverse-mass entry of the node and its partner", _MINV),
-    Field("level_nodes", "int32", "(np+1, 3)", "--", "nodes of each column base", ("strain",), optional=True),
-    Field("h0", "real", "(np,)", "m", "reference prism heights", ("strain",), optional=True),
+    Field("level_nodes", "int32", "(np+1, 3)", "--", "nodes of each column base", ("strain", "feasibility"),
+          optional=True),
+    Field("h0", "real", "(np,)", "m", "reference prism heights", ("strain", "feasibility"), optional=True),
+    Field("level_ref", "vec3", "(np+1, 3)", "m", "reference position of each base node from its base's centroid",
+          ("feasibility",), optional=True),
+    Field("prism_hand", "real", "(np,)", "1", "+1 right-handed prism, -1 left-handed", ("feasibility",), optional=True),
+    Field("pair_nodes", "int32", "(npr, 4)", "--", "end nodes i0, i1, j0, j1 of the two members of a checked pair "
+          "(networks that are not columns; None for columns)", ("pairs",), optional=True),
+    Field("pair_dref", "vec3", "(npr, 3)", "m", "reference vectors X_i1 - X_i0, X_j1 - X_j0, X_j0 - X_i0 of the pair",
+          ("pairs",), optional=True),
+    Field("pair_kind", "int32", "(npr,)", "--", "0: two bars, 1: two cables (read on the host)", optional=True),
 )
 """Topology and per-column parameters (:class:`~warp_tensegrity.model.Model`)."""
 
@@ -264,6 +284,16 @@ DATA_FIELDS = (
     Field("iters", "int32", "(B,)", "--", "largest projection iteration count seen"),
     Field("bar_err", "real", "(B,)", "1", "max relative bar-length error after projection"),
     Field("step", "int32", "(1,)", "--", "completed steps"),
+    # the feasibility record (kernels.staged.record_feasibility, at output steps; (1, 1) placeholders
+    # where the batch has no prisms, or no pairs)
+    Field("twist", "real", "(np, B)", "rad", "prism twist at the last output, unwrapped"),
+    Field("twist_max", "real", "(np, B)", "rad", "largest prism twist over the outputs"),
+    Field("twist_min", "real", "(np, B)", "rad", "smallest prism twist over the outputs"),
+    Field("height_min", "real", "(np, B)", "1", "smallest prism height ratio h/h0 over the outputs"),
+    Field("left_slot", "int32", "(nr, np, B)", "--", "first output slot of each FEASIBILITY_FLAGS reason, -1 never"),
+    Field("pair_distance_min", "real", "(npr, B)", "m", "smallest distance between the pair's member axes"),
+    Field("pair_side", "int32", "(npr, B)", "--", "side of the pair's oriented axis distance, 0 when not facing"),
+    Field("pair_left_slot", "int32", "(npr, B)", "--", "first output slot at which the pair crossed, -1 never"),
 )
 """Mutable state (:class:`~warp_tensegrity.model.Data`; staged-only arrays are size-1 placeholders
 on the fused paths)."""

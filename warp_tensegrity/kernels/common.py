@@ -9,6 +9,7 @@ resolved to the wrong overload depending on compile order: do not.)
 """
 
 import functools
+import math
 from types import SimpleNamespace
 from typing import Any
 
@@ -19,6 +20,11 @@ wp.set_module_options({"enable_backward": False})
 STATUS_OK = wp.constant(0)
 STATUS_NONFINITE = wp.constant(1)
 STATUS_CONSTRAINT = wp.constant(2)
+# angles as fp64 constants, cast to the run's precision where used (Warp folds arithmetic on
+# literals, e.g. 2.0 * math.pi, in fp32: 1.7e-7 off in fp64)
+PI = wp.constant(wp.float64(math.pi))
+TWO_PI = wp.constant(wp.float64(2.0 * math.pi))
+THIRD_PI = wp.constant(wp.float64(math.pi / 3.0))
 
 # slots of a node's row in the fused step (the values of types.Slot; not imported, to keep the
 # import chains short: tests/test_layout.py, test_parallel_solve.py checks they agree)
@@ -122,6 +128,90 @@ def set_failure(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: 
     if status[w] == STATUS_OK:
         status[w] = code
         fail_step[w] = at_step
+
+
+@wp.func
+def axial_angle(rb: Any, rt: Any, axis: Any):
+    """Signed angle [rad] in (-pi, pi] from rb to rt about the unit vector ``axis`` (right-hand
+    rule), between their projections on the plane normal to it."""
+    return wp.atan2(wp.dot(axis, wp.cross(rb, rt)), wp.dot(rb, rt) - wp.dot(axis, rb) * wp.dot(axis, rt))
+
+
+@wp.func
+def prism_twist(level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=Any), level_ref: wp.array2d(dtype=Any),
+                hand: Any, u: wp.array2d(dtype=Any), j: int, w: int, near: Any):
+    """(twist [rad], height h [m]) of prism j of column w at the displacement ``u[:, w]``. The twist
+    is the mean over the three bars (bottom k -> top k) of the angle about the prism axis (bottom
+    centroid -> top centroid; the reference axis is z, of length h0) from the bar's bottom node to
+    its top node, both from their base's centroid, counted clockwise seen from the top for a
+    right-handed prism (``hand`` +1; -1 mirrors it), each bar's angle taken within pi of ``near``
+    (unwrapped: 183 deg reads 183, not -177). h is record_strain's: h0 plus the mean z motion of
+    the top base over the bottom's."""
+    h0j = h0[j]
+    three = type(h0j)(3.0)
+    db = u[level_nodes[j, 0], w]
+    dt = u[level_nodes[j + 1, 0], w]
+    ub = db
+    ut = dt
+    zb = db[2]
+    zt = dt[2]
+    for c in range(1, 3):  # record_strain's sums, in its order
+        db = u[level_nodes[j, c], w]
+        dt = u[level_nodes[j + 1, c], w]
+        ub += db
+        ut += dt
+        zb += db[2]
+        zt += dt[2]
+    h = h0j + (zt - zb) / three
+    ub = ub / three
+    ut = ut / three
+    axis = ut - ub
+    axis = wp.normalize(type(axis)(axis[0], axis[1], axis[2] + h0j))
+    two_pi = type(h0j)(TWO_PI)
+    phi = type(h0j)(0.0)
+    for c in range(3):
+        rb = level_ref[j, c] + u[level_nodes[j, c], w] - ub
+        rt = level_ref[j + 1, c] + u[level_nodes[j + 1, c], w] - ut
+        a = -hand * axial_angle(rb, rt, axis)
+        phi += a + two_pi * wp.floor((near - a) / two_pi + type(h0j)(0.5))
+    return phi / three, h
+
+
+@wp.func
+def axis_pair(bi: Any, bj: Any, w0: Any):
+    """(distance [m], side) of two members x_i0 + s bi and x_j0 + t bj (s, t in [0, 1]), with
+    w0 = x_j0 - x_i0: the distance between the two segments (Ericson, Real-Time Collision Detection,
+    5.1.9), and the sign of their oriented distance w0 . (bi x bj) where the closest points of the
+    two lines lie inside both segments (0 elsewhere, and for parallel members): it changes only when
+    one member passes through the other."""
+    a = wp.dot(bi, bi)
+    e = wp.dot(bj, bj)
+    b = wp.dot(bi, bj)
+    c = -wp.dot(bi, w0)
+    f = -wp.dot(bj, w0)
+    den = a * e - b * b
+    # parallel below ~1e-3 rad; 1e-30: no division by 0 at a slack cable's zero length
+    tiny = type(a)(1e-6) * a * e + type(a)(1e-30)
+    s_line = type(a)(0.0)
+    t_line = type(a)(-1.0)
+    if den > tiny:
+        s_line = (b * f - c * e) / den
+        t_line = (a * f - b * c) / den
+    s = wp.clamp(s_line, type(a)(0.0), type(a)(1.0))
+    t = (b * s + f) / wp.max(e, tiny)
+    if t < type(a)(0.0):
+        t = type(a)(0.0)
+        s = wp.clamp(-c / wp.max(a, tiny), type(a)(0.0), type(a)(1.0))
+    elif t > type(a)(1.0):
+        t = type(a)(1.0)
+        s = wp.clamp((b - c) / wp.max(a, tiny), type(a)(0.0), type(a)(1.0))
+    dist = wp.length(bi * s - bj * t - w0)
+    side = int(0)
+    if s_line > type(a)(0.0) and s_line < type(a)(1.0) and t_line > type(a)(0.0) and t_line < type(a)(1.0):
+        side = 1
+        if wp.dot(w0, wp.cross(bi, bj)) < type(a)(0.0):
+            side = -1
+    return dist, side
 
 
 @functools.cache

@@ -23,7 +23,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .common import STATUS_OK, member_vec, node_force, pget
+from .common import PI, STATUS_OK, THIRD_PI, axis_pair, member_vec, node_force, pget, prism_twist
 
 wp.set_module_options({"enable_backward": False})
 
@@ -203,4 +203,91 @@ def _record_kernels(real):
         kinetic[slot, w] = real(0.5) * ke
         elastic[slot, w] = real(0.5) * ee
 
-    return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy)
+    @wp.kernel(enable_backward=False, module="unique")
+    def record_feasibility(
+        # Model:
+        level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=real), level_ref: wp.array2d(dtype=vec),
+        prism_hand: wp.array(dtype=real), every: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), status: wp.array(dtype=int), step: wp.array(dtype=int),
+        # Data out:
+        twist: wp.array2d(dtype=real), twist_max: wp.array2d(dtype=real), twist_min: wp.array2d(dtype=real),
+        height_min: wp.array2d(dtype=real), left_slot: wp.array3d(dtype=int),
+    ):
+        """When step % every == 0: prism j's twist (common.prism_twist, unwrapped against the last
+        output's; taken in (0, 2 pi) at step 0) and height ratio h/h0, their running extremes, and the
+        first output slot at which each reason of types.FEASIBILITY_FLAGS occurred: twist >= pi (bars
+        touch), twist <= pi/3 (cross cables touch), h <= 0 (the prism inverted). An inverted prism's
+        twist is not updated (its axis has flipped). One thread per prism and column: no atomics."""
+        j, w = wp.tid()
+        s = step[0]
+        if s % every != 0 or status[w] != STATUS_OK:
+            return
+        slot = s / every
+        near = real(PI)
+        if slot > 0:
+            near = twist[j, w]
+        phi, h = prism_twist(level_nodes, h0, level_ref, prism_hand[j], u, j, w, near)
+        ratio = h / h0[j]
+        if h <= real(0.0):
+            phi = near
+        if slot == 0:
+            twist_max[j, w] = phi
+            twist_min[j, w] = phi
+            height_min[j, w] = ratio
+            for r in range(3):
+                left_slot[r, j, w] = -1
+        else:
+            if phi > twist_max[j, w]:
+                twist_max[j, w] = phi
+            if phi < twist_min[j, w]:
+                twist_min[j, w] = phi
+            if ratio < height_min[j, w]:
+                height_min[j, w] = ratio
+        twist[j, w] = phi
+        if phi >= real(PI) and left_slot[0, j, w] < 0:
+            left_slot[0, j, w] = slot
+        if phi <= real(THIRD_PI) and left_slot[1, j, w] < 0:
+            left_slot[1, j, w] = slot
+        if h <= real(0.0) and left_slot[2, j, w] < 0:
+            left_slot[2, j, w] = slot
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def record_pairs(
+        # Model:
+        pair_nodes: wp.array2d(dtype=int), pair_dref: wp.array2d(dtype=vec), every: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), status: wp.array(dtype=int), step: wp.array(dtype=int),
+        # Data out:
+        pair_distance_min: wp.array2d(dtype=real), pair_side: wp.array2d(dtype=int),
+        pair_left_slot: wp.array2d(dtype=int),
+    ):
+        """When step % every == 0: the distance of pair p's member axes (common.axis_pair), its
+        smallest, and the first output slot at which the side of their oriented distance flipped
+        while their closest points lay inside both members (one passed through the other) against
+        the last output's; a side seen outside the members is forgotten (members may pass around
+        each other's ends). One thread per pair and column."""
+        p, w = wp.tid()
+        s = step[0]
+        if s % every != 0 or status[w] != STATUS_OK:
+            return
+        slot = s / every
+        i0 = pair_nodes[p, 0]
+        j0 = pair_nodes[p, 2]
+        bi = pair_dref[p, 0] + u[pair_nodes[p, 1], w] - u[i0, w]
+        bj = pair_dref[p, 1] + u[pair_nodes[p, 3], w] - u[j0, w]
+        w0 = pair_dref[p, 2] + u[j0, w] - u[i0, w]
+        dist, side = axis_pair(bi, bj, w0)
+        if slot == 0:
+            pair_distance_min[p, w] = dist
+            pair_left_slot[p, w] = -1
+        else:
+            if dist < pair_distance_min[p, w]:
+                pair_distance_min[p, w] = dist
+            last = pair_side[p, w]
+            if side != 0 and last != 0 and side != last and pair_left_slot[p, w] < 0:
+                pair_left_slot[p, w] = slot
+        pair_side[p, w] = side
+
+    return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
+                           record_feasibility=record_feasibility, record_pairs=record_pairs)

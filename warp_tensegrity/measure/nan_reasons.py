@@ -30,13 +30,20 @@ table below, that explains the first NaN of amplitude, speed, widths):
                                         from the clamp, a precursor) crossed the threshold
                                         first, so no measure is given (checked before 3 and 4)
  7  measurement_undefined               any other NaN (should not occur; report it)
+ 9  left_feasible_set                   the column left the model's feasible set (bars
+                                        crossed, cables touched, a prism inverted:
+                                        ``feasibility_flag``) before its leading pulse had
+                                        crossed the measurement window, or at any time where
+                                        no pulse was found there: every measure NaN (checked
+                                        after 1 and 2, before the others; docs/model.md)
 ==  ==================================  =====================================================
 
 Where a continuous run of the leading peak covers a quarter of the window or more, the measures
 are taken over the longest one (``prisms_measured`` says how long) and the flag stays ``ok``.
 
 ``arrival_time`` is per prism: NaN at the prisms the threshold never reached by t_end (that is
-what it measures), which needs no flag.
+what it measures), and at those it reached only after the column left the feasible set, which
+needs no flag.
 """
 
 from __future__ import annotations
@@ -47,6 +54,7 @@ import numpy as np
 
 from ..types import MEASUREMENT_FLAGS as FLAGS
 from ..types import TIME
+from .feasibility import left_before_measured
 from .pulse_core import measure_pulse, measurement_window
 
 FLAG = {name: i for i, name in enumerate(FLAGS)}
@@ -97,6 +105,15 @@ def measure_columns(result, prism_height: float) -> dict:
         stats = {k: m[k] for k in ("record_finite", "max_compression_finite")}
     out["max_compression"][bad | ~np.isfinite(out["max_compression"])] = np.nan
     out["measurement_flag"] = measurement_flags(status, result.strain, result.time, out, stats)
+    feas = getattr(result, "feasibility", None)
+    if feas is not None:  # measures of a model outside its domain: docs/model.md
+        t_left = np.asarray(feas["feasibility_time"], dtype=np.float64)
+        left = left_before_measured(t_left, m["peak_time"]) & ~bad
+        for k in FLAGGED:
+            out[k][left] = np.nan
+        out["measurement_flag"][left] = FLAG["left_feasible_set"]
+        with np.errstate(invalid="ignore"):
+            out["arrival_time"][out["arrival_time"] >= t_left[:, None]] = np.nan
     return out
 
 
@@ -209,6 +226,8 @@ def summary(flags, n_prisms: int, t_end: float, needed=None) -> list[str]:
         "measurement_undefined": "a measure is NaN for no known reason",
         "leading_pulse_captured": "no measure: something else (a disturbance from the clamp, a precursor) crossed the "
                                   "threshold before the leading pulse over most of the window",
+        "left_feasible_set": "no measure: the column left the feasible set of the model (feasibility_flag) before its "
+                             "pulse had crossed the measurement window",
     }
     for f, text in why.items():
         if counts[f]:

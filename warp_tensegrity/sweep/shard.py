@@ -12,6 +12,7 @@ from ..scene.base_modes import beta_limit_measures
 from ..engine import simulate_batch
 from ..measure.errors import FLAG as ERROR_FLAG
 from ..measure.errors import error_estimates
+from ..measure.feasibility import feasible_record
 from ..measure.nan_reasons import measure_columns  # shared with BatchResult.to_xarray
 from ..policy.groups import twin_ratio
 from ..provenance import provenance_attrs
@@ -148,7 +149,7 @@ def template_dataset(plan: SweepPlan):
         n_columns=1, status=np.zeros(1, np.int8), fail_step=np.full(1, -1, np.int64), energy_error=z(1),
         bar_length_error=z(1), kinetic_energy=z(1, T), elastic_energy=z(1, T), strain=z(1, T, P), time=time,
         info={"output_step": steps if len(plan.groups) < 2 else None, "column_dt": np.full(1, plan.dt),
-              "column_group": np.zeros(1, np.int32), "column_bits": np.full(1, 64, np.int8)})
+              "column_group": np.zeros(1, np.int32), "column_bits": np.full(1, 64, np.int8)}, feasibility=feasible_record(1))
     with np.errstate(all="ignore"):
         meas = measure_columns(result, spec.scene.height)
     meas.update(beta_limit_measures(spec.scene, {k: v[:1] for k, v in plan.params.items()}, 1, meas["max_compression"]))
