@@ -131,6 +131,15 @@ def merge_results(parts: list, n_columns: int, group_ids: list[int] | None = Non
     if len(results) == 1:
         first.info.update(column_dt=column_dt, column_group=column_group, column_bits=column_bits)
         return first
+    feasibility = None
+    if all(r.feasibility is not None for r in results):  # per-column arrays of the record, stitched
+        feasibility = {}
+        for k, v in first.feasibility.items():
+            v = np.asarray(v)
+            out = np.empty((n_columns,) + v.shape[1:], dtype=v.dtype)
+            for c, r in zip(cols, results):
+                out[c] = np.asarray(r.feasibility[k])
+            feasibility[k] = out
     measurements = None
     if all(r.measurements is not None for r in results):
         measurements = {}
@@ -170,7 +179,7 @@ def merge_results(parts: list, n_columns: int, group_ids: list[int] | None = Non
         dt=min(r.dt for r in results), n_steps=max(r.n_steps for r in results), method=first.method,
         precision=first.precision, device=first.device, device_name=first.device_name,
         wall_time=float(sum(r.wall_time for r in results)), dt_limit=min(r.dt_limit for r in results),
-        info=info, measurements=measurements)
+        info=info, measurements=measurements, feasibility=feasibility)
 
 
 def _stitched_beta_limit(parts, n_columns: int, max_compression) -> dict:
@@ -202,6 +211,9 @@ def overwrite_columns(result: BatchResult, index, other: BatchResult) -> None:
         a, b = getattr(result, name), getattr(other, name)
         if a is not None and b is not None:
             a[index] = b
+    if result.feasibility is not None and other.feasibility is not None:
+        for k, v in other.feasibility.items():
+            result.feasibility[k][index] = np.asarray(v)
     if result.measurements is not None and other.measurements is not None:
         for k, v in other.measurements.items():
             mine = result.measurements.get(k)

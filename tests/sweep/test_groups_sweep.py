@@ -50,6 +50,9 @@ def test_groups_run_at_their_own_dt_within_the_target_of_one_fine_dt(tmp_path, c
     rigid = grouped.base_rigidity.values == 1.0
     dt = grouped.time_step.values
     assert np.all(dt[..., rigid] > 3.5 * dt[..., ~rigid])  # the rigid bases step 4x less often
+    for k in ("feasibility_flag", "twist_max", "height_ratio_min", "error_flag", "precision_used"):
+        assert k in grouped and np.isfinite(grouped[k].values.astype(float)).all(), k  # every group's, stitched
+    assert np.array_equal(np.isfinite(grouped.amplitude_error.values), np.isfinite(grouped.amplitude.values))
     assert set(np.unique(grouped.run_group.values)) == {0, 1} and "0: 4 columns (rigid bases" in grouped.attrs["run_groups"]
     fine = float(dt.min()) / 4
     ref = _run(tmp_path, "fine", "--set", "run.groups=false", "--set", f"run.dt={fine}")

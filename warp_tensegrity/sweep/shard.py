@@ -83,7 +83,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
 
     ``twins``: each group's error-estimate twin too (:attr:`RunGroup.twin`); a group that verifies
     fp32 (precision 'auto', :attr:`RunGroup.fallback`) reruns in fp64 the columns whose error_flag
-    is over_target or twin_undefined. Then returns (result, errors): every measure's error estimate
+    is over_target or twin_undefined (and that stay in the feasible set). Then returns (result, errors): every measure's error estimate
     and ``error_flag`` (:func:`warp_tensegrity.measure.errors.error_estimates`), in column order.
     ``progress(done, total, n_failed)`` sees the shard's column-steps (twins included) as one run."""
     group = plan.column_group[start:stop]
@@ -118,7 +118,10 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
         r = run(cols, g.plan)
         if twins:
             err = estimate(r, g.plan, run(cols, g.twin), g.twin)
-            redo = np.flatnonzero(np.isin(err["error_flag"], VERIFY_FAILS)) if g.fallback is not None else []
+            bad = np.isin(err["error_flag"], VERIFY_FAILS)
+            if r.feasibility is not None:  # a case outside the model's feasible set is flagged, not rerun
+                bad &= np.asarray(r.feasibility["feasibility_flag"]) == 0
+            redo = np.flatnonzero(bad) if g.fallback is not None else []
             if len(redo):  # fp32 not verified: fp64, with its own twin and estimate
                 rb = run(cols[redo], g.fallback)
                 err_b = estimate(rb, g.fallback, run(cols[redo], g.fallback_twin), g.fallback_twin)
