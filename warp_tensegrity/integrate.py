@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
+from .kernels.contact import ContactStep
 from .kernels.fused import FusedStep
 from .kernels.lanes import LaneStep
 from .kernels.staged import make_kernels
@@ -96,6 +97,12 @@ class Integrator:
                 self.fk = FusedStep(m, self.device, self.fused_block, FUSED_STEPS,
                                     self.device.is_cuda or FUSED_SHARED_ON_CPU,
                                     "serial" if self.path == Path.FUSED_SERIAL else "cr")
+        self.contact = None
+        if batch.contact_pairs is not None:  # bar contact (scene contact = 'bars'): the staged RATTLE step only
+            if self.path != Path.STAGED or settings.method != Method.RATTLE:
+                raise SettingsError(f"bar contact runs on the staged path with method = 'rattle' (got path "
+                                    f"{self.path.value}, method {settings.method!r})")
+            self.contact = ContactStep(self.model, batch, self.device, COLUMN_BLOCK_DIM if self.device.is_cuda else 1)
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)
@@ -195,6 +202,8 @@ class Integrator:
             for kern in (self.k.record_strain, self.k.record_energy):
                 kern.module.load(self.device, self._block_dim(kern))
             return
+        if self.contact is not None:
+            self.contact.load()
         rk_only = {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in {**vars(self.k), **vars(self.ks)}.items():
             if isinstance(kern, wp.Kernel) and (self.settings.method == Method.RK4 or name not in rk_only):
@@ -213,10 +222,16 @@ class Integrator:
 
     def _rattle(self, h):
         d = self.data
+        if self.contact is not None:
+            self.contact.save_start(d)
         self._kick_drift(0.5 * h, h)
         self._project_positions(d.u_prev, 1.0 / h)
+        if self.contact is not None:  # bar pairs closer than 2 r join the projection (kernels.contact)
+            self.contact.positions(d, self.settings, d.u_prev, h)
         self._gather(d.u, d.v, 0.5 * h, d.a, d.v)
         self._factor_project_velocities(d.u, d.v)
+        if self.contact is not None:
+            self.contact.velocities(d)
 
     def _symplectic_euler(self, h):
         d = self.data

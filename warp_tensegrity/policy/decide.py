@@ -16,14 +16,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..arguments import expect, expect_callable, expect_count, expect_params
-from ..options import RunSettings
+from ..options import RunSettings, SettingsError
 from ..runtime import resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
 from ..types import Base, Path
 from .accuracy import apply_accuracy, choose_timestep, default_dt_safety, output_times, reachable_prisms
 from .lane_fit import lane_refusal, lane_support
-from .paths import choose_path, gram_bandwidth
+from .paths import CONTACT_PATH, choose_path, gram_bandwidth
 
 ESTIMATE_CHUNK_BYTES = 4_000_000
 """Host bytes of the column batches built at a time where all of a run's columns are only bounded
@@ -193,12 +193,18 @@ def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: st
     """The plan from the bound, a batch with every member of the run's (``topology``) and the rest."""
     bandwidth = gram_bandwidth(topology)
     dt, limit, n_steps, every = choose_timestep(settings, omega)
+    contact = topology.contact_pairs is not None
+    if contact and settings.method != "rattle":
+        raise SettingsError(f"method = {settings.method!r}: bar contact (scene contact = 'bars') is a RATTLE projection; "
+                            "use method = 'rattle'" + (" (run.accuracy chose it: give dt or dt_safety instead)"
+                                                       if settings.accuracy is not None else ""))
     device = resolve_device(settings.device)  # initialises Warp (quietly)
-    path = choose_path(settings, device.is_cuda, n_columns, bandwidth, lanes)
+    path = choose_path(settings, device.is_cuda, n_columns, bandwidth, lanes, contact)
     reasons.append(f"dt = {dt:.4g} s: " + (f"{settings.dt_safety:.3g} x the stability limit {limit:.4g} s"
                                           if settings.dt == "auto" else "given"))
-    reasons.append(f"path {path.value}: fused = {settings.fused!r} on {device.alias}, {n_columns} columns per launch"
-                   + ("" if lanes is None else f"; not the lane step: {lanes}"))
+    reasons.append(f"path {path.value}: " + (CONTACT_PATH if contact else
+                                               f"fused = {settings.fused!r} on {device.alias}, {n_columns} columns per launch"
+                                               + ("" if lanes is None else f"; not the lane step: {lanes}")))
     return RunPlan(settings=replace(settings, device=device.alias), dt=dt, dt_limit=limit, n_steps=n_steps,
                    output_every=every, omega_max_bound=omega, bandwidth=int(bandwidth), n_nodes=int(topology.positions.shape[0]),
                    n_constraints=len(topology.constraints), n_cables=len(topology.cables), path=path, lane_refusal=lanes,
