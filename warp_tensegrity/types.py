@@ -309,6 +309,7 @@ CONTACT_STATE_FIELDS = (
     Field("contact_min", "real", "(B,)", "m", "smallest signed axis distance of any pair over the run"),
     Field("contact_impacts", "int32", "(B,)", "--", "bar impacts so far"),
     Field("contact_first", "int32", "(B,)", "--", "step of the first contact, -1 if none"),
+    Field("contact_substeps", "int32", "(B,)", "--", "RATTLE substeps the column's contact steps took"),
 )
 """State of the contact projection (:class:`warp_tensegrity.kernels.contact.ContactStep`)."""
 
