@@ -185,3 +185,12 @@ def contact_arrays(batch, partner: np.ndarray) -> dict:
                pair_wref=X[cons[pairs[:, 1], 0]] - X[cons[pairs[:, 0], 0]],
                pair_sign=reference_sign(X, cons, pairs))
     return out
+
+
+def contact_strain(radius: float, height: float, twist: float, bar_radius: float) -> float:
+    """Prism strain (h - h0)/h [1] at the contact twist of a regular prism (:func:`contact_twist`):
+    where a rigid-base prism stops compressing with bar contact (without it, at the kinematic lock
+    of twist pi, :func:`~.impact.kinematic_lock_strain`)."""
+    L2 = height**2 + 2.0 * radius**2 * (1.0 - math.cos(twist))
+    h = math.sqrt(L2 - 2.0 * radius**2 * (1.0 - math.cos(contact_twist(radius, height, twist, bar_radius))))
+    return (h - height) / h
