@@ -147,3 +147,21 @@ def test_policy_routes_contact_to_the_staged_path():
             decide(BARS, params, RunSettings(t_end=0.1, device="cpu", fused=fused))
     with pytest.raises(SettingsError, match="method = 'rk4': bar contact"):
         decide(BARS, params, RunSettings(t_end=0.1, device="cpu", method="rk4"))
+
+
+def test_truncation_keeps_the_contact_compaction_front():
+    """A strong impact with contact drives a compaction front (prisms locked at the contact
+    compression pass the impact on rigidly) past the elastic bound that truncation uses: at
+    v0 = 0.3 m/s on 120 RB prisms it is 68 prisms deep by t = 0.3 s, beyond that bound (55,
+    margin included). prisms_to_simulate keeps it (the control: the bound without the contact term)."""
+    from warp_tensegrity.policy.accuracy import reachable_prisms
+    from warp_tensegrity.policy.decide import far_end, omega_bound, prisms_to_simulate
+
+    cfg = replace(BARS, n_prisms=120)
+    params = {"prestrain": 0.002, "v0": 0.3, "base_rigidity": 1.0}
+    r = _run(cfg, params, t_end=0.3)
+    reached = np.flatnonzero(np.nanmin(r.strain[0], axis=0) < -0.01)
+    depth = cfg.n_prisms - reached.min()  # prisms from the impacted end the front compressed
+    elastic = reachable_prisms(omega_bound(far_end(cfg, 4), params), 0.3, cfg.n_prisms)
+    assert depth > elastic, (depth, elastic)
+    assert prisms_to_simulate(cfg, params, RunSettings(t_end=0.3)) >= depth + 8

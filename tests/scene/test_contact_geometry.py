@@ -170,3 +170,19 @@ def test_run_settings_do_not_carry_contact():
     assert {"contact", "bar_radius", "restitution"} <= set(ColumnConfig.__pydantic_fields__)
     with pytest.raises(NetworkError):
         ColumnConfig(contact="bars", bar_radius=0.9e-3)
+
+
+def test_a_spec_and_init_carry_the_contact_options():
+    """[scene] of a sweep spec takes them (errors name the key with its table), and the starting
+    spec of `warp-tensegrity init` lists them, generated from the declarations."""
+    from warp_tensegrity.init_spec import sweep_spec_text
+    from warp_tensegrity.sweep import SpecError, load_spec
+
+    text = ('[scene]\nn_prisms = 4\ncontact = "bars"\nbar_radius = 2.5e-4\nrestitution = 0.5\n'
+            '[sweep]\ncases = [{ v0 = 0.1, base_rigidity = 1.0 }]\n[run]\nt_end = 0.1\n')
+    spec = load_spec(text)
+    assert (spec.scene.contact, spec.scene.bar_radius, spec.scene.restitution) == ("bars", 2.5e-4, 0.5)
+    with pytest.raises(SpecError, match=r"scene\.bar_radius = 0\.002: contact = 'bars' needs"):
+        load_spec(text.replace("2.5e-4", "0.002"))
+    starting = sweep_spec_text("paper")
+    assert all(f"# {k} = " in starting for k in ("contact", "bar_radius", "restitution"))

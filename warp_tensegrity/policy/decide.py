@@ -11,6 +11,7 @@ the dry run read it. No Warp at module level: the device is resolved inside :fun
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -20,8 +21,16 @@ from ..options import RunSettings, SettingsError
 from ..runtime import resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
+from ..scene.contact import contact_strain
 from ..types import Base, Path
-from .accuracy import apply_accuracy, choose_timestep, default_dt_safety, output_times, reachable_prisms
+from .accuracy import (
+    REACH_MARGIN_PRISMS,
+    apply_accuracy,
+    choose_timestep,
+    default_dt_safety,
+    output_times,
+    reachable_prisms,
+)
 from .lane_fit import lane_refusal, lane_support
 from .paths import CONTACT_PATH, choose_path, gram_bandwidth
 
@@ -134,7 +143,8 @@ def omega_bound(config: ColumnConfig, params: dict) -> float:
 
 
 def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings) -> int:
-    """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end."""
+    """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end
+    (with bar contact, also a compaction front's reach)."""
     n = config.n_prisms
     if not settings.truncate or n <= 4:
         return n
@@ -143,7 +153,16 @@ def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings
         # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
         # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
         return n
-    return reachable_prisms(omega_bound(far_end(config, 4), params), settings.t_end, n)  # a local bound
+    reach = reachable_prisms(omega_bound(far_end(config, 4), params), settings.t_end, n)  # a local bound
+    if config.contact == "bars":
+        # prisms locked at the contact compression eps_c pass the impact on rigidly: a compaction
+        # front at ~v0/eps_c (0.5 of it measured, docs/contact.md), which strong impacts drive past
+        # the elastic bound; twice that, with the margin
+        eps = abs(contact_strain(config.radius, config.height, config.twist, config.bar_radius))
+        v0 = float(np.max(column_params(config, params)["v0"]))
+        front = math.ceil(2.0 * v0 * settings.t_end / (eps * config.height)) + REACH_MARGIN_PRISMS
+        reach = max(reach, min(n, front))
+    return reach
 
 
 def _topology_batch(config: ColumnConfig, params: dict) -> NetworkBatch:
