@@ -143,6 +143,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
             "step_path": integ.fk.description if integ.fused else "staged (one kernel per stage)",
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
             "stages": stages,
+            **({"contact": integ.contact.summary()} if integ.contact is not None else {}),
         },
     )
 

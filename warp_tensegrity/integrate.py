@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
+from .kernels.contact import ContactStep
 from .kernels.fused import FusedStep
 from .kernels.lanes import LaneStep
 from .kernels.staged import make_kernels
@@ -99,6 +100,12 @@ class Integrator:
                 self.fk = FusedStep(m, self.device, self.fused_block, FUSED_STEPS,
                                     self.device.is_cuda or FUSED_SHARED_ON_CPU,
                                     "serial" if self.path == Path.FUSED_SERIAL else "cr")
+        self.contact = None
+        if batch.contact_pairs is not None:  # bar contact (scene contact = 'bars'): the staged RATTLE step only
+            if self.path != Path.STAGED or settings.method != Method.RATTLE:
+                raise SettingsError(f"bar contact runs on the staged path with method = 'rattle' (got path "
+                                    f"{self.path.value}, method {settings.method!r})")
+            self.contact = ContactStep(self.model, batch, self.device, COLUMN_BLOCK_DIM if self.device.is_cuda else 1)
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)
@@ -193,7 +200,7 @@ class Integrator:
                          d.twist, d.twist_max, d.twist_min, d.height_min, d.left_slot], model="feasibility")
         elif m.n_pairs > 0:
             self._launch(self.k.record_pairs, (m.n_pairs, m.n_columns), [self.every, d.u, d.status, d.step,
-                         d.pair_distance_min, d.pair_side, d.pair_left_slot], model="pairs")
+                         d.pair_distance_min, d.cross_side, d.pair_left_slot], model="pairs")
 
     # ------------------------------------------------------------------ steps
     def load_kernels(self):
@@ -207,6 +214,8 @@ class Integrator:
                     kern = getattr(self.k, name)
                     kern.module.load(self.device, self._block_dim(kern))
             return
+        if self.contact is not None:
+            self.contact.load()
         if self.settings.method != Method.RK4:
             unused |= {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in {**vars(self.k), **vars(self.ks)}.items():
@@ -226,10 +235,16 @@ class Integrator:
 
     def _rattle(self, h):
         d = self.data
+        if self.contact is not None:
+            self.contact.save_start(d)
         self._kick_drift(0.5 * h, h)
         self._project_positions(d.u_prev, 1.0 / h)
+        if self.contact is not None:  # bar pairs closer than 2 r join the projection (kernels.contact)
+            self.contact.positions(d, self.settings, d.u_prev, h)
         self._gather(d.u, d.v, 0.5 * h, d.a, d.v)
         self._factor_project_velocities(d.u, d.v)
+        if self.contact is not None:
+            self.contact.velocities(d)
 
     def _symplectic_euler(self, h):
         d = self.data

@@ -206,7 +206,7 @@ def _feasibility_data(model: Model, real) -> dict:
                                                  device=d)
     return dict(twist=arr(P, real, 0.0), twist_max=arr(P, real, 0.0), twist_min=arr(P, real, 0.0),
                 height_min=arr(P, real, 0.0), left_slot=arr(P, wp.int32, -1, (len(types.FEASIBILITY_FLAGS),)),
-                pair_distance_min=arr(Q, real, 0.0), pair_side=arr(Q, wp.int32, 0), pair_left_slot=arr(Q, wp.int32, -1))
+                pair_distance_min=arr(Q, real, 0.0), cross_side=arr(Q, wp.int32, 0), pair_left_slot=arr(Q, wp.int32, -1))
 
 
 def _device_velocity(velocity: np.ndarray, model: Model, vec) -> wp.array:

@@ -14,9 +14,11 @@ Every device array is declared once, as a :class:`Field` of :data:`MODEL_FIELDS`
 ``n`` = nodes, ``nc`` = rigid members (constraints), ``ne`` = cables, ``bw`` = half-bandwidth of
 the constraint Gram matrix G M^-1 G^T, ``np`` = prisms, ``nb`` = blocks of M, ``ncp`` = coupling
 terms of the Gram matrix, ``nx`` = a column's solver reals, ``nr`` = feasibility reasons
-(:data:`FEASIBILITY_FLAGS`), ``npr`` = member pairs checked for crossing. Batched arrays put the
-column index last (fastest), so neighbouring threads read neighbouring columns; the fused step's
-scratch puts it first (one thread block per column). Per-column parameters are read as ``param[k, b % Bp]``.
+(:data:`FEASIBILITY_FLAGS`), ``nxp`` = member pairs checked for crossing; with bar contact ``npr`` =
+bar pairs, ``R`` = nc + npr rows of the contact system, ``cbw`` its Gram half-bandwidth, ``ncq`` its
+coupling terms, ``nin`` its node incidences. Batched arrays put the column index last (fastest), so
+neighbouring threads read neighbouring columns; the fused step's scratch puts it first (one thread
+block per column). Per-column parameters are read as ``param[k, b % Bp]``.
 ``real`` is fp32 or fp64 (the run's precision), ``vec3`` three reals.
 
 {field_table}
@@ -263,11 +265,11 @@ MODEL_FIELDS = (
     Field("level_ref", "vec3", "(np+1, 3)", "m", "reference position of each base node from its base's centroid",
           ("feasibility",), optional=True),
     Field("prism_hand", "real", "(np,)", "1", "+1 right-handed prism, -1 left-handed", ("feasibility",), optional=True),
-    Field("pair_nodes", "int32", "(npr, 4)", "--", "end nodes i0, i1, j0, j1 of the two members of a checked pair "
+    Field("pair_nodes", "int32", "(nxp, 4)", "--", "end nodes i0, i1, j0, j1 of the two members of a checked pair "
           "(networks that are not columns; None for columns)", ("pairs",), optional=True),
-    Field("pair_dref", "vec3", "(npr, 3)", "m", "reference vectors X_i1 - X_i0, X_j1 - X_j0, X_j0 - X_i0 of the pair",
+    Field("pair_dref", "vec3", "(nxp, 3)", "m", "reference vectors X_i1 - X_i0, X_j1 - X_j0, X_j0 - X_i0 of the pair",
           ("pairs",), optional=True),
-    Field("pair_kind", "int32", "(npr,)", "--", "0: two bars, 1: two cables (read on the host)", optional=True),
+    Field("pair_kind", "int32", "(nxp,)", "--", "0: two bars, 1: two cables (read on the host)", optional=True),
 )
 """Topology and per-column parameters (:class:`~warp_tensegrity.model.Model`)."""
 
@@ -291,9 +293,9 @@ DATA_FIELDS = (
     Field("twist_min", "real", "(np, B)", "rad", "smallest prism twist over the outputs"),
     Field("height_min", "real", "(np, B)", "1", "smallest prism height ratio h/h0 over the outputs"),
     Field("left_slot", "int32", "(nr, np, B)", "--", "first output slot of each FEASIBILITY_FLAGS reason, -1 never"),
-    Field("pair_distance_min", "real", "(npr, B)", "m", "smallest distance between the pair's member axes"),
-    Field("pair_side", "int32", "(npr, B)", "--", "side of the pair's oriented axis distance, 0 when not facing"),
-    Field("pair_left_slot", "int32", "(npr, B)", "--", "first output slot at which the pair crossed, -1 never"),
+    Field("pair_distance_min", "real", "(nxp, B)", "m", "smallest distance between the pair's member axes"),
+    Field("cross_side", "int32", "(nxp, B)", "--", "side of the pair's oriented axis distance, 0 when not facing"),
+    Field("pair_left_slot", "int32", "(nxp, B)", "--", "first output slot at which the pair crossed, -1 never"),
 )
 """Mutable state (:class:`~warp_tensegrity.model.Data`; staged-only arrays are size-1 placeholders
 on the fused paths)."""
@@ -307,6 +309,54 @@ SCRATCH_FIELDS = (
 """The fused step's own rows (``kernels.fused.FusedStep``; size-1 where they live in shared memory)."""
 
 
+CONTACT_FIELDS = (
+    Field("pair_bi", "int32", "(npr,)", "--", "rigid member of the bar pair's first bar"),
+    Field("pair_bj", "int32", "(npr,)", "--", "rigid member of the bar pair's second bar"),
+    Field("pair_wref", "vec3", "(npr,)", "m", "reference vector from the first bar's first node to the second's"),
+    Field("pair_sign", "real", "(npr,)", "1", "sign that makes the pair's axis distance positive at the reference"),
+    Field("pair_row", "int32", "(npr,)", "--", "the pair's row in the contact system"),
+    Field("row_kind", "int32", "(R,)", "--", "row of the contact system: 0 rigid member, 1 bar pair"),
+    Field("row_index", "int32", "(R,)", "--", "the row's rigid member or bar pair"),
+    Field("acpl_start", "int32", "(R+1,)", "--", "CSR row starts of the contact Gram matrix's coupling terms"),
+    Field("acpl_l", "int32", "(ncq,)", "--", "coupling term's column l <= k"),
+    Field("acpl_sk", "int32", "(ncq,)", "--", "coupling term's slot of row k"),
+    Field("acpl_sl", "int32", "(ncq,)", "--", "coupling term's slot of row l"),
+    Field("acpl_a", "int32", "(ncq,)", "--", "coupling term's node a of row k"),
+    Field("acpl_cross", "int32", "(ncq,)", "--", "1 if the term takes the partner entry of M^-1"),
+    Field("anode_start", "int32", "(n+1,)", "--", "CSR node -> (row, slot) of the contact system"),
+    Field("anode_row", "int32", "(nin,)", "--", "row of the node's incidence"),
+    Field("anode_slot", "int32", "(nin,)", "--", "slot of the node's incidence"),
+)
+"""The contact system's topology (scene contact = 'bars', :mod:`warp_tensegrity.kernels.contact`):
+rows of rigid members and bar pairs, each pair right after its later bar; a row's slots are its nodes
+(a member's i, j; a pair's P_i, Q_i, P_j, Q_j)."""
+
+CONTACT_STATE_FIELDS = (
+    Field("cband", "real", "(R, cbw+1, B)", "--", "banded Cholesky factor of the contact system's Gram matrix"),
+    Field("clam", "real", "(R, B)", "--", "multipliers / right-hand sides of the contact system"),
+    Field("cu0", "vec3", "(n, B)", "m", "positions at the start of a substep"),
+    Field("vsub", "vec3", "(n, B)", "m s-1", "velocities at the start of a landing substep (its retry point)"),
+    Field("asub", "vec3", "(n, B)", "m s-2", "accelerations at the start of a landing substep"),
+    Field("vstart", "vec3", "(n, B)", "m s-1", "velocities at the start of the step"),
+    Field("cv0", "vec3", "(n, B)", "--", "velocities before an impact, positions before a projection (restart points)"),
+    Field("cimp", "vec3", "(n, B)", "--", "scratch: J^T lambda per node (massive bars)"),
+    Field("pair_side", "real", "(npr, B)", "1", "the pair's side (+-1): the sign of its axis distance (pair_sign at the start; "
+          "it changes where the axes pass through parallel, never through contact)"),
+    Field("pair_m", "vec3", "(npr, B)", "1", "unit normal dD/dc_j of the pair at the linearisation point"),
+    Field("pair_s", "real", "(npr, B)", "1", "closest point's parameter on the first bar"),
+    Field("pair_t", "real", "(npr, B)", "1", "closest point's parameter on the second bar"),
+    Field("pair_act", "int32", "(npr, B)", "--", "1 while the pair is a row of the current solve (2: its impact done, -1: left out)"),
+    Field("pair_acc", "real", "(npr, B)", "--", "the pair's multiplier summed over the position solve (> 0: adhesive)"),
+    Field("pair_vn", "real", "(npr, B)", "m s-1", "normal relative velocity of the pair before its impact"),
+    Field("pair_state", "int32", "(npr, B)", "--", "1 if the pair touched after the last position stage, else 0"),
+    Field("contact_min", "real", "(B,)", "m", "smallest signed axis distance of any pair over the run"),
+    Field("contact_impacts", "int32", "(B,)", "--", "bar impacts so far"),
+    Field("contact_first", "int32", "(B,)", "--", "step of the first contact, -1 if none"),
+    Field("contact_substeps", "int32", "(B,)", "--", "RATTLE substeps the column's contact steps took"),
+)
+"""State of the contact projection (:class:`warp_tensegrity.kernels.contact.ContactStep`)."""
+
+
 def group_fields(group: str, fields: tuple[Field, ...] | None = None) -> tuple[Field, ...]:
     """The fields (default :data:`MODEL_FIELDS`) in argument group ``group``, in their order."""
     return tuple(f for f in (MODEL_FIELDS if fields is None else fields) if group in f.groups)
@@ -315,7 +365,8 @@ def group_fields(group: str, fields: tuple[Field, ...] | None = None) -> tuple[F
 def field_table() -> str:
     """The declared arrays as a reStructuredText table (the module docstring's)."""
     rows = [(f"{owner}.{f.name}", f"{f.shape} {f.dtype}", f.unit, f.doc + (" (optional)" if f.optional else ""))
-            for owner, fields in (("Model", MODEL_FIELDS), ("Data", DATA_FIELDS), ("FusedStep", SCRATCH_FIELDS))
+            for owner, fields in (("Model", MODEL_FIELDS), ("Data", DATA_FIELDS), ("FusedStep", SCRATCH_FIELDS),
+                                  ("ContactStep", CONTACT_FIELDS + CONTACT_STATE_FIELDS))
             for f in fields]
     head = ("array", "shape dtype", "unit", "meaning")
     widths = [max(len(r[i]) for r in rows + [head]) for i in range(4)]

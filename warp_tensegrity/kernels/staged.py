@@ -259,7 +259,7 @@ def _record_kernels(real):
         # Data in:
         u: wp.array2d(dtype=vec), status: wp.array(dtype=int), step: wp.array(dtype=int),
         # Data out:
-        pair_distance_min: wp.array2d(dtype=real), pair_side: wp.array2d(dtype=int),
+        pair_distance_min: wp.array2d(dtype=real), cross_side: wp.array2d(dtype=int),
         pair_left_slot: wp.array2d(dtype=int),
     ):
         """When step % every == 0: the distance of pair p's member axes (common.axis_pair), its
@@ -284,10 +284,10 @@ def _record_kernels(real):
         else:
             if dist < pair_distance_min[p, w]:
                 pair_distance_min[p, w] = dist
-            last = pair_side[p, w]
+            last = cross_side[p, w]
             if side != 0 and last != 0 and side != last and pair_left_slot[p, w] < 0:
                 pair_left_slot[p, w] = slot
-        pair_side[p, w] = side
+        cross_side[p, w] = side
 
     return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
                            record_feasibility=record_feasibility, record_pairs=record_pairs)

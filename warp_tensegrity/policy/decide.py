@@ -15,6 +15,7 @@ the dry run read it. No Warp at module level: the device is resolved inside :fun
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -24,11 +25,19 @@ from ..options import RunSettings, SettingsError
 from ..runtime import resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
 from ..scene.columns import ColumnConfig
+from ..scene.contact import contact_strain
 from ..types import Base, Path, Precision
-from .accuracy import apply_accuracy, choose_timestep, default_dt_safety, output_times, reachable_prisms
+from .accuracy import (
+    REACH_MARGIN_PRISMS,
+    apply_accuracy,
+    choose_timestep,
+    default_dt_safety,
+    output_times,
+    reachable_prisms,
+)
 from .cost import size_problems
 from .lane_fit import lane_refusal, lane_support
-from .paths import choose_path, gram_bandwidth
+from .paths import CONTACT_PATH, choose_path, gram_bandwidth
 
 ESTIMATE_CHUNK_BYTES = 4_000_000
 """Host bytes of the column batches built at a time where all of a run's columns are only bounded
@@ -149,7 +158,8 @@ def omega_bound(config: ColumnConfig, params: dict) -> float:
 
 
 def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings) -> int:
-    """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end."""
+    """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end
+    (with bar contact, also a compaction front's reach)."""
     n = config.n_prisms
     if not settings.truncate or n <= 4:
         return n
@@ -158,7 +168,16 @@ def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings
         # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
         # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
         return n
-    return reachable_prisms(omega_bound(far_end(config, 4), params), settings.t_end, n)  # a local bound
+    reach = reachable_prisms(omega_bound(far_end(config, 4), params), settings.t_end, n)  # a local bound
+    if config.contact == "bars":
+        # prisms locked at the contact compression eps_c pass the impact on rigidly: a compaction
+        # front at ~v0/eps_c (0.5 of it measured, docs/contact.md), which strong impacts drive past
+        # the elastic bound; twice that, with the margin
+        eps = abs(contact_strain(config.radius, config.height, config.twist, config.bar_radius))
+        v0 = float(np.max(column_params(config, params)["v0"]))
+        front = math.ceil(2.0 * v0 * settings.t_end / (eps * config.height)) + REACH_MARGIN_PRISMS
+        reach = max(reach, min(n, front))
+    return reach
 
 
 def _topology_batch(config: ColumnConfig, params: dict) -> NetworkBatch:
@@ -211,12 +230,18 @@ def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: st
         settings = replace(settings, precision=Precision.FP64)
     bandwidth = gram_bandwidth(topology)
     dt, limit, n_steps, every = choose_timestep(settings, omega)
+    contact = topology.contact_pairs is not None
+    if contact and settings.method != "rattle":
+        raise SettingsError(f"method = {settings.method!r}: bar contact (scene contact = 'bars') is a RATTLE projection; "
+                            "use method = 'rattle'" + (" (run.accuracy chose it: give dt or dt_safety instead)"
+                                                       if settings.accuracy is not None else ""))
     device = resolve_device(settings.device)  # initialises Warp (quietly)
-    path = choose_path(settings, device.is_cuda, n_columns, bandwidth, lanes)
+    path = choose_path(settings, device.is_cuda, n_columns, bandwidth, lanes, contact)
     reasons.append(f"dt = {dt:.4g} s: " + (f"{settings.dt_safety:.3g} x the stability limit {limit:.4g} s"
                                           if settings.dt == "auto" else "given"))
-    reasons.append(f"path {path.value}: fused = {settings.fused!r} on {device.alias}, {n_columns} columns per launch"
-                   + ("" if lanes is None else f"; not the lane step: {lanes}"))
+    reasons.append(f"path {path.value}: " + (CONTACT_PATH if contact else
+                                               f"fused = {settings.fused!r} on {device.alias}, {n_columns} columns per launch"
+                                               + ("" if lanes is None else f"; not the lane step: {lanes}")))
     run = RunPlan(settings=replace(settings, device=device.alias), dt=dt, dt_limit=limit, n_steps=n_steps,
                   output_every=every, omega_max_bound=omega, bandwidth=int(bandwidth), n_nodes=int(topology.positions.shape[0]),
                   n_constraints=len(topology.constraints), n_cables=len(topology.cables), path=path, lane_refusal=lanes,

@@ -18,6 +18,7 @@ from ..arguments import expect, expect_params
 from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
 from . import columns as col
 from . import sparse
+from .contact import prism_pairs
 from .network import Network, NetworkError
 
 
@@ -56,6 +57,12 @@ class NetworkBatch:
     cable_names: list[str] | None = None
     equilibrium_residual: np.ndarray | None = None
     """(B,) relative equilibrium residual of the reference state (columns)."""
+    contact_pairs: np.ndarray | None = None
+    """(n_pairs, 2) constraint indices of the bar pairs kept apart (scene contact = 'bars'), or None."""
+    contact_gap: float = 0.0
+    """Smallest distance 2 r allowed between the axes of a contact pair [m]."""
+    restitution: float = 1.0
+    """Restitution coefficient of a bar impact [1]."""
 
 
 def _shrink(a: np.ndarray) -> np.ndarray:
@@ -233,6 +240,11 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
         constraint_names=names,
         cable_names=cable_names,
     )
+    if config.contact == "bars":  # each prism's bar pairs, as rows of the constraint list
+        bar_row = np.flatnonzero(~is_link)
+        batch.contact_pairs = bar_row[prism_pairs(topo.bars)].astype(np.int64)
+        batch.contact_gap = 2.0 * float(config.bar_radius)
+        batch.restitution = float(config.restitution)
     # the reference state depends on (prestrain, base rigidity, EA) only: check each distinct one once
     states, inverse = reference_states(p)
     if len(inverse) > len(states["prestrain"]):

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..options import MASS, Opt, check_column_param, fmt, options_class
 from . import sparse
+from .contact import CONTACT_MODELS, regular_gap
 from .impact import least_energy_impact
 from .network import Network, NetworkError
 
@@ -100,6 +101,20 @@ class ColumnConfig:
     the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
     'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
     (twisting) velocity that satisfies the bars; no other node moves."""
+    contact: Annotated[str, Opt("choice", choices=CONTACT_MODELS)] = "none"
+    """Bar contact: 'none' (default, the paper's model: bars are axes and pass through each other)
+    or 'bars': the bars of each prism stay at least 2 bar_radius apart (axis to axis), a unilateral
+    constraint of the RATTLE projection on positions and velocities (docs/contact.md). Needs
+    method 'rattle'; runs on the staged path."""
+    bar_radius: Annotated[float, Opt("real", "m", ge=0, le=LENGTH[1])] = 0.0
+    """Radius r of the bars' cross-section [m] (contact = 'bars'): the bar axes of a prism keep 2 r
+    apart. Must be > 0 with contact, and 2 r below the axis distance of the reference prism (1.77 mm
+    for the paper's); 0: not given (the paper gives none)."""
+    restitution: Annotated[float, Opt("real", "1", ge=0, le=1)] = 1.0
+    """Restitution coefficient e of a bar impact (contact = 'bars'): the normal relative velocity
+    after an impact is -e times the one before. Default 1 (elastic): the model has rigid bars,
+    elastic cables and no damping, so contact keeps it conservative and energy_error still measures
+    the integration alone; e < 1 dissipates at each impact, 0 keeps touching bars together."""
 
     def __post_init__(self):
         h = self.handedness  # checked without building the per-prism array (n_prisms may be large)
@@ -111,10 +126,23 @@ class ColumnConfig:
         if self.cable_radius > self.radius:
             raise NetworkError(f"cable_radius = {self.cable_radius!r}: must be <= radius = {self.radius!r} m "
                                "(a cable thicker than the prism)")
+        if self.contact == "bars":
+            self._check_bar_radius()
         if self.bar_mass > 0 and self.n_prisms > 1:
             # the consistent bar inertia needs class-1 networks; a column's inner nodes carry two bars
             raise NetworkError(f"bar_mass = {self.bar_mass!r}: massive bars need n_prisms = 1 (the inner nodes of a "
                                f"column carry two bars; n_prisms = {self.n_prisms}): put the mass in unit_mass")
+
+    def reference_gap(self) -> float:
+        """Distance [m] between two bar axes of a prism at the reference (the scene's twist)."""
+        L = math.sqrt(self.height**2 + 2.0 * self.radius**2 * (1.0 - math.cos(self.twist)))
+        return regular_gap(self.radius, L, self.twist)
+
+    def _check_bar_radius(self):
+        gap = self.reference_gap()
+        if not 0.0 < 2.0 * self.bar_radius < gap:
+            raise NetworkError(f"bar_radius = {self.bar_radius!r}: contact = 'bars' needs 0 < bar_radius < "
+                               f"{0.5 * gap:.6g} m (the bar axes of the reference prism are {gap:.6g} m apart)")
 
     @property
     def cable_EA(self) -> float:
