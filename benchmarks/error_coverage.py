@@ -62,7 +62,7 @@ def run_sweep(text: str, device: str, mode: str) -> tuple:
     t0 = time.perf_counter()
     parts = [compute_shard(plan, i) for i in range(plan.n_shards)]
     wall = time.perf_counter() - t0
-    stepping = sum(float(p.attrs.get("wall_time", 0.0)) for p in parts)
+    stepping = sum(float(p.attrs.get("wall_time", 0.0)) for p in parts)  # every group's runs, twins and reruns
     return xr.concat(parts, "case"), wall, stepping, plan
 
 
@@ -103,7 +103,12 @@ def evaluate(ds, ref: dict, target: float) -> dict:
     ok = feasible(ds)
     flag = ds.measurement_flag.values
     eflag = ds.error_flag.values
+    feas = ds["feasibility_flag"].values if "feasibility_flag" in ds else np.zeros(ds.sizes["case"], np.int8)
+    from warp_tensegrity.types import FEASIBILITY_FLAGS
+
     res = {"cases": int(ds.sizes["case"]), "feasible": int(ok.sum()),
+           "left_feasible_set": {name: int(((feas & (1 << i)) != 0).sum()) for i, name in enumerate(FEASIBILITY_FLAGS)}
+           | {"any": int((feas != 0).sum())},
            "measurement_flag": {int(f): int(((flag == f) & ok).sum()) for f in np.unique(flag)},
            "error_flag": {int(f): int(((eflag == f) & ok).sum()) for f in np.unique(eflag)},
            "precision_used": {int(p): int((ds.precision_used.values == p).sum()) for p in np.unique(ds.precision_used)}}
@@ -148,6 +153,7 @@ def main(argv=None) -> int:
     text = Path(args.spec).read_text() if args.spec else CPU_SET
     name = Path(args.spec).stem if args.spec else "cpu_set"
     out = {"meta": run_metadata(wp.get_device(args.device)), "set": name, "modes": {}}
+    path = Path(args.out) if args.out else ROOT / "benchmarks" / "results" / f"error_coverage_{name}_{args.device.split(':')[0]}.json"
     ref = None
     for prec in args.precision:
         ds, wall, stepping, plan = run_sweep(text, args.device, prec)
@@ -163,6 +169,7 @@ def main(argv=None) -> int:
                 t0 = time.perf_counter()
                 ref = reference(plan, args.device)
                 out["reference_seconds"] = time.perf_counter() - t0
+                print(f"reference: {out['reference_seconds']:.1f} s", flush=True)
                 if cache is not None:
                     np.savez_compressed(cache, **ref)
         target = float(plan.run.accuracy or 1e-3)
@@ -170,9 +177,8 @@ def main(argv=None) -> int:
                                            "groups": [[g.n_columns, g.plan.dt, g.plan.n_steps] for g in plan.groups]}
         out["modes"][prec] = res
         print(prec, {k: (v["covered"], v["unflagged_within_target"], v["unflagged"]) for k, v in res.items()
-                     if isinstance(v, dict) and "covered" in v}, f"{wall:.1f} s")
-    path = Path(args.out) if args.out else ROOT / "benchmarks" / "results" / f"error_coverage_{name}_{args.device.split(':')[0]}.json"
-    write_json(path, out)
+                     if isinstance(v, dict) and "covered" in v}, f"{wall:.1f} s", flush=True)
+        write_json(path, out)  # after every mode: a run cut short keeps what it measured
     print(f"wrote {path}")
     chart(out, path.with_suffix(".png"))
     return 0

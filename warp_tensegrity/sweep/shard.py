@@ -91,7 +91,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
     jobs = [(gi, cols) for gi in range(len(plan.groups)) if (cols := np.flatnonzero(group == gi)).size]
     total = float(sum(cols.size * (plan.groups[gi].plan.n_steps + (plan.groups[gi].twin.n_steps
                                    if twins and plan.groups[gi].twin is not None else 0)) for gi, cols in jobs))
-    state = {"done": 0.0, "failed": 0}
+    state = {"done": 0.0, "failed": 0, "wall": 0.0}
 
     def run(cols, rp):
         if rp is None:
@@ -105,6 +105,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
         params = {k: np.ascontiguousarray(v[start:stop][cols]) for k, v in plan.params.items()}
         r = simulate_batch(plan.spec.scene, params, progress=cb, plan=rp.with_device(device))
         state["done"] += cols.size * rp.n_steps
+        state["wall"] += r.wall_time
         return r
 
     def estimate(r, rp, twin_r, twin):
@@ -133,6 +134,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
         state["failed"] += int(np.count_nonzero(r.status))
         results.append((gi, cols, r))
     merged = merge_results([(c, r) for _, c, r in results], n, [gi for gi, _, _ in results])
+    merged.wall_time = state["wall"]  # every run's stepping: the groups', their twins' and fp64 reruns'
     return (merged, errors) if twins else merged
 
 
