@@ -63,6 +63,7 @@ MEASUREMENT_FLAGS = (
     "speed_undefined",
     "measurement_undefined",
     "leading_pulse_captured",
+    "measure_unstable",
 )
 """Values 0.. of the datasets' ``measurement_flag`` (CF flag_values/flag_meanings): why a
 column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tells each case)."""

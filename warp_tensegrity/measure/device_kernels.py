@@ -10,6 +10,7 @@ import warp as wp
 
 from .device_funcs import (
     NAN,
+    WIDTH_SEARCH,
     chain,
     f64,
     finite_at,
@@ -88,12 +89,15 @@ def track(
     strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int), thr: wp.array(dtype=f64),
     # Data out:
     tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), arrival: wp.array2d(dtype=f64),
+    slope: wp.array2d(dtype=f64),
 ):
-    """Leading peak of prism j (measure._track) and arrival (measure._arrival) for threshold thr[b]."""
+    """Leading peak of prism j (measure._track) and arrival with its dt/dq (measure._arrival_slope) for
+    threshold thr[b]."""
     j, b = wp.tid()
     tp_time[j, b] = NAN
     tp_value[j, b] = NAN
     arrival[j, b] = NAN
+    slope[j, b] = NAN
     th = thr[b]
     if whole[b] == 0 or not (wp.isfinite(th) and th > f64(0.0)):
         return
@@ -121,6 +125,7 @@ def track(
         q1 = q_at(strain, ka, j, b, cut, nv)
         frac = (th - q0) / (q1 - q0)
         arrival[j, b] = time[ka - 1] + frac * (time[ka] - time[ka - 1])
+        slope[j, b] = (time[ka] - time[ka - 1]) / (q1 - q0)
     if ka < 0 or ke < 0 or kp < 1:
         return
     t0 = time[kp - 1]
@@ -147,7 +152,7 @@ def refine(
 ):
     """One step of measure_pulse's threshold refinement: the first trial whose leading peaks reach
     min_reached window prisms sets the amplitude a0 (median of those prisms); then the next trial,
-    or (last) the final threshold min(thr0, refined_fraction a0)."""
+    or (last) the final threshold refined_fraction a0 (thr0 where no trial found one)."""
     b = wp.tid()
     a = a0[b]
     if not wp.isfinite(a) and min_reached > 0:
@@ -159,9 +164,7 @@ def refine(
     if last == 1:
         t = thr0[b]
         if wp.isfinite(a):
-            r = refined_fraction * a
-            if r < t:
-                t = r
+            t = refined_fraction * a
         trial[b] = t
     elif wp.isfinite(a):
         trial[b] = NAN
@@ -173,12 +176,12 @@ def refine(
 def column_measures(
     # Model:
     time: wp.array(dtype=f64), prism_height: wp.array(dtype=f64), cut: int, lo: int, hi: int, min_reached: int,
-    continuity_ratio: f64, end_fraction: f64,
+    continuity_ratio: f64, end_fraction: f64, arrival_slack: f64, peak_slack: f64, retrack_lead: f64,
     # Data in:
     strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int), thr: wp.array(dtype=f64),
     # Data out:
     tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64),
-    arrival: wp.array2d(dtype=f64), jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
+    arrival: wp.array2d(dtype=f64), slope: wp.array2d(dtype=f64), jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
     fit: wp.array2d(dtype=f64), lo_eff: wp.array(dtype=int), hi_eff: wp.array(dtype=int),
     amplitude: wp.array(dtype=f64), speed: wp.array(dtype=f64), width_fwhm: wp.array(dtype=f64),
     width_10: wp.array(dtype=f64), prisms_measured: wp.array(dtype=f64), pulse_captured: wp.array(dtype=f64),
@@ -199,8 +202,8 @@ def column_measures(
     fit[0, b] = NAN
     fit[1, b] = NAN
     nv = n_valid[b]
-    n_in, run_hi, was_cut = chain(strain, time, cut, nv, thr[b], end_fraction, tp_time, tp_value, arrival, b, lo,
-                                  hi, continuity_ratio)
+    n_in, run_hi, was_cut = chain(strain, time, cut, nv, thr[b], end_fraction, tp_time, tp_value, arrival, slope, b,
+                                  lo, hi, continuity_ratio, arrival_slack, peak_slack, retrack_lead)
     if whole[b] != 0 and (n_in > 0 or was_cut == 1):
         pulse_captured[b] = f64(was_cut)
     if was_cut == 1:
@@ -237,22 +240,33 @@ def column_measures(
                 speed[b] = -h / c1
                 fit[0, b] = c0
                 fit[1, b] = c1
-    # widths at the sample nearest to the leading peak's time at the middle of the run
-    j_mid = f64(0.5) * f64(lb + hb - 1)
+    # widths at the leading peak's time at the window's middle (the run's if it does not hold it with the
+    # peak search on both sides: measure.width_position), interpolated between the snapshots around it
+    j_mid = f64(0.5) * f64(lo + hi - 1)
+    if not (lb + WIDTH_SEARCH <= int(wp.floor(j_mid)) and int(wp.ceil(j_mid)) <= hb - 1 - WIDTH_SEARCH):
+        j_mid = f64(0.5) * f64(lb + hb - 1)
     j0 = int(wp.floor(j_mid))
     j1 = int(wp.ceil(j_mid))
     t_mid = f64(0.5) * (tp_time[j0, b] + tp_time[j1, b])
     if not wp.isfinite(t_mid):
         return
-    k = int(0)
-    dbest = wp.abs(time[0] - t_mid)
-    for kk in range(1, time.shape[0]):
-        d = wp.abs(time[kk] - t_mid)
-        if d < dbest:
-            dbest = d
-            k = kk
-    width_fwhm[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.5))
-    width_10[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.1))
+    T = time.shape[0]
+    k1 = int(T - 1)
+    for kk in range(T):  # first sample at or after t_mid (np.searchsorted, side='left'), clipped
+        if time[kk] >= t_mid:
+            k1 = kk
+            break
+    k0 = wp.max(k1 - 1, 0)
+    span = time[k1] - time[k0]
+    if not (span > f64(0.0)):
+        span = f64(1.0)
+    a = wp.clamp((t_mid - time[k0]) / span, f64(0.0), f64(1.0))
+    w0 = width_at(strain, k0, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.5))
+    w1 = width_at(strain, k1, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.5))
+    width_fwhm[b] = w0 + a * (w1 - w0)
+    w0 = width_at(strain, k0, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.1))
+    w1 = width_at(strain, k1, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.1))
+    width_10[b] = w0 + a * (w1 - w0)
 
 
 @wp.kernel(enable_backward=False)
