@@ -443,3 +443,50 @@ def width_at(strain: Any, k: int, b: int, cut: int, n_valid: int, P: int, near: 
     xr = f64(ir - 1) + (b0 - L) / (b0 - b1)
     return xr - xl
 
+
+
+@wp.func
+def transit_width(strain: Any, time: wp.array(dtype=f64), b: int, cut: int, n_valid: int, P: int, x: f64,
+                  t0: f64, t1: f64, level: f64) -> f64:
+    """measure._mid_width's mean over [t0, t1] (t0 <= t1, finite) of the piecewise-linear interpolant
+    of the snapshot widths at position x; the interpolant at t0 where t0 = t1; NaN where a snapshot
+    used has no width."""
+    T = time.shape[0]
+    if T < 2:
+        return NAN
+    ka = int(T - 1)
+    for k in range(T):  # np.searchsorted(t, t0, 'left'), clipped to [1, T - 1]
+        if time[k] >= t0:
+            ka = k
+            break
+    ka = wp.max(ka, 1)
+    kb = int(T - 1)
+    for k in range(T):  # np.searchsorted(t, t1, 'right'), clipped
+        if time[k] > t1:
+            kb = k
+            break
+    kb = wp.max(wp.max(kb, 1), ka)
+    w_prev = width_at(strain, ka - 1, b, cut, n_valid, P, x, WIDTH_SEARCH, level)
+    if not wp.isfinite(w_prev):
+        return NAN
+    w_first = w_prev
+    w_second = NAN
+    area = f64(0.0)
+    for k in range(ka, kb + 1):
+        w = width_at(strain, k, b, cut, n_valid, P, x, WIDTH_SEARCH, level)
+        if not wp.isfinite(w):
+            return NAN
+        if k == ka:
+            w_second = w
+        tk = time[k - 1]
+        u0 = wp.max(tk, t0)
+        u1 = wp.min(time[k], t1)
+        if u1 > u0:
+            dw = (w - w_prev) / (time[k] - tk)
+            area += f64(0.5) * ((w_prev + dw * (u0 - tk)) + (w_prev + dw * (u1 - tk))) * (u1 - u0)
+        w_prev = w
+    span = t1 - t0
+    if span > f64(0.0):
+        return area / span
+    a0 = wp.clamp((t0 - time[ka - 1]) / (time[ka] - time[ka - 1]), f64(0.0), f64(1.0))
+    return w_first + a0 * (w_second - w_first)

@@ -21,7 +21,7 @@ from .device_funcs import (
     q_at,
     reached,
     spatial_peak_index,
-    width_at,
+    transit_width,
 )
 
 __all__ = ["column_measures", "init_threshold", "load_kernels", "prism_stats", "refine", "snapshot_fit", "snapshots",
@@ -245,28 +245,17 @@ def column_measures(
     j_mid = f64(0.5) * f64(lo + hi - 1)
     if not (lb + WIDTH_SEARCH <= int(wp.floor(j_mid)) and int(wp.ceil(j_mid)) <= hb - 1 - WIDTH_SEARCH):
         j_mid = f64(0.5) * f64(lb + hb - 1)
-    j0 = int(wp.floor(j_mid))
-    j1 = int(wp.ceil(j_mid))
-    t_mid = f64(0.5) * (tp_time[j0, b] + tp_time[j1, b])
-    if not wp.isfinite(t_mid):
+    # one transit of the leading peak around j_mid: its times at j_mid + 1/2 and j_mid - 1/2 (measure._transit)
+    ta = f64(0.5) * (tp_time[wp.clamp(int(wp.floor(j_mid + f64(0.5))), 0, P - 1), b]
+                     + tp_time[wp.clamp(int(wp.ceil(j_mid + f64(0.5))), 0, P - 1), b])
+    tb = f64(0.5) * (tp_time[wp.clamp(int(wp.floor(j_mid - f64(0.5))), 0, P - 1), b]
+                     + tp_time[wp.clamp(int(wp.ceil(j_mid - f64(0.5))), 0, P - 1), b])
+    if not (wp.isfinite(ta) and wp.isfinite(tb)):
         return
-    T = time.shape[0]
-    k1 = int(T - 1)
-    for kk in range(T):  # first sample at or after t_mid (np.searchsorted, side='left'), clipped
-        if time[kk] >= t_mid:
-            k1 = kk
-            break
-    k0 = wp.max(k1 - 1, 0)
-    span = time[k1] - time[k0]
-    if not (span > f64(0.0)):
-        span = f64(1.0)
-    a = wp.clamp((t_mid - time[k0]) / span, f64(0.0), f64(1.0))
-    w0 = width_at(strain, k0, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.5))
-    w1 = width_at(strain, k1, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.5))
-    width_fwhm[b] = w0 + a * (w1 - w0)
-    w0 = width_at(strain, k0, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.1))
-    w1 = width_at(strain, k1, b, cut, nv, P, j_mid, WIDTH_SEARCH, f64(0.1))
-    width_10[b] = w0 + a * (w1 - w0)
+    t0 = wp.min(ta, tb)
+    t1 = wp.max(ta, tb)
+    width_fwhm[b] = transit_width(strain, time, b, cut, nv, P, j_mid, t0, t1, f64(0.5))
+    width_10[b] = transit_width(strain, time, b, cut, nv, P, j_mid, t0, t1, f64(0.1))
 
 
 @wp.kernel(enable_backward=False)

@@ -493,26 +493,59 @@ def width_position(lo: int, hi: int, run_lo: int, run_hi: int) -> float:
     return 0.5 * (run_lo + run_hi - 1)
 
 
+def _transit(track, x):
+    """(t_a, t_b): the leading peak's times at positions x + 1/2 and x - 1/2 [s] (a position between two
+    prisms takes the mean of their peak times), in increasing order: one prism transit around x."""
+    P = track.time.shape[-1]
+
+    def at(y):
+        a, b = (int(np.clip(f(y), 0, P - 1)) for f in (np.floor, np.ceil))
+        return 0.5 * (track.time[..., a] + track.time[..., b])
+
+    ta, tb = at(x + 0.5), at(x - 0.5)
+    return np.minimum(ta, tb), np.maximum(ta, tb)
+
+
 def _mid_width(q, t, finite, track, level, j_mid=None):
-    """Width at the leading peak's time at prism ``j_mid`` (default: the column middle; a
-    half-integer averages the two neighbours' times), interpolated linearly in time between the
-    widths of the two snapshots around it (so it moves continuously with that time)."""
+    """Width at position ``j_mid`` (default: the column middle) averaged over one transit of the
+    leading peak (:func:`_transit`): the mean over [t_a, t_b] of the piecewise-linear interpolant of
+    the snapshot widths (peak searched within ``WIDTH_SEARCH`` of ``j_mid``); the value at t_a where
+    t_a = t_b. NaN where a snapshot it uses has no width. Averaging over the transit takes out the
+    discreteness modulation and sample-to-sample noise, and the result moves continuously with t_a, t_b."""
     P, T = q.shape[-1], q.shape[-2]
-    j_mid = 0.5 * (P - 1) if j_mid is None else j_mid
-    j0, j1 = int(np.floor(j_mid)), int(np.ceil(j_mid))
-    t_mid = 0.5 * (track.time[..., j0] + track.time[..., j1])
-    ok = np.isfinite(t_mid) & finite.all(axis=-1)
-    tm = np.where(ok, t_mid, t[0])
-    k1 = np.clip(np.searchsorted(t, tm, side="left"), 0, T - 1)  # first sample at or after t_mid
-    k0 = np.maximum(k1 - 1, 0)
-    near = np.full(q.shape[:-2], float(j_mid))
-    w = []
-    for k in (k0, k1):
-        snap = np.take_along_axis(q, k[..., None, None], axis=-2)[..., 0, :]  # (..., P)
-        w.append(_width(snap, ok, level, near=near, search=WIDTH_SEARCH))
-    span = t[k1] - t[k0]
-    a = np.clip((tm - t[k0]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
-    return np.where(ok, w[0] + a * (w[1] - w[0]), np.nan)
+    x = 0.5 * (P - 1) if j_mid is None else j_mid
+    t0, t1 = _transit(track, x)
+    ok = np.isfinite(t0) & np.isfinite(t1) & finite.all(axis=-1) & (T >= 2)
+    if T < 2:
+        return np.full(q.shape[:-2], np.nan)
+    t0, t1 = np.where(ok, t0, t[0]), np.where(ok, t1, t[0])
+    ka = np.clip(np.searchsorted(t, t0, side="left"), 1, T - 1)  # bracket of t0: samples ka - 1, ka
+    kb = np.clip(np.searchsorted(t, t1, side="right"), 1, T - 1)  # bracket of t1: kb - 1, kb
+    kb = np.maximum(kb, ka)
+    L = int((kb - ka).max(initial=0)) + 2
+    idx = (ka - 1)[..., None] + np.arange(L)  # samples ka - 1 .. kb
+    used = idx <= kb[..., None]
+    idx = np.minimum(idx, T - 1)
+    snap = np.take_along_axis(q, idx[..., None], axis=-2)  # (..., L, P)
+    near = np.full(snap.shape[:-1], float(x))
+    w = _width(snap, np.broadcast_to(ok[..., None], near.shape), level, near=near, search=WIDTH_SEARCH)
+    ok &= ~np.any(used & np.isnan(w), axis=-1)
+    w = np.where(used, w, 0.0)
+    tk = t[idx]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # segments [t_l, t_l+1] of the samples used, cut to [t0, t1]; trapezoids of the interpolant
+        u0 = np.maximum(tk[..., :-1], t0[..., None])
+        u1 = np.minimum(tk[..., 1:], t1[..., None])
+        dt = tk[..., 1:] - tk[..., :-1]
+        dw = (w[..., 1:] - w[..., :-1]) / np.where(dt > 0, dt, 1.0)
+        seg = used[..., 1:] & (u1 > u0)
+        area = np.where(seg, 0.5 * ((w[..., :-1] + dw * (u0 - tk[..., :-1])) + (w[..., :-1] + dw * (u1 - tk[..., :-1])))
+                        * (u1 - u0), 0.0).sum(axis=-1)
+        span = t1 - t0
+        a0 = np.clip((t0 - tk[..., 0]) / np.where(dt[..., 0] > 0, dt[..., 0], 1.0), 0.0, 1.0)
+        point = w[..., 0] + a0 * (w[..., 1] - w[..., 0])  # t0 = t1: the interpolant at t0
+        mean = np.where(span > 0, area / np.where(span > 0, span, 1.0), point)
+    return np.where(ok, mean, np.nan)
 
 
 # ---------------------------------------------------------------------- all measures in one call
