@@ -10,10 +10,10 @@ and every measure is computed in float64.
 Passes (one launch each; ``(P, B)`` = one thread per prism of each column, ``B`` = per column):
 
 1. ``prism_stats`` (P, B): largest compression and finiteness of each prism's history;
-2. ``init_threshold`` (B): default threshold, 5 % of the record's largest compression (the
+2. ``init_threshold`` (B): first trial threshold, half the record's largest compression (the
    device-side reduction of the two-pass definition), and whether the record is wholly finite;
 3. ``track`` (P, B): leading-peak track (and arrival) for a per-column threshold; run for the
-   three trial thresholds of measure_pulse's refinement (1, 0.1, 0.01 x default), each followed by
+   trial thresholds of measure_pulse's refinement (``TRIAL_SCALES``: halved in turn), each followed by
 4. ``refine`` (B): prisms reached, trial amplitude, next trial; then ``track`` with the final one;
 5. ``column_measures`` (B): the run measured (the longest stretch of the window over which the
    leading peak is continuous, found again past a single captured prism; arrivals outside it NaN
@@ -52,6 +52,8 @@ from .device_kernels import (
 )
 from .pulse_core import (
     DEFAULT_END_FRACTION,
+    FALLBACK_SCALE,
+    TRIAL_SCALES,
     STABILITY_EPS,
     Decisions,
     _check_fraction,
@@ -63,8 +65,6 @@ from .pulse_core import (
 
 __all__ = ["measure_pulse_device", "measure_record", "TRIAL_SCALES"]
 
-TRIAL_SCALES = (1.0, 0.1, 0.01)
-"""measure_pulse's threshold trials, as fractions of the default threshold."""
 
 
 # ---------------------------------------------------------------------- host side
@@ -148,7 +148,7 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
                     nxt = 0.0 if last else TRIAL_SCALES[i + 1]
                     wp.launch(track, (P, B), track_args)
                     wp.launch(refine, B, [lo, hi, min_reached, f64(nxt), int(last), f64(d.refined_fraction),
-                                          tp_time, tp_value, thr0, a0, trial])
+                                          f64(FALLBACK_SCALE), tp_time, tp_value, thr0, a0, trial])
             wp.launch(track, (P, B), track_args)
             wp.launch(column_measures, B, [t_d, h_d, cut, lo, hi, min_reached, f64(d.continuity_ratio),
                                            f64(d.end_fraction), f64(d.arrival_slack), f64(d.peak_slack),

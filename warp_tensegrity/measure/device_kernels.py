@@ -144,7 +144,7 @@ def track(
 @wp.kernel(enable_backward=False)
 def refine(
     # Model:
-    lo: int, hi: int, min_reached: int, next_scale: f64, last: int, refined_fraction: f64,
+    lo: int, hi: int, min_reached: int, next_scale: f64, last: int, refined_fraction: f64, fallback_scale: f64,
     # Data in:
     tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), thr0: wp.array(dtype=f64),
     # Data out:
@@ -152,7 +152,7 @@ def refine(
 ):
     """One step of measure_pulse's threshold refinement: the first trial whose leading peaks reach
     min_reached window prisms sets the amplitude a0 (median of those prisms); then the next trial,
-    or (last) the final threshold refined_fraction a0 (thr0 where no trial found one)."""
+    or (last) the final threshold refined_fraction a0 (fallback_scale thr0 where no trial found one)."""
     b = wp.tid()
     a = a0[b]
     if not wp.isfinite(a) and min_reached > 0:
@@ -162,7 +162,7 @@ def refine(
                 a = a_new
                 a0[b] = a
     if last == 1:
-        t = thr0[b]
+        t = thr0[b] * fallback_scale
         if wp.isfinite(a):
             t = refined_fraction * a
         trial[b] = t

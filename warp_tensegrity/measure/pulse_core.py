@@ -16,7 +16,16 @@ from typing import NamedTuple
 import numpy as np
 
 DEFAULT_THRESHOLD_FRACTION = 0.05
-"""Default arrival threshold, as a fraction of the largest compression of the record."""
+"""Default arrival threshold of the single measures (:mod:`.pulse`), as a fraction of the largest
+compression of the record."""
+TRIAL_FRACTION = 0.5
+"""measure_pulse's first trial threshold, as a fraction of the record's largest compression."""
+TRIAL_SCALES = tuple(0.5**k for k in range(11))
+"""measure_pulse's trial thresholds, as fractions of the first: halved in turn, down to 1/1024 (the
+first of them at which the leading peaks reach the window's impact end sets the threshold)."""
+FALLBACK_SCALE = DEFAULT_THRESHOLD_FRACTION / TRIAL_FRACTION
+"""Where no trial finds the leading peaks, the threshold is the first trial times this: 5 % of the
+record's largest compression (the measures are NaN; the arrivals show how far the front got)."""
 REFINED_THRESHOLD_FRACTION = 0.25
 """measure_pulse's second pass: threshold as a fraction of the first pass's leading amplitude."""
 DEFAULT_END_FRACTION = 0.5
@@ -47,6 +56,8 @@ __all__ = [
     "SENSITIVITY_KEYS",
     "STABILITY_EPS",
     "STABILITY_FLOOR",
+    "TRIAL_FRACTION",
+    "TRIAL_SCALES",
     "WIDTH_SEARCH",
     "DEFAULT_END_FRACTION",
     "DEFAULT_SKIP_FRACTION",
@@ -68,8 +79,8 @@ class Decisions(NamedTuple):
     do not depend on them continuously: they change only where a decision flips, which the
     stability probe (:meth:`perturbed`) detects."""
 
-    threshold_fraction: float = DEFAULT_THRESHOLD_FRACTION
-    """First trial threshold, as a fraction of the record's largest compression."""
+    threshold_fraction: float = TRIAL_FRACTION
+    """First trial threshold, as a fraction of the record's largest compression (then halved in turn)."""
     refined_fraction: float = REFINED_THRESHOLD_FRACTION
     """Final threshold, as a fraction of the leading amplitude at the window's impact end."""
     end_fraction: float = DEFAULT_END_FRACTION
@@ -581,9 +592,10 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
       their first-order response to the threshold removed, largest over the prisms); 0 where no
       decision is that close, inf where the measure becomes undefined, NaN where it is undefined.
 
-    ``threshold`` None -> 5 % of each record's largest compression (lowered by decades, down to
-    0.05 %, until leading peaks are found at the window's impact end), then 25 % of the leading
-    amplitude so found (so the threshold follows the leading pulse, not the late record); else a
+    ``threshold`` None -> a quarter of the leading amplitude at the window's impact end, found at
+    the highest of the trial thresholds (half the record's largest compression, halved in turn
+    down to 1/2048 of it) at which the leading peaks reach there (5 % of that maximum where none does):
+    the threshold follows the leading pulse, not the late record; else a
     float or an array broadcastable to (...). A record with any non-finite sample gets NaN
     everywhere; so does a flat one. Nothing raises on signal values. Leading dims are processed in
     chunks of about ``max_chunk_elements`` samples to bound memory.
@@ -662,11 +674,12 @@ def _measure_block(q, t, finite, whole, given, h, lo, hi, d: Decisions) -> dict:
     else:
         thr_b = given * d.threshold_scale
     if given is None:
-        # late large motion (reflections, chaotic tails) can set the first trial above a weak leading pulse:
-        # lower it by decades until leading peaks appear at the window's impact end, then settle at a
-        # fraction of the leading amplitude so found (the leading pulse sets the threshold, not the late record)
+        # the highest of the trials (the record's largest compression halved in turn) at which the leading peaks
+        # reach the window's impact end finds the leading pulse there, above any precursor, whatever made the
+        # record's maximum (a late reflection, the struck end's chaotic motion: round-off moves it by per cent);
+        # the threshold is then a fraction of that pulse's amplitude
         a0 = np.full(B, np.nan)
-        for scale in (1.0, 0.1, 0.01):
+        for scale in TRIAL_SCALES:
             trial = np.where(np.isfinite(a0), np.nan, thr_b * scale)
             thr, thr_ok = _threshold(q, trial[:, None])
             tr = _track(q, t, finite, thr, thr_ok, d.end_fraction)
@@ -676,7 +689,9 @@ def _measure_block(q, t, finite, whole, given, h, lo, hi, d: Decisions) -> dict:
                 warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: flat or diverged records
                 a_new = np.nanmedian(tr.value[:, hi - min_reached : hi], axis=-1) if min_reached else np.full(B, np.nan)
             a0 = np.where(np.isfinite(a0), a0, np.where(ok & (a_new > 0), a_new, np.nan))
-        thr_b = np.where(np.isfinite(a0), d.refined_fraction * a0, thr_b)
+            if np.isfinite(a0).all():
+                break
+        thr_b = np.where(np.isfinite(a0), d.refined_fraction * a0, thr_b * FALLBACK_SCALE)
     thr, thr_ok = _threshold(q, thr_b[:, None])
     track = _track(q, t, finite, thr, thr_ok, d.end_fraction)
     out = {k: np.full(B, np.nan) for k in ("amplitude", "speed", "speed_snapshot", "width_fwhm", "width_10",
