@@ -99,14 +99,16 @@ def relative_change(a, b) -> np.ndarray:
     return d.reshape(d.shape[0], -1).max(axis=1)
 
 
-def time_used(m: dict, lo: int = 5, hi: int = 45) -> np.ndarray:
-    """(B,) the latest leading-peak or arrival time [s] over the window: the record after it does
-    not enter amplitude, speed, widths or the arrivals (except where a pulse's end is decided)."""
-    tp = np.asarray(m["peak_time"])[:, lo:hi]
-    at = np.asarray(m["arrival_time"])
-    with np.errstate(all="ignore"):
-        return np.fmax(np.nanmax(np.where(np.isfinite(tp), tp, -np.inf), axis=1),
-                       np.nanmax(np.where(np.isfinite(at), at, -np.inf), axis=1))
+def run_prisms(m: dict, b: int, lo: int, hi: int) -> np.ndarray:
+    """The prisms of record b's run measured: where the run was cut, the window prisms whose
+    arrival was kept (the others are NaN); else the ``prisms_measured`` next to the impacted end."""
+    n = m["prisms_measured"][b]
+    if not np.isfinite(n):
+        return np.arange(0)
+    if m["pulse_captured"][b] == 1:
+        kept = np.flatnonzero(np.isfinite(m["arrival_time"][b][lo:hi])) + lo
+        return np.arange(kept.min(), kept.max() + 1) if kept.size else np.arange(0)
+    return np.arange(hi - int(n), hi)
 
 
 def divergence(s_a, s_b) -> np.ndarray:
@@ -116,41 +118,59 @@ def divergence(s_a, s_b) -> np.ndarray:
     return d / np.abs(np.asarray(s_a, float)).max(axis=(1, 2))[:, None]
 
 
-def verdicts(s_ref, s_new, time, target: float = TARGET) -> list[dict]:
-    """Per case and measure: 'agree' (within target), 'flagged' (the new record's measurement_flag is
-    not ok), 'diverged' (the two records differ by more than target of the peak before the last
-    time either measure used: the dynamics, not the measure, differ), or 'wrong'. With the
-    measures' relative changes, the flags and, for diverged cases, the verdicts of both records cut
-    where they still agree to target / 10 (the measure on records that do hold still)."""
+def _latest(x) -> float:
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return float(x.max()) if x.size else -np.inf
+
+
+def verdicts(s_ref, s_new, time, target: float = TARGET, cut: bool = True) -> list[dict]:
+    """Per case and measure, the new record's answer against the reference record's: 'agree' (within
+    target), 'flagged' (its measurement_flag is not ok), 'diverged' (the two records differ by more
+    than target of the peak before the last time that measure used: the leading peaks of both runs
+    for amplitude and speed, the widths' transit, each disagreeing prism's arrival; the dynamics
+    differ, not the measure), or 'wrong'. With the relative changes, the flag and, for diverged
+    cases (``cut``), the verdicts of both records cut where they still agree to target / 10: the
+    measure on records that do hold still."""
+    from warp_tensegrity.measure.pulse_core import PeakTrack, _transit, measurement_window, width_position
+
     m_ref, m_new = measure(s_ref, time), measure(s_new, time)
     D = divergence(s_ref, s_new)
-    used = np.fmax(time_used(m_ref), time_used(m_new))
+    lo, hi = measurement_window(np.asarray(s_ref).shape[-1])
     out = []
     for b in range(D.shape[0]):
-        before = time <= used[b] if np.isfinite(used[b]) else np.ones_like(time, bool)
-        diverged = bool((D[b][before] > target).any())
-        row = {"flag": int(m_new["measurement_flag"][b]), "divergence_before_used": float(D[b][before].max()),
-               "time_used": float(used[b])}
+        def diverged_before(t_last):
+            return bool(np.isfinite(t_last) and (D[b][time <= t_last] > target).any())
+
+        t_run = max(_latest(m["peak_time"][b][run_prisms(m, b, lo, hi)]) for m in (m_ref, m_new))
+        t_width = -np.inf
+        for m in (m_ref, m_new):
+            run = run_prisms(m, b, lo, hi)
+            if run.size:
+                x = width_position(lo, hi, int(run[0]), int(run[-1]) + 1)
+                tr = PeakTrack(m["peak_time"][b:b + 1], m["peak_value"][b:b + 1], None)
+                t_width = max(t_width, _latest(_transit(tr, x)[1]))
+        flag = int(m_new["measurement_flag"][b])
+        row = {"flag": flag, "divergence": float(D[b].max())}
         for name, k in MEASURES.items():
             d = float(relative_change(m_ref[k][b:b + 1], m_new[k][b:b + 1])[0])
-            v = "agree" if d <= target else "flagged" if row["flag"] != 0 else "diverged" if diverged else "wrong"
+            if name == "arrival_time":
+                a, c = m_ref[k][b], m_new[k][b]
+                with np.errstate(all="ignore"):
+                    dj = np.abs(c - a) / np.abs(a)
+                dj = np.where(np.isnan(a) & np.isnan(c), 0.0, np.where(np.isnan(a) ^ np.isnan(c), np.inf, dj))
+                bad = np.flatnonzero(dj > target)
+                div = bool(bad.size) and all(diverged_before(_latest([a[j], c[j], t_run])) for j in bad)
+            else:
+                div = diverged_before(t_width if name.startswith("width") else t_run)
+            v = "agree" if d <= target else "flagged" if flag != 0 else "diverged" if div else "wrong"
             row[name] = (v, d)
-        if diverged:
-            k_cut = int(np.argmax(D[b] > target / 10))
-            cut = verdicts_cut(s_ref[b:b + 1, :k_cut], s_new[b:b + 1, :k_cut], time[:k_cut], target) if k_cut > 2 else {}
-            row["cut"] = {"t_cut": float(time[k_cut]), **cut}
+        k_cut = int(np.argmax(D[b] > target / 10))
+        if cut and any(row[n][0] == "diverged" for n in MEASURES) and k_cut > 2:
+            row["cut"] = {"t_cut": float(time[k_cut]),
+                          **verdicts(s_ref[b:b + 1, :k_cut], s_new[b:b + 1, :k_cut], time[:k_cut], target, cut=False)[0]}
         out.append(row)
     return out
-
-
-def verdicts_cut(s_ref, s_new, time, target):
-    m_ref, m_new = measure(s_ref, time), measure(s_new, time)
-    flag = int(m_new["measurement_flag"][0])
-    res = {"flag": flag}
-    for name, k in MEASURES.items():
-        d = float(relative_change(m_ref[k], m_new[k])[0])
-        res[name] = ("agree" if d <= target else "flagged" if flag != 0 else "wrong", d)
-    return res
 
 
 # ---------------------------------------------------------------------- command line

@@ -150,6 +150,23 @@ def test_engine_record_with_a_captured_threshold():
     assert dev["speed"][0] == pytest.approx(dev["speed"][1], rel=0.05)
 
 
+def test_stability_probe_on_the_device():
+    """The probe's three passes run on the device as on the host: a decision at its boundary
+    (tests/measure/test_measure.py::double_hump, 2e-4 from it) gives the same sensitivities, one
+    5 % from it none."""
+    from test_measure import double_hump
+
+    t, near = double_hump(2e-4)
+    clear = double_hump(0.05)[1]
+    ref, dev = both(np.stack([near, clear]), t)
+    assert_same(ref, dev)
+    assert dev["amplitude_sensitivity"][0] > 0.2 and dev["amplitude_sensitivity"][1] == 0.0
+    off = measure_pulse_device(np.stack([near, clear]), t, H, device=DEVICE, stability=None)
+    assert not set(M.SENSITIVITY_KEYS.values()) & set(off)
+    assert_same({k: v for k, v in ref.items() if k not in M.SENSITIVITY_KEYS.values()},
+                {k: v for k, v in off.items() if k not in RECORD_STATS})
+
+
 def test_records_discriminate_the_definitions(adversarial):
     """The comparison is not vacuous: changing a definition's parameter changes the reference on
     these records, so a device kernel with that definition broken would fail the test above."""
