@@ -9,7 +9,7 @@ target (1e-3) with the measure before issue 31, found by ``grid`` on a random pa
 phase_large's grid.
 
     python -m benchmarks.measure_stability grid DIR FIRST LAST   # batches FIRST..LAST-1 of the grid, both precisions
-    python -m benchmarks.measure_stability fixtures              # rewrite tests/data/measure_stability.npz
+    python -m benchmarks.measure_stability fixtures [CACHE]      # rewrite tests/data/measure_stability.npz
 
 ``grid`` writes DIR/grid_NN_fp32.npz and _fp64.npz (64 cases a batch, ~17 min per batch and
 precision on one busy CPU core). ``fixtures`` simulates ``FIXTURE_CASES`` (fp32, fp64, and for
@@ -42,9 +42,19 @@ MEASURES = {"amplitude": "amplitude", "speed": "speed", "width": "width_fwhm", "
 ISSUE_CASES = [(0.0007, 0.04869, 0.95), (0.0013, 0.09868, 0.0)]
 """(prestrain, v0 [m/s], base_rigidity): issue 31's two CPU cases (both outside the feasible set:
 the first twists past pi, v0 >= 0.045 at beta = 0.95; the second reaches max_compression 1.70)."""
-CASES = ISSUE_CASES + []  # filled from the grid below
-FIXTURE_CASES = [0, 1]
-"""Indices into CASES stored as records (the rest are re-simulated by the slow test)."""
+GRID_INDEX = [8, 14, 19, 22, 36, 44, 51, 54, 59, 61]
+"""Indices into :func:`grid_cases` of the feasible cases whose fp32 and fp64 measures differed by
+more than the target before issue 31 (``grid`` batches 0-2), and of p = 0.0047, v0 = 0.0487 m/s,
+beta = 0 (near the issue's first example, p = 0.004)."""
+FIXTURE_CASES = [0, 1, 2, 7]
+"""Indices into CASES stored as records (tests/data/measure_stability.npz): the issue's two, the
+FB case near the issue's example (its records diverge), a weak slow pulse (widths)."""
+
+
+def cases() -> list[tuple]:
+    """ISSUE_CASES and the GRID_INDEX cases: (prestrain, v0 [m/s], base_rigidity)."""
+    g = grid_cases()
+    return ISSUE_CASES + [tuple(float(x) for x in g[i]) for i in GRID_INDEX]
 
 
 def grid_cases() -> np.ndarray:
@@ -173,6 +183,81 @@ def verdicts(s_ref, s_new, time, target: float = TARGET, cut: bool = True) -> li
     return out
 
 
+# ---------------------------------------------------------------------- stored records
+def _same(a: dict, b: dict, rtol: float = 0.0) -> bool:
+    """Every measure_pulse output (and the flag) equal, NaN where NaN (to rtol; the sensitivities,
+    round-off residues where no decision flips, to rtol absolutely)."""
+    for k, x in a.items():
+        x, y = np.asarray(x, float), np.asarray(b[k], float)
+        if not np.array_equal(np.isnan(x), np.isnan(y)):
+            return False
+        ok = np.isfinite(x) & np.isfinite(y)
+        atol = rtol if k.endswith("_sensitivity") else 0.0
+        if not (np.array_equal(np.isinf(x), np.isinf(y)) and np.allclose(x[ok], y[ok], rtol=rtol, atol=atol)):
+            return False
+    return True
+
+
+def write_fixtures(path: Path = FIXTURE_FILE, step: int = 250, cache: Path | None = None):
+    """Simulate FIXTURE_CASES (fp32, fp64; the first also fp64 at dt/2 and v0 (1 +- 1e-6)) and store
+    each case's records cut after the shortest prefix (a multiple of ``step`` samples) that every
+    record of the case measures exactly as whole; the fp32 record as float32 (exact), the others as
+    it plus a float32 difference (checked: measures within 1e-6, same flags). ``cache``: a folder
+    that keeps the simulations (reused when there)."""
+    all_cases = cases()
+    fixed = np.array([all_cases[i] for i in FIXTURE_CASES])
+    plan = {"fp32": (fixed, "fp32", {}), "fp64": (fixed, "fp64", {}), "dt2": (fixed[:1], "fp64", {"dt": DT / 2}),
+            "v0p": (fixed[:1], "fp64", {"v0_scale": 1 + 1e-6}), "v0m": (fixed[:1], "fp64", {"v0_scale": 1 - 1e-6})}
+    runs = {}
+    for k, (c, prec, kw) in plan.items():
+        f = None if cache is None else Path(cache) / f"fixture_{k}.npz"
+        if f is not None and f.exists():
+            with np.load(f) as z:
+                if np.array_equal(z["cases"], c):
+                    runs[k] = (z["time"], z["strain"], z["status"])
+                    continue
+        runs[k] = simulate(c, prec, **kw)
+        if f is not None:
+            Path(cache).mkdir(parents=True, exist_ok=True)
+            np.savez(f, cases=c, time=runs[k][0], strain=runs[k][1], status=runs[k][2])
+    time_axis = runs["fp64"][0]
+    out = {"time": time_axis, "cases": fixed}
+    for c in range(len(fixed)):
+        recs = {k: r[1][c] for k, r in runs.items() if c < r[1].shape[0]}
+        full = {k: measure(v[None], time_axis) for k, v in recs.items()}
+        n = step
+        while n < time_axis.size and not all(_same(full[k], measure(v[None, :n], time_axis[:n])) for k, v in recs.items()):
+            n += step
+        n = min(n, time_axis.size)
+        s32 = recs["fp32"][:n].astype(np.float32)
+        out[f"c{c}/fp32"] = s32
+        for k, v in recs.items():
+            if k == "fp32":
+                continue
+            d = (v[:n] - s32.astype(np.float64)).astype(np.float32)
+            coded = s32.astype(np.float64) + d.astype(np.float64)
+            if not _same(measure(v[None, :n], time_axis[:n]), measure(coded[None], time_axis[:n]), rtol=1e-6):
+                raise RuntimeError(f"case {c} {k}: the float32-coded record does not measure as the float64 one")
+            out[f"c{c}/{k}"] = d
+        print(f"case {c} {tuple(fixed[c])}: {n} samples, records {sorted(recs)}", flush=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **out)
+    tmp.rename(path)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
+
+
+def load_fixtures(path: Path = FIXTURE_FILE) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """(time [s], cases (n, 3), per case {kind: strain (T_c, P) float64}) from ``write_fixtures``'s file."""
+    with np.load(path) as f:
+        t, cases = f["time"], f["cases"]
+        recs = []
+        for c in range(len(cases)):
+            s32 = f[f"c{c}/fp32"].astype(np.float64)
+            kinds = {k.split("/")[1] for k in f.files if k.startswith(f"c{c}/")}
+            recs.append({k: s32 if k == "fp32" else s32 + f[f"c{c}/{k}"].astype(np.float64) for k in kinds})
+    return t, cases, recs
+
+
 # ---------------------------------------------------------------------- command line
 def _grid(out: Path, first: int, last: int, nb: int = 64):
     cases = grid_cases()
@@ -197,10 +282,8 @@ def main(argv=None) -> int:
     if argv[:1] == ["grid"] and len(argv) == 4:
         _grid(Path(argv[1]), int(argv[2]), int(argv[3]))
         return 0
-    if argv[:1] == ["fixtures"]:
-        from benchmarks.measure_stability_fixtures import write_fixtures
-
-        write_fixtures()
+    if argv[:1] == ["fixtures"] and len(argv) <= 2:
+        write_fixtures(cache=Path(argv[1]) if len(argv) == 2 else None)
         return 0
     print(__doc__)
     return 2
