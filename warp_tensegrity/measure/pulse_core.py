@@ -572,8 +572,8 @@ def measure_pulse(strain, time, prism_height, threshold=None, skip_impact: int |
     * ``amplitude`` (...) [-]: :func:`leading_pulse_amplitude`;
     * ``speed`` (...) [m s-1]: time-of-flight speed, :func:`pulse_speed`;
     * ``speed_snapshot`` (...) [m s-1]: snapshot speed, :func:`pulse_speed`;
-    * ``width_fwhm``, ``width_10`` (...) [prisms]: :func:`width_at_mid_column` at 0.5, 0.1
-      (interpolated in time between the two snapshots around the leading peak's time);
+    * ``width_fwhm``, ``width_10`` (...) [prisms]: :func:`width_at_mid_column` at 0.5, 0.1 (the
+      mean over one transit of the leading peak), at :func:`width_position`;
     * ``arrival_time`` (..., n_prisms) [s]: :func:`arrival_times`;
     * ``peak_time``, ``peak_value`` (..., n_prisms) [s], [-]: :func:`peak_track`;
     * ``threshold`` (...) [-]: the arrival threshold used;
