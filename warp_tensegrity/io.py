@@ -115,8 +115,8 @@ VAR_ATTRS = {
     "beta_limit_flag": flag_attrs("how the limit base_rigidity -> 1 converges for this case: slow_convergence_possible "
                                   "where base_mode_ratio < 2 and max_compression >= half the kinematic lock "
                                   "(docs/impact.md)", dict(enumerate(BETA_LIMIT_FLAGS))),
-    "measurement_flag": flag_attrs("why the pulse measures of the column are NaN (ok: all defined; "
-                                   "docs/measurements.md)", dict(enumerate(MEASUREMENT_FLAGS))),
+    "measurement_flag": flag_attrs("why the pulse measures of the column are NaN or not to be trusted (ok: all "
+                                   "defined and stable; docs/measurements.md)", dict(enumerate(MEASUREMENT_FLAGS))),
     "status": flag_attrs("column status at the end of the run", STATUS_MEANINGS),
     "error_flag": flag_attrs("whether the error estimates of the case's measures can be trusted: no_twin (no "
                              "estimate), twin_undefined (a measure defined, its twin's not), over_target (an estimate "

@@ -67,6 +67,7 @@ MEASUREMENT_FLAGS = (
     "measurement_undefined",
     "leading_pulse_captured",
     "left_feasible_set",
+    "measure_unstable",
 )
 """Values 0.. of the datasets' ``measurement_flag`` (CF flag_values/flag_meanings): why a
 column's pulse measures are NaN (:mod:`warp_tensegrity.measure.nan_reasons` tells each case)."""

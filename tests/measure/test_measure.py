@@ -55,7 +55,9 @@ def test_sech2_pulse(w):
     assert r["arrival_time"].shape == (50,)
     assert np.all(np.isfinite(r["arrival_time"]))
     assert np.all(np.diff(r["arrival_time"]) < 0)  # reaches high j first
-    assert r["threshold"] == pytest.approx(0.05 * A, rel=1e-2)
+    assert r["threshold"] == pytest.approx(0.25 * A, rel=1e-2)  # a quarter of the leading amplitude
+    for k in M.pulse_core.SENSITIVITY_KEYS.values():  # a clean pulse: no decision near its boundary
+        assert r[k] < 1e-4, k  # arrivals: the second-order residue of a threshold moved by 1e-3 (~1e-6)
 
 
 def test_gaussian_pulse():
@@ -372,19 +374,21 @@ def captured_record():
 
 
 def test_speed_at_beta_0p9999_follows_the_main_pulse():
-    """Issue 25 part 2: at beta = 0.9999 a disturbance from the clamp crossed the threshold first at
-    prisms 0-16 and 21; the old measure gave +69 % against beta = 1. Now within 5 % of beta = 1's
-    speed, and each within 5 % of its main pulse's own speed (tracked independently up to the
-    time the run ends, t = 1.05 s at beta = 0.9999: prism 16)."""
+    """Issue 25 part 2: at beta = 0.9999 a disturbance from the clamp (leading peaks 0.007-0.074)
+    crossed the 5 % threshold (0.0051) first at prisms 0-16 and 21; the old measure gave +69 %
+    against beta = 1. With the threshold at a quarter of the leading amplitude (0.025, issue 31) the
+    run follows the pulse from 44 to 13 and is cut at 12. Within 5 % of beta = 1's speed, and each
+    within 5 % of its main pulse's own speed (tracked independently up to the time the run ends,
+    t = 1.15 s at beta = 0.9999: prism 13)."""
     s, t, beta = captured_record()
     m = M.measure_pulse(s, t, 6.2e-3)
     assert list(beta) == [0.9999, 1.0]
     assert m["pulse_captured"].tolist() == [1.0, 0.0]
     assert m["speed"][0] == pytest.approx(m["speed"][1], rel=0.05)
-    assert m["prisms_measured"].tolist() == [29.0, 40.0]  # 44..16: found again at 21 and 16, ends at 15
+    assert m["prisms_measured"].tolist() == [32.0, 40.0]  # 44..13, cut at 12
     for b in range(2):
-        assert m["speed"][b] == pytest.approx(main_pulse_speed(-s[b], t, 6.2e-3, t1=1.05), rel=0.05)
-    assert M.pulse_speed(s[0], t, 6.2e-3, threshold=m["threshold"][0]).time_of_flight > 1.5 * m["speed"][1]  # control
+        assert m["speed"][b] == pytest.approx(main_pulse_speed(-s[b], t, 6.2e-3, t1=1.15), rel=0.05)
+    assert M.pulse_speed(s[0], t, 6.2e-3, threshold=m["threshold"][0]).time_of_flight > 1.4 * m["speed"][1]  # control
 
 
 def test_a_single_captured_prism_is_bridged():
@@ -417,3 +421,97 @@ def test_the_longest_continuous_run_is_measured():
     assert m["amplitude"] == pytest.approx(1e-3, rel=0.01)
     at = m["arrival_time"]
     assert np.isnan(at[hi - 3:hi]).all() and np.isfinite(at[lo:hi - 3]).all()  # the run's arrivals only
+
+
+# ---------------------------------------------------------------------- measures that hold still (issue 31)
+def _with_precursor(late: float):
+    """The 40 prisms/s sech^2 pulse (1e-3) with a faster precursor of 7.4e-5 running ahead of it, and
+    a late large motion of ``late`` at the impacted end (it sets the record's largest compression)."""
+    t, s = _sech2_history(t_end=1.6, nt=1601)
+    j = np.arange(50)
+    s = s - 7.4e-5 / np.cosh((j[None, :] - (52 - 90.0 * t[:, None])) / 1.0) ** 2
+    late_t = t > 1.45
+    s[late_t, 40:] -= late * np.sin(30 * (t[late_t, None] - 1.45)) ** 2
+    return t, s
+
+
+def test_threshold_does_not_follow_the_late_maximum():
+    """Issue 31's first case: the 5 % threshold followed the record's largest compression, which a
+    late motion sets (and round-off moves by per cent); a precursor near it was measured or not
+    with it (here: a 2 % smaller late maximum gave the precursor's 7.4e-5 at 0.56 m/s instead of the
+    pulse's 1e-3 at 0.248 m/s). The threshold is now a quarter of the leading amplitude: the same
+    measures either way."""
+    runs = [M.measure_pulse(*_with_precursor(late)[::-1], 6.2e-3) for late in (1.5e-3, 1.47e-3)]
+    for m in runs:
+        assert m["threshold"] == pytest.approx(0.25e-3, rel=1e-3)
+        assert m["amplitude"] == pytest.approx(1e-3, rel=1e-3)
+        assert m["speed"] == pytest.approx(40 * 6.2e-3, rel=1e-3)
+    for k in ("amplitude", "speed", "width_fwhm", "width_10", "arrival_time", "prisms_measured"):
+        np.testing.assert_array_equal(runs[0][k], runs[1][k], err_msg=k)
+
+
+def test_widths_average_a_transit():
+    """The widths are a mean over one prism transit of the leading peak: they move continuously with
+    a sub-sample shift of the pulse (the snapshot nearest a time jumped by ~1e-2), and sample-to-sample
+    noise of 0.3 % of the pulse (fp32 positions of a weak pulse) moves them by < 0.2 % (the nearest
+    snapshot: 0.7 %)."""
+    t = np.linspace(0.0, 1.6, 1601)
+    j = np.arange(50)
+    widths = []
+    for shift in np.linspace(0.0, 0.04, 9):  # prisms: up to 1.6 samples of the 40 prisms/s pulse
+        s = -1e-3 / np.cosh((j[None, :] - (55 - 40.0 * t[:, None] + shift)) / 2.0) ** 2
+        widths.append(float(M.measure_pulse(s, t, 6.2e-3)["width_fwhm"]))
+    assert np.abs(np.diff(widths)).max() < 1e-4 * widths[0]
+    assert widths[0] == pytest.approx(2 * 2.0 * np.arccosh(np.sqrt(2)), rel=0.03)
+    rng = np.random.default_rng(1)
+    base = -1e-3 / np.cosh((j[None, :] - (55 - 40.0 * t[:, None])) / 2.0) ** 2
+    noisy = [float(M.measure_pulse(base + 3e-6 * rng.standard_normal(base.shape), t, 6.2e-3)["width_fwhm"])
+             for _ in range(4)]
+    assert (max(noisy) - min(noisy)) / widths[0] < 2e-3
+
+
+def double_hump(margin: float, n: int = 50, c: float = 40.0, rate: float = 400.0, w: float = 0.012,
+                a2: float = 1.3):
+    """Every prism's history: a hump of 1e-3, then a taller one (a2 x), the sampled dip between them
+    at (1 + margin) x half the first hump's sampled top: the end-of-pulse decision (end_fraction =
+    0.5) sits ``margin`` from its boundary at every prism (the pulse moves an integer number of
+    samples per prism, so every prism samples it alike). Returns (time [s], strain (T, n))."""
+    from scipy.optimize import brentq
+
+    tau0 = np.arange(-40, 200) / rate
+
+    def hist(delta, tau):
+        return 1e-3 / np.cosh(tau / w) ** 2 + a2 * 1e-3 / np.cosh((tau - delta) / w) ** 2
+
+    def ratio(delta):  # sampled dip over half the first top, less (1 + margin)
+        h = hist(delta, tau0)
+        i2 = 40 + int(np.argmax(h[40:]))
+        return h[40:i2 + 1].min() / (0.5 * h[:41].max()) - (1 + margin)
+
+    delta = brentq(ratio, 2.2 * w, 6 * w, xtol=1e-15)
+    t = np.arange(0.0, 1.6, 1.0 / rate)
+    tau = t[:, None] - (n - 1 - np.arange(n)[None, :]) / c - 0.1
+    return t, -hist(delta, tau)
+
+
+@pytest.mark.parametrize("margin", [2e-4, -2e-4])
+def test_a_decision_at_its_boundary_is_flagged(margin):
+    """The stability probe: with the pulse's end decided 2e-4 from its boundary, moving the decision
+    parameters by 1e-3 switches the leading peak between the two humps (amplitude 1.0e-3 against
+    1.3e-3): the amplitude's sensitivity says so, and the case is flagged measure_unstable."""
+    from types import SimpleNamespace
+
+    from warp_tensegrity.measure.nan_reasons import FLAG, measure_columns
+
+    t, s = double_hump(margin)
+    m = M.measure_pulse(s[None], t, 6.2e-3)
+    assert m["amplitude_sensitivity"][0] > 0.2
+    res = SimpleNamespace(status=np.zeros(1, int), strain=s[None], time=t, measurements=m)
+    assert measure_columns(res, 6.2e-3)["measurement_flag"][0] == FLAG["measure_unstable"]
+    res.info = {"choices": {"accuracy": 0.5}}  # a run that asked for 50 %: a change of 0.22-0.29 is within it
+    assert measure_columns(res, 6.2e-3)["measurement_flag"][0] == FLAG["ok"]
+    clear = M.measure_pulse(double_hump(0.05)[1][None], t, 6.2e-3)  # control: 5 % from the boundary
+    for k in M.pulse_core.SENSITIVITY_KEYS.values():
+        assert clear[k][0] == 0.0, k
+    assert M.measure_pulse(s[None], t, 6.2e-3, stability=None).keys() == clear.keys() - set(
+        M.pulse_core.SENSITIVITY_KEYS.values())

@@ -39,6 +39,13 @@ def assert_stats(s, dev: dict):
         np.testing.assert_array_equal(np.asarray(dev[k], dtype=np.float64), a.astype(np.float64), err_msg=k)
 
 
+SENS_ATOL = 1e-9
+"""The sensitivities are relative differences of nearly equal measures (arrival times after their
+first-order response to the threshold is removed): where no decision flips they are round-off or a
+second-order residue, and their round-off on the device is that of the measures (1e-12 relative);
+compared absolutely, far below any flag floor (1e-3)."""
+
+
 def assert_same(ref: dict, dev: dict, rtol: float = RTOL):
     assert set(ref) <= set(dev) <= set(ref) | set(RECORD_STATS)
     for k, a in ref.items():
@@ -46,7 +53,8 @@ def assert_same(ref: dict, dev: dict, rtol: float = RTOL):
         assert a.shape == b.shape, k
         np.testing.assert_array_equal(np.isnan(b), np.isnan(a), err_msg=f"NaN pattern of {k}")
         ok = ~np.isnan(a)
-        np.testing.assert_allclose(b[ok], a[ok], rtol=rtol, atol=0.0, err_msg=k)
+        atol = SENS_ATOL if k in M.SENSITIVITY_KEYS.values() else 0.0
+        np.testing.assert_allclose(b[ok], a[ok], rtol=rtol, atol=atol, err_msg=k)
 
 
 DEVICE = "cpu"  # set from pytest --device by the autouse fixture below
@@ -143,6 +151,23 @@ def test_engine_record_with_a_captured_threshold():
     assert dev["speed"][0] == pytest.approx(dev["speed"][1], rel=0.05)
 
 
+def test_stability_probe_on_the_device():
+    """The probe's three passes run on the device as on the host: a decision at its boundary
+    (tests/measure/test_measure.py::double_hump, 2e-4 from it) gives the same sensitivities, one
+    5 % from it none."""
+    from test_measure import double_hump
+
+    t, near = double_hump(2e-4)
+    clear = double_hump(0.05)[1]
+    ref, dev = both(np.stack([near, clear]), t)
+    assert_same(ref, dev)
+    assert dev["amplitude_sensitivity"][0] > 0.2 and dev["amplitude_sensitivity"][1] == 0.0
+    off = measure_pulse_device(np.stack([near, clear]), t, H, device=DEVICE, stability=None)
+    assert not set(M.SENSITIVITY_KEYS.values()) & set(off)
+    assert_same({k: v for k, v in ref.items() if k not in M.SENSITIVITY_KEYS.values()},
+                {k: v for k, v in off.items() if k not in RECORD_STATS})
+
+
 def test_records_discriminate_the_definitions(adversarial):
     """The comparison is not vacuous: changing a definition's parameter changes the reference on
     these records, so a device kernel with that definition broken would fail the test above."""
@@ -152,7 +177,7 @@ def test_records_discriminate_the_definitions(adversarial):
         for kw, keys in (({"end_fraction": 0.45}, ("peak_time", "amplitude", "speed")),
                          ({"skip_impact": 4}, ("speed", "width_fwhm", "prisms_measured")),
                          ({"skip_clamp": 2}, ("speed_snapshot", "width_10", "prisms_measured")),
-                         ({"threshold": 0.9 * ref["threshold"]}, ("arrival_time", "peak_time"))):
+                         ({"threshold": 0.5 * ref["threshold"]}, ("arrival_time", "peak_time"))):
             other = M.measure_pulse(s, t, H, **kw)
             for k in keys:
                 a, b = ref[k], other[k]

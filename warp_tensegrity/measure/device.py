@@ -10,16 +10,20 @@ and every measure is computed in float64.
 Passes (one launch each; ``(P, B)`` = one thread per prism of each column, ``B`` = per column):
 
 1. ``prism_stats`` (P, B): largest compression and finiteness of each prism's history;
-2. ``init_threshold`` (B): default threshold, 5 % of the record's largest compression (the
+2. ``init_threshold`` (B): first trial threshold, half the record's largest compression (the
    device-side reduction of the two-pass definition), and whether the record is wholly finite;
 3. ``track`` (P, B): leading-peak track (and arrival) for a per-column threshold; run for the
-   three trial thresholds of measure_pulse's refinement (1, 0.1, 0.01 x default), each followed by
+   trial thresholds of measure_pulse's refinement (``TRIAL_SCALES``: halved in turn), each followed by
 4. ``refine`` (B): prisms reached, trial amplitude, next trial; then ``track`` with the final one;
 5. ``column_measures`` (B): the run measured (the longest stretch of the window over which the
    leading peak is continuous, found again past a single captured prism; arrivals outside it NaN
    where a run was cut), amplitude (median), time-of-flight fit, widths at its middle;
 6. ``snapshots`` (T, B): spatial peak of every snapshot the time-of-flight fit points at;
 7. ``snapshot_fit`` (B): least-squares speed of those peaks.
+
+Passes 2-7 run once with the decision parameters (:class:`~.pulse_core.Decisions`) and, for the
+stability probe, twice more with them moved up and down; the host compares the three
+(:func:`~.pulse_core._sensitivities`).
 
 Sums are numpy's pairwise summation, reproduced (``pw_sum``), so the fits round as the reference
 does; medians are rank selections (no scratch, n <= a few hundred prisms). The shared ``@wp.func``
@@ -47,40 +51,44 @@ from .device_kernels import (
     track,
 )
 from .pulse_core import (
-    CONTINUITY_RATIO,
     DEFAULT_END_FRACTION,
-    DEFAULT_THRESHOLD_FRACTION,
-    REFINED_THRESHOLD_FRACTION,
+    FALLBACK_SCALE,
+    TRIAL_SCALES,
+    STABILITY_EPS,
+    Decisions,
     _check_fraction,
     _check_history,
+    _sensitivities,
     measure_pulse,
     measurement_window,
 )
 
 __all__ = ["measure_pulse_device", "measure_record", "TRIAL_SCALES"]
 
-TRIAL_SCALES = (1.0, 0.1, 0.01)
-"""measure_pulse's threshold trials, as fractions of the default threshold."""
 
 
 # ---------------------------------------------------------------------- host side
 def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None = None, cut: int = 0,
                    n_valid=None, threshold=None, skip_impact: int | None = None, skip_clamp: int | None = None,
-                   end_fraction: float = DEFAULT_END_FRACTION, timings: dict | None = None) -> dict[str, np.ndarray]:
+                   end_fraction: float = DEFAULT_END_FRACTION, stability: float | None = STABILITY_EPS,
+                   timings: dict | None = None) -> dict[str, np.ndarray]:
     """measure_pulse's outputs, computed on ``strain.device`` from a device record
     ``strain[k, j, b]`` (n_time, n_prisms - cut, B), float32 or float64 (the engine's layout).
 
     ``time`` (n_time,) [s]; ``prism_height`` [m] scalar or (B,); ``n_prisms`` the full column
     (default: the record's), ``cut`` prisms at the clamp that read as zero strain; ``n_valid``
-    (B,) samples recorded before a column failed (default: all). ``threshold``, skips and
-    ``end_fraction`` as :func:`warp_tensegrity.measure.measure_pulse`. Returns the same dict of
-    float64 NumPy arrays, (B,) and (B, n_prisms), plus three per-record statistics that let the
-    record stay on the device: ``max_compression`` (largest -strain, NaN unless every sample is
-    finite), ``max_compression_finite`` (non-finite samples as 0) and ``record_finite`` (bool).
+    (B,) samples recorded before a column failed (default: all). ``threshold``, skips,
+    ``end_fraction`` and ``stability`` as :func:`warp_tensegrity.measure.measure_pulse` (the
+    stability probe measures the record twice more, with the decision parameters moved). Returns the
+    same dict of float64 NumPy arrays, (B,) and (B, n_prisms), plus three per-record statistics that
+    let the record stay on the device: ``max_compression`` (largest -strain, NaN unless every sample
+    is finite), ``max_compression_finite`` (non-finite samples as 0) and ``record_finite`` (bool).
     Only these cross to the host.
     ``timings`` (optional dict) receives ``measurement`` (device work) and ``transfer`` seconds.
     """
     _check_fraction("end_fraction", end_fraction)
+    if stability is not None and not (np.isfinite(stability) and 0.0 < stability < 0.5):
+        raise ValueError(f"stability = {stability!r} must be None or lie in (0, 0.5)")
     if strain.ndim != 3:
         raise ValueError(f"strain must be a device array (n_time, n_prisms, B), got shape {strain.shape}")
     T, P_rec, B = strain.shape
@@ -100,6 +108,9 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
         raise ValueError(f"n_valid must have shape ({B},), got {nv.shape}")
     use_given = threshold is not None
     given = np.broadcast_to(np.asarray(threshold if use_given else np.nan, dtype=np.float64), (B,))
+    base = Decisions(end_fraction=end_fraction)
+    probes = () if stability is None else (base.perturbed(stability, 1), base.perturbed(stability, -1))
+    run = B and P and T
 
     def arr(a, dtype=f64):
         return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev)
@@ -111,52 +122,67 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
         t_d, h_d, nv_d, given_d = arr(t), arr(h), arr(nv, wp.int32), arr(given)
         qmax, fin = zeros((P, B)), zeros((P, B), wp.int32)
         thr0, whole, trial, a0 = zeros(B), zeros(B, wp.int32), zeros(B), zeros(B)
-        tp_time, tp_value, arrival = zeros((P, B)), zeros((P, B)), zeros((P, B))
-        if B and P and T:
-            wp.launch(prism_stats, (P, B), [strain, cut, nv_d, qmax, fin])
-            wp.launch(init_threshold, B, [f64(DEFAULT_THRESHOLD_FRACTION), given_d, int(use_given), qmax, fin,
-                                          thr0, whole, trial, a0])
-            if not use_given:
-                for i, _ in enumerate(TRIAL_SCALES):
-                    last = i == len(TRIAL_SCALES) - 1
-                    nxt = 0.0 if last else TRIAL_SCALES[i + 1]
-                    wp.launch(track, (P, B), [t_d, f64(end_fraction), cut, strain, nv_d, whole, trial,
-                                              tp_time, tp_value, arrival])
-                    wp.launch(refine, B, [lo, hi, min_reached, f64(nxt), int(last), f64(REFINED_THRESHOLD_FRACTION),
-                                          tp_time, tp_value, thr0, a0, trial])
-            wp.launch(track, (P, B), [t_d, f64(end_fraction), cut, strain, nv_d, whole, trial,
-                                      tp_time, tp_value, arrival])
+        tp_time, tp_value, arrival, slope = zeros((P, B)), zeros((P, B)), zeros((P, B)), zeros((P, B))
         jx, jw, fit, lo_eff, hi_eff = zeros((P, B)), zeros((P, B)), zeros((2, B)), zeros(B, wp.int32), zeros(B, wp.int32)
         scal = {k: zeros(B) for k in ("amplitude", "speed", "width_fwhm", "width_10", "prisms_measured",
                                       "speed_snapshot", "pulse_captured")}
         sx, sy, sw = zeros((T, B)), zeros((T, B)), zeros((T, B))
-        if B and P and T:
-            wp.launch(column_measures, B, [t_d, h_d, cut, lo, hi, min_reached, f64(CONTINUITY_RATIO), f64(end_fraction),
-                                           strain, nv_d, whole, trial, tp_time, tp_value, arrival, jx, jw, fit, lo_eff, hi_eff,
-                                           scal["amplitude"],
+        if run:
+            wp.launch(prism_stats, (P, B), [strain, cut, nv_d, qmax, fin])
+
+        def measure(d: Decisions) -> dict:
+            """One pass of every measure with the decision parameters d; its outputs on the host."""
+            if not run:
+                nan_b = np.full(B, np.nan)
+                out = {k: nan_b.copy() for k in list(scal) + ["threshold"]}
+                out.update({k: np.full((B, P), np.nan) for k in ("arrival_time", "peak_time", "peak_value",
+                                                                 "arrival_slope")})
+                return out
+            given_s = arr(given * d.threshold_scale) if use_given else given_d
+            wp.launch(init_threshold, B, [f64(d.threshold_fraction), given_s, int(use_given), qmax, fin,
+                                          thr0, whole, trial, a0])
+            track_args = [t_d, f64(d.end_fraction), cut, strain, nv_d, whole, trial, tp_time, tp_value, arrival, slope]
+            if not use_given:
+                for i, _ in enumerate(TRIAL_SCALES):
+                    last = i == len(TRIAL_SCALES) - 1
+                    nxt = 0.0 if last else TRIAL_SCALES[i + 1]
+                    wp.launch(track, (P, B), track_args)
+                    wp.launch(refine, B, [lo, hi, min_reached, f64(nxt), int(last), f64(d.refined_fraction),
+                                          f64(FALLBACK_SCALE), tp_time, tp_value, thr0, a0, trial])
+            wp.launch(track, (P, B), track_args)
+            wp.launch(column_measures, B, [t_d, h_d, cut, lo, hi, min_reached, f64(d.continuity_ratio),
+                                           f64(d.end_fraction), f64(d.arrival_slack), f64(d.peak_slack),
+                                           f64(d.retrack_lead), strain, nv_d, whole, trial, tp_time, tp_value,
+                                           arrival, slope, jx, jw, fit, lo_eff, hi_eff, scal["amplitude"],
                                            scal["speed"], scal["width_fwhm"], scal["width_10"], scal["prisms_measured"],
                                            scal["pulse_captured"]])
             wp.launch(snapshots, (T, B), [t_d, cut, strain, nv_d, whole, fit, lo_eff, hi_eff, P, sx, sy, sw])
             wp.launch(snapshot_fit, B, [h_d, sx, sy, sw, scal["speed_snapshot"]])
+            out = {k: v.numpy().copy() for k, v in scal.items()}  # copies: on the CPU numpy() is a view
+            out["threshold"] = trial.numpy().copy()
+            out["arrival_time"] = arrival.numpy().T.copy()
+            out["peak_time"] = tp_time.numpy().T.copy()
+            out["peak_value"] = tp_value.numpy().T.copy()
+            out["arrival_slope"] = slope.numpy().T.copy()
+            return out
+
+        out = measure(base)
+        if probes:
+            out.update(_sensitivities(out, [measure(d) for d in probes]))
         wp.synchronize_device(dev)
         t1 = _time.perf_counter()
-        if B and P and T:
-            out = {k: v.numpy() for k, v in scal.items()}
-            out["threshold"] = trial.numpy()
+        del out["arrival_slope"]
+        if run:
             # per-record statistics the NaN reasons need, so the record itself need not cross
             whole_h = whole.numpy().astype(bool)
             qmax_h = qmax.numpy().max(axis=0)
             out["max_compression"] = np.where(whole_h, qmax_h, np.nan)
             out["max_compression_finite"] = qmax_h
             out["record_finite"] = whole_h
-            out["arrival_time"] = arrival.numpy().T.copy()
-            out["peak_time"] = tp_time.numpy().T.copy()
-            out["peak_value"] = tp_value.numpy().T.copy()
         else:
-            nan_b = np.full(B, np.nan)
-            out = {k: nan_b.copy() for k in list(scal) + ["threshold", "max_compression", "max_compression_finite"]}
+            out["max_compression"] = np.full(B, np.nan)
+            out["max_compression_finite"] = np.full(B, np.nan)
             out["record_finite"] = np.ones(B, dtype=bool)
-            out.update({k: np.full((B, P), np.nan) for k in ("arrival_time", "peak_time", "peak_value")})
     if timings is not None:
         timings["measurement"] = timings.get("measurement", 0.0) + (t1 - t0)
         timings["transfer"] = timings.get("transfer", 0.0) + (_time.perf_counter() - t1)
@@ -165,7 +191,7 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
 
 def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact: int | None = None,
                          skip_clamp: int | None = None, end_fraction: float = DEFAULT_END_FRACTION,
-                         device=None, precision: str = "fp64") -> dict[str, np.ndarray]:
+                         device=None, precision: str = "fp64", stability: float | None = STABILITY_EPS) -> dict[str, np.ndarray]:
     """:func:`warp_tensegrity.measure.measure_pulse` for host histories (..., n_time, n_prisms),
     computed by the device kernels on ``device`` (default: Warp's default device): the record is
     uploaded once in the engine's layout (as ``precision``: 'fp64' or 'fp32'). For tests and for
@@ -181,7 +207,7 @@ def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact
     h = np.broadcast_to(np.asarray(prism_height, dtype=np.float64), lead).reshape(B)
     thr = None if threshold is None else np.broadcast_to(np.asarray(threshold, dtype=np.float64), lead).reshape(B)
     out = measure_record(wp.array(rec, dtype=dtype, device=dev), t, h, threshold=thr, skip_impact=skip_impact,
-                         skip_clamp=skip_clamp, end_fraction=end_fraction)
+                         skip_clamp=skip_clamp, end_fraction=end_fraction, stability=stability)
     return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
 
 

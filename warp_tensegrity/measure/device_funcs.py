@@ -11,10 +11,13 @@ from typing import Any
 
 import warp as wp
 
+from .pulse_core import WIDTH_SEARCH as _WIDTH_SEARCH
+
 f64 = wp.float64
 NAN = wp.constant(f64(math.nan))
 INF = wp.constant(f64(math.inf))
 PW_BLOCK = wp.constant(128)  # numpy's PW_BLOCKSIZE
+WIDTH_SEARCH = wp.constant(_WIDTH_SEARCH)
 _vec32i = wp.types.vector(32, wp.int32)
 _vec32d = wp.types.vector(32, wp.float64)
 
@@ -218,8 +221,8 @@ def reached(tp_time: wp.array2d(dtype=f64), b: int, lo: int, hi: int) -> int:
 @wp.func
 def retrack(strain: Any, time: wp.array(dtype=f64), j: int, b: int, cut: int, n_valid: int, th: f64, thr_r: f64,
             end_fraction: f64, t_start: f64):
-    """measure._retrack for prism j of column b: (t_peak, q_peak, arrival) of the pulse that starts
-    with the first upward crossing of thr_r after the first sample at or after t_start."""
+    """measure._retrack for prism j of column b: (t_peak, q_peak, arrival, dt/dq at the arrival) of
+    the pulse that starts with the first upward crossing of thr_r after the first sample at or after t_start."""
     T = time.shape[0]
     k0 = int(T)
     for k in range(T):
@@ -232,7 +235,7 @@ def retrack(strain: Any, time: wp.array(dtype=f64), j: int, b: int, cut: int, n_
             ka = k
             break
     if ka < 0:
-        return NAN, NAN, NAN
+        return NAN, NAN, NAN, NAN
     m = q_at(strain, ka, j, b, cut, n_valid)
     best = m
     kp = ka
@@ -255,12 +258,14 @@ def retrack(strain: Any, time: wp.array(dtype=f64), j: int, b: int, cut: int, n_
             break
         i -= 1
     at = NAN
+    sl = NAN
     q0 = q_at(strain, kb - 1, j, b, cut, n_valid)
     q1 = q_at(strain, kb, j, b, cut, n_valid)
     if q0 < th and th <= q1:
         at = time[kb - 1] + (th - q0) / (q1 - q0) * (time[kb] - time[kb - 1])
+        sl = (time[kb] - time[kb - 1]) / (q1 - q0)
     if ke < 0 or kp + 1 >= T:
-        return NAN, NAN, at
+        return NAN, NAN, at, sl
     y0 = q_at(strain, kp - 1, j, b, cut, n_valid)
     y1 = q_at(strain, kp, j, b, cut, n_valid)
     y2 = q_at(strain, kp + 1, j, b, cut, n_valid)
@@ -268,24 +273,27 @@ def retrack(strain: Any, time: wp.array(dtype=f64), j: int, b: int, cut: int, n_
     h2 = time[kp + 1] - time[kp]
     val = parabola_value(y0, y1, y2, h1, h2)
     if not wp.isfinite(val):
-        return NAN, NAN, at
-    return time[kp] + parabola_offset(y0, y1, y2, h1, h2), val, at
+        return NAN, NAN, at, sl
+    return time[kp] + parabola_offset(y0, y1, y2, h1, h2), val, at, sl
 
 
 @wp.func
-def continuous(tp: f64, vp: f64, at: f64, tp1: f64, vp1: f64, at1: f64, at_hi: f64, steps: int, ratio: f64) -> int:
+def continuous(tp: f64, vp: f64, at: f64, tp1: f64, vp1: f64, at1: f64, at_hi: f64, steps: int, ratio: f64,
+               arrival_slack: f64, peak_slack: f64) -> int:
     """measure._continuous: prism j's leading peak continues prism j + 1's."""
     step = (at - at_hi) / f64(steps)
-    tol = f64(0.0)
+    tol_a = f64(0.0)
+    tol_p = f64(0.0)
     if wp.isfinite(step):
-        tol = f64(0.5) * step
+        tol_a = arrival_slack * step
+        tol_p = peak_slack * step
     if not wp.isfinite(tp):
         return 0
-    if at < at1:
+    if at < at1 - tol_a:
         return 0
     if not (vp * ratio > vp1 and vp < ratio * vp1):
         return 0
-    if not (tp >= tp1 - tol):
+    if not (tp >= tp1 - tol_p):
         return 0
     return 1
 
@@ -293,16 +301,19 @@ def continuous(tp: f64, vp: f64, at: f64, tp1: f64, vp1: f64, at1: f64, at_hi: f
 @wp.func
 def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f64, end_fraction: f64,
           tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), arrival: wp.array2d(dtype=f64),
-          b: int, lo: int, hi: int, ratio: f64):
+          slope: wp.array2d(dtype=f64), b: int, lo: int, hi: int, ratio: f64, arrival_slack: f64, peak_slack: f64,
+          retrack_lead: f64):
     """measure._chain for column b: (n, run_hi, was_cut) of the longest run of the leading peak
-    through the window; the peaks and arrivals of prisms where the pulse was found again are
-    written in place."""
+    through the window; the peaks and arrivals (and their dt/dq) of prisms where the pulse was found
+    again are written in place."""
     n = int(0)
     cs = hi
     best_n = int(0)
     best_hi = hi
     was_cut = int(0)
     bridged = int(0)
+    at_last = NAN  # the last defined arrival of the current run, at prism j_last
+    j_last = hi
     j = hi - 1
     while j >= lo:
         ok = wp.isfinite(tp_time[j, b])
@@ -311,6 +322,8 @@ def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f6
                 n = 1
                 cs = j + 1
                 bridged = 0
+                at_last = arrival[j, b]
+                j_last = j
             elif was_cut == 0:
                 return best_n, best_hi, was_cut  # before any cut an undefined peak ends the search
             j -= 1
@@ -318,9 +331,12 @@ def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f6
         a_hi = arrival[cs - 1, b]
         steps = cs - 1 - j
         if continuous(tp_time[j, b], tp_value[j, b], arrival[j, b], tp_time[j + 1, b], tp_value[j + 1, b],
-                      arrival[j + 1, b], a_hi, steps, ratio) == 1:
+                      at_last, a_hi, steps, ratio, arrival_slack, peak_slack) == 1:
             n += 1
             bridged = 0
+            if wp.isfinite(arrival[j, b]):
+                at_last = arrival[j, b]
+                j_last = j
         elif not ok:  # an undefined peak ends the run
             if n > best_n:
                 best_n = n
@@ -333,28 +349,32 @@ def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f6
             good = int(0)
             if bridged == 0:
                 s = NAN
-                if cs - 2 - j > 0:
-                    s = (arrival[j + 1, b] - a_hi) / f64(cs - 2 - j)
+                if cs - 1 - j_last > 0:
+                    s = (at_last - a_hi) / f64(cs - 1 - j_last)
                 tol = f64(0.0)
                 if wp.isfinite(s):
-                    tol = f64(0.5) * s
+                    tol = retrack_lead * s
                 thr_r = th
                 r = tp_value[j + 1, b] / ratio
                 if r > thr_r:
                     thr_r = r
-                start = arrival[j + 1, b]
+                start = at_last
                 if not wp.isfinite(start):
                     start = tp_time[j + 1, b]
-                rt, rv, ra = retrack(strain, time, j, b, cut, n_valid, th, thr_r, end_fraction, start - tol)
-                if continuous(rt, rv, ra, tp_time[j + 1, b], tp_value[j + 1, b], arrival[j + 1, b], a_hi, steps,
-                              ratio) == 1:
+                rt, rv, ra, rs = retrack(strain, time, j, b, cut, n_valid, th, thr_r, end_fraction, start - tol)
+                if continuous(rt, rv, ra, tp_time[j + 1, b], tp_value[j + 1, b], at_last, a_hi, steps,
+                              ratio, arrival_slack, peak_slack) == 1:
                     tp_time[j, b] = rt
                     tp_value[j, b] = rv
                     arrival[j, b] = ra
+                    slope[j, b] = rs
                     good = 1
             if good == 1:
                 n += 1
                 bridged = 1
+                if wp.isfinite(arrival[j, b]):
+                    at_last = arrival[j, b]
+                    j_last = j
             else:  # a cut: the run ends, a new one starts at j
                 if n > best_n:
                     best_n = n
@@ -363,6 +383,8 @@ def chain(strain: Any, time: wp.array(dtype=f64), cut: int, n_valid: int, th: f6
                 n = 1
                 cs = j + 1
                 bridged = 0
+                at_last = arrival[j, b]
+                j_last = j
         j -= 1
     if n > best_n:
         best_n = n
@@ -421,3 +443,50 @@ def width_at(strain: Any, k: int, b: int, cut: int, n_valid: int, P: int, near: 
     xr = f64(ir - 1) + (b0 - L) / (b0 - b1)
     return xr - xl
 
+
+
+@wp.func
+def transit_width(strain: Any, time: wp.array(dtype=f64), b: int, cut: int, n_valid: int, P: int, x: f64,
+                  t0: f64, t1: f64, level: f64) -> f64:
+    """measure._mid_width's mean over [t0, t1] (t0 <= t1, finite) of the piecewise-linear interpolant
+    of the snapshot widths at position x; the interpolant at t0 where t0 = t1; NaN where a snapshot
+    used has no width."""
+    T = time.shape[0]
+    if T < 2:
+        return NAN
+    ka = int(T - 1)
+    for k in range(T):  # np.searchsorted(t, t0, 'left'), clipped to [1, T - 1]
+        if time[k] >= t0:
+            ka = k
+            break
+    ka = wp.max(ka, 1)
+    kb = int(T - 1)
+    for k in range(T):  # np.searchsorted(t, t1, 'right'), clipped
+        if time[k] > t1:
+            kb = k
+            break
+    kb = wp.max(wp.max(kb, 1), ka)
+    w_prev = width_at(strain, ka - 1, b, cut, n_valid, P, x, WIDTH_SEARCH, level)
+    if not wp.isfinite(w_prev):
+        return NAN
+    w_first = w_prev
+    w_second = NAN
+    area = f64(0.0)
+    for k in range(ka, kb + 1):
+        w = width_at(strain, k, b, cut, n_valid, P, x, WIDTH_SEARCH, level)
+        if not wp.isfinite(w):
+            return NAN
+        if k == ka:
+            w_second = w
+        tk = time[k - 1]
+        u0 = wp.max(tk, t0)
+        u1 = wp.min(time[k], t1)
+        if u1 > u0:
+            dw = (w - w_prev) / (time[k] - tk)
+            area += f64(0.5) * ((w_prev + dw * (u0 - tk)) + (w_prev + dw * (u1 - tk))) * (u1 - u0)
+        w_prev = w
+    span = t1 - t0
+    if span > f64(0.0):
+        return area / span
+    a0 = wp.clamp((t0 - time[ka - 1]) / (time[ka] - time[ka - 1]), f64(0.0), f64(1.0))
+    return w_first + a0 * (w_second - w_first)

@@ -10,6 +10,7 @@ import warp as wp
 
 from .device_funcs import (
     NAN,
+    WIDTH_SEARCH,
     chain,
     f64,
     finite_at,
@@ -20,7 +21,7 @@ from .device_funcs import (
     q_at,
     reached,
     spatial_peak_index,
-    width_at,
+    transit_width,
 )
 
 __all__ = ["column_measures", "init_threshold", "load_kernels", "prism_stats", "refine", "snapshot_fit", "snapshots",
@@ -88,12 +89,15 @@ def track(
     strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int), thr: wp.array(dtype=f64),
     # Data out:
     tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), arrival: wp.array2d(dtype=f64),
+    slope: wp.array2d(dtype=f64),
 ):
-    """Leading peak of prism j (measure._track) and arrival (measure._arrival) for threshold thr[b]."""
+    """Leading peak of prism j (measure._track) and arrival with its dt/dq (measure._arrival_slope) for
+    threshold thr[b]."""
     j, b = wp.tid()
     tp_time[j, b] = NAN
     tp_value[j, b] = NAN
     arrival[j, b] = NAN
+    slope[j, b] = NAN
     th = thr[b]
     if whole[b] == 0 or not (wp.isfinite(th) and th > f64(0.0)):
         return
@@ -121,6 +125,7 @@ def track(
         q1 = q_at(strain, ka, j, b, cut, nv)
         frac = (th - q0) / (q1 - q0)
         arrival[j, b] = time[ka - 1] + frac * (time[ka] - time[ka - 1])
+        slope[j, b] = (time[ka] - time[ka - 1]) / (q1 - q0)
     if ka < 0 or ke < 0 or kp < 1:
         return
     t0 = time[kp - 1]
@@ -139,7 +144,7 @@ def track(
 @wp.kernel(enable_backward=False)
 def refine(
     # Model:
-    lo: int, hi: int, min_reached: int, next_scale: f64, last: int, refined_fraction: f64,
+    lo: int, hi: int, min_reached: int, next_scale: f64, last: int, refined_fraction: f64, fallback_scale: f64,
     # Data in:
     tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64), thr0: wp.array(dtype=f64),
     # Data out:
@@ -147,7 +152,7 @@ def refine(
 ):
     """One step of measure_pulse's threshold refinement: the first trial whose leading peaks reach
     min_reached window prisms sets the amplitude a0 (median of those prisms); then the next trial,
-    or (last) the final threshold min(thr0, refined_fraction a0)."""
+    or (last) the final threshold refined_fraction a0 (fallback_scale thr0 where no trial found one)."""
     b = wp.tid()
     a = a0[b]
     if not wp.isfinite(a) and min_reached > 0:
@@ -157,11 +162,9 @@ def refine(
                 a = a_new
                 a0[b] = a
     if last == 1:
-        t = thr0[b]
+        t = thr0[b] * fallback_scale
         if wp.isfinite(a):
-            r = refined_fraction * a
-            if r < t:
-                t = r
+            t = refined_fraction * a
         trial[b] = t
     elif wp.isfinite(a):
         trial[b] = NAN
@@ -173,12 +176,12 @@ def refine(
 def column_measures(
     # Model:
     time: wp.array(dtype=f64), prism_height: wp.array(dtype=f64), cut: int, lo: int, hi: int, min_reached: int,
-    continuity_ratio: f64, end_fraction: f64,
+    continuity_ratio: f64, end_fraction: f64, arrival_slack: f64, peak_slack: f64, retrack_lead: f64,
     # Data in:
     strain: Any, n_valid: wp.array(dtype=int), whole: wp.array(dtype=int), thr: wp.array(dtype=f64),
     # Data out:
     tp_time: wp.array2d(dtype=f64), tp_value: wp.array2d(dtype=f64),
-    arrival: wp.array2d(dtype=f64), jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
+    arrival: wp.array2d(dtype=f64), slope: wp.array2d(dtype=f64), jx: wp.array2d(dtype=f64), jw: wp.array2d(dtype=f64),
     fit: wp.array2d(dtype=f64), lo_eff: wp.array(dtype=int), hi_eff: wp.array(dtype=int),
     amplitude: wp.array(dtype=f64), speed: wp.array(dtype=f64), width_fwhm: wp.array(dtype=f64),
     width_10: wp.array(dtype=f64), prisms_measured: wp.array(dtype=f64), pulse_captured: wp.array(dtype=f64),
@@ -199,8 +202,8 @@ def column_measures(
     fit[0, b] = NAN
     fit[1, b] = NAN
     nv = n_valid[b]
-    n_in, run_hi, was_cut = chain(strain, time, cut, nv, thr[b], end_fraction, tp_time, tp_value, arrival, b, lo,
-                                  hi, continuity_ratio)
+    n_in, run_hi, was_cut = chain(strain, time, cut, nv, thr[b], end_fraction, tp_time, tp_value, arrival, slope, b,
+                                  lo, hi, continuity_ratio, arrival_slack, peak_slack, retrack_lead)
     if whole[b] != 0 and (n_in > 0 or was_cut == 1):
         pulse_captured[b] = f64(was_cut)
     if was_cut == 1:
@@ -237,22 +240,22 @@ def column_measures(
                 speed[b] = -h / c1
                 fit[0, b] = c0
                 fit[1, b] = c1
-    # widths at the sample nearest to the leading peak's time at the middle of the run
-    j_mid = f64(0.5) * f64(lb + hb - 1)
-    j0 = int(wp.floor(j_mid))
-    j1 = int(wp.ceil(j_mid))
-    t_mid = f64(0.5) * (tp_time[j0, b] + tp_time[j1, b])
-    if not wp.isfinite(t_mid):
+    # widths at the leading peak's time at the window's middle (the run's if it does not hold it with the
+    # peak search on both sides: measure.width_position), interpolated between the snapshots around it
+    j_mid = f64(0.5) * f64(lo + hi - 1)
+    if not (lb + WIDTH_SEARCH <= int(wp.floor(j_mid)) and int(wp.ceil(j_mid)) <= hb - 1 - WIDTH_SEARCH):
+        j_mid = f64(0.5) * f64(lb + hb - 1)
+    # one transit of the leading peak around j_mid: its times at j_mid + 1/2 and j_mid - 1/2 (measure._transit)
+    ta = f64(0.5) * (tp_time[wp.clamp(int(wp.floor(j_mid + f64(0.5))), 0, P - 1), b]
+                     + tp_time[wp.clamp(int(wp.ceil(j_mid + f64(0.5))), 0, P - 1), b])
+    tb = f64(0.5) * (tp_time[wp.clamp(int(wp.floor(j_mid - f64(0.5))), 0, P - 1), b]
+                     + tp_time[wp.clamp(int(wp.ceil(j_mid - f64(0.5))), 0, P - 1), b])
+    if not (wp.isfinite(ta) and wp.isfinite(tb)):
         return
-    k = int(0)
-    dbest = wp.abs(time[0] - t_mid)
-    for kk in range(1, time.shape[0]):
-        d = wp.abs(time[kk] - t_mid)
-        if d < dbest:
-            dbest = d
-            k = kk
-    width_fwhm[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.5))
-    width_10[b] = width_at(strain, k, b, cut, nv, P, j_mid, 2, f64(0.1))
+    t0 = wp.min(ta, tb)
+    t1 = wp.max(ta, tb)
+    width_fwhm[b] = transit_width(strain, time, b, cut, nv, P, j_mid, t0, t1, f64(0.5))
+    width_10[b] = transit_width(strain, time, b, cut, nv, P, j_mid, t0, t1, f64(0.1))
 
 
 @wp.kernel(enable_backward=False)

@@ -36,6 +36,12 @@ table below, that explains the first NaN of amplitude, speed, widths):
                                         crossed the measurement window, or at any time where
                                         no pulse was found there: every measure NaN (checked
                                         after 1 and 2, before the others; docs/model.md)
+10  measure_unstable                    the measures are defined, but one of amplitude, speed,
+                                        widths or arrival times changes by more than the run's
+                                        accuracy target when the measure's decisions (threshold,
+                                        end of the leading pulse, continuity of the run) move by
+                                        that target: a decision sits at its boundary, so round-off
+                                        could flip it (checked before 5 and 6; the numbers are kept)
 ==  ==================================  =====================================================
 
 Where a continuous run of the leading peak covers a quarter of the window or more, the measures
@@ -55,7 +61,7 @@ import numpy as np
 from ..types import MEASUREMENT_FLAGS as FLAGS
 from ..types import TIME
 from .feasibility import left_before_measured
-from .pulse_core import measure_pulse, measurement_window
+from .pulse_core import SENSITIVITY_KEYS, STABILITY_FLOOR, measure_pulse, measurement_window
 
 FLAG = {name: i for i, name in enumerate(FLAGS)}
 FLAGGED = ("amplitude", "speed", "width", "width_10", "prisms_measured", "max_compression")
@@ -77,7 +83,9 @@ the paper's own cases run at up to 5.7 c0 (v0 = 0.15 m s-1, c0 = 0.026 m s-1 at 
 def measure_columns(result, prism_height: float) -> dict:
     """Leading-pulse measurements per column: the engine's device measures, else
     :func:`~warp_tensegrity.measure.pulse_core.measure_pulse` on the record; NaN where undefined and for
-    every column whose status is not ok, with the flag saying why. ``prism_height`` [m]."""
+    every column whose status is not ok, with the flag saying why (``measure_unstable`` where a
+    measure's sensitivity exceeds the run's accuracy target, ``result.info['choices']['accuracy']``,
+    else :data:`~.pulse_core.STABILITY_FLOOR`). ``prism_height`` [m]."""
     status = np.asarray(result.status)
     m = getattr(result, "measurements", None)  # taken by the engine (on the device by default)
     if m is None:
@@ -96,6 +104,9 @@ def measure_columns(result, prism_height: float) -> dict:
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
         v[bad] = np.nan
+    floor = (getattr(result, "info", None) or {}).get("choices", {}).get("accuracy") or STABILITY_FLOOR
+    with np.errstate(invalid="ignore"):
+        out["unstable"] = np.any([np.asarray(m[k]) > floor for k in SENSITIVITY_KEYS.values() if k in m], axis=0) & ~bad
     stats = None
     if result.strain is not None:
         with np.errstate(invalid="ignore"):
@@ -127,6 +138,7 @@ def measurement_flags(status, strain, time, meas: dict, record_stats: dict | Non
     flags = np.full(B, FLAG["ok"], dtype=np.int8)
     amp, speed = np.asarray(meas["amplitude"]), np.asarray(meas["speed"])
     captured = np.asarray(meas.get("pulse_captured", np.zeros(B))) == 1
+    unstable = np.asarray(meas.get("unstable", np.zeros(B, dtype=bool)), dtype=bool).reshape(B)
     widths = np.isnan(np.asarray(meas["width"])) | np.isnan(np.asarray(meas["width_10"]))
     if strain is None and record_stats is not None:
         finite = np.asarray(record_stats["record_finite"], dtype=bool)
@@ -164,6 +176,8 @@ def measurement_flags(status, strain, time, meas: dict, record_stats: dict | Non
                 flags[b] = FLAG["pulse_not_reached_window_by_t_end"]
             else:
                 flags[b] = FLAG["measurement_undefined"]
+        elif unstable[b]:
+            flags[b] = FLAG["measure_unstable"]
         elif np.isnan(speed[b]):
             flags[b] = FLAG["speed_undefined"]
         elif widths[b]:
@@ -228,6 +242,8 @@ def summary(flags, n_prisms: int, t_end: float, needed=None) -> list[str]:
                                   "threshold before the leading pulse over most of the window",
         "left_feasible_set": "no measure: the column left the feasible set of the model (feasibility_flag) before its "
                              "pulse had crossed the measurement window",
+        "measure_unstable": "a measure sits at a decision's boundary (threshold, end of the pulse, continuity): it "
+                            "would change by more than the accuracy target under round-off; numbers kept, not trusted",
     }
     for f, text in why.items():
         if counts[f]:

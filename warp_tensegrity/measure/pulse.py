@@ -169,12 +169,13 @@ def pulse_width(strain_snapshot, level: float = 0.5, near=None, search: int = 1)
 
 def width_at_mid_column(strain, time, level: float = 0.5, threshold=None,
                         end_fraction: float = DEFAULT_END_FRACTION) -> np.ndarray:
-    """Width [prisms] of the leading pulse when its peak is at the middle of the column, shape (...).
+    """Width [prisms] of the leading pulse as its peak crosses the middle of the column, shape (...).
 
-    ``t_mid`` = leading-peak time (:func:`peak_track`) at prism ``(n-1)/2`` (n odd) or the mean
-    of prisms ``n/2 - 1`` and ``n/2`` (n even); the snapshot is the time sample nearest to
-    ``t_mid``; width by :func:`pulse_width` with the peak searched within 2 prisms of the middle.
-    NaN where ``t_mid`` is undefined.
+    With x = ``(n-1)/2`` and the leading-peak times (:func:`peak_track`) at x + 1/2 and x - 1/2 (a
+    position between two prisms takes the mean of their times): the mean over that transit of the
+    widths of the snapshots (:func:`pulse_width`, peak searched within 2 prisms of x), linear in
+    time between samples. Averaging over a transit takes out the discreteness modulation and the
+    samples' round-off. NaN where the transit is undefined or a snapshot in it has no width.
     """
     _check_fraction("level", level)
     _check_fraction("end_fraction", end_fraction)
