@@ -142,6 +142,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reference-cache", default=None, help="npz of the reference (made if missing)")
     ap.add_argument("--auto-fp32-on-cpu", action="store_true", help="precision auto verifies fp32 on the CPU too")
     ap.add_argument("--out", default=None, help="JSON (default benchmarks/results/error_coverage_<set>_<device>.json)")
+    ap.add_argument("--modes-from", default=None,
+                    help="an earlier JSON of this set whose modes (and reference time) are kept: a long study split "
+                         "over device calls, the reference passed on with --reference-cache")
     args = ap.parse_args(argv)
     import warp as wp
 
@@ -154,6 +157,15 @@ def main(argv=None) -> int:
     name = Path(args.spec).stem if args.spec else "cpu_set"
     out = {"meta": run_metadata(wp.get_device(args.device)), "set": name, "modes": {}}
     path = Path(args.out) if args.out else ROOT / "benchmarks" / "results" / f"error_coverage_{name}_{args.device.split(':')[0]}.json"
+    if args.modes_from:
+        import json
+
+        old = json.loads(Path(args.modes_from).read_text())
+        if old.get("set") != name or old["meta"].get("git_commit") != out["meta"].get("git_commit"):
+            raise SystemExit(f"--modes-from {args.modes_from}: another set or commit ({old.get('set')}, "
+                             f"{old['meta'].get('git_commit')})")
+        out["modes"] = old["modes"]
+        out.update({k: v for k, v in old.items() if k == "reference_seconds"})
     ref = None
     for prec in args.precision:
         ds, wall, stepping, plan = run_sweep(text, args.device, prec)
