@@ -43,6 +43,10 @@ shard_size = 100
 """
 
 
+CASE_KEYS = MEASURES + ("prestrain", "v0", "base_rigidity", "max_compression", "measurement_flag", "error_flag",
+                        "precision_used", "feasibility_flag", "run_group", "time_step")
+
+
 def _stack(ds):
     dims = [d for d in ds.dims if d not in ("prism", "t")]
     return ds.stack(case_=dims).transpose("case_", ...) if dims != ["case"] else ds
@@ -166,7 +170,7 @@ def main(argv=None) -> int:
                              f"{old['meta'].get('git_commit')})")
         out["modes"] = old["modes"]
         out.update({k: v for k, v in old.items() if k == "reference_seconds"})
-    ref = None
+    ref, cases = None, {}
     for prec in args.precision:
         ds, wall, stepping, plan = run_sweep(text, args.device, prec)
         if ref is None and len(plan.groups) == 1 and plan.groups[0].n_columns > 1 and ":onedt" in prec:
@@ -186,8 +190,13 @@ def main(argv=None) -> int:
                     np.savez_compressed(cache, **ref)
         target = float(plan.run.accuracy or 1e-3)
         res = evaluate(ds, ref, target) | {"wall_seconds": wall, "stepping_seconds": stepping, "target": target,
-                                           "groups": [[g.n_columns, g.plan.dt, g.plan.n_steps] for g in plan.groups]}
+                                           "groups": [[g.n_columns, g.plan.dt, g.plan.n_steps, g.twin.dt if g.twin else None]
+                                                      for g in plan.groups]}
         out["modes"][prec] = res
+        cases.update({f"{prec}/{k}": np.asarray(ds[k].values) for k in CASE_KEYS if k in ds}
+                     | {f"{prec}/{k}_error": np.asarray(ds[f"{k}_error"].values) for k in MEASURES}
+                     | {f"reference/{k}": np.asarray(v) for k, v in ref.items()})
+        np.savez_compressed(path.with_name(path.stem + "_cases.npz"), **cases)  # per case, for a later look
         print(prec, {k: (v["covered"], v["unflagged_within_target"], v["unflagged"]) for k, v in res.items()
                      if isinstance(v, dict) and "covered" in v}, f"{wall:.1f} s", flush=True)
         write_json(path, out)  # after every mode: a run cut short keeps what it measured
