@@ -209,3 +209,13 @@ def test_init_writes_a_commented_spec_that_runs(example, tmp_path, capsys):
     assert "fits:        yes" in capsys.readouterr().out
     assert cli.main(["init", "--example", example, "-o", str(path)]) == 1  # never overwrites
     assert "exists" in capsys.readouterr().err
+
+
+def test_init_into_a_missing_directory_names_path_and_errno(tmp_path, capsys):
+    """An OSError from `init -o` is one line with the path and the errno, number and name (issue 30)."""
+    from warp_tensegrity import cli
+
+    path = tmp_path / "no" / "such" / "dir" / "x.toml"
+    assert cli.main(["init", "-o", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and str(path) in err and "[Errno 2 ENOENT]" in err, err

@@ -13,7 +13,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-from .atomic import create_text
+from .atomic import create_text, oserror_line
 from .options_docs import lens_options_table, options_table
 from .options_lens import LENS_SECTIONS
 from .scene.columns import ColumnConfig  # noqa: F401 - registers the [scene] options
@@ -145,7 +145,7 @@ def run_init(args) -> int:
     try:
         create_text(path, text)  # UTF-8; refused if a file or link appeared at the name meanwhile
     except OSError as e:
-        print(f"warp-tensegrity: error: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+        print(f"warp-tensegrity: error: {oserror_line(e, path)}", file=sys.stderr)
         return 1
     print(f"wrote {path}: run it with `warp-tensegrity {'lens' if args.example == 'lens' else 'run'} {path} -o OUT.nc`")
     return 0
