@@ -445,3 +445,45 @@ def test_spec_that_is_not_a_regular_file_or_too_large_is_refused_at_once(tmp_pat
             rc, err = _cli(*args), capsys.readouterr().err
         assert rc == 1 and "Traceback" not in err, err[-3000:]
         assert len(_error_lines(err)) == 1 and str(path) in err and want in err, err
+
+
+# ---------------------------------------------------------------------- a signal during the last write
+def test_a_signal_during_the_last_write_lets_it_finish_before_the_lock_goes():
+    """SIGTERM or Ctrl-C while the writer thread writes the last shard: ShardWriter.close lets that
+    shard be written and marked before the signal's exception reaches the caller, whose ``with``
+    then releases the store's lock (issue 30: the lock went while the write went on)."""
+    import signal
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from warp_tensegrity.sweep.store import ShardWriter
+
+    events = []
+
+    class SlowStore:
+        manifest = SimpleNamespace(mark_done=lambda i, rec: events.append(("marked", i)))
+
+        def write_shard(self, plan, i, ds, t):
+            time.sleep(0.4)
+            events.append(("written", i))
+            return {}
+
+    def interrupt(*_):
+        events.append(("signal", None))
+        raise KeyboardInterrupt
+
+    assert threading.current_thread() is threading.main_thread()
+    w = ShardWriter(SlowStore(), None, None)
+    w.acquire()
+    w.submit(0, xr.Dataset())
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.1)  # arrives while shard 0 is being written
+        with pytest.raises(KeyboardInterrupt):
+            w.close()
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert events == [("signal", None), ("written", 0), ("marked", 0)], events
+    assert not w.thread.is_alive()

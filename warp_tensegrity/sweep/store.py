@@ -463,6 +463,7 @@ class ShardWriter:
         self.q: queue.Queue = queue.Queue()
         self.error: BaseException | None = None
         self.write_seconds = 0.0
+        self.finished = threading.Event()  # set when the thread leaves _run
         self.thread = threading.Thread(target=self._run, name="warp_tensegrity-writer", daemon=True)
         self.thread.start()
 
@@ -477,6 +478,12 @@ class ShardWriter:
         self.q.put((index, ds))
 
     def _run(self):
+        try:
+            self._loop()
+        finally:
+            self.finished.set()
+
+    def _loop(self):
         while True:
             item = self.q.get()
             if item is None:
@@ -500,7 +507,16 @@ class ShardWriter:
                 self.slots.release()
 
     def close(self) -> None:
+        """Wait for every shard handed over. A signal (SIGTERM, Ctrl-C) during the wait lets the
+        shard in hand finish and be marked before it is raised, so the caller never releases the
+        store's lock under a write. (An Event, not Thread.join: CPython 3.11's join, interrupted,
+        marks the thread stopped and a second join returns at once.)"""
         self.q.put(None)
+        try:
+            self.finished.wait()
+        except BaseException:
+            self.finished.wait()
+            raise
         self.thread.join()
         if self.error is not None:
             raise self.error
