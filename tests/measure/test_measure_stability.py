@@ -63,11 +63,13 @@ def test_dt_half_and_v0_perturbations_hold_still_on_stored_records(stored, kind)
         assert v[m][0] == "agree", (m, v[m])
 
 
-@pytest.mark.slow  # 2 x 12 columns x 110,000 steps, ~4-8 min on 2 CPU cores
+@pytest.mark.slow  # 2 x 8 columns x 110,000 steps, ~3-4 min on one CPU core
 def test_fp32_agrees_with_fp64_or_is_flagged_on_every_case():
-    """The issue's two cases and the feasible phase_large cases whose fp32 and fp64 measures differed
-    by more than the target before issue 31 (benchmarks/measure_stability.py), simulated again."""
-    c = np.array(cases())
+    """The feasible phase_large cases whose fp32 and fp64 measures differed by more than the target
+    before issue 31 (benchmarks/measure_stability.py), simulated again; those stored as fixtures
+    (FIXTURE_CASES: the issue's two, and two of the grid's) are checked above from their records,
+    and the issue's two again end to end, with error estimates, in test_fp32_verified.py."""
+    c = np.array([x for i, x in enumerate(cases()) if i not in FIXTURE_CASES])
     t, s64, st64 = simulate(c, "fp64")
     _, s32, st32 = simulate(c, "fp32")
     assert not st64.any() and not st32.any()
