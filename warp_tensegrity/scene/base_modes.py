@@ -113,7 +113,7 @@ def _constraint_basis(geom: _Geometry):
     return free_nodes, slot, G, Z, Mih
 
 
-def _pair_blocks(members: np.ndarray, slot: np.ndarray, nd: int) -> tuple[np.ndarray, np.ndarray]:
+def _pair_blocks(members: np.ndarray, slot: np.ndarray, nd: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Flat indices into an (nd x nd) matrix of the four 3x3 blocks (ii, ij, ji, jj) of each member
     (i, j), members in order, and each block's sign (+1, -1, -1, +1); True where both ends are free.
     Shapes (n, 4, 3, 3), (4,), (n, 4)."""
