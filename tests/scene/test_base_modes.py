@@ -124,3 +124,122 @@ def test_modes_agree_with_the_independent_linear_check(beta):
     np.testing.assert_allclose(mine, ref, rtol=1e-9, atol=1e-9 * ref.max())
     if 0 < beta < 1:  # stiff bases: three in-plane base modes per free level, cleanly separated
         assert (share > 0.5).sum() == 3 * 6 and (share[share > 0.5] > 0.99).all()
+
+
+# ---------------------------------------------------------------- bit-identity of the fast assembly
+def _reference_modes(net):
+    """modes() as first written (issue 25): a Python loop over the members, everything recomputed
+    per call. The fast modes() must return the same bits (issue 33 item 5)."""
+    x = np.asarray(net.positions, dtype=np.float64)
+    free_nodes = np.flatnonzero(~np.asarray(net.fixed, dtype=bool))
+    slot = -np.ones(len(x), dtype=np.int64)
+    slot[free_nodes] = np.arange(len(free_nodes))
+    nd = 3 * len(free_nodes)
+    bars, cables = np.asarray(net.bars).reshape(-1, 2), np.asarray(net.cables).reshape(-1, 2)
+
+    def pairs(i, j):
+        return [(slot[i], 1.0), (slot[j], -1.0)]
+
+    G = np.zeros((len(bars), nd))
+    for k, (i, j) in enumerate(bars):
+        b = x[j] - x[i]
+        for s_, g in pairs(i, j):
+            if s_ >= 0:
+                G[k, 3 * s_ : 3 * s_ + 3] -= g * b
+    d = x[cables[:, 1]] - x[cables[:, 0]]
+    length = np.linalg.norm(d, axis=1)
+    rest = np.asarray(net.cable_rest_length, dtype=np.float64)
+    at_rest = np.abs(length - rest) <= 1e-12 * rest
+    k_br = np.where(at_rest | (length > rest), np.asarray(net.cable_EA, float),
+                    np.asarray(net.cable_EA_compression, float)) / rest
+    tension = np.where(at_rest, 0.0, k_br * (length - rest))
+    e = d / length[:, None]
+    f = np.zeros(nd)
+    K = np.zeros((nd, nd))
+    eye = np.eye(3)
+
+    def add(i, j, blk):
+        for sa, ga in pairs(i, j):
+            for sb, gb in pairs(i, j):
+                if sa >= 0 and sb >= 0:
+                    K[3 * sa : 3 * sa + 3, 3 * sb : 3 * sb + 3] += ga * gb * blk
+
+    for c, (i, j) in enumerate(cables):
+        for s_, g in pairs(i, j):
+            if s_ >= 0:
+                f[3 * s_ : 3 * s_ + 3] += g * tension[c] * e[c]
+        ee = np.outer(e[c], e[c])
+        add(i, j, k_br[c] * ee + tension[c] / length[c] * (eye - ee))
+    lam = np.linalg.lstsq(G.T, f, rcond=None)[0] if len(bars) else np.zeros(0)
+    for k, (i, j) in enumerate(bars):
+        add(i, j, lam[k] * eye)
+    K = 0.5 * (K + K.T)
+    if len(bars):
+        _, sv, vt = np.linalg.svd(G)
+        Z = vt[int(np.sum(sv > 1e-10 * sv[0])):].T
+    else:
+        Z = np.eye(nd)
+    M = np.kron(np.asarray(net.mass_matrix())[np.ix_(free_nodes, free_nodes)], eye)
+    mu, U = np.linalg.eigh(Z.T @ M @ Z)
+    Mih = (U / np.sqrt(mu)) @ U.T
+    H = Mih @ (Z.T @ K @ Z) @ Mih
+    w2, Y = np.linalg.eigh(0.5 * (H + H.T))
+    shapes = (Z @ (Mih @ Y)).T.reshape(len(w2), -1, 3)
+    base = np.abs(d[:, 2]) <= 1e-12 * np.abs(d).max()
+    u = np.zeros((len(w2), len(x), 3))
+    u[:, free_nodes] = shapes
+    ext = np.einsum("mci,ci->mc", u[:, cables[base, 1]] - u[:, cables[base, 0]], e[base])
+    e_base = 0.5 * (k_br[base] * ext**2).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.where(w2 > 0, e_base / (0.5 * w2), 0.0)
+    return np.sign(w2) * np.sqrt(np.abs(w2)), share
+
+
+def _phase_large():
+    from warp_tensegrity.sweep.spec import load_spec
+
+    spec = load_spec(ROOT / "sweeps" / "phase_large.toml")
+    return spec.scene, spec.column_params()
+
+
+def _assert_same_bits_as_the_loop(cfg, params):
+    """modes() against _reference_modes() per distinct (prestrain, beta), and beta_limit_measures'
+    ratio and flag against the ratio recomputed from the reference modes: equal to the last bit."""
+    from warp_tensegrity.scene.columns import build_column
+
+    BM._omegas.cache_clear()
+    BM._constraint_basis.cache_clear()
+    p, b = params["prestrain"], params["base_rigidity"]
+    q = np.linspace(0.0, LOCK, len(p))  # both sides of the amplitude gate
+    got = BM.beta_limit_measures(cfg, params, len(p), q)
+    ref_min, ref_top = {}, {}
+    for pi, bi in sorted({(float(x), float(y)) for x, y in zip(p, b)}):
+        net = build_column(cfg, prestrain=pi, v0=0.0, base_rigidity=bi).network
+        w, s = BM.modes(net)
+        w_ref, s_ref = _reference_modes(net)
+        assert w.tobytes() == w_ref.tobytes() and s.tobytes() == s_ref.tobytes(), (pi, bi)
+        if bi >= 1.0:
+            ref_top[pi] = float(w_ref.max())
+        else:
+            ref_min[pi, bi] = float(w_ref[s_ref > 0.5].min())
+    ratio = np.array([ref_min[x, y] / ref_top[x] if y < 1.0 else np.nan for x, y in zip(p, b)])
+    assert got["base_mode_ratio"].tobytes() == ratio.tobytes()
+    flag = np.where(b >= 1.0, 2, np.where((ratio < BM.BAND_FACTOR) & ~(q < BM.LOCK_FRACTION * LOCK), 1, 0))
+    np.testing.assert_array_equal(got["beta_limit_flag"], flag)
+    assert got["beta_limit_flag"].dtype == np.int8 and set(flag.tolist()) == {0, 1, 2}
+
+
+def test_fast_modes_match_the_loop_bit_for_bit():
+    """A few of phase_large's pairs (both base classes, p = 0 and the largest p) and a 6-prism
+    column (another geometry through the shared-basis cache)."""
+    cfg, params = _phase_large()
+    keep = np.isin(params["prestrain"], params["prestrain"][[0, -1]]) & np.isin(params["base_rigidity"], [0.0, 0.95, 1.0])
+    _assert_same_bits_as_the_loop(cfg, {k: v[keep] for k, v in params.items()})
+    _assert_same_bits_as_the_loop(ColumnConfig(n_prisms=6), {"prestrain": np.array([0.002, 0.002, 0.0, 0.0]),
+                                                             "base_rigidity": np.array([0.5, 1.0, 0.5, 1.0])})
+
+
+@pytest.mark.slow  # 96 pairs, each twice (~10 s on 2 cores)
+def test_fast_modes_match_the_loop_bit_for_bit_on_phase_large():
+    """All of phase_large's 96 distinct (prestrain, base_rigidity) pairs."""
+    _assert_same_bits_as_the_loop(*_phase_large())

@@ -48,7 +48,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..types import BETA_LIMIT_FLAGS
-from .columns import build_column
+from .columns import build_column, column_topology
 from .impact import kinematic_lock_strain
 
 __all__ = ["BAND_FACTOR", "BETA_LIMIT_FLAGS", "LOCK_FRACTION", "MAX_EXACT_PRISMS", "base_mode_ratio", "beta_limit_measures",
@@ -62,28 +62,79 @@ LOCK_FRACTION = 0.5
 """... and the pulse's compression reaches this fraction of the kinematic lock."""
 
 
+class _Geometry:
+    """A network's nodes, clamps, bars and masses, hashed and compared by their bytes: the key of
+    :func:`_constraint_basis`, which only they determine (not the cables, prestrain or beta)."""
+
+    __slots__ = ("net", "key")
+
+    def __init__(self, net):
+        self.net = net
+        parts = (np.asarray(net.positions, dtype=np.float64), np.asarray(net.fixed, dtype=bool),
+                 np.asarray(net.bars, dtype=np.int64), np.asarray(net.node_mass, dtype=np.float64),
+                 np.asarray(net.bar_mass, dtype=np.float64))
+        self.key = tuple((a.shape, a.tobytes()) for a in parts)
+
+    def __hash__(self):
+        return hash(self.key)
+
+    def __eq__(self, other):
+        return isinstance(other, _Geometry) and self.key == other.key
+
+
+@lru_cache(maxsize=8)
+def _constraint_basis(geom: _Geometry):
+    """(free nodes, node -> free slot, bar matrix G, tangent basis Z, M^-1/2 on it) of a network:
+    the same for every prestrain and base rigidity of a column with elastic bases (and for every
+    prestrain with rigid ones), so a sweep computes them once per base class. Read-only arrays."""
+    net = geom.net
+    x = np.asarray(net.positions, dtype=np.float64)
+    free_nodes = np.flatnonzero(~np.asarray(net.fixed, dtype=bool))
+    slot = -np.ones(len(x), dtype=np.int64)
+    slot[free_nodes] = np.arange(len(free_nodes))
+    nd = 3 * len(free_nodes)
+    bars = np.asarray(net.bars).reshape(-1, 2)
+    G = np.zeros((len(bars), nd))
+    for k, (i, j) in enumerate(bars):
+        b = x[j] - x[i]
+        for s_, g in ((slot[i], 1.0), (slot[j], -1.0)):
+            if s_ >= 0:
+                G[k, 3 * s_ : 3 * s_ + 3] -= g * b
+    if len(bars):
+        _, sv, vt = np.linalg.svd(G)
+        Z = vt[int(np.sum(sv > 1e-10 * sv[0])):].T
+    else:
+        Z = np.eye(nd)
+    M = np.kron(np.asarray(net.mass_matrix())[np.ix_(free_nodes, free_nodes)], np.eye(3))
+    mu, U = np.linalg.eigh(Z.T @ M @ Z)
+    Mih = (U / np.sqrt(mu)) @ U.T
+    for a in (free_nodes, slot, G, Z, Mih):
+        a.flags.writeable = False
+    return free_nodes, slot, G, Z, Mih
+
+
+def _pair_blocks(members: np.ndarray, slot: np.ndarray, nd: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat indices into an (nd x nd) matrix of the four 3x3 blocks (ii, ij, ji, jj) of each member
+    (i, j), members in order, and each block's sign (+1, -1, -1, +1); True where both ends are free.
+    Shapes (n, 4, 3, 3), (4,), (n, 4)."""
+    si, sj = slot[members[:, 0]], slot[members[:, 1]]
+    sa = np.stack([si, si, sj, sj], axis=1)  # rows, in the order of a double loop over (i, j)
+    sb = np.stack([si, sj, si, sj], axis=1)
+    r = np.arange(3)
+    flat = (3 * sa[:, :, None, None] + r[:, None]) * nd + 3 * sb[:, :, None, None] + r
+    return flat, np.array([1.0, -1.0, -1.0, 1.0]), (sa >= 0) & (sb >= 0)
+
+
 def modes(net) -> tuple[np.ndarray, np.ndarray]:
     """(omega [rad s-1] ascending, base share) of a network's linearised constrained modes about its
     positions. ``base share``: the part of each mode's stiffness energy in the axial stretch of the
     members with both ends on one level (the base members). Cables exactly at their rest length
     take their tension branch; bars add their prestress lam (I, -I; -I, I), lam from the least-
     squares balance of the cable forces."""
+    free_nodes, slot, G, Z, Mih = _constraint_basis(_Geometry(net))
     x = np.asarray(net.positions, dtype=np.float64)
-    free_nodes = np.flatnonzero(~np.asarray(net.fixed, dtype=bool))
-    slot = -np.ones(len(x), dtype=np.int64)
-    slot[free_nodes] = np.arange(len(free_nodes))
     nd = 3 * len(free_nodes)
     bars, cables = np.asarray(net.bars).reshape(-1, 2), np.asarray(net.cables).reshape(-1, 2)
-
-    def pairs(i, j):
-        return [(slot[i], 1.0), (slot[j], -1.0)]
-
-    G = np.zeros((len(bars), nd))
-    for k, (i, j) in enumerate(bars):
-        b = x[j] - x[i]
-        for s_, g in pairs(i, j):
-            if s_ >= 0:
-                G[k, 3 * s_ : 3 * s_ + 3] -= g * b
     d = x[cables[:, 1]] - x[cables[:, 0]]
     length = np.linalg.norm(d, axis=1)
     rest = np.asarray(net.cable_rest_length, dtype=np.float64)
@@ -91,34 +142,26 @@ def modes(net) -> tuple[np.ndarray, np.ndarray]:
     k_br = np.where(at_rest | (length > rest), np.asarray(net.cable_EA, float), np.asarray(net.cable_EA_compression, float)) / rest
     tension = np.where(at_rest, 0.0, k_br * (length - rest))
     e = d / length[:, None]
+    # K and f are scattered with np.add.at, which adds its entries one after another in the order
+    # given: members in order, as a loop over them would, so every sum is rounded the same way
+    # (bit-identical to the per-member loop; tests/scene/test_base_modes.py keeps that loop).
     f = np.zeros(nd)
-    K = np.zeros((nd, nd))
+    ends = slot[cables]  # (n, 2): +1 at i, -1 at j
+    fv = (np.array([1.0, -1.0]) * tension[:, None])[:, :, None] * e[:, None, :]
+    fi = 3 * ends[:, :, None] + np.arange(3)
+    np.add.at(f, fi[ends >= 0], fv[ends >= 0])
     eye = np.eye(3)
-
-    def add(i, j, blk):
-        for sa, ga in pairs(i, j):
-            for sb, gb in pairs(i, j):
-                if sa >= 0 and sb >= 0:
-                    K[3 * sa : 3 * sa + 3, 3 * sb : 3 * sb + 3] += ga * gb * blk
-
-    for c, (i, j) in enumerate(cables):
-        for s_, g in pairs(i, j):
-            if s_ >= 0:
-                f[3 * s_ : 3 * s_ + 3] += g * tension[c] * e[c]
-        ee = np.outer(e[c], e[c])
-        add(i, j, k_br[c] * ee + tension[c] / length[c] * (eye - ee))
+    ee = e[:, :, None] * e[:, None, :]
+    blk = k_br[:, None, None] * ee + (tension / length)[:, None, None] * (eye - ee)
+    flat, sign, ok = _pair_blocks(cables, slot, nd)
+    idx, val = [flat[ok]], [(sign[:, None, None] * blk[:, None])[ok]]
     lam = np.linalg.lstsq(G.T, f, rcond=None)[0] if len(bars) else np.zeros(0)
-    for k, (i, j) in enumerate(bars):
-        add(i, j, lam[k] * eye)
+    flat, sign, ok = _pair_blocks(bars, slot, nd)
+    idx.append(flat[ok])
+    val.append((sign[:, None, None] * (lam[:, None, None] * eye)[:, None])[ok])
+    K = np.zeros((nd, nd))
+    np.add.at(K.reshape(-1), np.concatenate(idx).reshape(-1), np.concatenate(val).reshape(-1))
     K = 0.5 * (K + K.T)
-    if len(bars):
-        _, sv, vt = np.linalg.svd(G)
-        Z = vt[int(np.sum(sv > 1e-10 * sv[0])):].T
-    else:
-        Z = np.eye(nd)
-    M = np.kron(np.asarray(net.mass_matrix())[np.ix_(free_nodes, free_nodes)], eye)
-    mu, U = np.linalg.eigh(Z.T @ M @ Z)
-    Mih = (U / np.sqrt(mu)) @ U.T
     H = Mih @ (Z.T @ K @ Z) @ Mih
     w2, Y = np.linalg.eigh(0.5 * (H + H.T))
     shapes = (Z @ (Mih @ Y)).T.reshape(len(w2), -1, 3)  # u^T M u = 1, free nodes
@@ -132,10 +175,17 @@ def modes(net) -> tuple[np.ndarray, np.ndarray]:
     return np.sign(w2) * np.sqrt(np.abs(w2)), share
 
 
+@lru_cache(maxsize=8)
+def _topology(config):
+    """The column's topology and reference positions: shared by every prestrain and base rigidity."""
+    return column_topology(config)
+
+
 @lru_cache(maxsize=256)
 def _omegas(config, prestrain: float, base_rigidity: float) -> tuple[float, float]:
     """(lowest base-member mode, largest mode) [rad s-1] of the column ``config``."""
-    omega, share = modes(build_column(config, prestrain=prestrain, v0=0.0, base_rigidity=base_rigidity).network)
+    net = build_column(config, prestrain=prestrain, v0=0.0, base_rigidity=base_rigidity, topology=_topology(config))
+    omega, share = modes(net.network)
     if base_rigidity >= 1.0:
         return float("inf"), float(omega.max())
     wb = omega[share > 0.5]
