@@ -43,6 +43,8 @@ from warp_tensegrity import cli
 from warp_tensegrity.options import OptionError, RunSettings, check_column_param
 from warp_tensegrity.scene import ColumnConfig, NetworkError
 
+from tests.memory_cap import address_space_cap
+
 REPO = Path(__file__).resolve().parents[1]
 
 EXPLORE = int(os.environ.get("FUZZ_EXPLORE", "0"))
@@ -707,23 +709,6 @@ def _host_total() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-@contextlib.contextmanager
-def _capped(extra: float = 2e9):
-    """Address space capped at ``extra`` bytes more: a size that escapes the budget fails as a
-    MemoryError here instead of taking the machine."""
-    import resource
-
-    import psutil
-
-    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    cap = psutil.Process().memory_info().vms + int(extra)
-    resource.setrlimit(resource.RLIMIT_AS, (cap if hard == resource.RLIM_INFINITY else min(cap, hard), hard))
-    try:
-        yield
-    finally:
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-
-
 @fuzz("run sizes")
 @given(data=run_sizes())
 @example(data={**BASE, "scene": {"n_prisms": 8}, "run": {"t_end": 2.0, "output_interval": 1e-9}})  # issue 30 item 1
@@ -744,7 +729,7 @@ def _run_sizes(work, data):
     if traced:
         tracemalloc.start()
     try:
-        with _capped():
+        with address_space_cap():
             rc, out, err = dry_run_spec(work, tomli_w.dumps(data).encode())
         peak = tracemalloc.get_traced_memory()[1] if traced else 0
     finally:
@@ -816,7 +801,7 @@ def _api_to_xarray(case):
     n, params, kw = case
     settings = RunSettings(**kw)
     try:
-        with _capped():
+        with address_space_cap():
             r = W.simulate_batch(ColumnConfig(n_prisms=n), params, settings)
     except SettingsError as e:
         assert "the run cannot be done" in str(e) and "run.t_end" in str(e) and "run.output_interval" in str(e), e

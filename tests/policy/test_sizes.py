@@ -6,7 +6,6 @@ run, resume), the Python API and the lens, with the figure and a remedy; the pla
 output times only for the run itself; the probe neither builds them nor caches a peak RSS that
 earlier work left."""
 
-import contextlib
 import os
 import re
 import resource
@@ -25,6 +24,8 @@ from warp_tensegrity.options import SettingsError
 from warp_tensegrity.policy import calibrate as C
 from warp_tensegrity.policy import cost
 from warp_tensegrity.policy import decide as D
+
+from tests.memory_cap import address_space_cap
 
 ROOT = Path(__file__).resolve().parents[2]
 CI_SMALL = ROOT / "sweeps" / "ci_small.toml"
@@ -50,19 +51,6 @@ ITEM_1 = {
                                        "run.output_interval=1e-7"], ["--dry-run"],
                                       r"1,000,000,001 outputs per column .* the strain of 400 prisms"),
 }
-
-
-@contextlib.contextmanager
-def address_space_cap(extra: float = 2e9):
-    """Allocations beyond ``extra`` bytes more address space fail (MemoryError) inside: an in-process
-    regression fails its test instead of taking the machine (the unfixed code grew to 24 GB)."""
-    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    cap = psutil.Process().memory_info().vms + int(extra)
-    resource.setrlimit(resource.RLIMIT_AS, (cap if hard == resource.RLIM_INFINITY else min(cap, hard), hard))
-    try:
-        yield
-    finally:
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
 def run_measured(argv, cwd, timeout=60.0) -> tuple[int, float, float, int, str]:
