@@ -17,6 +17,7 @@ import contextlib
 import dataclasses
 import datetime
 import gc
+import hashlib
 import json
 import math
 import os
@@ -42,7 +43,36 @@ RATTLE_KERNELS = ("kick_drift", "project_positions", "gather_accel", "factor_pro
 
 
 # ---------------------------------------------------------------------- metadata
+DIRTY_OK = "WT_BENCH_ALLOW_DIRTY"
+"""Set to 1 for a trial run from a checkout with uncommitted changes: its results say '-dirty' and
+are not to be committed (tests/test_benchmark_provenance.py refuses them)."""
+
+
+def code_hash(commit: str | None = None) -> str:
+    """sha256 over the .py files of warp_tensegrity/ and benchmarks/ (path and content, sorted by
+    path): the code a benchmark measures. ``commit``: the same hash of that commit's files, read
+    from git (to check a result's claimed commit against the code it recorded)."""
+    h = hashlib.sha256()
+    if commit is None:
+        files = sorted(p.relative_to(REPO).as_posix() for d in ("warp_tensegrity", "benchmarks")
+                       for p in (REPO / d).rglob("*.py") if "__pycache__" not in p.parts and p.name != "_version.py")
+        read = lambda f: (REPO / f).read_bytes()  # noqa: E731
+    else:
+        out = subprocess.run(["git", "ls-tree", "-r", "--name-only", commit, "--", "warp_tensegrity", "benchmarks"],
+                             cwd=REPO, capture_output=True, text=True, check=True).stdout.split()
+        files = sorted(f for f in out if f.endswith(".py") and not f.endswith("/_version.py"))
+        read = lambda f: subprocess.run(["git", "show", f"{commit}:{f}"], cwd=REPO, capture_output=True,  # noqa: E731
+                                        check=True).stdout
+    for f in files:
+        h.update(f.encode() + b"\0" + read(f) + b"\0")
+    return h.hexdigest()
+
+
 def git_commit() -> str:
+    """The commit of the code measured. From git where the checkout has one (refused when tracked
+    files differ from it, unless WT_BENCH_ALLOW_DIRTY=1, which records '-dirty'); else from the
+    GIT_COMMIT environment variable (the GPU machine's copy has no .git), which
+    :func:`run_metadata`'s ``code_sha256`` lets a test check against git afterwards."""
     env = os.environ.get("GIT_COMMIT")
     if env:
         return env
@@ -52,6 +82,10 @@ def git_commit() -> str:
             commit = out.stdout.strip()
             dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO,
                                    capture_output=True, text=True, timeout=10).stdout.strip()
+            if dirty and os.environ.get(DIRTY_OK) != "1":
+                raise SystemExit(f"benchmarks: tracked files differ from commit {commit[:12]} ({len(dirty.splitlines())} "
+                                 f"changed): commit first, so the result records the code it measured, or set "
+                                 f"{DIRTY_OK}=1 for a trial run (recorded '-dirty', not to be committed)")
             return commit + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         pass
@@ -76,6 +110,7 @@ def run_metadata(device) -> dict:
     meta = {
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "git_commit": git_commit(),
+        "code_sha256": code_hash(),
         "warp_version": wp.__version__,
         "numpy_version": np.__version__,
         "python": platform.python_version(),

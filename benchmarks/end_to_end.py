@@ -174,6 +174,7 @@ def main(argv=None) -> int:
                     "device_name": rec.get("device_name", meta.get("device_name")),
                     "device": rec.get("device", a.device),
                     "git_commit": commit,
+                    "code_sha256": meta["code_sha256"],
                     "wall_s": rec["wall_s"],
                     "stages_s": rec["stages_s"],
                     "other_s": rec["other_s"],

@@ -10,26 +10,17 @@ import argparse
 import datetime
 import json
 import os
-import subprocess
 import sys
 
 import numpy as np
+
+from benchmarks.common import code_hash, git_commit
 
 PAPER_CASES = {
     "base_rigidity": np.array([0.0] * 6 + [1.0] * 6),
     "prestrain": np.array(([0.0] * 3 + [0.002] * 3) * 2),
     "v0": np.array([0.001, 0.002, 0.005, 0.1, 0.125, 0.15] * 2),
 }
-
-
-def git_commit() -> str:
-    """GIT_COMMIT if set (a copied working tree may carry a stale .git), else git rev-parse HEAD."""
-    if os.environ.get("GIT_COMMIT"):
-        return os.environ["GIT_COMMIT"]
-    try:
-        return subprocess.check_output(["git", "rev-parse", "HEAD"], text=True, stderr=subprocess.DEVNULL).strip()
-    except Exception:
-        return "unknown"
 
 
 def run(device, precision, method, t_end, out, fused="auto"):
@@ -50,7 +41,7 @@ def run(device, precision, method, t_end, out, fused="auto"):
                         kinetic=r.kinetic_energy, elastic=r.elastic_energy, **{k: v for k, v in PAPER_CASES.items()})
     summary = {
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "commit": git_commit(), "warp": wp.config.version, "device": r.device, "device_name": r.device_name,
+        "commit": git_commit(), "code_sha256": code_hash(), "warp": wp.config.version, "device": r.device, "device_name": r.device_name,
         "precision": precision, "method": method, "dt": r.dt, "dt_limit": r.dt_limit, "n_steps": r.n_steps,
         "t_end": t_end, "wall_time_s": r.wall_time, "n_columns": r.n_columns,
         "step_path": r.info.get("step_path"),
