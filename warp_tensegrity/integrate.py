@@ -95,7 +95,7 @@ class Integrator:
                 if not (self.device.is_cuda or wp.config.enable_cpu_blocks):  # each lane would be a block of its own
                     raise SettingsError("the lane step on the CPU needs Warp's CPU blocks (wp.config.enable_cpu_blocks; "
                                         "engine runs switch them on: paths.lane_emulation)")
-                self.fk = LaneStep(m, batch, self.device)
+                self.fk = LaneStep(m, batch, self.device, output_every, self.strain, self.kinetic, self.elastic)
             elif self.fused:
                 self.fk = FusedStep(m, self.device, self.fused_block, FUSED_STEPS,
                                     self.device.is_cuda or FUSED_SHARED_ON_CPU,
@@ -179,13 +179,15 @@ class Integrator:
         self.fk.launch(self.data, self.settings, self.dt, n_sub, init)
 
     def _fused_steps(self, n: int):
-        """n RATTLE steps as fused launches of at most FUSED_STEPS, each followed by the counter and
-        the (step-gated) records."""
+        """n RATTLE steps as fused launches of at most steps_per_launch, each followed by the counter
+        and the (step-gated) records, unless the step writes them itself (``records_inside``)."""
+        inside = self.fk.records_inside
         while n > 0:
             k = min(self.fk.steps_per_launch, n)
             self._fused(k)
             self.fk.advance_counter(self.data, k)
-            self._record()
+            if not inside:
+                self._record()
             n -= k
 
     def _record(self):
@@ -314,10 +316,13 @@ class Integrator:
             self.step()
 
     def _advance_fused(self, n: int):
-        """Fused launches never straddle an output step; whole output periods (a multiple of
-        ``every`` near steps_per_graph) replay one captured graph."""
-        every = self.every
-        period = self.graph_steps or every * max(1, -(-int(self.settings.steps_per_graph) // every))
+        """Fused launches never straddle an output step, unless the step writes the records itself
+        (``records_inside``: then any n steps); whole periods (near steps_per_graph: a multiple of
+        ``every``, or of the launch's steps) replay one captured graph."""
+        inside = self.fk.records_inside
+        every = 1 if inside else self.every  # launches may end anywhere, or on an output step
+        unit = self.fk.steps_per_launch if inside else every
+        period = self.graph_steps or unit * max(1, -(-int(self.settings.steps_per_graph) // unit))
         graphable = self.device.is_cuda and period <= MAX_GRAPH_STEPS
         while n > 0:
             phase = self.steps_done % every
@@ -325,14 +330,14 @@ class Integrator:
                 if self.graph is None:
                     gc.collect()
                     with wp.ScopedCapture(device=self.device) as cap:
-                        for _ in range(period // every):
-                            self._fused_steps(every)  # launches end on every output step
+                        for _ in range(period // unit):
+                            self._fused_steps(unit)  # launches end on every output step, or span them
                     self.graph = cap.graph
                     self.graph_steps = period
                 wp.capture_launch(self.graph)
                 k = period
             else:
-                k = min(n, every - phase)
+                k = n if inside else min(n, every - phase)
                 self._fused_steps(k)
             self.steps_done += k
             n -= k

@@ -10,6 +10,7 @@ import pytest
 import warp as wp
 
 from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
+from warp_tensegrity.kernels.lanes import LANE_STEPS, LaneStep
 from warp_tensegrity.policy.decide import decide, far_end
 from warp_tensegrity.policy.lane_fit import MAX_LEVELS_PER_LANE, lane_refusal, lane_shape, lane_support
 from warp_tensegrity.policy.paths import NOT_CHECKED, choose_path
@@ -210,3 +211,45 @@ def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
         assert plan.run.lane_refusal is None and plan.run.path == Path.LANES, (n, beta)
     plan = plan_sweep(parse_spec(text % (65, "1.0")), shard_size=2)
     assert "rigid bases with 65" in plan.run.lane_refusal and plan.run.path == Path.FUSED_SERIAL
+
+
+DIVERGING = {"prestrain": [0.002] * 4, "v0": [0.05] * 4, "base_rigidity": [0.0, 0.0, 0.5, 0.0],
+             "cable_EA": [1.0, 1e6, 1.0, 250.0]}  # x the scene's EA: columns 1 and 3 fail (see above)
+
+
+@pytest.mark.parametrize("n, hand, params, precision, kw", [
+    (7, "RRLRLLR", RIGID, "fp64", {}),  # 4 columns per warp, rigid bases
+    (50, "alternating", MIXED, "fp32", {}),  # 2 levels per lane
+    (2, "right", DIVERGING, "fp64", {"t_end": 0.1, "dt": 1e-3, "allow_unstable_dt": True}),
+])
+def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, precision, kw, device, monkeypatch):
+    """Issue 33 item 1: the lane kernel writes the records of the outputs its launches span. Against
+    the record kernels run after launches that end on every output (as before): the same strain
+    and feasibility record, bit for bit (the same @wp.func bodies on the same state), and the
+    energies to round-off (summed lane by lane, in another order)."""
+    cfg = ColumnConfig(n_prisms=n, handedness=hand)
+    if "cable_EA" in params:
+        params = {**params, "cable_EA": np.asarray(params["cable_EA"]) * cfg.cable_EA}
+    kw = {"t_end": 0.05, "dt": 5e-4, "output_interval": 4 * kw.get("dt", 5e-4), **kw}
+    inside = _run(cfg, params, "lanes", device, precision, **kw)
+    assert round(kw["output_interval"] / kw["dt"]) < LANE_STEPS < inside.n_steps  # a launch spans outputs
+    monkeypatch.setattr(LaneStep, "records_inside", False)
+    after = _run(cfg, params, "lanes", device, precision, **kw)
+    np.testing.assert_array_equal(inside.status, after.status)
+    np.testing.assert_array_equal(inside.fail_step, after.fail_step)
+    if "cable_EA" in params:
+        assert np.count_nonzero(inside.status) == 2
+    np.testing.assert_array_equal(inside.strain, after.strain)
+    for k, v in after.feasibility.items():
+        np.testing.assert_array_equal(inside.feasibility[k], v, err_msg=k)
+    if precision == "fp32":  # each member's stretch rounds differently here (lane geometry): against fp64
+        ref = _run(cfg, params, False, device, "fp64", **kw)
+    for name in ("kinetic_energy", "elastic_energy"):
+        a, b = getattr(inside, name), getattr(after, name)
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        scale = np.nanmax(np.abs(b), axis=1)
+        if precision == "fp64":
+            assert np.all(np.nanmax(np.abs(a - b), axis=1) <= 1e-13 * scale), name
+        else:  # no further from fp64 than the record kernels' (1.9e-4 of a p = 0 column's elastic energy)
+            err = [np.nanmax(np.abs(x - getattr(ref, name)), axis=1) / scale for x in (a, b)]
+            assert np.all(err[0] <= 1.25 * err[1]), (name, err)

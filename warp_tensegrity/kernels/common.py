@@ -138,30 +138,25 @@ def axial_angle(rb: Any, rt: Any, axis: Any):
 
 
 @wp.func
-def prism_twist(level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=Any), level_ref: wp.array2d(dtype=Any),
-                hand: Any, u: wp.array2d(dtype=Any), j: int, w: int, near: Any):
-    """(twist [rad], height h [m]) of prism j of column w at the displacement ``u[:, w]``. The twist
-    is the mean over the three bars (bottom k -> top k) of the angle about the prism axis (bottom
-    centroid -> top centroid; the reference axis is z, of length h0) from the bar's bottom node to
-    its top node, both from their base's centroid, counted clockwise seen from the top for a
+def prism_twist_of(Db: Any, Dt: Any, Rb: Any, Rt: Any, h0j: Any, hand: Any, near: Any):
+    """(twist [rad], height h [m]) of a prism from the displacements of its bottom and top nodes
+    (rows c = 0..2 of Db, Dt) and their reference positions about their base's centroid (Rb, Rt).
+    The twist is the mean over the three bars (bottom k -> top k) of the angle about the prism axis
+    (bottom centroid -> top centroid; the reference axis is z, of length h0j) from the bar's bottom
+    node to its top node, both from their base's centroid, counted clockwise seen from the top for a
     right-handed prism (``hand`` +1; -1 mirrors it), each bar's angle taken within pi of ``near``
-    (unwrapped: 183 deg reads 183, not -177). h is record_strain's: h0 plus the mean z motion of
-    the top base over the bottom's."""
-    h0j = h0[j]
+    (unwrapped: 183 deg reads 183, not -177). h is the strain record's: h0j plus the mean z motion
+    of the top base over the bottom's."""
     three = type(h0j)(3.0)
-    db = u[level_nodes[j, 0], w]
-    dt = u[level_nodes[j + 1, 0], w]
-    ub = db
-    ut = dt
-    zb = db[2]
-    zt = dt[2]
-    for c in range(1, 3):  # record_strain's sums, in its order
-        db = u[level_nodes[j, c], w]
-        dt = u[level_nodes[j + 1, c], w]
-        ub += db
-        ut += dt
-        zb += db[2]
-        zt += dt[2]
+    ub = Db[0]
+    ut = Dt[0]
+    zb = Db[0][2]
+    zt = Dt[0][2]
+    for c in range(1, 3):  # the strain record's sums, in its order
+        ub += Db[c]
+        ut += Dt[c]
+        zb += Db[c][2]
+        zt += Dt[c][2]
     h = h0j + (zt - zb) / three
     ub = ub / three
     ut = ut / three
@@ -170,11 +165,66 @@ def prism_twist(level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=Any), lev
     two_pi = type(h0j)(TWO_PI)
     phi = type(h0j)(0.0)
     for c in range(3):
-        rb = level_ref[j, c] + u[level_nodes[j, c], w] - ub
-        rt = level_ref[j + 1, c] + u[level_nodes[j + 1, c], w] - ut
+        rb = Rb[c] + Db[c] - ub
+        rt = Rt[c] + Dt[c] - ut
         a = -hand * axial_angle(rb, rt, axis)
         phi += a + two_pi * wp.floor((near - a) / two_pi + type(h0j)(0.5))
     return phi / three, h
+
+
+@wp.func
+def prism_twist(level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=Any), level_ref: wp.array2d(dtype=Any),
+                hand: Any, u: wp.array2d(dtype=Any), j: int, w: int, near: Any):
+    """:func:`prism_twist_of` for prism j of column w at the displacement ``u[:, w]``."""
+    Db = wp.matrix_from_rows(u[level_nodes[j, 0], w], u[level_nodes[j, 1], w], u[level_nodes[j, 2], w])
+    Dt = wp.matrix_from_rows(u[level_nodes[j + 1, 0], w], u[level_nodes[j + 1, 1], w], u[level_nodes[j + 1, 2], w])
+    Rb = wp.matrix_from_rows(level_ref[j, 0], level_ref[j, 1], level_ref[j, 2])
+    Rt = wp.matrix_from_rows(level_ref[j + 1, 0], level_ref[j + 1, 1], level_ref[j + 1, 2])
+    return prism_twist_of(Db, Dt, Rb, Rt, h0[j], hand, near)
+
+
+@wp.func
+def feasibility_record(phi: Any, h: Any, h0j: Any, near: Any, slot: int, j: int, w: int,
+                       twist: wp.array2d(dtype=Any), twist_max: wp.array2d(dtype=Any),
+                       twist_min: wp.array2d(dtype=Any), height_min: wp.array2d(dtype=Any),
+                       left_slot: wp.array3d(dtype=int)):
+    """Record prism j of column w at output ``slot``: its twist phi (kept at ``near``, the last
+    output's, where the prism inverted: its axis has flipped), the running extremes of the twist
+    and of h/h0, and the first slot at which each reason of types.FEASIBILITY_FLAGS occurred."""
+    ratio = h / h0j
+    if h <= type(h)(0.0):
+        phi = near
+    if slot == 0:
+        twist_max[j, w] = phi
+        twist_min[j, w] = phi
+        height_min[j, w] = ratio
+        for r in range(3):
+            left_slot[r, j, w] = -1
+    else:
+        if phi > twist_max[j, w]:
+            twist_max[j, w] = phi
+        if phi < twist_min[j, w]:
+            twist_min[j, w] = phi
+        if ratio < height_min[j, w]:
+            height_min[j, w] = ratio
+    twist[j, w] = phi
+    if phi >= type(h)(PI) and left_slot[0, j, w] < 0:
+        left_slot[0, j, w] = slot
+    if phi <= type(h)(THIRD_PI) and left_slot[1, j, w] < 0:
+        left_slot[1, j, w] = slot
+    if h <= type(h)(0.0) and left_slot[2, j, w] < 0:
+        left_slot[2, j, w] = slot
+
+
+@wp.func
+def cable_energy2(b: Any, EA: Any, EAc: Any, L: Any):
+    """Twice the elastic energy [J] of a member of vector b under the bilinear law of
+    :func:`cable_force`: k/L (s - L)^2."""
+    st = wp.length(b) - L
+    k = EA
+    if st < type(L)(0.0):
+        k = EAc
+    return k / L * st * st
 
 
 @wp.func

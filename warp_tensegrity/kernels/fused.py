@@ -438,6 +438,9 @@ class FusedStep:
     """Scratch (:data:`warp_tensegrity.types.SCRATCH_FIELDS`) and launches of the fused step for one
     model on one device: :meth:`launch` (n_sub steps or the initialisation), :meth:`advance_counter`."""
 
+    records_inside = False
+    """Its launches end on output steps, and the Integrator's record kernels run after them."""
+
     model: object  # warp_tensegrity.model.Model
     device: object  # wp.context.Device
     block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)

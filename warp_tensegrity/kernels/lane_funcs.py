@@ -30,10 +30,10 @@ from types import SimpleNamespace
 import warp as wp
 
 
-def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # once per cached kernel
+def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_energy2):  # once per cached kernel
     """The lane pieces for scalar type ``real``, P levels per lane and G lanes per column, over the
-    segment primitives ``ops`` (:func:`.lane_ops.make_lane_ops`) and the shared bodies ``cable_force``
-    and ``bar_residual`` (:mod:`.common`; passed in, so this module imports Warp only and the
+    segment primitives ``ops`` (:func:`.lane_ops.make_lane_ops`) and the shared bodies ``cable_force``,
+    ``bar_residual`` and ``cable_energy2`` (:mod:`.common`; passed in, so this module imports Warp only and the
     import chains stay short)."""
     vec = ops.vec
     NI = P - 1  # interior rows a lane eliminates itself
@@ -116,6 +116,27 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
         return d
 
     @wp.func(inline=True)
+    def base_member(xy: XY, X: Ext, j: int, k: int):
+        """Vector [m] of base member k of the level at rows j .. j + 2 of X: node (k + 1) % 3 - node k."""
+        kn = (k + 1) % 3
+        return vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero) + X[j + kn] - X[j + k]
+
+    @wp.func(inline=True)
+    def cross_member(xy: XY, X: Ext, hz: Pv, hand: Pv, q: int, k: int):
+        """Vector [m] of cross cable k of the lane's prism q: bottom node k to top node (k + 2) % 3
+        (right-handed) or (k + 1) % 3 (left-handed)."""
+        j = 3 * q + 3
+        kr = (k + 2) % 3
+        kl = (k + 1) % 3
+        xt = xy[j + kl]
+        ut = X[j + kl]
+        if hand[q] > zero:
+            xt = xy[j + kr]
+            ut = X[j + kr]
+        i = j - 3 + k
+        return vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]) + ut - X[i]
+
+    @wp.func(inline=True)
     def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, base_ea: vec,
                rest: wp.array2d(dtype=real), wr: int, n: int, lane: int, g: int, wl: int):
         """Cable forces [N] on the lane's nodes: base members of its levels and cross cables of
@@ -130,24 +151,16 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
             m = wp.min(P * lane + q, n - 1)  # the prism (clamped for padding lanes, whose forces are masked)
             for k in range(3):
                 kn = (k + 1) % 3
-                b = vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero) + X[j + kn] - X[j + k]
-                F = cable_force(b, base_ea[0], base_ea[1], rest[wr, 3 * n + 3 * m + 3 + k])
+                F = cable_force(base_member(xy, X, j, k), base_ea[0], base_ea[1], rest[wr, 3 * n + 3 * m + 3 + k])
                 if ex[q] == zero:
                     F = vec()
                 f[j + k] = f[j + k] + F
                 f[j + kn] = f[j + kn] - F
             for k in range(3):
-                # right-handed: bottom k -> top (k + 2) % 3; left-handed: top (k + 1) % 3
                 kr = (k + 2) % 3
                 kl = (k + 1) % 3
-                xt = xy[j + kl]
-                ut = X[j + kl]
-                if hand[q] > zero:
-                    xt = xy[j + kr]
-                    ut = X[j + kr]
                 i = j - 3 + k
-                b = vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]) + ut - X[i]
-                F = cable_force(b, cross[0], cross[1], rest[wr, 3 * m + k])
+                F = cable_force(cross_member(xy, X, hz, hand, q, k), cross[0], cross[1], rest[wr, 3 * m + k])
                 if ex[q] == zero:
                     F = vec()
                 f[i] = f[i] + F
@@ -172,6 +185,30 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
             for k in range(3):
                 a[3 * q + k] = f[3 * q + k] * minv[q + 1]
         return a
+
+    @wp.func(inline=True)
+    def energies(X: Ext, V: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, base_ea: vec,
+                 rest: wp.array2d(dtype=real), wr: int, n: int, mass: Lv, lane: int, g: int, wl: int):
+        """(2 T, 2 W, 0) [J] of the column, on every lane of its segment: twice its kinetic energy
+        (the lane's nodes, masses ``mass`` per level) and twice its elastic energy (the cross cables
+        of the lane's prisms and the base members of its levels; lane 0 also the clamped level 0's),
+        each lane's share summed by :func:`.lane_ops.segment_sum3`. X: the lane's displacements with
+        the level below first (:func:`extend`)."""
+        ke = zero
+        ee = zero
+        for q in range(P):
+            m = wp.min(P * lane + q, n - 1)
+            if ex[q] != zero:
+                for k in range(3):
+                    vv = V[3 * q + k]
+                    ke += mass[q + 1] * wp.dot(vv, vv)
+                    ee += cable_energy2(base_member(xy, X, 3 * q + 3, k), base_ea[0], base_ea[1],
+                                        rest[wr, 3 * n + 3 * m + 3 + k])
+                    ee += cable_energy2(cross_member(xy, X, hz, hand, q, k), cross[0], cross[1], rest[wr, 3 * m + k])
+        if lane == 0:
+            for k in range(3):
+                ee += cable_energy2(base_member(xy, X, 0, k), base_ea[0], base_ea[1], rest[wr, 3 * n + k])
+        return ops.segment_sum3(vec(ke, ee, zero), g, wl)
 
     @wp.func(inline=True)
     def gram(Bm: Nodes, minv: Lv, ex: Pv, n: int, lane: int, g: int, wl: int):
@@ -364,6 +401,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual):  # on
         return ok
 
     return SimpleNamespace(Nodes=Nodes, Ext=Ext, XY=XY, Lv=Lv, Rows=Rows, Fac=Fac, Pv=Pv, vec=vec, ops=ops,
-                           bars=bars, impulse=impulse, forces=forces, accelerations=accelerations, gram=gram,
+                           bars=bars, extend=extend, impulse=impulse, forces=forces, energies=energies,
+                           accelerations=accelerations, gram=gram,
                            factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
                            finite_nodes=finite_nodes, bar_residual=bar_residual)

@@ -1,5 +1,5 @@
 """Warp-level primitives of the one-warp-per-column step (:mod:`.lanes`): shuffles within a
-segment of ``g`` lanes (a power of two dividing 32), a segment max and a whole-warp vote.
+segment of ``g`` lanes (a power of two dividing 32), a segment max, a segment sum and a whole-warp vote.
 
 On CUDA they are ``shfl.sync`` (PTX) and ``__ballot_sync`` over the full warp (the step keeps
 its control flow warp-uniform, so every lane reaches every call). On the CPU they
@@ -86,6 +86,36 @@ def _segment_max_snippet(ctype: str) -> str:
 """
 
 
+def _segment_sum3_snippet(ctype: str, name: str) -> str:
+    """Sum of a vec3 over the segment's lanes by a butterfly (log2 g rounds of r + partner's r), the
+    same bits on every lane of the segment and on both devices (the CPU replays the rounds)."""
+    one = _CUDA_SCALAR[ctype].format(mode="bfly", arg="m")
+    return f"""
+#if defined(__CUDA_ARCH__)
+    const int c = {_CLAMP["bfly"]};
+    auto sh = [&](const {ctype} v, const int m) -> {ctype} {{ {one} }};
+    wp::vec_t<3, {ctype}> r = v;
+    for (int m = 1; m < g; m <<= 1) {{
+        r = wp::vec_t<3, {ctype}>(r.c[0] + sh(r.c[0], m), r.c[1] + sh(r.c[1], m), r.c[2] + sh(r.c[2], m));
+    }}
+    return r;
+#else
+    static {ctype} {name}[32][3];
+    const int base = wl & ~(g - 1);
+    const int i = wl - base;
+    wp::vec_t<3, {ctype}> r = v;
+    for (int m = 1; m < g; m <<= 1) {{
+        {name}[wl][0] = r.c[0]; {name}[wl][1] = r.c[1]; {name}[wl][2] = r.c[2];
+        WP_TILE_SYNC();
+        const int src = base + (i ^ m);
+        r = wp::vec_t<3, {ctype}>(r.c[0] + {name}[src][0], r.c[1] + {name}[src][1], r.c[2] + {name}[src][2]);
+        WP_TILE_SYNC();
+    }}
+    return r;
+#endif
+"""
+
+
 _ANY = """
 #if defined(__CUDA_ARCH__)
     return __ballot_sync(0xffffffffu, p) != 0u ? 1 : 0;
@@ -130,4 +160,10 @@ def make_lane_ops(real):
         """Max over the segment's g lanes (NaN wins)."""
         ...
 
-    return SimpleNamespace(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max, vec=vec)
+    @wp.func_native(_segment_sum3_snippet(ctype, f"wt_sum{tag}"))
+    def segment_sum3(v: vec, g: int, wl: int) -> vec:
+        """Sum over the segment's g lanes (a butterfly: the same on every lane of the segment)."""
+        ...
+
+    return SimpleNamespace(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max,
+                           segment_sum3=segment_sum3, vec=vec)

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from .common import (STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_force, projection_status,
-                     set_failure)
+from .common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
+                     feasibility_record, prism_twist_of, projection_status, set_failure)
 from ..policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
 from .lane_funcs import make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
@@ -37,7 +37,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     with which register spills may go to shared memory instead of local memory, 0: not). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
-    f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual)
+    f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2)
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
     RFac = fr.RFac if rigid else f.Fac
     vec = f.vec
@@ -63,6 +63,44 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     v[node, w] = V[3 * j - 3 + k]
                     a[node, w] = A[3 * j - 3 + k]
 
+    @wp.func(inline=True)
+    def record(U: Nodes, V: Nodes, xyl: XY, hzl: Pv, hnd: Pv, ex: Pv, cross: vec, base_ea: vec,
+               rest: wp.array2d(dtype=real), wr: int, n: int, lane: int, g: int, wl: int, w: int, wM: int, slot: int,
+               alive: int, h0: wp.array(dtype=real), level_ref: wp.array2d(dtype=vec),
+               prism_hand: wp.array(dtype=real), m_self: wp.array2d(dtype=real), strain: wp.array3d(dtype=real),
+               kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real), twist: wp.array2d(dtype=real),
+               twist_max: wp.array2d(dtype=real), twist_min: wp.array2d(dtype=real),
+               height_min: wp.array2d(dtype=real), left_slot: wp.array3d(dtype=int)):
+        """The output records of the step that just ended, in the kernel (the staged record kernels'
+        outputs: strain and the feasibility record through the same ``@wp.func`` bodies, so the same
+        bits; the energies summed lane by lane, so their last bits may differ): only a live column's."""
+        X = f.extend(U, U, lane, g, wl)
+        mass = Lv()
+        for j in range(1, wp.static(P + 1)):
+            L = wp.static(P) * lane + j
+            if L <= n:
+                mass[j] = m_self[3 * L, wM]
+        e = f.energies(X, V, xyl, hzl, hnd, ex, cross, base_ea, rest, wr, n, mass, lane, g, wl)
+        if alive == 1:
+            if lane == 0:
+                kinetic[slot, w] = real(0.5) * e[0]
+                elastic[slot, w] = real(0.5) * e[1]
+            for q in range(wp.static(P)):
+                if ex[q] != zero:
+                    m = wp.static(P) * lane + q  # the prism: levels m (rows 3 q ..) and m + 1 of X
+                    Db = wp.matrix_from_rows(X[3 * q], X[3 * q + 1], X[3 * q + 2])
+                    Dt = wp.matrix_from_rows(X[3 * q + 3], X[3 * q + 4], X[3 * q + 5])
+                    Rb = wp.matrix_from_rows(level_ref[m, 0], level_ref[m, 1], level_ref[m, 2])
+                    Rt = wp.matrix_from_rows(level_ref[m + 1, 0], level_ref[m + 1, 1], level_ref[m + 1, 2])
+                    near = real(PI)
+                    if slot > 0:
+                        near = twist[m, w]
+                    phi, h = prism_twist_of(Db, Dt, Rb, Rt, h0[m], prism_hand[m], near)
+                    feasibility_record(phi, h, h0[m], near, slot, m, w, twist, twist_max, twist_min, height_min,
+                                       left_slot)
+                    if strain.shape[0] > 0:
+                        strain[slot, m, w] = (h - h0[m]) / h
+
     spill = {"enable_cuda_smem_spilling": True, "launch_bounds": smem_spill_block} if smem_spill_block else {}
 
     @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers,
@@ -73,13 +111,20 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
         minv_self: wp.array2d(dtype=real), rest: wp.array2d(dtype=real), con_active: wp.array2d(dtype=real),
         n_columns: int,
+        h0: wp.array(dtype=real), level_ref: wp.array2d(dtype=vec), prism_hand: wp.array(dtype=real),
+        m_self: wp.array2d(dtype=real), every: int,
         tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, init: int, step: wp.array(dtype=int),
         # Data in/out:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
         bar_err: wp.array(dtype=real), iters: wp.array(dtype=int),
         status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+        twist: wp.array2d(dtype=real), twist_max: wp.array2d(dtype=real), twist_min: wp.array2d(dtype=real),
+        height_min: wp.array2d(dtype=real), left_slot: wp.array3d(dtype=int),
+        # Data out:
+        strain: wp.array3d(dtype=real), kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real),
     ):
-        """n_sub RATTLE steps of size h (init = 1: make v admissible and compute a(u) instead)."""
+        """n_sub RATTLE steps of size h (init = 1: make v admissible and compute a(u) instead), with
+        the output records of every step that is a multiple of ``every`` (:func:`record`)."""
         tid = wp.tid()
         g = wp.static(G)
         w = tid // g
@@ -182,6 +227,13 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                 if lane == 0:
                     set_failure(status, fail_step, w, code, s0 + wp.max(i, 1))
                 alive = 0
+            if i > 0:
+                so = s0 + i
+                if so % every == 0 and so / every < kinetic.shape[0]:  # an output step: warp-uniform (one s0)
+                    record(U, V, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl, w,
+                           wc % m_self.shape[1],
+                           so / every, alive, h0, level_ref, prism_hand, m_self, strain, kinetic, elastic, twist,
+                           twist_max, twist_min, height_min, left_slot)
             if i == n_it:
                 break
             if init == 0:
@@ -249,7 +301,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                            real=real, P=P, G=G)
 
 
-LANE_STEPS = 64  # most RATTLE steps per launch (launches also end on every output step)
+LANE_STEPS = 64  # most RATTLE steps per launch (the kernel writes the output records of the steps it spans)
 LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
 LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
 # CUDA's approximate fp32 division and square root, for the flexible-base kernel: 2.1x its rate with
@@ -262,7 +314,13 @@ LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared me
 class LaneStep:
     """Lane arrays and launches of the warp-per-column step for one model on one device."""
 
-    def __init__(self, model: "Model", batch: "NetworkBatch", device):
+    records_inside = True
+    """The kernel writes the output records itself (:func:`make_lane_kernel`'s ``record``): a launch
+    may span many outputs, and the Integrator launches no record kernels after it."""
+
+    def __init__(self, model: "Model", batch: "NetworkBatch", device, every: int, strain, kinetic, elastic):
+        """``every``: steps per output; ``strain`` (or None: not kept), ``kinetic``, ``elastic``: the
+        Integrator's record arrays, which the kernel fills."""
         why = lane_support(batch)
         if why is not None:
             raise ValueError(f"the warp-per-column step does not take this batch: {why}")
@@ -292,6 +350,8 @@ class LaneStep:
         self.steps_per_launch = LANE_STEPS
         B = model.n_columns
         self.threads = -(-B * self.G // WARP) * WARP
+        self.every = int(every)
+        self.records = (wp.zeros((0, 0, 0), dtype=real, device=d) if strain is None else strain, kinetic, elastic)
 
     @property
     def description(self) -> str:
@@ -308,9 +368,11 @@ class LaneStep:
         m, r = self.model, self.real
         wp.launch(self.kernels.lane_steps, dim=self.threads, block_dim=self.block_dim, device=self.device, inputs=[
             self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.con_active, m.n_columns,
+            m.h0, m.level_ref, m.prism_hand, m.m_self, self.every,
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
-            data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step])
+            data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
+            data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.records])
 
     def advance_counter(self, data, n: int):
         wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device, block_dim=1)

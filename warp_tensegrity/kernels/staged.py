@@ -23,7 +23,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .common import PI, STATUS_OK, THIRD_PI, axis_pair, member_vec, node_force, pget, prism_twist
+from .common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_vec, node_force, pget,
+                     prism_twist)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -194,12 +195,7 @@ def _record_kernels(real):
         ee = real(0.0)
         for c in range(cab_i.shape[0]):
             b = member_vec(cab_dref, cab_i, cab_j, u, c, w)
-            L = pget(cab_L, c, w)
-            st = wp.length(b) - L
-            k = pget(cab_EA, c, w)
-            if st < real(0.0):
-                k = pget(cab_EAc, c, w)
-            ee += k / L * st * st
+            ee += cable_energy2(b, pget(cab_EA, c, w), pget(cab_EAc, c, w), pget(cab_L, c, w))
         kinetic[slot, w] = real(0.5) * ke
         elastic[slot, w] = real(0.5) * ee
 
@@ -228,29 +224,7 @@ def _record_kernels(real):
         if slot > 0:
             near = twist[j, w]
         phi, h = prism_twist(level_nodes, h0, level_ref, prism_hand[j], u, j, w, near)
-        ratio = h / h0[j]
-        if h <= real(0.0):
-            phi = near
-        if slot == 0:
-            twist_max[j, w] = phi
-            twist_min[j, w] = phi
-            height_min[j, w] = ratio
-            for r in range(3):
-                left_slot[r, j, w] = -1
-        else:
-            if phi > twist_max[j, w]:
-                twist_max[j, w] = phi
-            if phi < twist_min[j, w]:
-                twist_min[j, w] = phi
-            if ratio < height_min[j, w]:
-                height_min[j, w] = ratio
-        twist[j, w] = phi
-        if phi >= real(PI) and left_slot[0, j, w] < 0:
-            left_slot[0, j, w] = slot
-        if phi <= real(THIRD_PI) and left_slot[1, j, w] < 0:
-            left_slot[1, j, w] = slot
-        if h <= real(0.0) and left_slot[2, j, w] < 0:
-            left_slot[2, j, w] = slot
+        feasibility_record(phi, h, h0[j], near, slot, j, w, twist, twist_max, twist_min, height_min, left_slot)
 
     @wp.kernel(enable_backward=False, module="unique")
     def record_pairs(
