@@ -225,8 +225,9 @@ DIVERGING = {"prestrain": [0.002] * 4, "v0": [0.05] * 4, "base_rigidity": [0.0, 
 def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, precision, kw, device, monkeypatch):
     """Issue 33 item 1: the lane kernel writes the records of the outputs its launches span. Against
     the record kernels run after launches that end on every output (as before): the same strain
-    and feasibility record, bit for bit (the same @wp.func bodies on the same state), and the
-    energies to round-off (summed lane by lane, in another order)."""
+    and feasibility record, bit for bit (the same @wp.func bodies on the same state; on CUDA in fp32
+    to a few ulps, the lane kernel's fast math), and the energies to round-off (summed lane by lane,
+    in another order)."""
     cfg = ColumnConfig(n_prisms=n, handedness=hand)
     if "cable_EA" in params:
         params = {**params, "cable_EA": np.asarray(params["cable_EA"]) * cfg.cable_EA}
@@ -239,9 +240,16 @@ def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, pr
     np.testing.assert_array_equal(inside.fail_step, after.fail_step)
     if "cable_EA" in params:
         assert np.count_nonzero(inside.status) == 2
-    np.testing.assert_array_equal(inside.strain, after.strain)
-    for k, v in after.feasibility.items():
-        np.testing.assert_array_equal(inside.feasibility[k], v, err_msg=k)
+    if device != "cpu" and precision == "fp32" and not np.any(np.asarray(params["base_rigidity"]) >= 1):
+        # CUDA's approximate division and square root in the lane kernel (LANE_FAST_MATH), not in the
+        # record kernels: the same to a few fp32 ulps
+        np.testing.assert_allclose(inside.strain, after.strain, rtol=0, atol=1e-5 * np.abs(after.strain).max())
+        for k, v in after.feasibility.items():
+            np.testing.assert_allclose(inside.feasibility[k], v, rtol=1e-5, atol=0, err_msg=k)
+    else:
+        np.testing.assert_array_equal(inside.strain, after.strain)
+        for k, v in after.feasibility.items():
+            np.testing.assert_array_equal(inside.feasibility[k], v, err_msg=k)
     if precision == "fp32":  # each member's stretch rounds differently here (lane geometry): against fp64
         ref = _run(cfg, params, False, device, "fp64", **kw)
     for name in ("kinetic_energy", "elastic_energy"):
