@@ -11,9 +11,10 @@ from .. import io as D
 from ..scene.base_modes import beta_limit_measures
 from ..engine import simulate_batch
 from ..measure.errors import FLAG as ERROR_FLAG
-from ..measure.errors import error_estimates
+from ..measure.errors import VERIFY_MARGIN, error_estimates, largest_share, with_perturbation
 from ..measure.feasibility import feasible_record
 from ..measure.nan_reasons import measure_columns  # shared with BatchResult.to_xarray
+from ..policy.accuracy import DEFAULT_ACCURACY
 from ..policy.groups import twin_ratio
 from ..provenance import provenance_attrs
 from ..result import merge_results, overwrite_columns
@@ -110,22 +111,28 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
 
     def estimate(r, rp, twin_r, twin):
         height = plan.spec.scene.height
-        return error_estimates(measure_columns(r, height), None if twin_r is None else measure_columns(twin_r, height),
-                               1.0 if twin is None else twin_ratio(rp, twin), rp.precision, rp.accuracy)
+        meas = measure_columns(r, height)
+        return meas, error_estimates(meas, None if twin_r is None else measure_columns(twin_r, height),
+                                     1.0 if twin is None else twin_ratio(rp, twin), rp.precision, rp.accuracy)
 
     results, errors = [], {}
     for gi, cols in jobs:
         g = plan.groups[gi]
         r = run(cols, g.plan)
         if twins:
-            err = estimate(r, g.plan, run(cols, g.twin), g.twin)
+            meas, err = estimate(r, g.plan, run(cols, g.twin), g.twin)
             bad = np.isin(err["error_flag"], VERIFY_FAILS)
+            if g.fallback is not None:  # auto's fp32: verified with a margin (errors.VERIFY_MARGIN)
+                bad |= largest_share(meas, err) > VERIFY_MARGIN * (g.plan.accuracy or DEFAULT_ACCURACY)
             if r.feasibility is not None:  # a case outside the model's feasible set is flagged, not rerun
                 bad &= np.asarray(r.feasibility["feasibility_flag"]) == 0
             redo = np.flatnonzero(bad) if g.fallback is not None else []
             if len(redo):  # fp32 not verified: fp64, with its own twin and estimate
                 rb = run(cols[redo], g.fallback)
-                err_b = estimate(rb, g.fallback, run(cols[redo], g.fallback_twin), g.fallback_twin)
+                meas_b, err_b = estimate(rb, g.fallback, run(cols[redo], g.fallback_twin), g.fallback_twin)
+                # fp32 and fp64 at one dt differ by round-off only: what that moves, the estimate covers
+                err_b = with_perturbation(err_b, meas_b, {k: np.asarray(v)[redo] for k, v in meas.items()},
+                                          g.fallback.accuracy or DEFAULT_ACCURACY)
                 overwrite_columns(r, redo, rb)
                 for k, v in err_b.items():
                     err[k][redo] = v
