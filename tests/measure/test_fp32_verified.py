@@ -2,7 +2,7 @@
 
 The issue's two CPU cases, 24 feasible phase_large cases (FB, 50 prisms, 10 s) whose fp32 and
 fp64 measures differed by more than the accuracy target on an H200
-(benchmarks/results/error_coverage_phase_large_h200_cases.npz), and 8 phase_large cases at beta
+(benchmarks/results/error_coverage_phase_large_h200_0f97af1_cases.npz), and 8 phase_large cases at beta
 0-1 whose measures differed before issue 31 (benchmarks/measure_stability.py), run here on the CPU
 as a sweep runs them (groups, twins, error estimates) in fp32 and in fp64. For each case and each measure the
 fp32 answer must agree with fp64 to the target, or be flagged (measurement_flag, error_flag,

@@ -19,7 +19,7 @@ A per-prism arrival time the twin lacks (the last prism reached by t_end) has a 
 no flag.
 
 Calibrated on phase_large on an H200 (1,053 feasible cases, reference fp64 at dt / 4,
-``benchmarks/error_coverage.py``; benchmarks/results/error_coverage_phase_large_h200.json): the
+``benchmarks/error_coverage.py``; benchmarks/results/error_coverage_phase_large_h200_0f97af1.json): the
 Richardson estimate alone covered the real error in 89.6-91.3 % (fp32) and 94.9-96.5 % (fp64) of
 the cases per measure; these rules cover 95.6-97.2 % (fp32) and 96.4-97.7 % (fp64).
 """
