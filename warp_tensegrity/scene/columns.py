@@ -348,9 +348,12 @@ def build_column(
     cable_EA: float | None = None,
     unit_mass: float | None = None,
     topology: ColumnTopology | None = None,
+    check_equilibrium: bool = True,
 ) -> ColumnScene:
     """Build one column: rest lengths from the self-stress at cross prestrain ``p``, masses,
-    the impact velocity ``v0`` (compressive, along -z at the free end) and the equilibrium check."""
+    the impact velocity ``v0`` (compressive, along -z at the free end) and the equilibrium check
+    (``check_equilibrium`` False: skipped, ``equilibrium_residual`` NaN; a least-squares solve of the
+    whole column, most of the build's time, which the base-mode analysis does not need)."""
     config = ColumnConfig() if config is None else config
     _expect_config("build_column", config)
     for name, val in (("prestrain", prestrain), ("v0", v0), ("base_rigidity", base_rigidity), ("cable_EA", cable_EA),
@@ -401,7 +404,7 @@ def build_column(
         bar_names=bar_names,
         cable_names=names,
     ).validate()
-    residual = equilibrium_residual(net)
+    residual = equilibrium_residual(net) if check_equilibrium else float("nan")
     if config.impact_admissibility == "rigid_members":
         members, dense = np.concatenate([topo.bars, topo.base]), sparse.use_dense(9 * config.n_prisms)
         try:
