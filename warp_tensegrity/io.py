@@ -38,7 +38,7 @@ import xarray as xr
 from . import atomic
 from .policy.cost import netcdf_bytes
 from .scene.impact import kinematic_lock_strain
-from .options import COLUMN_PARAMETERS, ColumnParameters, opt_of
+from .options import COLUMN_PARAMETERS, PROFILED, ColumnParameters, opt_of
 from .types import (BETA_LIMIT_FLAGS, ERROR_ESTIMATED, ERROR_FLAGS, FEASIBILITY_FLAGS, MEASUREMENT_FLAGS,
                     STATUS_MEANINGS, TIME, Layout)
 
@@ -79,6 +79,10 @@ COORD_ATTRS = {
     "prism": {
         "units": "1",
         "long_name": "prism index from the clamped base (0) to the impacted free end (n_prisms - 1)",
+    },
+    "level": {
+        "units": "1",
+        "long_name": "level (base) index from the clamped base (0) to the impacted free end (n_prisms)",
     },
     TIME: {"units": "s", "long_name": "simulated time since impact (step * dt, rounded to the output interval's decimals)"},
     "step": {"units": "1", "long_name": "time step count of each output (t = step * dt)"},
@@ -263,12 +267,30 @@ def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int 
     for p in COLUMN_PARAMETERS:
         if p not in params:
             continue
+        if np.ndim(params[p]) == 2:  # a profile along the column
+            coords.update(profile_coords(p, np.asarray(params[p], dtype=np.float64)))
+            continue
         v = np.broadcast_to(np.asarray(params[p], dtype=np.float64), (n_columns,))
         if n_columns > 1 and np.any(v != v[0]):
             coords[p] = _var(p, "case", np.array(v), COORD_ATTRS[p])
         else:
             coords[p] = _var(p, (), np.float64(v[0]), COORD_ATTRS[p])
     return coords
+
+
+def profile_coords(name: str, values: np.ndarray) -> dict:
+    """The coordinate of a profile along the column (:data:`~warp_tensegrity.options.PROFILED`):
+    ``name`` over (prism) or (level) when every column has the same, else over (case, prism) or
+    (case, level); with the ``level`` coordinate it needs."""
+    along = PROFILED[name]
+    v = np.atleast_2d(values)
+    same = v.shape[0] == 1 or bool(np.all(v == v[:1]))
+    attrs = dict(COORD_ATTRS[name])
+    attrs["long_name"] += f", per {along} along the column"
+    out = {name: _var(name, (along,) if same else ("case", along), v[0].copy() if same else v, attrs)}
+    if along == "level":
+        out["level"] = _var("level", "level", np.arange(v.shape[1], dtype=np.int32), COORD_ATTRS["level"])
+    return out
 
 
 def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
