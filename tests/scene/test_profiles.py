@@ -1,0 +1,135 @@
+"""Per-prism profiles of the per-column parameters (issue 34 item 1): prestrain, cable_EA (per
+prism) and unit_mass (per level) along the column."""
+
+import numpy as np
+import pytest
+
+import warp_tensegrity as wt
+from warp_tensegrity.options import Profile, RunSettings
+from warp_tensegrity.policy.decide import decide, far_end
+from warp_tensegrity.policy.lane_fit import lane_refusal, lane_support
+from warp_tensegrity.scene.batch import column_batch, column_params, far_end_params
+from warp_tensegrity.scene.columns import ColumnConfig, column_topology
+from warp_tensegrity.scene.network import NetworkError
+
+CFG = ColumnConfig(n_prisms=6)
+
+
+def test_profile_arrays():
+    assert np.allclose(Profile.grade(0.01, 0.06).check("prestrain", 6), np.linspace(0.01, 0.06, 6))
+    assert Profile.segments(1.0, 2.0, 2).check("cable_EA", 6).tolist() == [1, 1, 2, 2, 2, 2]
+    # unit_mass: one value per level, level at on in the second segment
+    assert Profile.segments(1.0, 2.0, 2).check("unit_mass", 6).tolist() == [1, 1, 2, 2, 2, 2, 2]
+    assert Profile.from_table("prestrain", {"segments": [0.01, 0.02], "at": 3}) == Profile.segments(0.01, 0.02, 3)
+    assert Profile.from_table("prestrain", {"grade": [0.01, 0.02]}).table() == {"grade": [0.01, 0.02]}
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.5, 1.0])
+def test_graded_prestrain_is_in_equilibrium(beta):
+    """Each prism's self-stress at its own tension, superposed on the shared bases: the reference
+    state balances (a base member at one prism's share alone, or the mean tension, does not)."""
+    p = np.array([[0.01, 0.02, 0.03, 0.05, 0.05, 0.08]])
+    ea = Profile.segments(0.3, 0.9, 2)
+    b = column_batch(CFG, {"prestrain": p, "cable_EA": ea, "base_rigidity": beta})
+    assert b.equilibrium_residual[0] < 1e-12
+    # the cross cables carry T_m = EA_m p_m, prism by prism
+    eam = ea.check("cable_EA", 6)
+    L = b.cable_rest_length[0, :18]
+    ell = np.linalg.norm(np.diff(b.positions[b.cables[:18]], axis=1)[:, 0], axis=1)
+    assert np.allclose(b.cable_EA[0, :18] * (ell - L) / L, np.repeat(eam * p[0], 3), rtol=1e-12)
+
+
+def test_interior_base_carries_both_shares():
+    topo = column_topology(CFG)
+    assert np.array_equal(topo.unit_base_force[:3], topo.unit_base_bottom[:3])
+    assert np.array_equal(topo.unit_base_force[-3:], topo.unit_base_top[-3:])
+    assert np.allclose(topo.unit_base_force[3:-3], topo.unit_base_bottom[3:] + topo.unit_base_top[:-3], rtol=0, atol=1e-15)
+
+
+def test_uniform_profile_is_the_scalar_bit_for_bit():
+    a = column_batch(CFG, {"prestrain": Profile.grade(0.02, 0.02), "unit_mass": np.full((1, 7), 0.03), "v0": 0.1})
+    c = column_batch(CFG, {"prestrain": 0.02, "unit_mass": 0.03, "v0": 0.1})
+    for k in ("cable_rest_length", "cable_EA", "cable_EA_compression", "node_mass", "velocity"):
+        assert np.array_equal(getattr(a, k), getattr(c, k)), k
+    assert a.params["prestrain"].shape == (1,)
+
+
+def test_level_masses_and_their_impact():
+    mu = np.array([[0.02, 0.04, 0.02, 0.04, 0.02, 0.04, 0.02]])  # a diatomic column
+    b = column_batch(CFG, {"unit_mass": mu, "v0": 0.1})
+    expect = mu[0] * np.array([0.5, 1, 1, 1, 1, 1, 0.5])  # end bases: half (end_base_mass = 'half')
+    assert np.allclose(b.node_mass[0].reshape(7, 3).sum(axis=1), expect, rtol=1e-14)
+    # the projected impact weighs the masses: admissible (bars rigid) and not the uniform column's
+    cfg = ColumnConfig(n_prisms=6, impact_admissibility="project")
+    v = column_batch(cfg, {"unit_mass": mu, "v0": 0.1}).velocity[0]
+    bars, x = column_topology(cfg).bars, b.positions
+    rate = np.einsum("ij,ij->i", x[bars[:, 1]] - x[bars[:, 0]], v[bars[:, 1]] - v[bars[:, 0]])
+    assert np.abs(rate).max() < 1e-12 * 0.1 * np.abs(x).max()
+    uniform = column_batch(cfg, {"unit_mass": 0.03, "v0": 0.1}).velocity[0]
+    assert np.abs(v - uniform).max() > 1e-4
+    scaled = column_batch(cfg, {"unit_mass": 3 * mu, "v0": 0.1}).velocity[0]  # invariant to a uniform scale
+    assert np.allclose(v, scaled, rtol=0, atol=1e-14)
+
+
+def test_truncated_column_takes_the_far_end_of_the_profile():
+    p = column_params(CFG, {"prestrain": Profile.grade(0.01, 0.06), "unit_mass": Profile.segments(0.02, 0.03, 4)})
+    part = column_batch(far_end(CFG, 3), far_end_params(p, 6, 3))
+    whole = column_batch(CFG, p)
+    assert np.allclose(part.cable_rest_length[0, :9], whole.cable_rest_length[0, 9:18], rtol=1e-14)
+    assert np.array_equal(part.node_mass[0, 3:], whole.node_mass[0, 12:])
+
+
+def test_profiles_are_recorded():
+    r = wt.simulate_batch(CFG, {"prestrain": Profile.segments(0.01, 0.05, 3), "unit_mass": Profile.grade(0.02, 0.03),
+                                "v0": [0.05, 0.1]},
+                          RunSettings(t_end=2e-3, dt=1e-5, output_interval=1e-3, precision="fp64", fused=False))
+    ds = r.to_xarray()
+    assert ds["prestrain"].dims == ("prism",) and ds["prestrain"].values.tolist() == [0.01] * 3 + [0.05] * 3
+    assert ds["unit_mass"].dims == ("level",) and ds["level"].size == 7
+    assert ds["unit_mass"].attrs["units"] == "kg" and "per level" in ds["unit_mass"].attrs["long_name"]
+
+
+def test_ea_profile_is_kept_off_the_lane_step_and_paths_agree():
+    """The lane step reads one EA per column (kernels/lanes.py): the policy routes an EA profile off it,
+    and the paths it may take give the staged path's numbers."""
+    params = {"prestrain": Profile.segments(0.01, 0.05, 3), "cable_EA": Profile.grade(0.3, 0.6), "v0": 0.05,
+              "base_rigidity": 0.5}
+    filled = column_params(CFG, params)
+    assert "cable_EA profile" in lane_refusal(CFG, filled)
+    assert lane_support(column_batch(CFG, filled)) is not None
+    assert lane_refusal(CFG, column_params(CFG, {"prestrain": Profile.grade(0.01, 0.05)})) is None
+    with pytest.raises(wt.SettingsError, match="cable_EA profile"):
+        decide(CFG, params, RunSettings(t_end=1e-3, precision="fp64", fused="lanes"))
+    run = dict(t_end=3e-3, dt=1e-5, output_interval=1e-3, precision="fp64", truncate=False, measure="none")
+    staged = wt.simulate_batch(CFG, params, RunSettings(**run, fused=False))
+    fused = wt.simulate_batch(CFG, params, RunSettings(**run, fused="auto"))
+    assert "staged" not in fused.info["step_path"]
+    assert np.abs(staged.strain).max() > 1e-3
+    assert np.abs(fused.strain - staged.strain).max() < 1e-11
+
+
+@pytest.mark.parametrize("params, match", [
+    ({"prestrain": np.zeros((1, 5))}, r"prestrain: shape \(1, 5\), expected \(B, 6\)"),
+    ({"unit_mass": np.full((1, 6), 0.02)}, r"unit_mass: shape \(1, 6\), expected \(B, 7\): one value per level"),
+    ({"prestrain": Profile.explicit([0.0] * 5)}, r"prestrain = .*give 6 values, one per prism"),
+    ({"unit_mass": Profile.grade(0.02, -0.01)}, r"unit_mass.grade\[1\] = -0.01: must lie in"),
+    ({"unit_mass": np.array([[0.02] * 6 + [-1.0]])}, r"unit_mass\[6\] = -1.0: must lie in"),
+    ({"prestrain": Profile.segments(0.01, 1.0, 3)}, r"prestrain.segments\[1\] = 1.0: must lie in \[0, 1\)"),
+    ({"prestrain": {"grade": [0.01, 1.5]}}, r"prestrain.grade\[1\] = 1.5"),
+    ({"prestrain": Profile.segments(0.01, 0.02, 6)}, r"prestrain.at = 6: the interface must be a prism index in \[1, 5\]"),
+    ({"v0": Profile.grade(0.01, 0.02)}, r"v0 = .*v0 takes one value per column, not a profile"),
+    ({"base_rigidity": np.zeros((1, 6))}, r"base_rigidity = .*takes one value per column, not a profile"),
+    ({"prestrain": {"grade": [0.01, 0.02], "at": 3}}, r"at belongs to segments"),
+    ({"prestrain": {"segments": [0.01, 0.02]}}, r"segments need at = k"),
+    ({"prestrain": {"grade": [0.01]}}, r"prestrain.grade = \[0.01\]: give \[first, last\]"),
+    ({"prestrain": {"grad": [0.01, 0.02]}}, r"prestrain.grad: unknown profile key; did you mean 'grade'"),
+])
+def test_bad_profiles_name_the_field_and_value(params, match):
+    with pytest.raises(NetworkError, match=match) as e:
+        column_batch(CFG, params)
+    assert "\n" not in str(e.value)
+
+
+def test_profile_on_a_scene_parameter_is_refused():
+    with pytest.raises(NetworkError, match=r"radius = .*must be a number"):
+        ColumnConfig(n_prisms=6, radius=Profile.grade(1e-3, 2e-3))
