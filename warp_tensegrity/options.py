@@ -348,7 +348,7 @@ class ColumnParameters:
 
     prestrain: Annotated[float, Opt("real", "1", ge=0, lt=1, why="the cross-cable prestrain p; 1 would put the cables' rest length at zero",
                                     long_name="cross-cable prestrain p")] = 0.0
-    """Cross-cable prestrain p [1]."""
+    """Cross-cable prestrain p [1]; or a profile along the column, one value per prism (docs/sweeps.md, Profiles)."""
     v0: Annotated[float, Opt("real", "m s-1", ge=0, le=MAX_SPEED, why="v0 is the compressive impact speed of the free end",
                              long_name="compressive impact speed at the free end")] = 0.0
     """Compressive impact speed of the free end [m s-1]."""
@@ -358,11 +358,13 @@ class ColumnParameters:
     cable_EA: Annotated[float | None, Opt("real", "N", gt=0, le=MAX_EA, optional=True,
                                           default_text="scene's E_s pi r_s^2",
                                           long_name="axial stiffness E*A of the cables")] = None
-    """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2."""
+    """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2; or a profile, one value per prism
+    (an interior base member takes the mean of its two prisms')."""
     unit_mass: Annotated[float | None, Opt("real", "kg", ge=MASS[0], le=MASS[1], optional=True,
                                            default_text="scene's unit_mass",
                                            long_name="mass per unit (prism), lumped on the bases")] = None
-    """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
+    """Mass per unit (prism) [kg]; None: the scene's unit_mass; or a profile, one value per level
+    (n_prisms + 1: the mass each base carries, the end bases half of theirs with end_base_mass = 'half')."""
 
 
 COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in ColumnParameters.__pydantic_fields__}
