@@ -134,6 +134,8 @@ class SweepSpec:
         out = {}
         for p in COLUMN_PARAMETERS:
             d = self.default_param(p)
+            if isinstance(d, Profile) and any(f"{p}_{f}" in self.grid for f in ("from", "to", "at")):
+                continue  # a template the grid sets per column, below
             out[p] = (np.broadcast_to(d.check(p, n_prisms), (n, profile_length(p, n_prisms))).copy()
                       if isinstance(d, Profile) else np.full(n, d, dtype=np.float64))
         if self.kind == "grid":
@@ -147,6 +149,7 @@ class SweepSpec:
                     out[name] = np.ascontiguousarray(m.reshape(-1), dtype=np.float64)
             for p, f in fields.items():
                 out[p] = profile_rows(self.fixed[p], f, profile_length(p, n_prisms))
+            out = {p: out[p] for p in COLUMN_PARAMETERS}  # in the declared order
         else:
             for i, case in enumerate(self.cases):
                 for name, v in case.items():
@@ -327,7 +330,12 @@ def _overridden_text(text: str, data: dict, overrides: dict) -> str:
 
 def _check_profiles(ck, n_prisms: int, fixed: dict, grid: dict, cases: list) -> None:
     """Profiles against the scene's column: lengths and interface positions (each named by its path)."""
-    where = [(f"sweep.fixed.{k}", k, v) for k, v in fixed.items()]
+    swept = {}  # a template's fields a grid sets: checked with the grid's values, not the template's
+    for key, vals in grid.items():
+        if key in PROFILE_AXES and isinstance(fixed.get(PROFILE_AXES[key][0]), Profile):
+            name, fld = PROFILE_AXES[key]
+            swept[name] = swept.get(name, fixed[name]).replace(fld, int(vals[0]) if fld == "at" else float(vals[0]))
+    where = [(f"sweep.fixed.{k}", k, swept.get(k, v)) for k, v in fixed.items()]
     where += [(f"sweep.cases[{i}].{k}", k, v) for i, c in enumerate(cases) for k, v in c.items()]
     for path, k, v in where:
         if isinstance(v, Profile):
