@@ -171,6 +171,8 @@ class Opt:
     def check(self, x):
         if x is None and self.optional:
             return None
+        if isinstance(x, Profile):  # a per-column parameter along the column, given where one value belongs
+            raise _err(f"takes one value, not a profile (profiles: {', '.join(PROFILED)}, per column)")
         if self.items is not None and (isinstance(x, (list, tuple)) or not self.single):
             lo, hi = self.items
             if not isinstance(x, (list, tuple)) or not lo <= len(x) <= hi:

@@ -131,5 +131,85 @@ def test_bad_profiles_name_the_field_and_value(params, match):
 
 
 def test_profile_on_a_scene_parameter_is_refused():
-    with pytest.raises(NetworkError, match=r"radius = .*must be a number"):
+    with pytest.raises(NetworkError, match=r"^radius = Profile\(.*\): takes one value, not a profile \(profiles: "
+                                          r"prestrain, cable_EA, unit_mass, per column\)$"):
         ColumnConfig(n_prisms=6, radius=Profile.grade(1e-3, 2e-3))
+
+
+# ---------------------------------------------------------------------- specs
+SPEC = """
+[scene]
+n_prisms = 6
+[sweep]
+fixed = {{prestrain = {{segments = [0.01, 0.05], at = 3}}, base_rigidity = 1.0, v0 = 0.01}}
+{sweep}
+[run]
+t_end = 0.05
+output_interval = 0.01
+precision = "fp64"
+"""
+
+
+def _spec(sweep="grid = {prestrain_at = [2, 4], prestrain_to = [0.02, 0.04]}", **fmt):
+    from warp_tensegrity.sweep import load_spec
+
+    return load_spec(SPEC.format(sweep=sweep, **fmt))
+
+
+def test_grid_over_a_profiles_fields():
+    spec = _spec()
+    p = spec.column_params()["prestrain"]
+    assert p.shape == (4, 6)
+    assert p.tolist() == [[0.01] * 2 + [0.02] * 4, [0.01] * 2 + [0.04] * 4,
+                          [0.01] * 4 + [0.02] * 2, [0.01] * 4 + [0.04] * 2]
+    assert spec.describe() == "4 columns (grid prestrain_at 2 x prestrain_to 2)"
+    grade = _spec("grid = {prestrain_from = [0.0, 0.02]}").column_params()["prestrain"]
+    assert grade[1].tolist() == [0.02] * 3 + [0.05] * 3  # the template's kind: segments
+    from warp_tensegrity.sweep.spec import profile_rows
+
+    rows = profile_rows(Profile.grade(0.01, 0.05), {"to": np.array([0.02, 0.04])}, 6)
+    assert np.array_equal(rows[1], Profile.grade(0.01, 0.04).check("prestrain", 6))  # as the Python API makes it
+    assert '"prestrain":{"at":3,"segments":[0.01,0.05]}' in spec.canonical()
+
+
+@pytest.mark.parametrize("sweep, match", [
+    ("grid = {prestrain_at = [2, 6]}", r"sweep.grid.prestrain_at = 6.0: the interface must be a prism index in \[1, 5\]"),
+    ("grid = {prestrain_at = [2.5]}", r"sweep.grid.prestrain_at\[0\] = 2.5: must be a prism index"),
+    ("grid = {cable_EA_at = [2]}", r"sweep.grid.cable_EA_at: needs the cable_EA profile it varies in \[sweep.fixed\]"),
+    ("grid = {prestrain_at = [2], prestrain = [0.01]}", r"sweep.grid.prestrain_at: conflicts with sweep.grid.prestrain"),
+    ("grid = {prestrain_to = [1.5]}", r"sweep.grid.prestrain_to\[0\] = 1.5: must lie in \[0, 1\)"),
+    ("cases = [{v0 = 0.01, unit_mass = {values = [0.02, 0.03]}}]",
+     r"sweep.cases\[0\].unit_mass = .*give 7 values, one per level \(n_prisms = 6\), not 2"),
+    ("cases = [{v0 = {grade = [0.01, 0.02]}}]", r"sweep.cases\[0\].v0 = .*v0 takes one value per column, not a profile"),
+    ("cases = [{unit_mass = {grade = [0.02, -1.0]}}]", r"sweep.cases\[0\].unit_mass.grade\[1\] = -1.0: must lie in"),
+])
+def test_bad_profiles_in_a_spec_name_the_key_and_value(sweep, match):
+    from warp_tensegrity.sweep.errors import SpecError
+
+    with pytest.raises(SpecError, match=match):
+        _spec(sweep)
+
+
+def test_profile_on_a_scene_field_in_a_spec():
+    from warp_tensegrity.sweep import load_spec
+    from warp_tensegrity.sweep.errors import SpecError
+
+    with pytest.raises(SpecError, match=r"scene.radius = .*radius is a scene setting, one value for the whole column; "
+                                        r"profiles are for prestrain, cable_EA, unit_mass"):
+        load_spec("[scene]\nradius = {grade = [1e-3, 2e-3]}\n[sweep]\ngrid = {v0 = [0.01]}\n")
+
+
+def test_case_list_with_profiles_runs_and_records(tmp_path):
+    """Profiles per case (one over level) through the sweep's store: coordinates over (case, prism) and
+    (case, level), a uniform case's row the scalar."""
+    from warp_tensegrity import sweep
+
+    spec = _spec("cases = [{label = \"uniform\"}, {unit_mass = {values = [0.02, 0.04, 0.02, 0.04, 0.02, 0.04, 0.02]}}]")
+    out = sweep.run_sweep(spec, tmp_path / "c.nc", device="cpu", progress=False)
+    import xarray as xr
+
+    with xr.open_dataset(out) as ds:
+        assert ds["unit_mass"].dims == ("case", "level") and ds["prestrain"].dims == ("prism",)
+        assert ds["unit_mass"].values[0].tolist() == [0.0249] * 7
+        assert ds["unit_mass"].values[1].tolist() == [0.02, 0.04] * 3 + [0.02]
+        assert (ds["status"].values == 0).all()
