@@ -213,3 +213,8 @@ def test_case_list_with_profiles_runs_and_records(tmp_path):
         assert ds["unit_mass"].values[0].tolist() == [0.0249] * 7
         assert ds["unit_mass"].values[1].tolist() == [0.02, 0.04] * 3 + [0.02]
         assert (ds["status"].values == 0).all()
+    from warp_tensegrity.plot import PlotError, plot_file
+
+    for case in (0, 1):  # a band diagram is of a uniform column: a clear error, not a traceback
+        with pytest.raises(PlotError, match="prestrain varies along the column"):
+            plot_file(out, "dispersion", sel={"case": case})
