@@ -117,20 +117,24 @@ def main() -> dict:
     nc = Path(os.environ.get("WT_INTERFACE_NC", "analysis/data/interface.nc"))
     nc = nc if nc.is_absolute() else root / nc
     fig_dir = Path(os.environ.get("WT_FIG_DIR", str(root / "analysis" / "output" / "figures")))
-    if not nc.exists():  # the small CPU run: figures beside it, never over the real ones
+    fallback = not nc.exists()
+    if fallback:  # the small CPU run: figures beside it, never over the real ones
         from warp_tensegrity.sweep import load_spec, run_sweep
 
         tmp = Path(tempfile.gettempdir()) / "warp_tensegrity"
         nc = Path(os.environ.get("WT_INTERFACE_FALLBACK_NC", str(tmp / "interface_fallback.nc")))
         if not nc.exists():
-            run_sweep(load_spec(root / "sweeps" / "interface.toml", overrides=CPU_OVERRIDES), nc, device="cpu",
+            run_sweep(load_spec(root / "sweeps" / "interface.toml", overrides=CPU_OVERRIDES), nc, device="cpu", overwrite=True,
                       progress=False)
         fig_dir = Path(os.environ.get("WT_FIG_DIR", str(tmp / "figures")))
     ds = xr.open_dataset(nc)
     tr = transmission(ds)
     far = float(ds["prestrain"].isel(prism=0).max()) if "prestrain" in ds else None
     png = phase_diagram(tr, fig_dir / "interface_transmission.png", far)
-    record = {"source": str(nc), "window": WINDOW, "prestrain_far": far,
+    record = {"source": nc.name, "spec": "sweeps/interface.toml" + (" with CPU_OVERRIDES" if fallback else ""),
+              "device": str(ds.attrs.get("device_name", ds.attrs.get("device", "unknown"))),
+              "wall_time_s": float(ds.attrs.get("wall_time", float("nan"))), "n_columns": int(ds.attrs.get("n_columns", 0)),
+              "n_prisms": int(ds.sizes["prism"]), "window": WINDOW, "prestrain_far": far,
               "prestrain_at": tr["prestrain_at"].values.tolist(), "prestrain_to": tr["prestrain_to"].values.tolist(),
               **{k: tr[k].transpose("prestrain_at", "prestrain_to").values.round(6).tolist() for k in ("A_T", "A_I", "ratio")}}
     (fig_dir / "interface_transmission.json").write_text(json.dumps(record, indent=1))
