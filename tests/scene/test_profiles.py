@@ -79,6 +79,21 @@ def test_truncated_column_takes_the_far_end_of_the_profile():
     assert np.array_equal(part.node_mass[0, 3:], whole.node_mass[0, 12:])
 
 
+def test_a_truncated_run_steps_the_far_end_of_the_profile():
+    """prisms_simulated < n_prisms: the simulated part takes the profile's last prisms (the wrong end
+    would change the pulse by ~1e-2), the result keeps the whole profile and the whole column's energy."""
+    cfg = ColumnConfig(n_prisms=12)
+    params = {"prestrain": Profile.grade(0.005, 0.05), "unit_mass": Profile.grade(0.02, 0.04), "v0": 0.05,
+              "base_rigidity": 0.5}
+    s = RunSettings(t_end=0.03, dt=2e-5, output_interval=5e-3, precision="fp64", fused=False, measure="none")
+    full = wt.simulate_batch(cfg, params, s, prisms_simulated=12)
+    cut = wt.simulate_batch(cfg, params, s, prisms_simulated=6)
+    assert np.abs(full.strain).max() > 0.1
+    assert np.abs(full.strain - cut.strain).max() < 2e-4 * np.abs(full.strain).max()  # the clamp's precursor only
+    assert np.abs(full.elastic_energy - cut.elastic_energy).max() < 1e-6 * full.elastic_energy.max()
+    assert cut.params["prestrain"].shape == (1, 12)
+
+
 def test_profiles_are_recorded():
     r = wt.simulate_batch(CFG, {"prestrain": Profile.segments(0.01, 0.05, 3), "unit_mass": Profile.grade(0.02, 0.03),
                                 "v0": [0.05, 0.1]},
