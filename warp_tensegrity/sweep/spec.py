@@ -62,6 +62,15 @@ KEY_DOCS = {
     "sweep.grid.<param>.num": "number of values of a range axis (integer >= 1)",
     "sweep.grid.<param>.spacing": '`"linear"` (default) or `"log"` (geometric; start, stop > 0)',
     "sweep.cases[i].label": "case label, stored as the `case_label` coordinate",
+    "<param>.values": "a profile along the column (prestrain, cable_EA: one value per prism; unit_mass: one per level, "
+                      "n_prisms + 1), in [sweep.fixed], a case, or [scene] (prestrain, cable_EA): the values, "
+                      "prism 0 at the clamped base",
+    "<param>.grade": "a profile: [first, last], linear from the clamped base to the free end",
+    "<param>.segments": "a profile: [first, last], two segments joined at prism `at`",
+    "<param>.at": "the first prism (level) of a profile's second segment, in [1, n_prisms - 1]",
+    "sweep.grid.<param>_from": "a grid axis over the first value of the [sweep.fixed] profile of `<param>`",
+    "sweep.grid.<param>_to": "a grid axis over the last value of the [sweep.fixed] profile of `<param>`",
+    "sweep.grid.<param>_at": "a grid axis over the interface prism of the [sweep.fixed] two-segment profile of `<param>`",
 }
 """What each structural spec key means (the options themselves are documented where they are
 declared: :func:`warp_tensegrity.options_docs.options_table`; the docs' hook reads both)."""
