@@ -138,6 +138,8 @@ def test_ea_profile_is_kept_off_the_lane_step_and_paths_agree():
     ({"prestrain": {"segments": [0.01, 0.02]}}, r"segments need at = k"),
     ({"prestrain": {"grade": [0.01]}}, r"prestrain.grade = \[0.01\]: give \[first, last\]"),
     ({"prestrain": {"grad": [0.01, 0.02]}}, r"prestrain.grad: unknown profile key; did you mean 'grade'"),
+    ({"prestrain": [[0.01], [0.02, 0.03]]}, r"prestrain = .*must be a number or an array of numbers"),  # ragged
+    ({"prestrain": [["a"] * 6]}, r"prestrain = .*must be a number or an array of numbers"),
 ])
 def test_bad_profiles_name_the_field_and_value(params, match):
     with pytest.raises(NetworkError, match=match) as e:

@@ -147,7 +147,11 @@ def _profile_array(config: col.ColumnConfig, name: str, value) -> np.ndarray | N
         return value.check(name, config.n_prisms, NetworkError)[None, :]
     if isinstance(value, dict) and name in PROFILED:  # the TOML form, from Python
         return Profile.from_table(name, value, NetworkError).check(name, config.n_prisms, NetworkError)[None, :]
-    if np.ndim(value) != 2 or (isinstance(value, np.ndarray) and value.dtype.kind not in "iuf"):
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nesting: the per-column check names it
+        return None
+    if arr.ndim != 2 or arr.dtype.kind not in "iuf":  # not numbers: the per-column check names it too
         return None
     if name not in PROFILED:
         raise NetworkError(f"{name} = {fmt(value)}: {name} takes one value per column, not a profile "
