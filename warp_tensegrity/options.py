@@ -450,11 +450,13 @@ class Profile:
             return {"values": list(self.values)}
         return {self.kind: list(self.values)} | ({"at": self.at} if self.kind == "segments" else {})
 
-    def check(self, name: str, n_prisms: int, error: type[ValueError] = OptionError, path: str | None = None) -> np.ndarray:
+    def check(self, name: str, n_prisms: int, error: type[ValueError] = OptionError, path: str | None = None,
+              bounds: Opt | None = None) -> np.ndarray:
         """The profile's entries for parameter ``name`` in a column of ``n_prisms``, checked: ``error``
         names the parameter (``path``: as the spec writes it) and the bad value (wrong length, an entry
-        out of bounds, a bad ``at``)."""
+        out of bounds, a bad ``at``); ``bounds``: the entries' Opt, if not the parameter's."""
         key, name = name, (path or name)
+        bounds = bounds or opt_of(ColumnParameters, key)
         if key not in PROFILED:
             raise error(f"{name} = {fmt(self)}: {key} takes one value per column, not a profile "
                         f"(profiles: {', '.join(PROFILED)})")
@@ -469,7 +471,7 @@ class Profile:
                             f"(n_prisms = {n_prisms}), so both segments have a prism")
         if self.kind not in PROFILE_KINDS:
             raise error(f"{name} = {fmt(self)}: profile kind must be one of {', '.join(PROFILE_KINDS)}")
-        opt_of(ColumnParameters, key).check_array(f"{name}.{self.kind}", list(self.values), error)
+        bounds.check_array(f"{name}.{self.kind}", list(self.values), error)
         vals = np.asarray(self.values, dtype=np.float64)
         if self.kind == "values":
             return vals
@@ -478,10 +480,12 @@ class Profile:
         return np.where(np.arange(n) < self.at, vals[0], vals[1])
 
     @classmethod
-    def from_table(cls, name: str, table, error: type[ValueError] = OptionError, path: str | None = None) -> Profile:
+    def from_table(cls, name: str, table, error: type[ValueError] = OptionError, path: str | None = None,
+                   bounds: Opt | None = None) -> Profile:
         """A profile from its TOML table; ``error`` names ``name`` (``path``: as the spec writes it) and
-        the bad key or value."""
+        the bad key or value; ``bounds``: the entries' Opt, if not the parameter's."""
         key, name = name, (path or name)
+        bounds = bounds or opt_of(ColumnParameters, key)
         if not isinstance(table, dict):
             raise error(f"{name} = {fmt(table)}: a profile is a table: {{values = [...]}}, {{grade = [first, last]}} "
                         "or {segments = [first, last], at = k}")
@@ -508,7 +512,7 @@ class Profile:
         at = table.get("at")
         if kind == "segments" and (isinstance(at, bool) or not isinstance(at, int)):
             raise error(f"{name}.at = {fmt(at)}: must be an integer prism index")
-        opt_of(ColumnParameters, key).check_array(f"{name}.{kind}", list(vals), error)  # bounds, by position
+        bounds.check_array(f"{name}.{kind}", list(vals), error)  # bounds, by position
         return cls(kind, tuple(float(v) for v in vals), at)
 
 
