@@ -121,6 +121,13 @@ def test_ea_profile_is_kept_off_the_lane_step_and_paths_agree():
     assert "staged" not in fused.info["step_path"]
     assert np.abs(staged.strain).max() > 1e-3
     assert np.abs(fused.strain - staged.strain).max() < 1e-11
+    # prestrain and mass profiles: the lane step reads rest lengths and masses per member and level
+    params = {"prestrain": Profile.segments(0.01, 0.05, 3), "unit_mass": Profile.grade(0.02, 0.04), "v0": 0.05,
+              "base_rigidity": 0.5}
+    staged = wt.simulate_batch(CFG, params, RunSettings(**run, fused=False))
+    lanes = wt.simulate_batch(CFG, params, RunSettings(**run, fused="lanes"))
+    assert lanes.info["step_path"].startswith("lanes")
+    assert np.abs(lanes.strain - staged.strain).max() < 1e-11
 
 
 @pytest.mark.parametrize("params, match", [
