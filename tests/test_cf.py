@@ -1,8 +1,9 @@
 """The CLI's netCDF passes the IOOS compliance checker, CF 1.10, with no error and no warning.
 
-Two layouts: ``sweeps/ci_small.toml`` (a grid: one dimension per swept parameter) and
+Three layouts: ``sweeps/ci_small.toml`` (a grid: one dimension per swept parameter),
 ``sweeps/paper_2017.toml`` (a labelled case list: parameters as auxiliary coordinates along
-``case``). paper_2017 runs with t_end = 0.2 s here to keep CI fast: t_end changes the lengths
+``case``) and ``sweeps/interface.toml`` (a profile along the column over the grid and ``prism``,
+its generating parameters as the grid's axes). paper_2017 runs with t_end = 0.2 s here to keep CI fast: t_end changes the lengths
 of the axes, not the variables or their attributes. The full run was checked by hand with
 ``compliance-checker --test cf:1.10`` (no corrective actions).
 """
@@ -34,7 +35,13 @@ def cf_messages(path: Path, tmp_path: Path) -> tuple[dict, list]:
     return r, msgs
 
 
-@pytest.mark.parametrize("name, overrides", [("ci_small", None), ("paper_2017", {"run": {"t_end": 0.2}})])
+INTERFACE_SMALL = {"scene": {"n_prisms": 12}, "sweep": {"grid": {"prestrain_at": [4, 8], "prestrain_to": [0.005, 0.02]}},
+                   "run": {"t_end": 0.2}}
+"""sweeps/interface.toml cut for CI: profiles along the column, a grid over their generating parameters."""
+
+
+@pytest.mark.parametrize("name, overrides", [("ci_small", None), ("paper_2017", {"run": {"t_end": 0.2}}),
+                                             ("interface", INTERFACE_SMALL)])
 def test_cli_output_is_cf_clean(name, overrides, tmp_path):
     spec = load_spec(ROOT / "sweeps" / f"{name}.toml", overrides=overrides)
     out = sweep.run_sweep(spec, tmp_path / f"{name}.nc", device="cpu", progress=False)

@@ -53,8 +53,8 @@ FUZZ = settings(derandomize=not EXPLORE, deadline=None, database=None, print_blo
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much,
                                        HealthCheck.function_scoped_fixture])
 QUOTAS = {"spec values": 260, "spec structure": 220, "spec bytes": 170, "cli arguments": 220, "python api": 300,
-          "run sizes": 100, "api to_xarray": 80}
-"""Generated inputs per class (1,350 in all). Derandomized Hypothesis may stop a little early
+          "run sizes": 100, "api to_xarray": 80, "profiles": 90}
+"""Generated inputs per class (1,440 in all). Derandomized Hypothesis may stop a little early
 once it has exhausted a strategy, so each class asserts at least 90 % of its quota."""
 
 
@@ -518,6 +518,114 @@ def test_fuzz_spec_bytes(work):
     COUNTS.pop("spec bytes", None)
     _spec_bytes(work)
     _report("spec bytes", int(0.9 * QUOTAS["spec bytes"]))
+
+
+# ---------------------------------------------------------------------- 3b. profiles along the column
+PROFILED = {"prestrain": "prism", "cable_EA": "prism", "unit_mass": "level"}
+N_BASE = BASE["scene"]["n_prisms"]
+
+
+def profile_ok(key: str, table, n: int = N_BASE) -> bool:
+    """The oracle of a profile table for parameter ``key`` in a column of ``n`` prisms."""
+    if key not in PROFILED or not isinstance(table, dict):
+        return False
+    kinds = [k for k in ("values", "grade", "segments") if k in table]
+    if len(kinds) != 1 or set(table) - {"values", "grade", "segments", "at"}:
+        return False
+    kind, vals = kinds[0], table[kinds[0]]
+    if not isinstance(vals, list) or not vals or not all(PARAM_RULES[key](v) for v in vals):
+        return False
+    if kind == "values":
+        return "at" not in table and len(vals) == n + (PROFILED[key] == "level")
+    if len(vals) != 2:
+        return False
+    if kind == "grade":
+        return "at" not in table
+    at = table.get("at")
+    return isinstance(at, int) and not isinstance(at, bool) and 1 <= at <= n - 1
+
+
+PROFILE_VALUE = st.one_of(st.sampled_from([0.0, 1e-3, 0.02, 0.5, 0.99, 1.0, 1.5, -1e-3, 1e-16, 1e7, 1e21,
+                                           float("nan"), float("inf"), True, "x", None]),
+                          st.floats(min_value=-0.1, max_value=1.2))
+GOOD_VALUE = st.floats(min_value=0.001, max_value=0.9)  # in bounds for prestrain, cable_EA and unit_mass
+
+
+@st.composite
+def profile_tables(draw):
+    """Half well-formed tables of good values (valid where the key takes a profile), half anything."""
+    good = draw(st.booleans())
+    kinds = ["values", "grade", "segments"] + ([] if good else ["grad", "at"])
+    kind = draw(st.sampled_from(kinds))
+    value = GOOD_VALUE if good else PROFILE_VALUE
+    if kind == "values":
+        size = draw(st.sampled_from([N_BASE, N_BASE + 1])) if good else draw(st.integers(0, 6))
+    else:
+        size = 2 if good else draw(st.sampled_from([2, 2, 1, 3]))
+    vals = [draw(value) for _ in range(size)]
+    table = {kind: [v for v in vals if v is not None]} if kind != "at" else {}
+    if kind == "segments" or (not good and draw(st.integers(0, 9)) == 0):
+        table["at"] = draw(st.integers(1, N_BASE - 1)) if good else draw(
+            st.one_of(st.integers(-1, N_BASE + 1), st.sampled_from([1.0, 1.5, "1", True])))
+    return table
+
+
+@fuzz("profiles")
+@given(where=st.sampled_from(["python", "sweep.fixed", "case", "grid_at", "scene"]),
+       key=st.sampled_from(["prestrain", "unit_mass", "cable_EA", "v0", "base_rigidity", "radius"]),
+       table=profile_tables(), at=st.lists(st.one_of(st.integers(-1, N_BASE + 1), st.just(1.5)), min_size=1, max_size=3))
+@example(where="sweep.fixed", key="prestrain", table={"values": [0.01, 0.02]}, at=[1])  # wrong length
+@example(where="sweep.fixed", key="unit_mass", table={"grade": [0.02, -0.01]}, at=[1])  # negative mass
+@example(where="sweep.fixed", key="prestrain", table={"segments": [0.01, 1.0], "at": 1}, at=[1])  # prestrain >= 1
+@example(where="scene", key="radius", table={"grade": [1e-3, 2e-3]}, at=[1])  # a profile on a scene parameter
+@example(where="grid_at", key="prestrain", table={"segments": [0.01, 0.02], "at": 1}, at=[1, 3])  # at = n
+def _profiles(work, where, key, table, at):
+    """Profile tables (explicit values, grades, segments, malformed ones) on every kind of key, in the
+    spec (dry run through the CLI: a clear error naming the key, or a valid spec) and in the Python API."""
+    if where == "python":
+        from warp_tensegrity.scene.batch import column_batch
+
+        cfg = ColumnConfig(n_prisms=N_BASE)
+        try:
+            column_batch(cfg, {key: table}) if key != "radius" else ColumnConfig(n_prisms=N_BASE, radius=table)
+        except (NetworkError, OptionError) as e:
+            assert not (profile_ok(key, table) and key != "radius"), (key, table, e)
+            assert "\n" not in str(e) and key in str(e), str(e)
+            _count("profiles", "clear error (python)")
+        else:
+            assert profile_ok(key, table), (key, table)
+            _count("profiles", "valid (python)")
+        return
+    data = json.loads(json.dumps(BASE))
+    data["sweep"]["fixed"] = {}
+    expect_ok = profile_ok(key, table)
+    if where == "sweep.fixed":
+        data["sweep"]["fixed"][key] = table
+    elif where == "scene":
+        data["scene"][key] = table
+        expect_ok = expect_ok and key != "unit_mass"  # a scene field: one value for the whole column
+    elif where == "case":
+        data["sweep"] = {"cases": [{"v0": 0.001}, {"v0": 0.002, key: table}]}
+        expect_ok = expect_ok and key != "v0"
+    else:  # a grid over the interface of a two-segment template
+        data["sweep"]["fixed"][key] = table
+        data["sweep"]["grid"] = {"v0": [0.001], f"{key}_at": at}
+        expect_ok = (expect_ok and table.get("segments") is not None and len(set(at)) == len(at)
+                     and all(isinstance(a, int) and 1 <= a <= N_BASE - 1 for a in at))
+    rc, out, err = dry_run_spec(work, tomli_w.dumps(data).encode())
+    if expect_ok:
+        assert rc == 0 and "fits:" in out, (data, err)
+        _count("profiles", "valid (dry run)")
+    else:
+        check_clear_error(rc, out, err, key=key)
+        assert len(err.strip().splitlines()) <= 3, err  # the problem on one line (plus the tool's own lines)
+        _count("profiles", "clear error")
+
+
+def test_fuzz_profiles(work):
+    COUNTS.pop("profiles", None)
+    _profiles(work)
+    _report("profiles", int(0.9 * QUOTAS["profiles"]))
 
 
 # ---------------------------------------------------------------------- 4. command-line arguments
@@ -1011,7 +1119,7 @@ def test_fuzz_wrong_argument_types_for_every_public_function():
 
     public = {n for n in W.__all__ if callable(getattr(W, n, None))}
     containers = {"BatchResult", "ColumnScene", "Network", "NetworkBatch", "Method", "Status", "NetworkError",
-                  "SettingsError", "RunPlan"}  # data classes, enums and exception classes: nothing to check
+                  "SettingsError", "RunPlan", "Profile"}  # data classes, enums and exception classes: nothing to check
     assert public - containers == set(PUBLIC_CALLS), public - containers - set(PUBLIC_CALLS)
     valid = _valid_arguments
     rng = random.Random(SEED)

@@ -183,7 +183,7 @@ record_strain = true
 
 
 # ---------------------------------------------------------------------- `warp-tensegrity init`
-@pytest.mark.parametrize("example", ["paper", "phase", "lens"])
+@pytest.mark.parametrize("example", ["paper", "phase", "lens", "interface"])
 def test_init_writes_a_commented_spec_that_runs(example, tmp_path, capsys):
     """`init --example ...` writes a starting spec generated from the options model: it lists every
     option, parses, and (sweeps) passes a dry run; the lens spec validates (issue 23)."""

@@ -24,7 +24,7 @@ from .scene import (
     network_batch,
 )
 from .result import BatchResult
-from .options import COLUMN_PARAMETERS, RunSettings, SettingsError
+from .options import COLUMN_PARAMETERS, Profile, RunSettings, SettingsError
 from .provenance import package_version
 from .types import Method, Status
 
@@ -38,6 +38,7 @@ __all__ = [
     "Network",
     "NetworkBatch",
     "NetworkError",
+    "Profile",
     "RunPlan",
     "RunSettings",
     "SettingsError",

@@ -21,7 +21,8 @@ from .arguments import expect, expect_callable
 from .result import BatchResult
 from .runtime import init_warp, resolve_device
 from .scene.base_modes import beta_limit_measures
-from .scene.batch import NetworkBatch, column_batch, column_params, reference_elastic_energy, reference_states
+from .scene.batch import (NetworkBatch, column_batch, column_params, far_end_params, reference_elastic_energy,
+                          reference_states)
 from .scene.columns import ColumnConfig
 from .options import RunSettings
 from .types import FORCE_EVALS
@@ -171,10 +172,11 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     n, n_sim = config.n_prisms, plan.prisms_simulated
     sim_config = far_end(config, n_sim) if n_sim < n else config
     t_build = time.perf_counter()
-    batch = column_batch(sim_config, params)
+    batch = column_batch(sim_config, far_end_params(params, n, n_sim))
     t_build = time.perf_counter() - t_build
     pulse = {"prism_height": config.height, "n_prisms": n, "cut": n - n_sim}
     result = run_batch(batch, progress=progress, pulse=pulse, plan=plan)
+    result.params = dict(params)  # profiles of the whole column, not of the part simulated
     result.info["stages"]["build"] += t_build
     if n_sim < n:
         _pad_to_full_column(result, config, sim_config, params, n, n_sim)
@@ -210,6 +212,8 @@ def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int,
             setattr(result, name, np.concatenate([np.zeros((a.shape[0], 3 * cut, 3)), a @ rot.T], axis=1))
     # the removed prisms keep their prestress energy: add it so energies mean the whole column
     states, index = reference_states(column_params(config, params))
+    sim_states = states if not any(np.ndim(v) == 2 for v in states.values()) else {
+        k: v[:, cut:] if np.ndim(v) == 2 else v for k, v in states.items()}
     offset = reference_elastic_energy(column_batch(config, states)) - reference_elastic_energy(
-        column_batch(sim_config, states))
+        column_batch(sim_config, sim_states))
     result.elastic_energy = result.elastic_energy + offset[index][:, None]

@@ -1,4 +1,4 @@
-"""``warp-tensegrity init [--example paper|phase|lens] [-o SPEC.toml]``: a commented starting spec.
+"""``warp-tensegrity init [--example paper|phase|lens|interface] [-o SPEC.toml]``: a commented starting spec.
 
 The text is generated from the options model (:func:`~warp_tensegrity.options_docs.options_table`
 for sweep specs, :func:`~warp_tensegrity.options_docs.lens_options_table` for lens specs): every
@@ -22,6 +22,8 @@ EXAMPLES = {
     "paper": "the paper's Sec. 4 column (50 prisms), four of its impact cases as a case list",
     "phase": "a phase diagram: a prestrain x impact-speed grid of short rigid-base columns",
     "lens": "an acoustic lens: calibrate, design and verify an array of columns (docs/lens.md)",
+    "interface": "a two-segment column: a grid over the interface position and the prestrain of one segment "
+                 "(profiles along the column, docs/sweeps.md)",
 }
 
 # the values each sweep example sets (everything else is listed commented out, at its default)
@@ -44,6 +46,19 @@ _VALUES = {
                  '[sweep.fixed]\n'
                  'base_rigidity = 1.0',
         "run": {"t_end": 0.5, "output_interval": 0.005, "shard_size": 64},
+    },
+    "interface": {
+        "title": "My interface sweep", "scene": {"n_prisms": 20},
+        "sweep": '# a profile along the column: {values = [...]} (one per prism; unit_mass: per level),\n'
+                 '# {grade = [first, last]} or {segments = [first, last], at = k}; prism 0 is at the clamped base\n'
+                 '[sweep.fixed]\n'
+                 'prestrain = { segments = [0.01, 0.04], at = 10 }\n'
+                 'base_rigidity = 1.0\n'
+                 'v0 = 0.02\n'
+                 '[sweep.grid]  # <param>_from, <param>_to, <param>_at set the fixed profile\'s fields per column\n'
+                 'prestrain_at = [5, 10, 15]\n'
+                 'prestrain_to = [0.005, 0.01, 0.02, 0.04]',
+        "run": {"t_end": 1.5, "output_interval": 0.005, "shard_size": 64},
     },
 }
 
@@ -76,7 +91,7 @@ def _option_lines(row: dict, value=None) -> list[str]:
 
 
 def sweep_spec_text(example: str) -> str:
-    """The commented sweep spec of ``example`` ('paper' or 'phase')."""
+    """The commented sweep spec of ``example`` ('paper', 'phase' or 'interface')."""
     ex = _VALUES[example]
     out = _comment(f"warp_tensegrity sweep spec: {EXAMPLES[example]}. Written by `warp-tensegrity init "
                    f"--example {example}` from the options model; run it with `warp-tensegrity run "

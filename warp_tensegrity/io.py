@@ -38,7 +38,7 @@ import xarray as xr
 from . import atomic
 from .policy.cost import netcdf_bytes
 from .scene.impact import kinematic_lock_strain
-from .options import COLUMN_PARAMETERS, ColumnParameters, opt_of
+from .options import COLUMN_PARAMETERS, PROFILE_FIELDS, PROFILED, ColumnParameters, opt_of
 from .types import (BETA_LIMIT_FLAGS, ERROR_ESTIMATED, ERROR_FLAGS, FEASIBILITY_FLAGS, MEASUREMENT_FLAGS,
                     STATUS_MEANINGS, TIME, Layout)
 
@@ -80,9 +80,22 @@ COORD_ATTRS = {
         "units": "1",
         "long_name": "prism index from the clamped base (0) to the impacted free end (n_prisms - 1)",
     },
+    "level": {
+        "units": "1",
+        "long_name": "level (base) index from the clamped base (0) to the impacted free end (n_prisms)",
+    },
     TIME: {"units": "s", "long_name": "simulated time since impact (step * dt, rounded to the output interval's decimals)"},
     "step": {"units": "1", "long_name": "time step count of each output (t = step * dt)"},
 }
+
+PROFILE_ATTRS = {
+    f"{p}_{f}": {"units": "1" if f == "at" else opt_of(ColumnParameters, p).unit,
+                 "long_name": {"from": f"{p} at the clamped base (grade) or of the first segment",
+                               "to": f"{p} at the free end (grade) or of the second segment",
+                               "at": f"interface of the {p} segments: index of the first {PROFILED[p]} of the second"}[f]}
+    for p in PROFILED for f in PROFILE_FIELDS}
+"""Grid axes over the generating parameters of a profile (``prestrain_at``)."""
+COORD_ATTRS.update(PROFILE_ATTRS)
 
 VAR_ATTRS = {
     "amplitude": {
@@ -239,10 +252,19 @@ def _coords(layout: Layout, params: dict, start: int, stop: int, time: np.ndarra
         coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     swept = layout.swept
     for p in COLUMN_PARAMETERS:
-        if p in swept:
+        if np.ndim(params[p]) == 2:  # a profile: per case where swept (itself, or a field of it), else one
+            varies = p in swept or any(f"{p}_{f}" in swept for f in PROFILE_FIELDS)
+            coords.update(profile_coords(p, np.asarray(params[p][start:stop], dtype=np.float64), per_case=varies))
+        elif p in swept:
             coords[p] = _var(p, "case", np.asarray(params[p][start:stop], dtype=np.float64), COORD_ATTRS[p])
         else:
             coords[p] = _var(p, (), np.float64(layout.scalars[p]), COORD_ATTRS[p])
+    axes = [k for k in layout.grid if k in PROFILE_ATTRS]
+    if axes:  # a profile's generating parameters swept: along case, as the other grid axes
+        index = np.unravel_index(np.arange(start, stop), layout.shape)
+        for k in axes:
+            i = list(layout.grid).index(k)
+            coords[k] = _var(k, "case", np.asarray(layout.grid[k], dtype=np.float64)[index[i]], COORD_ATTRS[k])
     if layout.labels is not None:
         coords["case_label"] = _var("case_label", "case", np.array(layout.labels[start:stop], dtype=object),
                                     COORD_ATTRS["case_label"])
@@ -263,12 +285,30 @@ def params_coords(params: dict, n_columns: int, time: np.ndarray, n_prisms: int 
     for p in COLUMN_PARAMETERS:
         if p not in params:
             continue
+        if np.ndim(params[p]) == 2:  # a profile along the column
+            coords.update(profile_coords(p, np.asarray(params[p], dtype=np.float64)))
+            continue
         v = np.broadcast_to(np.asarray(params[p], dtype=np.float64), (n_columns,))
         if n_columns > 1 and np.any(v != v[0]):
             coords[p] = _var(p, "case", np.array(v), COORD_ATTRS[p])
         else:
             coords[p] = _var(p, (), np.float64(v[0]), COORD_ATTRS[p])
     return coords
+
+
+def profile_coords(name: str, values: np.ndarray, per_case: bool | None = None) -> dict:
+    """The coordinate of a profile along the column (:data:`~warp_tensegrity.options.PROFILED`):
+    ``name`` over (prism) or (level) when every column has the same (``per_case`` None) or
+    ``per_case`` is False, else over (case, prism) or (case, level); with the ``level`` coordinate."""
+    along = PROFILED[name]
+    v = np.atleast_2d(values)
+    same = (v.shape[0] == 1 or bool(np.all(v == v[:1]))) if per_case is None else not per_case
+    attrs = dict(COORD_ATTRS[name])
+    attrs["long_name"] += f", per {along} along the column"
+    out = {name: _var(name, (along,) if same else ("case", along), v[0].copy() if same else v, attrs)}
+    if along == "level":
+        out["level"] = _var("level", "level", np.arange(v.shape[1], dtype=np.int32), COORD_ATTRS["level"])
+    return out
 
 
 def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,

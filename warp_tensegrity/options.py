@@ -171,6 +171,8 @@ class Opt:
     def check(self, x):
         if x is None and self.optional:
             return None
+        if isinstance(x, Profile):  # a per-column parameter along the column, given where one value belongs
+            raise _err(f"takes one value, not a profile (profiles: {', '.join(PROFILED)}, per column)")
         if self.items is not None and (isinstance(x, (list, tuple)) or not self.single):
             lo, hi = self.items
             if not isinstance(x, (list, tuple)) or not lo <= len(x) <= hi:
@@ -348,7 +350,7 @@ class ColumnParameters:
 
     prestrain: Annotated[float, Opt("real", "1", ge=0, lt=1, why="the cross-cable prestrain p; 1 would put the cables' rest length at zero",
                                     long_name="cross-cable prestrain p")] = 0.0
-    """Cross-cable prestrain p [1]."""
+    """Cross-cable prestrain p [1]; or a profile along the column, one value per prism (docs/sweeps.md, Profiles)."""
     v0: Annotated[float, Opt("real", "m s-1", ge=0, le=MAX_SPEED, why="v0 is the compressive impact speed of the free end",
                              long_name="compressive impact speed at the free end")] = 0.0
     """Compressive impact speed of the free end [m s-1]."""
@@ -358,11 +360,13 @@ class ColumnParameters:
     cable_EA: Annotated[float | None, Opt("real", "N", gt=0, le=MAX_EA, optional=True,
                                           default_text="scene's E_s pi r_s^2",
                                           long_name="axial stiffness E*A of the cables")] = None
-    """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2."""
+    """Cable axial stiffness E_s A [N]; None: the scene's E_s pi r_s^2; or a profile, one value per prism
+    (an interior base member takes the mean of its two prisms')."""
     unit_mass: Annotated[float | None, Opt("real", "kg", ge=MASS[0], le=MASS[1], optional=True,
                                            default_text="scene's unit_mass",
                                            long_name="mass per unit (prism), lumped on the bases")] = None
-    """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
+    """Mass per unit (prism) [kg]; None: the scene's unit_mass; or a profile, one value per level
+    (n_prisms + 1: the mass each base carries, the end bases half of theirs with end_base_mass = 'half')."""
 
 
 COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in ColumnParameters.__pydantic_fields__}
@@ -372,6 +376,144 @@ COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in Colum
 def check_column_param(name: str, values, error: type[ValueError] = OptionError) -> None:
     """``error`` naming the first entry of ``values`` outside the bounds of parameter ``name``."""
     opt_of(ColumnParameters, name).check_array(name, values, error)
+
+
+# ---------------------------------------------------------------------- profiles along the column
+PROFILED = {"prestrain": "prism", "cable_EA": "prism", "unit_mass": "level"}
+"""Per-column parameters that may vary along the column, and what they hold one value for: prestrain
+and cable_EA one per prism (n_prisms values, prism 0 at the clamped base), unit_mass one per level
+(n_prisms + 1 values, level 0 the clamped base): the mass a level carries as an interior base (the end
+bases carry half of theirs under the scene's end_base_mass = 'half', as a uniform column's do).
+Handedness varies along the column already, as the scene's letters R/L."""
+PROFILE_KINDS = ("values", "grade", "segments")
+PROFILE_FIELDS = ("from", "to", "at")
+"""The generating parameters of a grade or two segments, which a sweep grid can vary (``prestrain_at``)."""
+
+
+def profile_length(name: str, n_prisms: int) -> int:
+    """Entries of a profile of ``name`` in a column of ``n_prisms``."""
+    return int(n_prisms) + (PROFILED[name] == "level")
+
+
+@_std_dataclass(frozen=True)
+class Profile:
+    """A per-column parameter along the column (:data:`PROFILED`): explicit ``values``; a linear
+    ``grade`` from ``first`` (prism or level 0, at the clamped base) to ``last`` (at the free end); or
+    two ``segments``, ``first`` before prism (level) ``at`` and ``last`` from it on. The same profile
+    fits columns of any length (except explicit values); :meth:`array` gives its entries. TOML:
+    ``{values = [...]}``, ``{grade = [first, last]}``, ``{segments = [first, last], at = k}``."""
+
+    kind: str
+    values: tuple
+    """The explicit values, or (first, last)."""
+    at: int | None = None
+
+    @classmethod
+    def grade(cls, first: float, last: float) -> Profile:
+        """From ``first`` at the clamped base to ``last`` at the free end, linearly."""
+        return cls("grade", (first, last))
+
+    @classmethod
+    def segments(cls, first: float, last: float, at: int) -> Profile:
+        """``first`` on prisms 0..at-1 (levels 0..at-1), ``last`` on prisms at..n-1 (levels at..n)."""
+        return cls("segments", (first, last), at)
+
+    @classmethod
+    def explicit(cls, values) -> Profile:
+        """One value per prism (or level: unit_mass)."""
+        return cls("values", tuple(np.asarray(values, dtype=np.float64).ravel().tolist()))
+
+    @property
+    def first(self) -> float:
+        return self.values[0]
+
+    @property
+    def last(self) -> float:
+        return self.values[-1]
+
+    def fields(self) -> dict:
+        """The generating parameters ('from', 'to' and, for segments, 'at'); {} for explicit values."""
+        if self.kind == "values":
+            return {}
+        return {"from": self.first, "to": self.last} | ({"at": self.at} if self.kind == "segments" else {})
+
+    def replace(self, field: str, value) -> Profile:
+        """This profile with one generating parameter ('from', 'to', 'at') set to ``value``."""
+        if field == "at":
+            return Profile(self.kind, self.values, value)
+        first, last = (value, self.last) if field == "from" else (self.first, value)
+        return Profile(self.kind, (first, last), self.at)
+
+    def table(self) -> dict:
+        """The TOML table of this profile."""
+        if self.kind == "values":
+            return {"values": list(self.values)}
+        return {self.kind: list(self.values)} | ({"at": self.at} if self.kind == "segments" else {})
+
+    def check(self, name: str, n_prisms: int, error: type[ValueError] = OptionError, path: str | None = None,
+              bounds: Opt | None = None) -> np.ndarray:
+        """The profile's entries for parameter ``name`` in a column of ``n_prisms``, checked: ``error``
+        names the parameter (``path``: as the spec writes it) and the bad value (wrong length, an entry
+        out of bounds, a bad ``at``); ``bounds``: the entries' Opt, if not the parameter's."""
+        key, name = name, (path or name)
+        bounds = bounds or opt_of(ColumnParameters, key)
+        if key not in PROFILED:
+            raise error(f"{name} = {fmt(self)}: {key} takes one value per column, not a profile "
+                        f"(profiles: {', '.join(PROFILED)})")
+        n = profile_length(key, n_prisms)
+        if self.kind == "values" and len(self.values) != n:
+            raise error(f"{name} = {fmt(self.table())}: give {n} values, one per {PROFILED[key]} "
+                        f"(n_prisms = {n_prisms}), not {len(self.values)}")
+        if self.kind == "segments":
+            at = self.at
+            if isinstance(at, (bool, np.bool_)) or not isinstance(at, numbers.Integral) or not 1 <= at <= n_prisms - 1:
+                raise error(f"{name}.at = {fmt(at)}: the interface must be a prism index in [1, {n_prisms - 1}] "
+                            f"(n_prisms = {n_prisms}), so both segments have a prism")
+        if self.kind not in PROFILE_KINDS:
+            raise error(f"{name} = {fmt(self)}: profile kind must be one of {', '.join(PROFILE_KINDS)}")
+        bounds.check_array(f"{name}.{self.kind}", list(self.values), error)
+        vals = np.asarray(self.values, dtype=np.float64)
+        if self.kind == "values":
+            return vals
+        if self.kind == "grade":
+            return np.linspace(vals[0], vals[1], n)
+        return np.where(np.arange(n) < self.at, vals[0], vals[1])
+
+    @classmethod
+    def from_table(cls, name: str, table, error: type[ValueError] = OptionError, path: str | None = None,
+                   bounds: Opt | None = None) -> Profile:
+        """A profile from its TOML table; ``error`` names ``name`` (``path``: as the spec writes it) and
+        the bad key or value; ``bounds``: the entries' Opt, if not the parameter's."""
+        key, name = name, (path or name)
+        bounds = bounds or opt_of(ColumnParameters, key)
+        if not isinstance(table, dict):
+            raise error(f"{name} = {fmt(table)}: a profile is a table: {{values = [...]}}, {{grade = [first, last]}} "
+                        "or {segments = [first, last], at = k}")
+        kinds = [k for k in PROFILE_KINDS if k in table]
+        allowed = PROFILE_KINDS + ("at",)
+        bad = [k for k in table if k not in allowed]
+        if bad:
+            raise error(unknown_key(f"{name}.{bad[0]}", bad[0], allowed, what="profile key"))
+        if len(kinds) != 1:
+            raise error(f"{name} = {fmt(table)}: give exactly one of {', '.join(PROFILE_KINDS)}")
+        kind = kinds[0]
+        vals = table[kind]
+        if not isinstance(vals, (list, tuple)) or (kind != "values" and len(vals) != 2):
+            want = "a list of values" if kind == "values" else "[first, last]"
+            raise error(f"{name}.{kind} = {fmt(vals)}: give {want}")
+        if not vals:
+            raise error(f"{name}.{kind} = []: give at least one value")
+        for i, v in enumerate(vals):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+                raise error(f"{name}.{kind}[{i}] = {fmt(v)}: must be a number")
+        if ("at" in table) != (kind == "segments"):
+            raise error(f"{name} = {fmt(table)}: " + ("segments need at = k, the first prism of the second segment"
+                                                        if kind == "segments" else f"at belongs to segments, not {kind}"))
+        at = table.get("at")
+        if kind == "segments" and (isinstance(at, bool) or not isinstance(at, int)):
+            raise error(f"{name}.at = {fmt(at)}: must be an integer prism index")
+        bounds.check_array(f"{name}.{kind}", list(vals), error)  # bounds, by position
+        return cls(kind, tuple(float(v) for v in vals), at)
 
 
 # ---------------------------------------------------------------------- [run]

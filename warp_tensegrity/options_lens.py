@@ -22,6 +22,8 @@ from typing import Annotated
 from .options import ColumnParameters, Opt, OptionError, RunSettings, SettingsError, opt_of, options_class
 
 _V0, _BETA, _P = (opt_of(ColumnParameters, k) for k in ("v0", "base_rigidity", "prestrain"))
+SHAPE_FACTOR = Opt("real", "1", gt=0, le=1e3)
+"""Bounds of a lens's prestrain_shape factors."""
 
 
 def _run(name: str, **change) -> Opt:
@@ -49,6 +51,12 @@ class LensColumn:
     the paper's values."""
     base_rigidity: Annotated[float, _BETA] = 1.0
     """Base rigidity beta [1] of every column: 0 flexible bases (FB), 1 rigid bases (RB)."""
+    prestrain_shape: Annotated[dict | None, Opt("table", optional=True, default_text="none (uniform columns)",
+                                                rule_text="a profile table of factors in (0, 1000]")] = None
+    """A grade along every column: factors, one per prism, that multiply the column's prestrain p
+    along its length, as a profile table ({grade = [first, last]}, {segments = [first, last], at = k}
+    or {values = [...]}, prism 0 at the clamped end). The calibration sweeps p with this shape and
+    the design sets p per column: the array is graded across, the columns along. p x factor < 1."""
 
 
 @options_class(OptionError, frozen=True)

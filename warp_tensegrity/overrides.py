@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-from .options import OptionError, fmt, sections, unknown_key
+from .options import PROFILE_FIELDS, PROFILED, OptionError, fmt, sections, unknown_key
 from .tomlread import TomlError, read_toml
 
 
@@ -34,7 +34,8 @@ def set_keys() -> dict:
     scene = tuple(sec["scene"].__pydantic_fields__)
     params = tuple(sec["sweep"].__pydantic_fields__)
     return {"scene": scene + tuple(k for k in params if k not in scene),
-            "sweep": tuple(f"{t}.{k}" for t in ("grid", "fixed") for k in params),
+            "sweep": tuple(f"{t}.{k}" for t in ("grid", "fixed") for k in params)
+            + tuple(f"grid.{p}_{f}" for p in PROFILED for f in PROFILE_FIELDS),  # a profile's fields (prestrain_at)
             "run": tuple(sec["run"].__pydantic_fields__)}
 
 

@@ -323,7 +323,14 @@ def _column_scene(ds, sel: dict | None):
             raise PlotError(f"the dataset has no {key!r} attribute: not written by warp-tensegrity")
         kw[f.name] = type(f.default)(ds.attrs[key]) if not isinstance(f.default, str) else str(ds.attrs[key])
     col = _select(ds, sel)
-    extra = [d for d in col.dims if d not in (TIME, "prism")]
+    for p in ("prestrain", "cable_EA", "unit_mass"):  # a profile along the column (docs/sweeps.md, Profiles)
+        along = [d for d in ("prism", "level") if p in col.coords and d in col[p].dims]
+        if along and col[p].ndim == 1 and np.all(col[p].values == col[p].values[0]):
+            col = col.assign_coords({p: col[p].values[0]})
+        elif along and col[p].ndim == 1:
+            raise PlotError(f"{p} varies along the column (a profile over {along[0]}): a band diagram is of a "
+                            "uniform periodic column")
+    extra = [d for d in col.dims if d not in (TIME, "prism", "level")]
     if extra:
         raise PlotError(f"pick one column first: give a value for {', '.join(map(str, extra))} (e.g. --sel {extra[0]}=...)")
     hand = kw["handedness"]

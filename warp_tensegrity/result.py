@@ -157,10 +157,13 @@ def merge_results(parts: list, n_columns: int, group_ids: list[int] | None = Non
     for r in results:
         for k, v in r.info.get("stages", {}).items():
             stages[k] = stages.get(k, 0.0) + v
-    params = {k: np.empty(n_columns, dtype=np.asarray(v).dtype) for k, v in first.params.items()}
+    # a profile along the column (2-D) in any part: (n_columns, its length) in all
+    tail = {k: max((np.shape(r.params[k])[1:] for r in results), key=len) for k in first.params}
+    params = {k: np.empty((n_columns,) + tail[k], dtype=np.asarray(v).dtype) for k, v in first.params.items()}
     for c, r in zip(cols, results):
         for k in params:
-            params[k][c] = np.broadcast_to(r.params[k], (r.n_columns,))
+            v = np.asarray(r.params[k])
+            params[k][c] = np.broadcast_to(v[:, None] if v.ndim == 1 and tail[k] else v, (r.n_columns,) + tail[k])
     step_paths = []
     for r in results:
         if r.info.get("step_path") not in step_paths:

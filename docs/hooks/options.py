@@ -39,6 +39,10 @@ def option_rows() -> list[tuple[str, str, str, str, str]]:
     for k in P.RANGE_KEYS:
         rows.append((f"sweep.grid.<param>.{k}", "", '"linear"' if k == "spacing" else "", "",
                      S.KEY_DOCS[f"sweep.grid.<param>.{k}"]))
+    for k in ("values", "grade", "segments", "at"):  # profiles along the column (docs/sweeps.md, Profiles)
+        rows.append((f"<param>.{k}", "", "", "", S.KEY_DOCS[f"<param>.{k}"]))
+    for k in ("from", "to", "at"):
+        rows.append((f"sweep.grid.<param>_{k}", "", "", "", S.KEY_DOCS[f"sweep.grid.<param>_{k}"]))
     for k in P.CASE_EXTRA_KEYS:
         rows.append((f"sweep.cases[i].{k}", "", "", "", S.KEY_DOCS[f"sweep.cases[i].{k}"]))
     for r in options_table("run"):

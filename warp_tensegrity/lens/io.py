@@ -136,6 +136,11 @@ def lens_dataset(spec: LensSpec, positions, delays, p_cal, m_cal, law, r_cal, r_
     }
     if s0.description:  # CF: a comment, where there is one, is a non-empty string
         attrs["comment"] = s0.description
+    shape = spec.column.shape_factors()
+    if shape is not None:  # graded along the columns: prism i's prestrain is p x its factor
+        coords["prism"] = _v("prism", np.arange(shape.size), "1", D.COORD_ATTRS["prism"]["long_name"])
+        v["prestrain_shape"] = _v("prism", shape, "1", "factor multiplying each column's prestrain p along its "
+                                                       "length (column.prestrain_shape)")
     return xr.Dataset(v, coords=coords, attrs=attrs)
 
 

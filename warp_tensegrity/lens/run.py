@@ -49,7 +49,7 @@ def measure_exit(result, prism_height: float) -> dict:
 
 
 def _simulate(spec: LensSpec, prestrain: np.ndarray, settings, progress=None):
-    params = {"prestrain": np.asarray(prestrain, float), "v0": spec.incident.v0,
+    params = {"prestrain": spec.column.prestrain(prestrain), "v0": spec.incident.v0,  # graded along: (B, n)
               "base_rigidity": spec.column.base_rigidity}
     return simulate_batch(spec.column.config(), params, settings, progress=progress)
 

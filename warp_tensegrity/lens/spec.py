@@ -15,9 +15,11 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..options import OptionError, RunSettings, build, unknown_key
+import numpy as np
+
+from ..options import OptionError, Profile, RunSettings, build, unknown_key
 from ..options_lens import (
-    LENS_SECTIONS, LensArray, LensCalibration, LensDesign, LensHost, LensIncident, LensMap, LensRun,
+    LENS_SECTIONS, SHAPE_FACTOR, LensArray, LensCalibration, LensDesign, LensHost, LensIncident, LensMap, LensRun,
 )
 from ..scene.columns import ColumnConfig
 from ..scene.network import NetworkError
@@ -36,9 +38,23 @@ class Column:
 
     scene: dict
     base_rigidity: float
+    prestrain_shape: dict | None = None
 
     def config(self) -> ColumnConfig:
         return ColumnConfig(**self.scene)
+
+    def shape_factors(self) -> np.ndarray | None:
+        """(n_prisms,) factors of ``prestrain_shape`` along the column [1], or None (uniform columns)."""
+        if self.prestrain_shape is None:
+            return None
+        prof = Profile.from_table("prestrain", self.prestrain_shape, OptionError, "column.prestrain_shape", SHAPE_FACTOR)
+        return prof.check("prestrain", self.config().n_prisms, OptionError, "column.prestrain_shape", SHAPE_FACTOR)
+
+    def prestrain(self, p) -> np.ndarray:
+        """The columns' prestrain for levels ``p`` (B,): (B,), or (B, n_prisms) with a shape [1]."""
+        f = self.shape_factors()
+        p = np.asarray(p, dtype=np.float64)
+        return p if f is None else p[:, None] * f[None, :]
 
 
 @dataclass(frozen=True)
@@ -110,6 +126,15 @@ def _across(spec: LensSpec) -> list[str]:
         errors.append(f"array.spacing = {spec.array.spacing!r}: must be >= the column diameter 2 * radius = {d!r} m")
     if spec.host.dimension == 2 and spec.array.layout != "line":
         errors.append("host.dimension = 2 (line sources along y) needs array.layout = 'line'")
+    try:  # a grade along the columns: its factors, and the largest prestrain they make
+        f = spec.column.shape_factors()
+    except OptionError as e:
+        errors += e.errors
+        f = None
+    if f is not None and spec.calibration.prestrain_max * f.max() >= 1.0:
+        errors.append(f"column.prestrain_shape: the largest factor {f.max():g} x calibration.prestrain_max = "
+                      f"{spec.calibration.prestrain_max!r} reaches a prestrain of {spec.calibration.prestrain_max * f.max():g}; "
+                      "must stay < 1")
     ys = {p[1] for p in spec.design.focal_points}
     if spec.array.layout == "line" and len(ys) > 1:
         errors.append(f"design.focal_points: a line array focuses in one plane y = const; got y = {sorted(ys)} m")
@@ -124,7 +149,8 @@ def parse_lens_spec(data: dict, source: str = "<spec>") -> LensSpec:
         text = tables[""]
         c = tables["column"]
         spec = LensSpec(title=text.title, description=text.description,
-                        column=Column(scene=dict(c.scene), base_rigidity=c.base_rigidity),
+                        column=Column(scene=dict(c.scene), base_rigidity=c.base_rigidity,
+                                      prestrain_shape=None if c.prestrain_shape is None else dict(c.prestrain_shape)),
                         **{k: v for k, v in tables.items() if k not in ("", "column")})
         errors = _across(spec)
     if errors:

@@ -36,7 +36,7 @@ import psutil
 from ..atomic import oserror_line, write_text
 from ..provenance import code_version
 from ..runtime import resolve_device, startup_seconds
-from ..scene.batch import column_batch, column_params, reference_states
+from ..scene.batch import ColumnParams, column_batch, column_params, far_end_params, has_profiles, reference_states
 from ..types import Path as StepPath
 from .cost import predict
 from .decide import RunPlan, check_batch_arguments, decide, far_end
@@ -125,7 +125,7 @@ def _probe_columns(n_columns: int, shard: int, is_cuda: bool) -> np.ndarray:
 
 
 def _key(config, params: dict, run: RunPlan, shard: int) -> tuple[str, dict]:
-    cols = _probe_columns(params["prestrain"].size, shard, run.on_gpu)
+    cols = _probe_columns(params["prestrain"].shape[0], shard, run.on_gpu)
     s = run.settings
     desc = {
         "device": device_label(run.device), "method": run.method, "precision": run.precision, "path": str(run.path.value),
@@ -251,12 +251,13 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
 
     busy = busy_start()
     device = resolve_device(run.device)
-    cols = _probe_columns(params["prestrain"].size, shard_size, device.is_cuda)
+    cols = _probe_columns(params["prestrain"].shape[0], shard_size, device.is_cuda)
     pp = {k: np.ascontiguousarray(v[cols]) for k, v in params.items()}
     n, n_sim = config.n_prisms, run.prisms_simulated
     # as the engine runs it: the record is kept on the device for the measures
     s = dataclasses.replace(run.settings, record_strain=run.settings.record_strain or run.settings.measure != "none")
     sim_cfg = far_end(config, n_sim) if n_sim < n else config
+    pp = far_end_params(ColumnParams(pp), n, n_sim) if has_profiles(pp) else pp
 
     # batch assembly as a + b x columns + c x distinct reference states (each state's equilibrium
     # is solved once, whatever its columns), plus the scene's first build in a process (its impact
@@ -274,8 +275,9 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
     t1, first = build_time({k: v[:1] for k, v in pp.items()})
     a_batch, b_col, c_state = t1, 0.0, 0.0
     if m > 1:
-        same = {k: np.repeat(v[:1], m) for k, v in pp.items()}
-        distinct = same | {"prestrain": np.minimum(same["prestrain"] + 1e-6 * np.arange(m), 0.5)}
+        same = {k: np.repeat(v[:1], m, axis=0) for k, v in pp.items()}
+        step = 1e-6 * np.arange(m).reshape((m,) + (1,) * (same["prestrain"].ndim - 1))
+        distinct = same | {"prestrain": np.minimum(same["prestrain"] + step, 0.5)}
         t_same, t_distinct = build_time(same)[0], build_time(distinct)[0]
         b_col = max(t_same - t1, 0.0) / (m - 1)
         c_state = max(t_distinct - t_same, 0.0) / (m - 1)
@@ -356,7 +358,7 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
 
 def reference_state_count(params: dict) -> int:
     """Distinct reference states (prestrain, base rigidity, EA) among filled per-column parameters."""
-    return int(reference_states(params)[0]["prestrain"].size)
+    return int(reference_states(params)[0]["prestrain"].shape[0])
 
 
 def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = None) -> dict:
@@ -404,7 +406,7 @@ def estimate_batch(config, params: dict, settings, recalibrate: bool = False) ->
     ``device_bytes_estimate``, ``device_label``. ``params`` as ``simulate_batch`` takes them."""
     params = column_params(config, check_batch_arguments("estimate_batch", config, params, settings))
     run = decide(config, params, settings)
-    B = int(params["prestrain"].size)
+    B = int(params["prestrain"].shape[0])
     cal = probe(config, params, run, B, use_cache=not recalibrate)
     states = reference_state_count(params)
     pred = predict(cal, run, [B], run.settings.record_strain, shard_states=[states], planned=(B, states))

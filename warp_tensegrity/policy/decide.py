@@ -23,7 +23,7 @@ import numpy as np
 from ..arguments import expect, expect_callable, expect_count, expect_params
 from ..options import RunSettings, SettingsError
 from ..runtime import resolve_device
-from ..scene.batch import NetworkBatch, column_batch, column_params, omega_max_bound
+from ..scene.batch import NetworkBatch, column_batch, column_params, far_end_params, has_profiles, omega_max_bound
 from ..scene.columns import ColumnConfig
 from ..scene.contact import contact_strain
 from ..types import Base, Path, Precision
@@ -152,7 +152,7 @@ def omega_bound(config: ColumnConfig, params: dict) -> float:
     """Largest omega_max bound [rad s-1] over the columns of ``params``, a few MB of columns at a time
     (each column's bound depends on its own parameters only)."""
     p = column_params(config, params)
-    B, chunk = p["prestrain"].size, max(16, ESTIMATE_CHUNK_BYTES // (400 * config.n_prisms))
+    B, chunk = p["prestrain"].shape[0], max(16, ESTIMATE_CHUNK_BYTES // (400 * config.n_prisms))
     return max(float(omega_max_bound(column_batch(config, p.take(slice(i, i + chunk)))).max())
                for i in range(0, B, chunk))
 
@@ -168,7 +168,9 @@ def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings
         # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
         # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
         return n
-    reach = reachable_prisms(omega_bound(far_end(config, 4), params), settings.t_end, n)  # a local bound
+    # a local bound: the last prisms of a uniform column; the whole column where a profile varies along it
+    local = omega_bound(config, params) if has_profiles(params) else omega_bound(far_end(config, 4), params)
+    reach = reachable_prisms(local, settings.t_end, n)
     if config.contact == "bars":
         # prisms locked at the contact compression eps_c pass the impact on rigidly: a compaction
         # front at ~v0/eps_c (0.5 of it measured, docs/contact.md), which strong impacts drive past
@@ -202,12 +204,13 @@ def decide(config: ColumnConfig, params: dict, settings: RunSettings, *, n_colum
         n_sim = expect_count("decide", "prisms_simulated", prisms_simulated, 1, n, " (prisms)")
     settings, acc = apply_accuracy(settings, n_sim)  # errors grow with the prisms a pulse crosses
     sim = far_end(config, n_sim) if n_sim < n else config
-    omega = omega_bound(sim, params)
+    sim_params = far_end_params(params, n, n_sim)
+    omega = omega_bound(sim, sim_params)
     lanes = lane_refusal(config, params, n_sim)
     reasons = [f"{n_sim} of {n} prisms simulated: " + ("the whole column" if n_sim == n else
                                                        f"a front reaches at most {n_sim} prisms by t_end")]
-    return _finish(settings, acc, omega, _topology_batch(sim, params), lanes,
-                   int(params["prestrain"].size) if n_columns is None else int(n_columns), n, n_sim, reasons)
+    return _finish(settings, acc, omega, _topology_batch(sim, sim_params), lanes,
+                   int(params["prestrain"].shape[0]) if n_columns is None else int(n_columns), n, n_sim, reasons)
 
 
 def decide_batch(batch: NetworkBatch, settings: RunSettings, lanes_refused: str | None = None) -> RunPlan:

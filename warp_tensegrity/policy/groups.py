@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..options import RunSettings
-from ..scene.batch import ColumnParams, column_batch, column_params, omega_max_bound
+from ..scene.batch import ColumnParams, column_batch, column_params, has_profiles, omega_max_bound
 from ..scene.columns import ColumnConfig
 from ..runtime import resolve_device
 from ..types import Base, Precision
@@ -74,8 +74,9 @@ def column_omega(config: ColumnConfig, params: ColumnParams) -> np.ndarray:
     """(B,) omega_max bound [rad s-1] of each column, from its last few prisms (the bound is a
     maximum over nodes, so a short piece of a uniform column gives the whole column's), a few MB of
     columns at a time."""
-    piece = far_end(config, min(4, config.n_prisms))
-    B = params["prestrain"].size
+    # a profile along the column: the whole column (its stiffest prisms may lie anywhere)
+    piece = config if has_profiles(params) else far_end(config, min(4, config.n_prisms))
+    B = params["prestrain"].shape[0]
     chunk = max(16, ESTIMATE_CHUNK_BYTES // (400 * piece.n_prisms))
     return np.concatenate([omega_max_bound(column_batch(piece, params.take(slice(i, i + chunk))))
                            for i in range(0, B, chunk)])
@@ -154,7 +155,7 @@ def decide_groups(config: ColumnConfig, params: dict, settings: RunSettings, *, 
     is off, dt is given, or the columns are alike. ``twins``: decide each group's error-estimate twin
     too (:func:`twin_plan`)."""
     params = column_params(config, params)
-    B = int(params["prestrain"].size)
+    B = int(params["prestrain"].shape[0])
     width = B if n_columns is None else int(n_columns)
     whole = np.arange(B)
     verify = verifies_fp32(settings, twins)

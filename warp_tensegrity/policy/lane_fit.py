@@ -124,6 +124,9 @@ def lane_refusal(config, params: dict, n_prisms: int | None = None) -> str | Non
                 "prisms (2 levels per lane)")
     if config.bar_mass > 0:
         return "massive bars (consistent bar inertia couples node pairs)"
+    if np.ndim(params.get("cable_EA", 0.0)) == 2:
+        # the lane step holds one cross-cable and one base-member EA per column (kernels/lanes.py)
+        return "a cable_EA profile along the column (the lane step takes one EA per column)"
     if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
         return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a {WARP}-lane warp"
     return None

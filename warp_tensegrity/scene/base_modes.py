@@ -225,13 +225,18 @@ def beta_limit_measures(config, params: dict, n_columns: int, max_compression) -
     and ``beta_limit_flag`` (int8, :data:`BETA_LIMIT_FLAGS`) from the columns' ``prestrain`` and
     ``base_rigidity`` (arrays or scalars; defaults 0) and their ``max_compression`` (NaN: the
     flag assumes the lock was reached). Modes are computed once per distinct pair."""
-    p = np.broadcast_to(np.asarray(params.get("prestrain", 0.0), dtype=np.float64), (n_columns,))
+    p = np.asarray(params.get("prestrain", 0.0), dtype=np.float64)
     b = np.broadcast_to(np.asarray(params.get("base_rigidity", 0.0), dtype=np.float64), (n_columns,))
     qmax = np.broadcast_to(np.asarray(max_compression, dtype=np.float64), (n_columns,))
     lock = -kinematic_lock_strain(config.radius, config.height, config.twist)
     ratio = np.full(n_columns, np.nan)
-    for pi, bi in {(float(x), float(y)) for x, y in zip(p, b) if y < 1.0}:
-        ratio[(p == pi) & (b == bi)] = base_mode_ratio(config, pi, bi)
+    # a prestrain profile: the smaller ratio of its two extremes (the flag errs toward caution)
+    ends = (p.min(axis=1), p.max(axis=1)) if p.ndim == 2 else (np.broadcast_to(p, (n_columns,)),)
+    for p in ends:
+        r = np.full(n_columns, np.nan)
+        for pi, bi in {(float(x), float(y)) for x, y in zip(p, b) if y < 1.0}:
+            r[(p == pi) & (b == bi)] = base_mode_ratio(config, pi, bi)
+        ratio = r if p is ends[0] else np.fmin(ratio, r)
     driven = ~(qmax < LOCK_FRACTION * lock)  # NaN counts as driven
     flag = np.where(b >= 1.0, BETA_LIMIT_FLAGS.index("rigid_bases"),
                     np.where((ratio < BAND_FACTOR) & driven, BETA_LIMIT_FLAGS.index("slow_convergence_possible"),

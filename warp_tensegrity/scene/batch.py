@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..arguments import expect, expect_params
-from ..options import COLUMN_PARAMETERS, ColumnParameters, check_column_param
+from ..options import COLUMN_PARAMETERS, PROFILED, ColumnParameters, Profile, check_column_param, fmt, profile_length
 from . import columns as col
 from . import sparse
 from .contact import prism_pairs
@@ -114,11 +114,55 @@ def network_batch(networks: list[Network], velocities: list[np.ndarray] | None =
 class ColumnParams(dict):
     """Per-column parameters filled, broadcast to (B,) and validated once, at entry
     (:func:`column_params`), which passes them through unchanged afterwards; :meth:`take` keeps the
-    mark on a subset of the columns."""
+    mark on a subset of the columns. A profile along the column (:data:`~warp_tensegrity.options.PROFILED`)
+    is (B, n_prisms) or (B, n_prisms + 1) (unit_mass, per level)."""
+
+    @property
+    def n_columns(self) -> int:
+        return int(self["prestrain"].shape[0])
 
     def take(self, index) -> ColumnParams:
         """The parameters of the columns ``index`` (a slice, or an integer array)."""
         return ColumnParams({k: v[index] for k, v in self.items()})
+
+
+def has_profiles(params: dict) -> bool:
+    """Whether some parameter varies along the column (a 2-D array in filled parameters)."""
+    return any(np.ndim(v) == 2 for v in params.values())
+
+
+def far_end_params(params: ColumnParams, n_prisms: int, n_sim: int) -> ColumnParams:
+    """The parameters of the last ``n_sim`` prisms of ``n_prisms`` (a truncated run's column,
+    :func:`~warp_tensegrity.policy.decide.far_end`): profiles cut at the clamped end."""
+    if n_sim >= n_prisms or not has_profiles(params):
+        return params
+    cut = n_prisms - n_sim
+    return ColumnParams({k: v[:, cut:] if np.ndim(v) == 2 else v for k, v in params.items()})
+
+
+def _profile_array(config: col.ColumnConfig, name: str, value) -> np.ndarray | None:
+    """(B or 1, n) entries of a profile given as a Profile or a 2-D array; None for a per-column
+    value (a scalar or a 1-D array). NetworkError names the parameter and the value."""
+    if isinstance(value, Profile):
+        return value.check(name, config.n_prisms, NetworkError)[None, :]
+    if isinstance(value, dict) and name in PROFILED:  # the TOML form, from Python
+        return Profile.from_table(name, value, NetworkError).check(name, config.n_prisms, NetworkError)[None, :]
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nesting: the per-column check names it
+        return None
+    if arr.ndim != 2 or arr.dtype.kind not in "iuf":  # not numbers: the per-column check names it too
+        return None
+    if name not in PROFILED:
+        raise NetworkError(f"{name} = {fmt(value)}: {name} takes one value per column, not a profile "
+                           f"(profiles: {', '.join(PROFILED)})")
+    n = profile_length(name, config.n_prisms)
+    shape = np.shape(value)
+    if shape[1] != n or shape[0] < 1:
+        raise NetworkError(f"{name}: shape {shape}, expected (B, {n}): one value per {PROFILED[name]} "
+                           f"(n_prisms = {config.n_prisms})")
+    check_column_param(name, value, NetworkError)
+    return np.asarray(value, dtype=np.float64)
 
 
 def column_params(config: col.ColumnConfig, params: dict) -> ColumnParams:
@@ -134,11 +178,24 @@ def column_params(config: col.ColumnConfig, params: dict) -> ColumnParams:
     # defaults declared in options.ColumnParameters; None there means "the scene's value"
     defaults = {f.name: getattr(config, f.name) if f.default is None else f.default
                 for f in dataclasses.fields(ColumnParameters)}
+    profiles = {}
     for k in params:
-        check_column_param(k, params[k], NetworkError)  # type and bounds, before any conversion
-    arrays = {k: np.atleast_1d(np.asarray(params.get(k, d), dtype=np.float64)) for k, d in defaults.items()}
-    B = max(a.size for a in arrays.values())
+        prof = _profile_array(config, k, params[k])
+        if prof is not None:
+            profiles[k] = prof
+        else:
+            check_column_param(k, params[k], NetworkError)  # type and bounds, before any conversion
+    arrays = {k: np.atleast_1d(np.asarray(params.get(k, d), dtype=np.float64)) if k not in profiles else profiles[k]
+              for k, d in defaults.items()}
+    B = max(a.shape[0] if k in profiles else a.size for k, a in arrays.items())
     for k, a in arrays.items():
+        if k in profiles:
+            if a.shape[0] not in (1, B):
+                raise NetworkError(f"parameter {k}: shape {a.shape} does not broadcast to ({B}, {a.shape[1]})")
+            a = np.broadcast_to(a, (B, a.shape[1])).copy()
+            # a profile that is the same along every column is that column's value (exactly as a scalar)
+            arrays[k] = a[:, 0].copy() if np.all(a == a[:, :1]) else a
+            continue
         if a.ndim != 1 or a.size not in (1, B):
             raise NetworkError(f"parameter {k}: shape {a.shape} does not broadcast to ({B},)")
         arrays[k] = np.broadcast_to(a, (B,)).copy()
@@ -156,6 +213,15 @@ def _unit_impact(config: col.ColumnConfig, rigid: bool) -> np.ndarray:
     return v
 
 
+@functools.lru_cache(maxsize=32)
+def _graded_unit_impact(config: col.ColumnConfig, rigid: bool, mass_shape: bytes) -> np.ndarray:
+    """:func:`_unit_impact` of a column whose level masses are ``mass_shape`` (float64 bytes, any
+    scale: the impact is invariant to a uniform one), read-only."""
+    v = col.impact_of_level_masses(config, np.frombuffer(mass_shape), rigid)
+    v.flags.writeable = False
+    return v
+
+
 def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     """Vectorised batch of T3 columns: one topology, per-column prestrain, v0, base rigidity, EA, mass.
 
@@ -165,11 +231,19 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     """
     topo = col.column_topology(config)
     p = column_params(config, params)
-    B = p["prestrain"].size
+    B = p.n_columns
     X = topo.positions
     n_cross, n_base = len(topo.cross), len(topo.base)
-
-    ea_t, ea_c, rigid = col.base_member_law(p["cable_EA"][:, None], p["base_rigidity"][:, None])
+    graded = p["prestrain"].ndim == 2 or p["cable_EA"].ndim == 2  # a mass profile keeps the uniform stress
+    if graded:  # per prism: prestrain and EA (B, n); per level: the base members' EA (B, n + 1)
+        n = config.n_prisms
+        prism_p = np.broadcast_to(p["prestrain"][:, None], (B, n)) if p["prestrain"].ndim == 1 else p["prestrain"]
+        prism_ea = np.broadcast_to(p["cable_EA"][:, None], (B, n)) if p["cable_EA"].ndim == 1 else p["cable_EA"]
+        level_ea = col.level_cable_EA(prism_ea)
+        ea_t, ea_c, rigid = col.base_member_law(level_ea, p["base_rigidity"][:, None])
+        ea_t, ea_c = np.repeat(ea_t, 3, axis=1), np.repeat(ea_c, 3, axis=1)
+    else:
+        ea_t, ea_c, rigid = col.base_member_law(p["cable_EA"][:, None], p["base_rigidity"][:, None])
     rigid = rigid[:, 0]
     any_rigid = bool(rigid.any())
     movable = topo.base_level > 0
@@ -193,23 +267,37 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     active[:, is_link] = rigid[:, None].astype(float)
 
     # cables: cross cables then base members; rest lengths from the self-stress at prestrain p
-    T = p["cable_EA"] * p["prestrain"]  # (B,) cross-cable tension [N]
     ell_cross = np.linalg.norm(X[topo.cross[:, 1]] - X[topo.cross[:, 0]], axis=1)
     ell_base = np.linalg.norm(X[topo.base[:, 1]] - X[topo.base[:, 0]], axis=1)
-    F_base = T[:, None] * topo.unit_base_force[None, :]
+    if graded:
+        # each prism's self-stress scaled by its own cross tension T_m = EA_m p_m; a base member shared
+        # by prisms m - 1 and m carries both shares (superposition keeps every node in equilibrium)
+        T = prism_ea * prism_p  # (B, n) [N]
+        T3 = np.repeat(T, 3, axis=1)
+        F_base = np.zeros((B, n_base))
+        F_base[:, :-3] += T3 * topo.unit_base_bottom[None, :]
+        F_base[:, 3:] += T3 * topo.unit_base_top[None, :]
+        cross_p, cross_ea = np.repeat(prism_p, 3, axis=1), np.repeat(prism_ea, 3, axis=1)
+    else:
+        T = p["cable_EA"] * p["prestrain"]  # (B,) cross-cable tension [N]
+        F_base = T[:, None] * topo.unit_base_force[None, :]
+        cross_p, cross_ea = p["prestrain"][:, None], np.repeat(p["cable_EA"][:, None], n_cross, 1)
     safe_ea = np.where(ea_t > 0, ea_t, 1.0)
     rest_base = np.where(rigid[:, None], ell_base[None, :], ell_base[None, :] / (1.0 + F_base / safe_ea))
-    rest = np.concatenate([ell_cross[None, :] / (1.0 + p["prestrain"][:, None]), rest_base], axis=1)
-    EA = np.concatenate([np.repeat(p["cable_EA"][:, None], n_cross, 1), np.broadcast_to(ea_t, (B, n_base))], axis=1)
+    rest = np.concatenate([ell_cross[None, :] / (1.0 + cross_p), rest_base], axis=1)
+    EA = np.concatenate([cross_ea, np.broadcast_to(ea_t, (B, n_base))], axis=1)
     EAc = np.concatenate([np.zeros((B, n_cross)), np.broadcast_to(ea_c, (B, n_base))], axis=1)
     cables = np.concatenate([topo.cross, topo.base])
     cable_names = [f"cross cable {k}" for k in range(n_cross)] + [
         f"base member {k} (level {lvl})" for k, lvl in enumerate(topo.base_level)
     ]
 
-    masses = np.stack([col.node_masses(topo, mu) for mu in np.unique(p["unit_mass"])])
-    mass_index = np.searchsorted(np.unique(p["unit_mass"]), p["unit_mass"])
-    node_mass = masses[mass_index]
+    if p["unit_mass"].ndim == 2:  # per level
+        node_mass = col.level_node_masses(config, p["unit_mass"])
+    else:
+        masses = np.stack([col.node_masses(topo, mu) for mu in np.unique(p["unit_mass"])])
+        mass_index = np.searchsorted(np.unique(p["unit_mass"]), p["unit_mass"])
+        node_mass = masses[mass_index]
     bar_mass = np.where(is_link, 0.0, config.bar_mass)[None, :]
 
     # the admissible initial velocity is linear in v0 and invariant to a uniform mass scale:
@@ -217,11 +305,19 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     velocity = np.zeros((B, topo.n_nodes, 3))
     # ('rigid_members' does not depend on beta: one build for all)
     classes = (False,) if config.impact_admissibility == "rigid_members" else (False, True)
+    mass_shape = np.zeros((B, 1)) if p["unit_mass"].ndim == 1 else p["unit_mass"] / p["unit_mass"][:, -1:]
     for r in classes:
         cols_r = np.arange(B) if len(classes) == 1 else np.flatnonzero(rigid == r)
         if cols_r.size == 0:
             continue
-        velocity[cols_r] = p["v0"][cols_r, None, None] * _unit_impact(config, r)[None]
+        if p["unit_mass"].ndim == 1 or config.impact_admissibility == "end_twist":  # no mass profile, or blind to it
+            velocity[cols_r] = p["v0"][cols_r, None, None] * _unit_impact(config, r)[None]
+            continue
+        # the least-energy and projected impacts weigh the masses: one build per distinct mass profile
+        shapes, which = np.unique(mass_shape[cols_r], axis=0, return_inverse=True)
+        for i, shape in enumerate(shapes):
+            sel = cols_r[which.reshape(-1) == i]
+            velocity[sel] = p["v0"][sel, None, None] * _graded_unit_impact(config, r, shape.tobytes())[None]
     batch = NetworkBatch(
         positions=X.copy(),
         fixed=topo.fixed.copy(),
@@ -249,17 +345,25 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     states, inverse = reference_states(p)
     if len(inverse) > len(states["prestrain"]):
         batch.equilibrium_residual = column_batch(config, states).equilibrium_residual[inverse]
-    else:
-        batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(T, np.finfo(float).tiny)
+    else:  # over the largest cross-cable tension of the column
+        batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(
+            T.max(axis=1) if T.ndim == 2 else T, np.finfo(float).tiny)
     return batch
 
 
 def reference_states(p: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """The distinct reference states among filled per-column parameters (see :func:`column_params`):
-    (prestrain, base_rigidity, cable_EA) of each, and the index of each column's state."""
-    key = np.stack([p["prestrain"], p["base_rigidity"], p["cable_EA"]], axis=1)
-    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
-    return {"prestrain": uniq[:, 0], "base_rigidity": uniq[:, 1], "cable_EA": uniq[:, 2]}, inverse.reshape(-1)
+    (prestrain, base_rigidity, cable_EA) of each (profiles as they are), and the index of each column's state."""
+    names = ("prestrain", "base_rigidity", "cable_EA")
+    if not any(np.ndim(p[k]) == 2 for k in names):
+        key = np.stack([p["prestrain"], p["base_rigidity"], p["cable_EA"]], axis=1)
+        uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+        return {"prestrain": uniq[:, 0], "base_rigidity": uniq[:, 1], "cable_EA": uniq[:, 2]}, inverse.reshape(-1)
+    parts = [p[k].reshape(p[k].shape[0], -1) for k in names]
+    uniq, inverse = np.unique(np.concatenate(parts, axis=1), axis=0, return_inverse=True)
+    edges = np.cumsum([0] + [a.shape[1] for a in parts])
+    out = {k: uniq[:, a:b] if np.ndim(p[k]) == 2 else uniq[:, a] for k, a, b in zip(names, edges[:-1], edges[1:])}
+    return out, inverse.reshape(-1)
 
 
 def _reference_tensions(batch: NetworkBatch):

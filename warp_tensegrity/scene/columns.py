@@ -189,6 +189,10 @@ class ColumnTopology:
     """(3 n_prisms,) self-stress axial force of bars per unit cross-cable tension (negative: compression)."""
     unit_base_force: np.ndarray = field(repr=False)
     """(3 (n_prisms+1),) self-stress force of base members per unit cross-cable tension."""
+    unit_base_bottom: np.ndarray | None = field(repr=False, default=None)
+    """(3 n_prisms,) each prism's share of unit_base_force on its bottom base (prism m: level m)."""
+    unit_base_top: np.ndarray | None = field(repr=False, default=None)
+    """(3 n_prisms,) each prism's share on its top base (prism m: level m + 1)."""
 
     @property
     def n_nodes(self) -> int:
@@ -250,6 +254,7 @@ def column_topology(config: ColumnConfig) -> ColumnTopology:
 
     unit_bar = np.zeros(3 * n)
     unit_base = np.zeros(3 * (n + 1))
+    unit_bottom, unit_top = np.zeros(3 * n), np.zeros(3 * n)  # each prism's shares (graded columns)
     # every prism of one handedness is the same prism turned and raised: a long column solves the
     # first of each (a short one solves each, so its numbers stay those of earlier releases bit for bit)
     each = n <= SELF_STRESS_EACH_MAX
@@ -266,6 +271,7 @@ def column_topology(config: ColumnConfig) -> ColumnTopology:
             unit_bar[sl] = sb
             unit_base[sl] += sbot  # superposition: interior bases carry both prisms' share
             unit_base[up] += stop
+            unit_bottom[sl], unit_top[sl] = sbot, stop
         solved[int(hand[m])] = (sb, sbot, stop)
     if not each:
         keys = np.array(sorted(solved))
@@ -274,12 +280,14 @@ def column_topology(config: ColumnConfig) -> ColumnTopology:
         unit_bar[:] = sb.ravel()
         unit_base[:-3] += sbot.ravel()
         unit_base[3:] += stop.ravel()
+        unit_bottom[:], unit_top[:] = sbot.ravel(), stop.ravel()
     if np.any(unit_bar >= 0) or np.any(unit_base <= 0):
         raise NetworkError(f"twist = {config.twist!r} rad, handedness = {config.handedness!r}: self-stress has "
                            "compressed cables or stretched bars")
     fixed = np.zeros(3 * (n + 1), dtype=bool)
     fixed[level_nodes[0]] = True
-    return ColumnTopology(config, pos, fixed, level_nodes, bars, cross, base, base_level, unit_bar, unit_base)
+    return ColumnTopology(config, pos, fixed, level_nodes, bars, cross, base, base_level, unit_bar, unit_base,
+                          unit_bottom, unit_top)
 
 
 # ---------------------------------------------------------------------- per-column laws
@@ -304,6 +312,34 @@ def check_column_params(prestrain, v0, base_rigidity, cable_EA, unit_mass) -> No
     for name, val in zip(("prestrain", "v0", "base_rigidity", "cable_EA", "unit_mass"),
                          (prestrain, v0, base_rigidity, cable_EA, unit_mass)):
         check_column_param(name, val, NetworkError)  # bounds declared once, in options.ColumnParameters
+
+
+def level_cable_EA(prism_EA: np.ndarray) -> np.ndarray:
+    """(B, n_prisms + 1) EA [N] the base members of each level derive from, from the cross cables'
+    (B, n_prisms): an interior level is shared by two prisms and takes the mean of theirs; an end
+    level takes its one prism's (a uniform column: every level the cables' EA, exactly)."""
+    ea = np.asarray(prism_EA, dtype=np.float64)
+    return np.concatenate([ea[:, :1], 0.5 * (ea[:, :-1] + ea[:, 1:]), ea[:, -1:]], axis=1)
+
+
+def level_node_masses(config: ColumnConfig, level_mass: np.ndarray) -> np.ndarray:
+    """(B, n_nodes) lumped node masses [kg] from (B, n_prisms + 1) masses per level: each level's
+    over its 3 nodes, the end levels' halved under end_base_mass = 'half' (as :func:`node_masses`)."""
+    base_mass = np.array(level_mass, dtype=np.float64)
+    if config.end_base_mass == "half":
+        base_mass[:, 0] *= 0.5
+        base_mass[:, -1] *= 0.5
+    return np.repeat(base_mass / 3.0, 3, axis=1)
+
+
+def impact_of_level_masses(config: ColumnConfig, level_mass: np.ndarray, rigid: bool) -> np.ndarray:
+    """(n_nodes, 3) admissible impact velocity at v0 = 1 m/s [m s-1] of a column with masses per level
+    ``level_mass`` (n_prisms + 1) [kg], flexible-like (``rigid`` False) or rigid bases: the scene's
+    impact_admissibility weighs the masses ('rigid_members', 'project')."""
+    scene = build_column(config, base_rigidity=1.0 if rigid else 0.0)
+    net = scene.network
+    net.node_mass = level_node_masses(config, np.asarray(level_mass, dtype=np.float64)[None, :])[0]
+    return _impact(config, scene.topology, net, 1.0)
 
 
 def node_masses(topo: ColumnTopology, unit_mass: float) -> np.ndarray:
@@ -405,18 +441,23 @@ def build_column(
         cable_names=names,
     ).validate()
     residual = equilibrium_residual(net) if check_equilibrium else float("nan")
+    vel = _impact(config, topo, net, v0)
+    return ColumnScene(topo, net, vel, float(prestrain), float(v0), float(base_rigidity), T, residual)
+
+
+def _impact(config: ColumnConfig, topo: ColumnTopology, net: Network, v0: float) -> np.ndarray:
+    """The admissible impact velocity [m s-1] of the column ``net`` per the scene's impact_admissibility."""
+    X = topo.positions
     if config.impact_admissibility == "rigid_members":
         members, dense = np.concatenate([topo.bars, topo.base]), sparse.use_dense(9 * config.n_prisms)
         try:
             if dense or np.any(net.bar_mass):
-                vel = least_energy_impact(X, net.mass_matrix(), topo.fixed, members, topo.level_nodes[-1], v0)
-            else:  # a long column: lumped masses, O(n)
-                vel = sparse.least_energy_impact(X, net.node_mass, topo.fixed, members, topo.level_nodes[-1], v0)
+                return least_energy_impact(X, net.mass_matrix(), topo.fixed, members, topo.level_nodes[-1], v0)
+            # a long column: lumped masses, O(n)
+            return sparse.least_energy_impact(X, net.node_mass, topo.fixed, members, topo.level_nodes[-1], v0)
         except ValueError as e:  # the scene's error class, so callers see one kind of bad-input error
             raise NetworkError(f"{e} (height = {config.height!r} m, radius = {config.radius!r} m)") from None
-    else:
-        vel = impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
-    return ColumnScene(topo, net, vel, float(prestrain), float(v0), float(base_rigidity), T, residual)
+    return impact_velocity(net, topo.level_nodes[-1], v0, config.impact_admissibility)
 
 
 # ---------------------------------------------------------------------- checks and impact

@@ -15,7 +15,8 @@ import math
 import numpy as np
 
 from .. import options as O
-from ..options import COLUMN_PARAMETERS, ColumnParameters, OptionError, RunSettings, suggest
+from ..options import (COLUMN_PARAMETERS, PROFILE_FIELDS, PROFILED, ColumnParameters, OptionError, Profile, RunSettings,
+                       suggest)
 from ..scene.columns import ColumnConfig, column_topology
 from ..scene.network import NetworkError
 from ..policy.cost import fmt_bytes
@@ -31,6 +32,10 @@ SCENE_FIELDS = tuple(f.name for f in dataclasses.fields(ColumnConfig))
 SCENE_PARAMS = tuple(p for p in COLUMN_PARAMETERS if p not in SCENE_FIELDS)
 RUN_KEYS = tuple(f.name for f in dataclasses.fields(RunSettings))
 """Every [run] key: the fields of :class:`~warp_tensegrity.options.RunSettings`."""
+PROFILE_AXES = {f"{p}_{f}": (p, f) for p in PROFILED for f in PROFILE_FIELDS}
+"""Grid axes over a profile's generating parameters (``prestrain_at``): the profile itself, a grade or
+two segments, is given in [sweep.fixed]; the axis sets one of its fields per column."""
+GRID_KEYS = tuple(COLUMN_PARAMETERS) + tuple(PROFILE_AXES)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -98,8 +103,20 @@ class _Checker:
         return value
 
 
-def _check_param(ck: _Checker, name: str, path: str, value) -> float | None:
-    """A per-column parameter checked against its declaration in options.ColumnParameters."""
+def _check_param(ck: _Checker, name: str, path: str, value, profile: bool = False):
+    """A per-column parameter checked against its declaration in options.ColumnParameters; with
+    ``profile``, a table is a :class:`~warp_tensegrity.options.Profile` along the column."""
+    if isinstance(value, dict):
+        if not profile or name not in PROFILED:
+            why = (f"{name} takes one value per column, not a profile (profiles: {', '.join(PROFILED)})"
+                   if name not in PROFILED else "a profile belongs in [sweep.fixed] or a case, not here")
+            ck.bad(path, value, why)
+            return None
+        try:
+            return Profile.from_table(name, value, path=path)
+        except OptionError as e:
+            ck.errors += e.errors
+            return None
     v, problem = O.opt_of(ColumnParameters, name).problem(value)
     if problem is not None or v is None:
         ck.bad(path, value, problem or "must be a number")
@@ -108,6 +125,8 @@ def _check_param(ck: _Checker, name: str, path: str, value) -> float | None:
 
 
 def _param_hint(key) -> str:
+    if key in PROFILE_AXES:
+        return f" ({key!r} is a grid axis over the {PROFILE_AXES[key][0]} profile: put it in [sweep.grid])"
     if key in SCENE_FIELDS:
         return f" ({key!r} is a scene setting, the same for every column: set it in [scene])"
     return ""
@@ -120,10 +139,14 @@ def _parse_scene(ck: _Checker, t: dict):
     ck.keys(t, "scene", SCENE_FIELDS + SCENE_PARAMS)
     for k in SCENE_PARAMS:
         if k in t:
-            val = _check_param(ck, k, f"scene.{k}", t[k])
+            val = _check_param(ck, k, f"scene.{k}", t[k], profile=True)
             if val is not None:
                 params[k] = val
-    given = {k: v for k, v in t.items() if k in SCENE_FIELDS}
+    for k in [k for k in t if k in SCENE_FIELDS and isinstance(t[k], dict)]:
+        ck.bad(f"scene.{k}", t[k], f"{k} is a scene setting, one value for the whole column" +
+               (": give a unit_mass profile in [sweep.fixed]" if k in PROFILED else
+                f"; profiles are for {', '.join(PROFILED)}"))
+    given = {k: v for k, v in t.items() if k in SCENE_FIELDS and not isinstance(v, dict)}
     try:
         scene = O.build(ColumnConfig, given, prefix="scene.")
         # one prism of the scene: is it prestressable (twist)? cheap, and the engine would refuse later
@@ -193,6 +216,37 @@ def _parse_values(ck: _Checker, name: str, path: str, spec) -> np.ndarray | None
     return None
 
 
+def _parse_profile_axis(ck: _Checker, key: str, spec, template) -> np.ndarray | None:
+    """A grid axis over a generating parameter of a profile (``prestrain_at``): its values, checked
+    as the profile's (``at``: whole prism indices; the column's length is checked with the scene)."""
+    name, fld = PROFILE_AXES[key]
+    path = f"sweep.grid.{key}"
+    if not isinstance(template, Profile) or template.kind == "values" or (fld == "at" and template.kind != "segments"):
+        need = "{segments = [first, last], at = k}" if fld == "at" else "{grade = [first, last]} or {segments = [...], at = k}"
+        ck.error(path, f"needs the {name} profile it varies in [sweep.fixed]: {name} = {need}")
+        return None
+    if fld != "at":
+        return _parse_values(ck, name, path, spec)
+    vals = spec if isinstance(spec, list) else None
+    if isinstance(spec, dict) and set(spec) == {"start", "stop", "num"}:  # a range of prism indices
+        nums = [ck.number(f"{path}.{k}", spec[k], integer=True) for k in ("start", "stop", "num")]
+        if None in nums or not 1 <= nums[2] <= 100_000:
+            return None
+        vals = np.linspace(nums[0], nums[1], nums[2]).tolist()
+    if not isinstance(vals, list) or not vals:
+        ck.bad(path, spec, "give a list of prism indices (or a {start, stop, num} table)")
+        return None
+    for i, v in enumerate(vals):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer() or v < 1:
+            ck.bad(f"{path}[{i}]", v, "must be a prism index >= 1 (the first prism of the second segment)")
+            return None
+    arr = np.array(vals, dtype=np.float64)
+    if np.unique(arr).size != arr.size:
+        ck.bad(path, spec, "repeats a value; grid values must be distinct")
+        return None
+    return arr
+
+
 def _parse_sweep(ck: _Checker, t: dict):
     ck.keys(t, "sweep", SWEEP_KEYS)
     fixed: dict = {}
@@ -204,7 +258,7 @@ def _parse_sweep(ck: _Checker, t: dict):
             ck.keys(ft, "sweep.fixed", tuple(COLUMN_PARAMETERS), what="per-column parameter", hint=_param_hint)
             for k, v in ft.items():
                 if k in COLUMN_PARAMETERS:
-                    x = _check_param(ck, k, f"sweep.fixed.{k}", v)
+                    x = _check_param(ck, k, f"sweep.fixed.{k}", v, profile=True)
                     if x is not None:
                         fixed[k] = x
     has_grid, has_cases = "grid" in t, "cases" in t
@@ -220,10 +274,14 @@ def _parse_sweep(ck: _Checker, t: dict):
         if not isinstance(g, dict) or not g:
             ck.bad("sweep.grid", g, "must be a non-empty table of swept parameters")
             return "grid", {}, [], None, fixed
-        ck.keys(g, "sweep.grid", tuple(COLUMN_PARAMETERS), what="per-column parameter", hint=_param_hint)
+        ck.keys(g, "sweep.grid", GRID_KEYS, what="per-column parameter", hint=_param_hint)
         for k, v in g.items():
             if k in COLUMN_PARAMETERS:
                 vals = _parse_values(ck, k, f"sweep.grid.{k}", v)
+                if vals is not None:
+                    grid[k] = vals
+            elif k in PROFILE_AXES:
+                vals = _parse_profile_axis(ck, k, v, fixed.get(PROFILE_AXES[k][0]))
                 if vals is not None:
                     grid[k] = vals
         return "grid", grid, [], None, fixed
@@ -241,7 +299,7 @@ def _parse_sweep(ck: _Checker, t: dict):
         case = {}
         for k, v in c.items():
             if k in COLUMN_PARAMETERS:
-                x = _check_param(ck, k, f"{path}.{k}", v)
+                x = _check_param(ck, k, f"{path}.{k}", v, profile=True)
                 if x is not None:
                     case[k] = x
         lab = c.get("label")

@@ -31,13 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from ..policy.accuracy import for_accuracy
-from ..options import COLUMN_PARAMETERS, EXECUTION_KEYS, ColumnParameters, OptionError, RunSettings
+from ..options import (COLUMN_PARAMETERS, EXECUTION_KEYS, PROFILED, ColumnParameters, OptionError, Profile, RunSettings,
+                       profile_length)
 from ..provenance import code_version
 from ..scene.columns import ColumnConfig
 from ..tomlread import TomlError, decode, read_file, read_toml
 from ..types import Layout
 from .errors import SpecError
-from .parse import SCENE_FIELDS, _Checker, _parse_run, _parse_scene, _parse_sweep
+from .parse import PROFILE_AXES, SCENE_FIELDS, _Checker, _parse_run, _parse_scene, _parse_sweep
 
 
 TOP_KEYS = ("title", "description", "scene", "sweep", "run")
@@ -61,6 +62,15 @@ KEY_DOCS = {
     "sweep.grid.<param>.num": "number of values of a range axis (integer >= 1)",
     "sweep.grid.<param>.spacing": '`"linear"` (default) or `"log"` (geometric; start, stop > 0)',
     "sweep.cases[i].label": "case label, stored as the `case_label` coordinate",
+    "<param>.values": "a profile along the column (prestrain, cable_EA: one value per prism; unit_mass: one per level, "
+                      "n_prisms + 1), in [sweep.fixed], a case, or [scene] (prestrain, cable_EA): the values, "
+                      "prism 0 at the clamped base",
+    "<param>.grade": "a profile: [first, last], linear from the clamped base to the free end",
+    "<param>.segments": "a profile: [first, last], two segments joined at prism `at`",
+    "<param>.at": "the first prism (level) of a profile's second segment, in [1, n_prisms - 1]",
+    "sweep.grid.<param>_from": "a grid axis over the first value of the [sweep.fixed] profile of `<param>`",
+    "sweep.grid.<param>_to": "a grid axis over the last value of the [sweep.fixed] profile of `<param>`",
+    "sweep.grid.<param>_at": "a grid axis over the interface prism of the [sweep.fixed] two-segment profile of `<param>`",
 }
 """What each structural spec key means (the options themselves are documented where they are
 declared: :func:`warp_tensegrity.options_docs.options_table`; the docs' hook reads both)."""
@@ -115,10 +125,11 @@ class SweepSpec:
     def n_columns(self) -> int:
         return int(np.prod(self.shape))
 
-    def default_param(self, name: str) -> float:
-        """Value of a per-column parameter that is neither swept nor fixed."""
+    def default_param(self, name: str) -> float | Profile:
+        """Value of a per-column parameter that is not swept: fixed (a number or a profile), or its default."""
         if name in self.fixed:
-            return float(self.fixed[name])
+            v = self.fixed[name]
+            return v if isinstance(v, Profile) else float(v)
         if name == "cable_EA":
             return float(self.scene.cable_EA)
         if name == "unit_mass":
@@ -126,17 +137,34 @@ class SweepSpec:
         return float(PARAM_DEFAULTS[name])
 
     def column_params(self) -> dict[str, np.ndarray]:
-        """Every per-column parameter (all of COLUMN_PARAMETERS) for every column, shape (N,)."""
-        n = self.n_columns
-        out = {p: np.full(n, self.default_param(p), dtype=np.float64) for p in COLUMN_PARAMETERS}
+        """Every per-column parameter (all of COLUMN_PARAMETERS) for every column, shape (N,), or
+        (N, its length) for a profile along the column (:data:`~warp_tensegrity.options.PROFILED`)."""
+        n, n_prisms = self.n_columns, self.scene.n_prisms
+        out = {}
+        for p in COLUMN_PARAMETERS:
+            d = self.default_param(p)
+            if isinstance(d, Profile) and any(f"{p}_{f}" in self.grid for f in ("from", "to", "at")):
+                continue  # a template the grid sets per column, below
+            out[p] = (np.broadcast_to(d.check(p, n_prisms), (n, profile_length(p, n_prisms))).copy()
+                      if isinstance(d, Profile) else np.full(n, d, dtype=np.float64))
         if self.kind == "grid":
             mesh = np.meshgrid(*self.grid.values(), indexing="ij")
+            fields: dict = {}
             for name, m in zip(self.grid, mesh):
-                out[name] = np.ascontiguousarray(m.reshape(-1), dtype=np.float64)
+                if name in PROFILE_AXES:  # a field of a profile, set per column below
+                    p, fld = PROFILE_AXES[name]
+                    fields.setdefault(p, {})[fld] = m.reshape(-1)
+                else:
+                    out[name] = np.ascontiguousarray(m.reshape(-1), dtype=np.float64)
+            for p, f in fields.items():
+                out[p] = profile_rows(self.fixed[p], f, profile_length(p, n_prisms))
+            out = {p: out[p] for p in COLUMN_PARAMETERS}  # in the declared order
         else:
             for i, case in enumerate(self.cases):
                 for name, v in case.items():
-                    out[name][i] = v
+                    if isinstance(v, Profile) and out[name].ndim == 1:
+                        out[name] = np.repeat(out[name][:, None], profile_length(name, n_prisms), axis=1)
+                    out[name][i] = v.check(name, n_prisms) if isinstance(v, Profile) else v
         return out
 
     def layout(self) -> Layout:
@@ -193,11 +221,12 @@ class SweepSpec:
             "title": self.title,
             "description": self.description,
             "scene": {f: getattr(self.scene, f) for f in SCENE_FIELDS},
-            "fixed": {k: float(v) for k, v in sorted(self.fixed.items())},
+            "fixed": {k: _canonical_value(v) for k, v in sorted(self.fixed.items())},
             "sweep": (
                 {"grid": [[k, [float(x) for x in v]] for k, v in self.grid.items()]}
                 if self.kind == "grid"
-                else {"cases": [{k: float(v) for k, v in sorted(c.items())} for c in self.cases], "labels": self.labels}
+                else {"cases": [{k: _canonical_value(v) for k, v in sorted(c.items())} for c in self.cases],
+                      "labels": self.labels}
             ),
             "run": run,
         }
@@ -217,6 +246,23 @@ class SweepSpec:
             axes = " x ".join(f"{k} {len(v)}" for k, v in self.grid.items())
             return f"{self.n_columns} columns (grid {axes})"
         return f"{self.n_columns} columns (explicit cases over {', '.join(self.swept) or 'nothing'})"
+
+
+def _canonical_value(v):
+    """A number as a float; a profile as its table (a spec without profiles keeps its fingerprint)."""
+    return v.table() if isinstance(v, Profile) else float(v)
+
+
+def profile_rows(template: Profile, fields: dict, n: int) -> np.ndarray:
+    """(N, n) entries of ``template`` (a grade or two segments) with the generating parameters
+    ``fields`` ('from', 'to', 'at': arrays of N) set per column, as :meth:`Profile.check` makes them."""
+    N = len(next(iter(fields.values())))
+    first = np.broadcast_to(np.asarray(fields.get("from", template.first), dtype=np.float64), (N,))
+    last = np.broadcast_to(np.asarray(fields.get("to", template.last), dtype=np.float64), (N,))
+    if template.kind == "grade":
+        return np.ascontiguousarray(np.linspace(first, last, n, axis=1))
+    at = np.broadcast_to(np.asarray(fields.get("at", template.at), dtype=np.float64), (N,))
+    return np.where(np.arange(n)[None, :] < at[:, None], first[:, None], last[:, None])
 
 
 def _plain(x):
@@ -291,6 +337,31 @@ def _overridden_text(text: str, data: dict, overrides: dict) -> str:
         return text
 
 
+def _check_profiles(ck, n_prisms: int, fixed: dict, grid: dict, cases: list) -> None:
+    """Profiles against the scene's column: lengths and interface positions (each named by its path)."""
+    swept = {}  # a template's fields a grid sets: checked with the grid's values, not the template's
+    for key, vals in grid.items():
+        if key in PROFILE_AXES and isinstance(fixed.get(PROFILE_AXES[key][0]), Profile):
+            name, fld = PROFILE_AXES[key]
+            swept[name] = swept.get(name, fixed[name]).replace(fld, int(vals[0]) if fld == "at" else float(vals[0]))
+    where = [(f"sweep.fixed.{k}", k, swept.get(k, v)) for k, v in fixed.items()]
+    where += [(f"sweep.cases[{i}].{k}", k, v) for i, c in enumerate(cases) for k, v in c.items()]
+    for path, k, v in where:
+        if isinstance(v, Profile):
+            try:
+                v.check(k, n_prisms, path=path)
+            except OptionError as e:
+                ck.errors += e.errors
+    for key, vals in grid.items():
+        name, fld = PROFILE_AXES.get(key, (None, None))
+        if name in grid:
+            ck.error(f"sweep.grid.{key}", f"conflicts with sweep.grid.{name}: sweep the profile's fields or the whole "
+                                          "parameter, not both")
+        if fld == "at" and vals.max() > n_prisms - 1:
+            ck.bad(f"sweep.grid.{key}", float(vals.max()), f"the interface must be a prism index in [1, {n_prisms - 1}] "
+                   f"(n_prisms = {n_prisms}), so both segments have a prism")
+
+
 def parse_spec(text: str, source: str | None = None, overrides: dict | None = None) -> SweepSpec:
     try:
         data = read_toml(text)
@@ -339,6 +410,8 @@ def parse_spec(text: str, source: str | None = None, overrides: dict | None = No
             if k in scene_keys:
                 ck.error(f"sweep.fixed.{k}", f"also set as scene.{k}; give it once")
 
+    if scene is not None:
+        _check_profiles(ck, scene.n_prisms, fixed, grid, cases)
     run = _parse_run(ck, run_t)
     if ck.errors:
         raise SpecError(ck.errors, source)

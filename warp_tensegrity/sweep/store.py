@@ -49,8 +49,8 @@ IN_FLIGHT = 2
 # ---------------------------------------------------------------------- layout
 def time_coord(ds: xr.Dataset) -> np.ndarray:
     """The output-time coordinate of a case-stacked shard (or template, or the store): the one
-    dimension that is neither ``case`` nor ``prism``."""
-    (name,) = [d for d in ds.dims if d not in ("case", "prism")]
+    dimension that is not ``case``, ``prism`` or ``level`` (a unit_mass profile)."""
+    (name,) = [d for d in ds.dims if d not in ("case", "prism", "level")]
     return ds[name].values
 
 
@@ -240,7 +240,8 @@ class SweepStore:
             )
         names = _case_vars(ds)
         sha = {k: array_sha256(ds[k].values) for k in names}
-        body = ds[names].drop_vars(list(ds.coords))
+        body = ds[names]
+        body = body.drop_vars(list(body.coords))  # the store holds the coordinates (a profile's over level too)
         for v in body.variables.values():
             v.encoding = {}
         region = {"case": slice(a, b)}
