@@ -13,6 +13,7 @@ import numpy as np
 
 from ..atomic import replacing
 from ..plot import PRISM_LABEL, dispersion
+from .interface import figure_interface
 
 __all__ = ["FIGURES", "write_figures", "figure_bessel", "figure_soliton", "figure_dispersion", "figure_fb_modal"]
 
@@ -149,7 +150,7 @@ def figure_dispersion(g):
 
 
 FIGURES = {"bessel": figure_bessel, "soliton": figure_soliton, "dispersion": figure_dispersion,
-           "fb_modal": figure_fb_modal}
+           "fb_modal": figure_fb_modal, "interface": figure_interface}
 
 
 def write_figures(groups, directory) -> list[Path]:
