@@ -13,6 +13,7 @@ import numpy as np
 
 from ..atomic import replacing
 from ..plot import PRISM_LABEL, dispersion
+from .diatomic import figure_diatomic
 from .interface import figure_interface
 
 __all__ = ["FIGURES", "write_figures", "figure_bessel", "figure_soliton", "figure_dispersion", "figure_fb_modal"]
@@ -150,7 +151,8 @@ def figure_dispersion(g):
 
 
 FIGURES = {"bessel": figure_bessel, "soliton": figure_soliton, "dispersion": figure_dispersion,
-           "fb_modal": figure_fb_modal, "interface": figure_interface}
+           "fb_modal": figure_fb_modal, "interface": figure_interface,
+           "diatomic": figure_diatomic}
 
 
 def write_figures(groups, directory) -> list[Path]:
