@@ -230,7 +230,7 @@ def figure_diatomic(g):
     ax1.set_ylabel("amplitude / the joint's [-]")
     ax1.legend(fontsize=7, loc="lower left")
     for i, ch in enumerate(g.checks[:2]):
-        ax1.text(0.98, 0.62 - 0.08 * i, f"{ch.name}: {ch.error:.2e} (tolerance {ch.tolerance:g})",
+        ax1.text(0.98, 0.84 - 0.08 * i, f"{ch.name}: {ch.error:.2e} (tolerance {ch.tolerance:g})",
                  transform=ax1.transAxes, va="top", ha="right", fontsize=7, bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
     t, y, pred = gap["time"], gap["strain"][:, gap["prisms"]], gap["predicted"]
     scale = float(np.abs(y[:, 0]).max())

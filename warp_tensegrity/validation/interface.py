@@ -207,15 +207,15 @@ def figure_interface(g):
     for y, tc, scale, label, style in (
             (q[:, s1], t_inc, 1.0, "incident (station before the joint)", "k-"),
             (q[:, s1], t_ref, th.reflected_strain, "reflected / R_eps", "C0--"),
-            (q[:, s2], t_tra, th.transmitted_strain, "transmitted / T_eps", "C3:")):
+            (q[:, s2], t_tra, th.transmitted_strain, "transmitted / T_eps", "C3:")):  # noqa: E127
         sel = (t >= tc - half) & (t <= tc + half)
         ax1.plot(t[sel] - tc, y[sel] / scale / peak, style, lw=1.3, label=label)
     ax1.set_xlabel("time from the long-wave arrival [s]")
     ax1.set_ylabel("strain / scale / incident peak [-]")
     ax1.legend(fontsize=7, loc="lower right")
     for i, c in enumerate(g.checks):
-        ax1.text(0.02, 0.98 - 0.08 * i, f"{c.name}: {c.error:.2e} (tolerance {c.tolerance:g})", transform=ax1.transAxes,
-                 va="top", fontsize=8, bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
+        ax1.text(0.02, 0.72 - 0.1 * i, f"{c.name}:\n{c.error:.2e} (tolerance {c.tolerance:g})", transform=ax1.transAxes,
+                 va="top", fontsize=7, bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
     p1, p2 = d["prestrain"]
     fig.suptitle(f"RB column, prestrain {p1:g} | {p2:g} (Z2/Z1 = {th.Z2 / th.Z1:.3g}): a Gaussian pulse across the joint "
                  "against the chain's impedance formula", fontsize=10)
