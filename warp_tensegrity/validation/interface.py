@@ -21,8 +21,9 @@ towards +n has strain -v/c, one towards -n +v/c, so the strain (and the force) f
 
     R_eps = (Z2 - Z1)/(Z1 + Z2),   T_eps = T_u c1/c2 = 2 Z1 c1 / (c2 (Z1 + Z2)).
 
-With equal level masses, Z2/Z1 = c2/c1 = sqrt(p2/p1). Dispersion changes R and T by O((k h0)^2) and
-the delay by O(w^2) (the phase of T_u is O(w^3) when the level masses are equal), so the check compares
+With equal level masses, Z2/Z1 = c2/c1 = sqrt(p2/p1), and T_u is real at every frequency (a2 - conj(a1) is
+imaginary: its real part 2 K1 sin^2(k1/2) - 2 K2 sin^2(k2/2) = 0 by each side's dispersion relation), so the
+joint adds no delay. Dispersion changes R and T by O((k h0)^2), so the check compares
 the pulses' zeroth and first time moments at a station (their w = 0 content, where the formulas are
 exact), not their peaks: the peaks differ from the formulas by the dispersion of a pulse a few prisms
 long (a few per cent, reported).
