@@ -51,7 +51,7 @@ LAYERS = [
      "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
      "validation.reference_column", "validation.twist_chain",
      "validation.linear", "validation.dispersion", "validation.checks", "validation.hetero", "validation.interface",
-     "validation.diatomic", "validation.figures", "validation", "plot",
+     "validation.diatomic", "validation.gallery", "validation.figures", "validation", "plot",
      "init_spec", "cli_args", ""},
     {"cli", "__main__"},
 ]

@@ -29,11 +29,29 @@ from __future__ import annotations
 import numpy as np
 
 from . import hetero
-from .checks import Check, CheckGroup, chain_of
+from .closed_forms import rb_chain
+from .gallery import Check, CheckGroup
+from ..engine import run_batch
+from ..options import RunSettings
 from .dispersion import _omega, _rank, bloch_cell
 from ..scene.columns import ColumnConfig
 
-__all__ = ["cos_q", "bloch_factor", "band_edges", "bloch_cell_two_levels", "check_diatomic", "figure_diatomic"]
+__all__ = ["cos_q", "bloch_factor", "band_edges", "bloch_cell_two_levels", "check_diatomic"]
+
+
+def _chain(config: ColumnConfig, prestrain: float):
+    """The RB chain of ``config``'s prism at ``prestrain`` (:func:`.closed_forms.rb_chain`)."""
+    return rb_chain(config.cable_EA, config.radius, config.height, config.unit_mass, prestrain)
+
+
+def _run(batch, t_end: float, dt: float, device: str, output_interval: float | None = None):
+    """The engine's fp64 run of a graded column (:func:`~warp_tensegrity.engine.run_batch`), its strain recorded."""
+    settings = RunSettings(t_end=t_end, output_interval=dt if output_interval is None else output_interval, dt=dt,
+                           truncate=False, device=device, precision="fp64", measure="none")
+    r = run_batch(batch, settings)
+    if int(np.max(r.status)) != 0:
+        raise RuntimeError(f"validation run failed (status {r.status})")
+    return r
 
 
 def cos_q(omega, K: float, m1: float, m2: float):
@@ -129,7 +147,7 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
     (reference only). Frequencies in units of sqrt(K/m_eff) (the lead's cut-off is 2)."""
     cfg = ColumnConfig(n_prisms=n_diatomic + n_lead)
     m, h0 = cfg.unit_mass, cfg.height
-    ch = chain_of(cfg, prestrain)
+    ch = _chain(cfg, prestrain)
     K, m1, m2 = ch.K, ch.m_eff, mass_ratio * ch.m_eff
     Omega = np.sqrt(K / m1)
     edges = band_edges(K, m1, m2)
@@ -153,7 +171,7 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
         batch = hetero.graded_batch(ColumnConfig(n_prisms=N), np.full(N, prestrain), level_mass,
                                     _packet(N, lead, w0 * Omega, sig, Omega, amplitude))
         t_joint = lead / v_lead
-        r = hetero.run_graded(batch, t_joint + 4.0 * sig / v_lead + 8.0 / Omega, dt, dt, device)
+        r = _run(batch, t_joint + 4.0 * sig / v_lead + 8.0 / Omega, dt, device)
         runs[name] = {"time": r.time, "strain": r.strain[0], "omega0": w0 * Omega, "sigma": sig, "t_joint": t_joint,
                       "dt": r.dt, "residual": float(batch.equilibrium_residual[0]), "n_prisms": N}
     # inside the gap: every cell's record predicted from the joint's through lambda(w)^c
@@ -176,6 +194,7 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
     peak_band = np.array([np.sqrt(np.trapezoid(b["strain"][tb <= tc, j] ** 2, tb[tb <= tc])) for j, tc in zip(prisms, cut)])
     kappa_band = _decay_per_cell(peak_band[1:])
     b.update(prisms=prisms, cut=cut, peaks=peak_band)
+    w_gap = np.linspace(edges[0], edges[1], 200)[1:-1]  # for the figure: kappa across the gap
     checks = [
         Check("diatomic_gap_decay", f"inside the gap (w0 = {omega_gap:g} sqrt(K/m_eff)): decay per cell of the "
               f"records' peaks over {cells} cells, engine against the complex Bloch wavenumber's prediction from "
@@ -197,50 +216,5 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
              f"first-passage rms strain / the joint's: " + " ".join(f"{x:.6f}" for x in peak_band / peak_band[0])]
     return CheckGroup("diatomic", "Band gap of a diatomic RB column: decay inside, none outside", checks,
                       {"runs": runs, "edges": edges, "q": q, "branches": cell_branches, "height": h0,
+                       "gap_omega": w_gap, "gap_kappa": np.arccosh(-cos_q(w_gap, K, m1, m2)),
                        "kappa_w0": kappa_w0, "Omega": Omega, "K": K, "masses": (m1, m2)}, notes)
-
-
-def figure_diatomic(g):
-    """The two-level cell's branches with the gap's decay rate, the peaks per cell (engine, prediction,
-    kappa(w0)) and the rms per cell outside the gap, and the records at a few cells inside."""
-    import matplotlib.pyplot as plt
-
-    d = g.data
-    fig, (ax0, ax1, ax2) = plt.subplots(1, 3, figsize=(13.0, 4.0), layout="constrained")
-    q, br, (lo, hi) = d["q"], d["branches"], d["edges"]
-    K, (m1, m2) = d["K"], d["masses"]
-    for i in range(br.shape[1]):
-        ax0.plot(q / np.pi, br[:, i], "C0-", lw=1.4, label="two-level Bloch cell (RB, symmetric)" if i == 0 else None)
-    w = np.linspace(lo, hi, 200)[1:-1]
-    ax0.plot(1.0 + np.arccosh(-cos_q(w, K, m1, m2)) / np.pi, w, "C3-", lw=1.2, label="gap: 1 + kappa/pi (q = pi + i kappa)")
-    ax0.axhspan(lo, hi, color="0.92", zorder=0)
-    for key, style in (("gap", "C3"), ("band", "C2")):
-        ax0.axhline(d["runs"][key]["omega0"], color=style, ls="--", lw=0.8, label=f"{key} packet's w0")
-    ax0.set_xlabel("q / pi (cell of two levels); right of 1: kappa / pi")
-    ax0.set_ylabel("angular frequency [rad/s]")
-    ax0.legend(fontsize=7, loc="lower right")
-    gap, band = d["runs"]["gap"], d["runs"]["band"]
-    pe, pt = gap["peaks"]
-    c = np.arange(pe.size)
-    ax1.semilogy(c, pe / pe[0], "C3o", mfc="none", label="gap: engine's peaks")
-    ax1.semilogy(c, pt / pt[0], "k-", lw=0.8, label="gap: lambda(w)^c on the joint's record")
-    ax1.semilogy(c, np.exp(-d["kappa_w0"] * c), "C3:", lw=0.8, label="gap: exp(-kappa(w0) c)")
-    ax1.semilogy(c, band["peaks"] / band["peaks"][0], "C2s", mfc="none", label="band: engine's rms, first passage")
-    ax1.set_xlabel("cells from the joint")
-    ax1.set_ylabel("amplitude / the joint's [-]")
-    ax1.legend(fontsize=7, loc="lower left")
-    for i, ch in enumerate(g.checks[:2]):
-        ax1.text(0.98, 0.84 - 0.08 * i, f"{ch.name}: {ch.error:.2e} (tolerance {ch.tolerance:g})",
-                 transform=ax1.transAxes, va="top", ha="right", fontsize=7, bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
-    t, y, pred = gap["time"], gap["strain"][:, gap["prisms"]], gap["predicted"]
-    scale = float(np.abs(y[:, 0]).max())
-    for i, cc in enumerate((0, 1, 3)):
-        ax2.plot(t, y[:, cc] / scale, color=f"C{i}", lw=1.0, label=f"engine, cell {cc}")
-        ax2.plot(t, pred[:, cc] / scale, "k--", lw=0.6, label="prediction" if i == 0 else None)
-    ax2.set_xlim(gap["t_joint"] - 3.0 * gap["sigma"] * 0.25, t[-1])
-    ax2.set_xlabel("time t [s]")
-    ax2.set_ylabel("strain / the joint prism's peak [-]")
-    ax2.legend(fontsize=7, loc="upper left")
-    fig.suptitle("RB column, level masses m | 2m: a packet inside the gap dies at the complex Bloch wavenumber's rate, "
-                 "one in the acoustic band passes", fontsize=10)
-    return fig

@@ -15,7 +15,7 @@ import numpy as np
 from ..scene import batch as scene_batch
 from ..scene import columns as col
 
-__all__ = ["graded_batch", "run_graded", "EQUILIBRIUM_TOLERANCE"]
+__all__ = ["graded_batch", "EQUILIBRIUM_TOLERANCE"]
 
 EQUILIBRIUM_TOLERANCE = 1e-10
 """Largest equilibrium residual of the built reference state, relative to the largest cross-cable tension."""
@@ -91,17 +91,3 @@ def graded_batch(config: col.ColumnConfig, prestrain_per_prism, level_mass, leve
         raise RuntimeError(f"graded column out of equilibrium: residual {residual.max():.3g} of the largest tension")
     batch.equilibrium_residual = residual
     return batch
-
-
-def run_graded(batch: scene_batch.NetworkBatch, t_end: float, output_interval: float, dt: float, device: str = "cpu"):
-    """The engine's run of ``batch`` (:func:`warp_tensegrity.engine.run_batch`) in fp64, its strain recorded;
-    raises if a column failed."""
-    from ..engine import run_batch
-    from ..options import RunSettings
-
-    settings = RunSettings(t_end=t_end, output_interval=output_interval, dt=dt, truncate=False, device=device,
-                           precision="fp64", measure="none")
-    r = run_batch(batch, settings)
-    if int(np.max(r.status)) != 0:
-        raise RuntimeError(f"validation run failed (status {r.status})")
-    return r

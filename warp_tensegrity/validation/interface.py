@@ -36,11 +36,29 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import hetero
-from .checks import Check, CheckGroup, chain_of
+from .closed_forms import rb_chain
+from .gallery import Check, CheckGroup
+from ..engine import run_batch
+from ..options import RunSettings
 from .dispersion import bands
 from ..scene.columns import ColumnConfig
 
-__all__ = ["InterfaceTheory", "interface_theory", "discrete_coefficients", "check_interface", "figure_interface"]
+__all__ = ["InterfaceTheory", "interface_theory", "discrete_coefficients", "check_interface"]
+
+
+def _chain(config: ColumnConfig, prestrain: float):
+    """The RB chain of ``config``'s prism at ``prestrain`` (:func:`.closed_forms.rb_chain`)."""
+    return rb_chain(config.cable_EA, config.radius, config.height, config.unit_mass, prestrain)
+
+
+def _run(batch, t_end: float, dt: float, device: str, output_interval: float | None = None):
+    """The engine's fp64 run of a graded column (:func:`~warp_tensegrity.engine.run_batch`), its strain recorded."""
+    settings = RunSettings(t_end=t_end, output_interval=dt if output_interval is None else output_interval, dt=dt,
+                           truncate=False, device=device, precision="fp64", measure="none")
+    r = run_batch(batch, settings)
+    if int(np.max(r.status)) != 0:
+        raise RuntimeError(f"validation run failed (status {r.status})")
+    return r
 
 
 @dataclass(frozen=True)
@@ -83,7 +101,7 @@ def interface_theory(config: ColumnConfig, p1: float, p2: float) -> InterfaceThe
     """The joint of an RB segment at prestrain ``p1`` (incident side) and one at ``p2``, of ``config``'s
     prism and level mass: c from the Bloch cell's long-wave limit (:func:`.dispersion.bands`, k h0 = 1e-3),
     m_eff from the RB chain."""
-    m_eff = chain_of(config, p1).m_eff
+    m_eff = _chain(config, p1).m_eff
     k = 1e-3 / config.height
     c1, c2 = (bands(config, p, 1.0, k=[k]).long_wave_speed() for p in (p1, p2))
     return InterfaceTheory(c1, c2, m_eff * c1 / config.height, m_eff * c2 / config.height, config.height)
@@ -137,7 +155,7 @@ def check_interface(p1: float = 0.002, p2: float = 0.0005, n1: int = 42, n2: int
         raise ValueError("check_interface: the stations are too close to the ends or the joint for the pulse width")
     pp = np.concatenate([np.full(n2, p2), np.full(n1, p1)])
     batch = hetero.graded_batch(cfg, pp, level_mass, velocity)
-    r = hetero.run_graded(batch, max(t_ref, t_tra) + half, 0.02, dt, device)
+    r = _run(batch, max(t_ref, t_tra) + half, dt, device, output_interval=0.02)
     t, q = r.time, r.strain[0]
     a_inc, c_inc = _moments(t, q[:, s1], t_inc, half)
     a_ref, _ = _moments(t, q[:, s1], t_ref, half)
@@ -157,7 +175,7 @@ def check_interface(p1: float = 0.002, p2: float = 0.0005, n1: int = 42, n2: int
     pk = lambda tc, y: y[(t >= tc - half) & (t <= tc + half)]  # noqa: E731
     peak_inc = float(pk(t_inc, q[:, s1]).min())
     peak_R, peak_T = float(pk(t_ref, q[:, s1]).max()) / peak_inc, float(pk(t_tra, q[:, s2]).min()) / peak_inc
-    ch1, ch2 = chain_of(cfg, p1), chain_of(cfg, p2)
+    ch1, ch2 = _chain(cfg, p1), _chain(cfg, p2)
     w_rms = th.c1 / (np.sqrt(2.0) * sigma * h0)
     R_w, T_w = discrete_coefficients(ch1.K, ch2.K, ch1.m_eff, [w_rms])
     notes = [f"{N} prisms (RB): {n1} at p1 = {p1:g} (struck side), {n2} at p2 = {p2:g}; stations {d1} prisms before and "
@@ -173,51 +191,3 @@ def check_interface(p1: float = 0.002, p2: float = 0.0005, n1: int = 42, n2: int
             "half": half, "theory": th, "areas": (a_inc, a_ref, a_tra), "delay": (delay, delay_th)}
     return CheckGroup("interface", "A pulse across the joint of two RB segments against the chain's impedances",
                       checks, data, notes)
-
-
-def figure_interface(g):
-    """The space-time strain map with the long-wave arrivals, and the three pulses at their stations scaled by
-    the formulas (incident, reflected / R_eps, transmitted / T_eps) and shifted by the long-wave times."""
-    import matplotlib.pyplot as plt
-    from matplotlib import colors
-
-    d = g.data
-    t, q, (s1, s2), th = d["time"], d["strain"], d["stations"], d["theory"]
-    t_inc, t_ref, t_tra = d["arrivals"]
-    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(10.0, 4.0), layout="constrained")
-    peak = float(np.abs(q).max())
-    n = q.shape[1]
-    mesh = ax0.pcolormesh(np.arange(n), t, q / peak, cmap="RdBu_r", shading="nearest", rasterized=True,
-                          norm=colors.TwoSlopeNorm(vcenter=0.0, vmin=-1.0, vmax=1.0))
-    fig.colorbar(mesh, ax=ax0, pad=0.01).set_label("strain / its largest magnitude [-]")
-    J, N, h0 = d["joint"], n, th.height
-    lvl = np.linspace(J, N, 50)
-    ax0.plot(lvl, (N - lvl) * h0 / th.c1, "k--", lw=0.8, label="long-wave arrivals (c1, c2)")
-    ax0.plot(lvl, ((N - J) + (lvl - J)) * h0 / th.c1, "k--", lw=0.8)
-    low = np.linspace(0, J, 30)
-    ax0.plot(low, (N - J) * h0 / th.c1 + (J - low) * h0 / th.c2, "k--", lw=0.8)
-    ax0.axvline(J, color="0.4", lw=0.8)
-    for s in (s1, s2):
-        ax0.axvline(s + 0.5, color="C2", lw=0.8, ls=":")
-    ax0.set_xlabel("prism (0 at the clamp; the joint grey, the stations green)")
-    ax0.set_ylabel("time t [s]")
-    ax0.set_ylim(t[0], t[-1])
-    ax0.legend(fontsize=7, loc="upper right")
-    half = d["half"]
-    peak = float(np.abs(q[:, s1]).max())  # the incident pulse's
-    for y, tc, scale, label, style in (
-            (q[:, s1], t_inc, 1.0, "incident (station before the joint)", "k-"),
-            (q[:, s1], t_ref, th.reflected_strain, "reflected / R_eps", "C0--"),
-            (q[:, s2], t_tra, th.transmitted_strain, "transmitted / T_eps", "C3:")):  # noqa: E127
-        sel = (t >= tc - half) & (t <= tc + half)
-        ax1.plot(t[sel] - tc, y[sel] / scale / peak, style, lw=1.3, label=label)
-    ax1.set_xlabel("time from the long-wave arrival [s]")
-    ax1.set_ylabel("strain / scale / incident peak [-]")
-    ax1.legend(fontsize=7, loc="lower right")
-    for i, c in enumerate(g.checks):
-        ax1.text(0.02, 0.72 - 0.1 * i, f"{c.name}:\n{c.error:.2e} (tolerance {c.tolerance:g})", transform=ax1.transAxes,
-                 va="top", fontsize=7, bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
-    p1, p2 = d["prestrain"]
-    fig.suptitle(f"RB column, prestrain {p1:g} | {p2:g} (Z2/Z1 = {th.Z2 / th.Z1:.3g}): a Gaussian pulse across the joint "
-                 "against the chain's impedance formula", fontsize=10)
-    return fig
