@@ -30,10 +30,10 @@ import numpy as np
 
 from . import hetero
 from .closed_forms import rb_chain
+from .dispersion import _omega, _rank, bloch_cell
 from .gallery import Check, CheckGroup
 from ..engine import run_batch
 from ..options import RunSettings
-from .dispersion import _omega, _rank, bloch_cell
 from ..scene.columns import ColumnConfig
 
 __all__ = ["cos_q", "bloch_factor", "band_edges", "bloch_cell_two_levels", "check_diatomic"]
@@ -133,17 +133,17 @@ def _decay_per_cell(amplitudes) -> float:
 
 
 def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic: int = 32, n_lead: int = 70,
-                   n_lead_band: int = 32, omega_gap: float = 1.27, sigma_gap: float = 16.0, omega_band: float = 0.6, sigma_band: float = 7.0,
-                   cells: int = 5, strain_of_p: float = 1e-3, dt: float = 0.0125, tolerance_gap: float = 3e-3,
-                   tolerance_band: float = 1e-3, tolerance_cell: float = 1e-8, device: str = "cpu") -> CheckGroup:
+                   n_lead_band: int = 32, omega_gap: float = 1.27, sigma_gap: float = 16.0, omega_band: float = 0.6,
+                   sigma_band: float = 7.0, cells: int = 5, strain_of_p: float = 1e-3, dt: float = 0.0125,
+                   tolerance_gap: float = 3e-3, tolerance_band: float = 1e-3, tolerance_cell: float = 1e-8, device: str = "cpu") -> CheckGroup:
     """An RB column at ``prestrain``: ``n_diatomic`` prisms at the clamp whose levels alternate m and
     ``mass_ratio`` m (the level at the joint light), a lead of ``n_lead`` prisms of light levels at the free
-    end (``n_lead_band`` for the band packet). Two runs: a packet at ``omega_gap`` x sqrt(K/m_eff) (inside the gap, ``sigma_gap`` levels) and one at
-    ``omega_band`` x sqrt(K/m_eff) (in the acoustic band, ``sigma_band`` levels). Over the prisms of one kind
-    in the ``cells`` cells after the joint's: inside the gap, the decay per cell of the records' peaks, engine
-    against the records the complex Bloch wavenumber predicts from the joint's record; outside, the decay per
-    cell of the first passage's rms strain (the energy that passes, whatever the packet's spreading) against
-    none. And the two-level Bloch cell against the chain's branches
+    end (``n_lead_band`` for the band packet). Two runs: a packet at ``omega_gap`` x sqrt(K/m_eff) (inside the
+    gap, ``sigma_gap`` levels) and one at ``omega_band`` x sqrt(K/m_eff) (in the acoustic band, ``sigma_band``
+    levels). Over the prisms of one kind in the ``cells`` cells after the joint's: inside the gap, the decay
+    per cell of the records' peaks, engine against the records the complex Bloch wavenumber predicts from the
+    joint's record; outside, the decay per cell of the first passage's rms strain (the energy that passes,
+    whatever the packet's spreading) against none. And the two-level Bloch cell against the chain's branches
     (reference only). Frequencies in units of sqrt(K/m_eff) (the lead's cut-off is 2)."""
     cfg = ColumnConfig(n_prisms=n_diatomic + n_lead)
     m, h0 = cfg.unit_mass, cfg.height
@@ -177,7 +177,7 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
     # inside the gap: every cell's record predicted from the joint's through lambda(w)^c
     g = runs["gap"]
     t, y = g["time"], g["strain"][:, prisms]
-    n_fft = 64 * len(t)  # zero padding: lambda^c's response decays as t^(-3/2) (band edges); 4x would wrap 5e-3 of it
+    n_fft = 64 * len(t)  # zero padding: lambda^c's response decays as t^(-3/2) (band edges); 4x wraps 5e-3 of it
     Y0 = np.fft.rfft(y[:, 0], n_fft)
     lam = bloch_factor(2.0 * np.pi * np.fft.rfftfreq(n_fft, t[1] - t[0]), K, m1, m2)
     predicted = np.stack([np.fft.irfft(Y0 * lam**c, n_fft)[: len(t)] for c in range(cells + 1)], axis=1)
@@ -191,7 +191,8 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
     t_first = b["t_joint"] + (n_diatomic - prisms - 0.5) / vg
     cut = t_first + (prisms + 0.5) / vg
     tb = b["time"]  # rms over the first passage: the energy that passes, whatever the packet's spreading
-    peak_band = np.array([np.sqrt(np.trapezoid(b["strain"][tb <= tc, j] ** 2, tb[tb <= tc])) for j, tc in zip(prisms, cut)])
+    peak_band = np.array([np.sqrt(np.trapezoid(b["strain"][tb <= tc, j] ** 2, tb[tb <= tc]))
+                          for j, tc in zip(prisms, cut)])
     kappa_band = _decay_per_cell(peak_band[1:])
     b.update(prisms=prisms, cut=cut, peaks=peak_band)
     w_gap = np.linspace(edges[0], edges[1], 200)[1:-1]  # for the figure: kappa across the gap
@@ -200,8 +201,8 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
               f"records' peaks over {cells} cells, engine against the complex Bloch wavenumber's prediction from "
               "the joint's record", kappa_engine, kappa_theory, abs(kappa_engine / kappa_theory - 1.0), tolerance_gap),
         Check("diatomic_band_decay", f"outside the gap (w0 = {omega_band:g} sqrt(K/m_eff)): decay per cell of the "
-              f"rms strain of the first passage over {cells} cells, against none [1/cell]", kappa_band, 0.0, abs(kappa_band),
-              tolerance_band),
+              f"rms strain of the first passage over {cells} cells, against none [1/cell]", kappa_band, 0.0,
+              abs(kappa_band), tolerance_band),
         Check("diatomic_bloch_cell", "reference only: max over q of |two-level Bloch cell's symmetric branches - "
               "the diatomic chain's| / their top", cell_err, 0.0, cell_err, tolerance_cell, engine=False),
     ]
@@ -211,7 +212,8 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
              f"band edges (chain, and the Bloch cell at q = pi): {edges[0]:.6g} and {edges[1]:.6g} rad/s "
              f"(cell {cell_branches[-1, 0]:.6g}, {cell_branches[-1, 1]:.6g}); sqrt(K/m_eff) = {Omega:.6g} rad/s",
              f"gap packet at {g['omega0']:.5g} rad/s, sigma = {sigma_gap:g} levels: kappa(w0) = {kappa_w0:.5f} per cell; "
-             f"the packet's bandwidth lowers the peaks' decay to {kappa_theory:.5f} (prediction) / {kappa_engine:.5f} (engine)",
+             f"the packet's bandwidth lowers the peaks' decay to {kappa_theory:.5f} (prediction) / "
+             f"{kappa_engine:.5f} (engine)",
              f"band packet at {b['omega0']:.5g} rad/s, sigma = {sigma_band:g} levels, group velocity {vg:.4g} levels/s: "
              f"first-passage rms strain / the joint's: " + " ".join(f"{x:.6f}" for x in peak_band / peak_band[0])]
     return CheckGroup("diatomic", "Band gap of a diatomic RB column: decay inside, none outside", checks,

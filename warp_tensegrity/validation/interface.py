@@ -37,10 +37,10 @@ import numpy as np
 
 from . import hetero
 from .closed_forms import rb_chain
+from .dispersion import bands
 from .gallery import Check, CheckGroup
 from ..engine import run_batch
 from ..options import RunSettings
-from .dispersion import bands
 from ..scene.columns import ColumnConfig
 
 __all__ = ["InterfaceTheory", "interface_theory", "discrete_coefficients", "check_interface"]
