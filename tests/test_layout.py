@@ -50,7 +50,8 @@ LAYERS = [
      "sweep.plan", "sweep.shard", "sweep.dask", "sweep.run", "sweep", "lens.host", "lens.design", "lens.spec",
      "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
      "validation.reference_column", "validation.twist_chain",
-     "validation.linear", "validation.dispersion", "validation.checks", "validation.figures", "validation", "plot",
+     "validation.linear", "validation.dispersion", "validation.checks", "validation.hetero", "validation.interface",
+     "validation.diatomic", "validation.gallery", "validation.figures", "validation", "plot",
      "init_spec", "cli_args", ""},
     {"cli", "__main__"},
 ]

@@ -143,7 +143,7 @@ def _add_validate_parser(sub, common) -> None:
                                    "against its tolerance; exit 1 if one fails.")
     p.add_argument("-o", "--output", default=None, metavar="FIGDIR", help="write one figure per check into FIGDIR")
     p.add_argument("--only", nargs="+", default=None, metavar="NAME",
-                   help="run these checks only: bessel, soliton, dispersion, fb_modal")
+                   help="run these checks only: bessel, soliton, dispersion, fb_modal, interface, diatomic")
     add_device(p, "cpu", "cpu")
 
 

@@ -210,25 +210,132 @@ def test_every_constant_against_every_check():
 
 
 def perturbation_table() -> dict:
-    return {name: run_perturbed(name) for name in (None,) + PERTURBATIONS}
+    return {name: run_perturbed(name, SCENE_GROUPS) for name in (None,) + PERTURBATIONS}
 
 
-def markdown(table) -> str:
+def markdown(table, perturbations=PERTURBATIONS) -> str:
     checks = list(table[None])
-    head = "| check | true engine | " + " | ".join(f"`{n}` × {FACTOR:g}" for n in PERTURBATIONS) + " |"
-    lines = [head, "|---|" + "---:|" * (len(PERTURBATIONS) + 1)]
+    head = "| check | true engine | " + " | ".join(f"`{n}` × {FACTOR:g}" for n in perturbations) + " |"
+    lines = [head, "|---|" + "---:|" * (len(perturbations) + 1)]
     for c in checks:
         cells = []
-        for name in (None,) + PERTURBATIONS:
+        for name in (None,) + perturbations:
             e, t = table[name][c]
             ratio = e / t
             cells.append(f"**{ratio:.3g}**" if ratio > 1 else f"{ratio:.2g}")
         lines.append(f"| `{c}` | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
+# ---------------------------------------------------------------------- issue 34: the graded columns' checks
+# The interface and diatomic checks build their columns with validation.hetero.graded_batch (per-prism
+# prestrain, per-level masses), which the column_batch wrapper above cannot reach: their engine side is
+# perturbed through graded_batch instead, and their references (the Bloch cells, the chain's closed forms)
+# never call it.
+import warp_tensegrity.validation.hetero as hetero  # noqa: E402
+
+GRADED = hetero.graded_batch
+GRADED_PERTURBATIONS = ("segment_EA", "level_mass", "heavy_mass")
+"""``segment_EA``: the cross cables' EA of the segment behind the joint (the prisms whose prestrain is not the
+struck end's), rest lengths kept (their tension EA p scales with it; the RB links carry the bases' share);
+``level_mass``: every level's mass; ``heavy_mass``: the heavier levels' mass (the diatomic mass ratio)."""
+SCENE_GROUPS = ("bessel", "soliton", "dispersion", "fb_modal")
+"""The groups whose engine scene column_batch builds (the table above)."""
+
+
+def perturbed_graded_batch(name: str, factor: float = FACTOR):
+    """``graded_batch`` of an engine whose constant ``name`` (:data:`GRADED_PERTURBATIONS`) is ``factor`` times
+    the true one."""
+
+    def graded_batch(config, prestrain_per_prism, level_mass, level_velocity=None, base_rigidity=1.0):
+        batch = GRADED(config, prestrain_per_prism, level_mass, level_velocity, base_rigidity)
+        if name == "segment_EA":
+            assert base_rigidity == 1.0  # elastic bases would need their share of the self-stress moved too
+            p = np.asarray(prestrain_per_prism)
+            prisms = np.flatnonzero(p != p[-1])
+            _full(batch, "cable_EA")[:, (3 * prisms[:, None] + np.arange(3)).ravel()] *= factor
+        elif name == "level_mass":
+            _full(batch, "node_mass")[:] *= factor
+        elif name == "heavy_mass":
+            m = np.asarray(level_mass)
+            heavy = np.flatnonzero(m > np.median(m[1:]) * (1 + 1e-9))  # the diatomic segment's heavy levels
+            _full(batch, "node_mass")[:, batch.level_nodes[heavy].ravel()] *= factor
+        else:
+            raise ValueError(name)
+        return batch
+
+    return graded_batch
+
+
+@contextmanager
+def perturbed_graded_engine(name: str, factor: float = FACTOR):
+    """Within the block the graded columns' checks run an engine with ``name`` scaled by ``factor``."""
+    hetero.graded_batch = perturbed_graded_batch(name, factor)
+    try:
+        yield
+    finally:
+        hetero.graded_batch = GRADED
+
+
+def test_the_graded_perturbation_reaches_the_engine_only():
+    """Each changes what it names and keeps the reference state in equilibrium; the references do not see it."""
+    from warp_tensegrity import ColumnConfig
+    from warp_tensegrity.validation.diatomic import bloch_cell_two_levels
+    from warp_tensegrity.validation.interface import interface_theory
+
+    cfg = ColumnConfig(n_prisms=4)
+    p = np.array([0.0005, 0.0005, 0.002, 0.002])
+    m = np.array([0.0125, 0.0249, 0.0498, 0.0249, 0.0125])
+    true = GRADED(cfg, p, m)
+    ea0, m0 = np.broadcast_to(true.cable_EA, (1, len(true.cables)))[0], true.node_mass[0]
+    for name in GRADED_PERTURBATIONS:
+        b = perturbed_graded_batch(name)(cfg, p, m)
+        ratio_ea = np.broadcast_to(b.cable_EA, (1, len(b.cables)))[0, :12] / ea0[:12]
+        ratio_m = b.node_mass[0] / m0
+        np.testing.assert_allclose(ratio_ea, np.where(np.arange(12) < 6, FACTOR, 1.0) if name == "segment_EA" else 1.0)
+        heavy = np.repeat(np.arange(5) == 2, 3)
+        np.testing.assert_allclose(ratio_m, {"level_mass": FACTOR, "heavy_mass": np.where(heavy, FACTOR, 1.0)}.get(name, 1.0))
+        assert scene_batch.equilibrium_residuals(b)[0] < 1e-12 * 0.337 * 0.002
+    theory = interface_theory(cfg, 0.002, 0.0005)
+    cell = bloch_cell_two_levels(cfg, 0.002, 0.0249, 0.0498, [np.pi])
+    with perturbed_graded_engine("level_mass"):
+        assert hetero.graded_batch is not GRADED
+        assert interface_theory(cfg, 0.002, 0.0005) == theory
+        np.testing.assert_array_equal(bloch_cell_two_levels(cfg, 0.002, 0.0249, 0.0498, [np.pi]), cell)
+    assert hetero.graded_batch is GRADED
+
+
+GRADED_CAUGHT_BY = {"segment_EA": ("interface", "interface_transmitted"),
+                    "level_mass": ("diatomic", "diatomic_gap_decay"),
+                    "heavy_mass": ("diatomic", "diatomic_gap_decay")}
+
+
+@pytest.mark.parametrize("name", GRADED_PERTURBATIONS)
+def test_a_five_percent_error_fails_a_graded_check(name):
+    """The true engine passes these checks (test_interface.py, test_diatomic.py); a 5 % error fails them."""
+    group, check = GRADED_CAUGHT_BY[name]
+    with perturbed_graded_engine(name):
+        off = {c.name: (c.error, c.tolerance) for g in run_validation([group]) for c in g.checks}
+    failed = {k: f"{e:.3g} > {t:g}" for k, (e, t) in off.items() if not e <= t}
+    assert check in failed, (name, off)
+
+
+def graded_table() -> dict:
+    """{perturbation or None: {check: (error, tolerance)}} of the interface and diatomic checks."""
+    table = {}
+    for name in (None,) + GRADED_PERTURBATIONS:
+        if name is None:
+            groups = run_validation(["interface", "diatomic"])
+        else:
+            with perturbed_graded_engine(name):
+                groups = run_validation(["interface", "diatomic"])
+        table[name] = {c.name: (c.error, c.tolerance) for g in groups for c in g.checks}
+    return table
+
 
 if __name__ == "__main__":
     t0 = time.perf_counter()
     tab = perturbation_table()
     print(markdown(tab))
+    print()
+    print(markdown(graded_table(), GRADED_PERTURBATIONS))
     print(f"\n(error / tolerance; bold: the check fails) {time.perf_counter() - t0:.0f} s")

@@ -6,7 +6,11 @@
   periodic column; the RB band and its long-wave limit against c0 (a check of the reference only);
   the simulated speed against the same measure on the Bessel form;
 * ``fb_modal``: the flexible-base (FB) small impact, under two impacts, against the modal sum of
-  :mod:`.linear` on the column rebuilt from the closed forms (:mod:`.reference_column`).
+  :mod:`.linear` on the column rebuilt from the closed forms (:mod:`.reference_column`);
+* ``interface``: a long-wave pulse across the joint of two RB segments of different prestrain against
+  the discrete chain's impedances (:mod:`.interface`);
+* ``diatomic``: an RB column of level masses m | 2m driven by wave packets inside and outside its band gap
+  against its two-level Bloch cell and complex Bloch wavenumber (:mod:`.diatomic`);
 
 Every check runs the engine except those marked ``engine=False`` (checks of the reference only; the
 report says so). ``warp-tensegrity validate`` runs :func:`run_validation` and draws :mod:`.figures`;
@@ -17,10 +21,13 @@ shows that an engine with a constant 5 % off fails some check.
 from __future__ import annotations
 
 from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_soliton
+from .diatomic import check_diatomic
+from .interface import check_interface
 
 __all__ = ["CHECKS", "Check", "CheckGroup", "run_validation", "report"]
 
-CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal}
+CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal,
+          "interface": check_interface, "diatomic": check_diatomic}
 """Every check group by name, in gallery order."""
 
 

@@ -15,12 +15,11 @@ error there is not shared. Nothing is compared with stored engine output. A chec
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from .closed_forms import RBChain, bessel_compression, power_chain_soliton, rb_chain
 from .dispersion import bands, chain_wavenumbers, mode_frequencies, ringing_frequency
+from .gallery import Check, CheckGroup
 from .linear import modal_analysis
 from .reference_column import ReferenceColumn, reference_column
 from ..engine import simulate_batch
@@ -31,42 +30,6 @@ from ..options import RunSettings
 __all__ = ["Check", "CheckGroup", "check_bessel", "check_soliton", "check_dispersion", "check_fb_modal", "chain_of"]
 
 J1_MAX = 0.5818652242  # max of J_1 (the struck prism's first peak is (v0/c0) J1_MAX)
-
-
-@dataclass
-class Check:
-    """One number against its closed form."""
-
-    name: str
-    what: str
-    value: float
-    """The engine's number (in a check of the reference only, the reference's)."""
-    reference: float
-    """The closed form's number."""
-    error: float
-    """The compared error (relative, as ``what`` says)."""
-    tolerance: float
-    engine: bool = True
-    """False for a check of the reference only (no engine run enters it): it cannot catch an engine error."""
-
-    @property
-    def passed(self) -> bool:
-        return bool(np.isfinite(self.error) and self.error <= self.tolerance)
-
-
-@dataclass
-class CheckGroup:
-    """The checks of one closed form, with the arrays of its figure."""
-
-    name: str
-    title: str
-    checks: list[Check]
-    data: dict = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def passed(self) -> bool:
-        return all(c.passed for c in self.checks)
 
 
 def chain_of(config: ColumnConfig, prestrain: float) -> RBChain:

@@ -14,7 +14,8 @@ import numpy as np
 from ..atomic import replacing
 from ..plot import PRISM_LABEL, dispersion
 
-__all__ = ["FIGURES", "write_figures", "figure_bessel", "figure_soliton", "figure_dispersion", "figure_fb_modal"]
+__all__ = ["FIGURES", "write_figures", "figure_bessel", "figure_soliton", "figure_dispersion", "figure_fb_modal",
+           "figure_interface", "figure_diatomic"]
 
 
 def _figure(ncols: int, width: float = 10.0, height: float = 4.0, nrows: int = 1):
@@ -148,8 +149,100 @@ def figure_dispersion(g):
     return fig
 
 
+def figure_interface(g):
+    """The space-time strain map with the long-wave arrivals, and the three pulses at their stations scaled by
+    the formulas (incident, reflected / R_eps, transmitted / T_eps) and shifted by the long-wave times."""
+    from matplotlib import colors
+
+    d = g.data
+    t, q, (s1, s2), th = d["time"], d["strain"], d["stations"], d["theory"]
+    t_inc, t_ref, t_tra = d["arrivals"]
+    fig, axes = _figure(2)
+    ax0, ax1 = axes[0]
+    peak = float(np.abs(q).max())
+    n = q.shape[1]
+    mesh = ax0.pcolormesh(np.arange(n), t, q / peak, cmap="RdBu_r", shading="nearest", rasterized=True,
+                          norm=colors.TwoSlopeNorm(vcenter=0.0, vmin=-1.0, vmax=1.0))
+    fig.colorbar(mesh, ax=ax0, pad=0.01).set_label("strain / its largest magnitude [-]")
+    J, N, h0 = d["joint"], n, th.height
+    lvl = np.linspace(J, N, 50)
+    ax0.plot(lvl, (N - lvl) * h0 / th.c1, "k--", lw=0.8, label="long-wave arrivals (c1, c2)")
+    ax0.plot(lvl, ((N - J) + (lvl - J)) * h0 / th.c1, "k--", lw=0.8)
+    low = np.linspace(0, J, 30)
+    ax0.plot(low, (N - J) * h0 / th.c1 + (J - low) * h0 / th.c2, "k--", lw=0.8)
+    ax0.axvline(J, color="0.4", lw=0.8)
+    for s in (s1, s2):
+        ax0.axvline(s + 0.5, color="C2", lw=0.8, ls=":")
+    ax0.set_xlabel("prism (0 at the clamp; the joint grey, the stations green)")
+    ax0.set_ylabel("time t [s]")
+    ax0.set_ylim(t[0], t[-1])
+    ax0.legend(fontsize=7, loc="upper right")
+    half = d["half"]
+    peak = float(np.abs(q[:, s1]).max())  # the incident pulse's
+    for y, tc, scale, label, style in (
+            (q[:, s1], t_inc, 1.0, "incident (station before the joint)", "k-"),
+            (q[:, s1], t_ref, th.reflected_strain, "reflected / R_eps", "C0--"),
+            (q[:, s2], t_tra, th.transmitted_strain, "transmitted / T_eps", "C3:")):  # noqa: E127
+        sel = (t >= tc - half) & (t <= tc + half)
+        ax1.plot(t[sel] - tc, y[sel] / scale / peak, style, lw=1.3, label=label)
+    ax1.set_xlabel("time from the long-wave arrival [s]")
+    ax1.set_ylabel("strain / scale / incident peak [-]")
+    ax1.legend(fontsize=7, loc="lower right")
+    for i, c in enumerate(g.checks):
+        ax1.text(0.02, 0.72 - 0.1 * i, f"{c.name}:\n{c.error:.2e} (tolerance {c.tolerance:g})", transform=ax1.transAxes,
+                 va="top", fontsize=7, bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
+    p1, p2 = d["prestrain"]
+    fig.suptitle(f"RB column, prestrain {p1:g} | {p2:g} (Z2/Z1 = {th.Z2 / th.Z1:.3g}): a Gaussian pulse across the joint "
+                 "against the chain's impedance formula", fontsize=10)
+    return fig
+
+
+def figure_diatomic(g):
+    """The two-level cell's branches with the gap's decay rate, the peaks per cell (engine, prediction,
+    kappa(w0)) and the rms per cell outside the gap, and the records at a few cells inside."""
+    d = g.data
+    fig, axes = _figure(3, width=13.0)
+    ax0, ax1, ax2 = axes[0]
+    q, br, (lo, hi) = d["q"], d["branches"], d["edges"]
+    for i in range(br.shape[1]):
+        ax0.plot(q / np.pi, br[:, i], "C0-", lw=1.4, label="two-level Bloch cell (RB, symmetric)" if i == 0 else None)
+    ax0.plot(1.0 + d["gap_kappa"] / np.pi, d["gap_omega"], "C3-", lw=1.2, label="gap: 1 + kappa/pi (q = pi + i kappa)")
+    ax0.axhspan(lo, hi, color="0.92", zorder=0)
+    for key, style in (("gap", "C3"), ("band", "C2")):
+        ax0.axhline(d["runs"][key]["omega0"], color=style, ls="--", lw=0.8, label=f"{key} packet's w0")
+    ax0.set_xlabel("q / pi (cell of two levels); right of 1: kappa / pi")
+    ax0.set_ylabel("angular frequency [rad/s]")
+    ax0.legend(fontsize=7, loc="lower right")
+    gap, band = d["runs"]["gap"], d["runs"]["band"]
+    pe, pt = gap["peaks"]
+    c = np.arange(pe.size)
+    ax1.semilogy(c, pe / pe[0], "C3o", mfc="none", label="gap: engine's peaks")
+    ax1.semilogy(c, pt / pt[0], "k-", lw=0.8, label="gap: lambda(w)^c on the joint's record")
+    ax1.semilogy(c, np.exp(-d["kappa_w0"] * c), "C3:", lw=0.8, label="gap: exp(-kappa(w0) c)")
+    ax1.semilogy(c, band["peaks"] / band["peaks"][0], "C2s", mfc="none", label="band: engine's rms, first passage")
+    ax1.set_xlabel("cells from the joint")
+    ax1.set_ylabel("amplitude / the joint's [-]")
+    ax1.legend(fontsize=7, loc="lower left")
+    for i, ch in enumerate(g.checks[:2]):
+        ax1.text(0.98, 0.84 - 0.08 * i, f"{ch.name}: {ch.error:.2e} (tolerance {ch.tolerance:g})",
+                 transform=ax1.transAxes, va="top", ha="right", fontsize=7, bbox={"fc": "w", "ec": "0.8", "alpha": 0.9})
+    t, y, pred = gap["time"], gap["strain"][:, gap["prisms"]], gap["predicted"]
+    scale = float(np.abs(y[:, 0]).max())
+    for i, cc in enumerate((0, 1, 3)):
+        ax2.plot(t, y[:, cc] / scale, color=f"C{i}", lw=1.0, label=f"engine, cell {cc}")
+        ax2.plot(t, pred[:, cc] / scale, "k--", lw=0.6, label="prediction" if i == 0 else None)
+    ax2.set_xlim(gap["t_joint"] - 3.0 * gap["sigma"] * 0.25, t[-1])
+    ax2.set_xlabel("time t [s]")
+    ax2.set_ylabel("strain / the joint prism's peak [-]")
+    ax2.legend(fontsize=7, loc="upper left")
+    fig.suptitle("RB column, level masses m | 2m: a packet inside the gap dies at the complex Bloch wavenumber's rate, "
+                 "one in the acoustic band passes", fontsize=10)
+    return fig
+
+
 FIGURES = {"bessel": figure_bessel, "soliton": figure_soliton, "dispersion": figure_dispersion,
-           "fb_modal": figure_fb_modal}
+           "fb_modal": figure_fb_modal, "interface": figure_interface,
+           "diatomic": figure_diatomic}
 
 
 def write_figures(groups, directory) -> list[Path]:
