@@ -94,3 +94,28 @@ def test_interface_check():
     g = check_interface()
     assert g.passed, report([g])
     assert [c.name for c in g.checks] == ["interface_reflected", "interface_transmitted", "interface_delay"]
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.5, 1.0])
+def test_the_profile_api_builds_the_columns_graded_batch_builds(beta):
+    """Two constructions of one graded column, written apart: the scene builder's profiles
+    (scene.batch.column_batch with per-prism prestrain and per-level unit_mass) and this gallery's
+    graded_batch. Rest lengths and node masses agree to round-off (unit_mass counts an end level as
+    an interior one, halved by end_base_mass = 'half': graded_batch's masses are what each level
+    carries)."""
+    from warp_tensegrity import Profile
+
+    cfg = ColumnConfig(n_prisms=9, handedness="RRLRLLRRL")
+    rng = np.random.default_rng(7)
+    p = rng.uniform(0.001, 0.01, cfg.n_prisms)
+    level_mass = rng.uniform(0.5, 2.0, cfg.n_prisms + 1) * cfg.unit_mass
+    unit_mass = level_mass.copy()
+    unit_mass[[0, -1]] *= 2.0  # 'half' at the end levels
+    ref = graded_batch(cfg, p, level_mass, base_rigidity=beta)
+    api = column_batch(cfg, {"prestrain": Profile.explicit(p), "unit_mass": Profile.explicit(unit_mass),
+                             "base_rigidity": beta})
+    np.testing.assert_array_equal(api.cables, ref.cables)
+    np.testing.assert_allclose(api.cable_rest_length, ref.cable_rest_length, rtol=1e-14, atol=0)
+    free = ~api.fixed
+    np.testing.assert_allclose(api.node_mass[:, free], ref.node_mass[:, free], rtol=1e-15, atol=0)
+    np.testing.assert_allclose(api.cable_EA, ref.cable_EA, rtol=1e-15, atol=0)
