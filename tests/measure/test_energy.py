@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from warp_tensegrity import simulate_batch
-from warp_tensegrity.measure.energy import energy_parts, part_nodes, pulse_energy_share, end_energy_share
+from warp_tensegrity.measure.energy import end_energy_share, energy_parts, part_nodes, pulse_energy_share, section_power
 from warp_tensegrity.measure.pulse_core import measure_pulse, measurement_window
 from warp_tensegrity.options import RunSettings, SettingsError
 from warp_tensegrity.policy.decide import check_batch_arguments
@@ -99,3 +99,34 @@ def test_a_station_outside_the_column_is_refused():
     cfg = ColumnConfig(n_prisms=4)
     with pytest.raises(SettingsError, match=r"energy_station = 4: must be < the scene's n_prisms = 4"):
         check_batch_arguments("decide", cfg, {}, RunSettings(energy_station=4))
+
+
+def test_flux_through_the_section_integrates_to_the_energy_passed():
+    """Conservation through the station's section: the energy flux into the clamp side (member
+    forces times the velocities of their ends across the section, bar forces from the state's
+    constraint solve: energy.section_power, NumPy), integrated over time (trapezoids over every
+    step), equals the change of the recorded energy on that side to the integration error."""
+    from warp_tensegrity.integrate import Integrator
+
+    n, s, steps, dt = 4, 1, 1500, 2e-4
+    cfg = ColumnConfig(n_prisms=n)
+    batch = column_batch(cfg, column_params(cfg, PARAMS))
+    below_node = part_nodes(n, s, 1)[0]
+    integ = Integrator(batch, RunSettings(device="cpu", precision="fp64"), dt, 1, steps + 1, path=Path.STAGED,
+                       energy_parts=part_nodes(n, s, 1))
+    X = batch.positions
+    power = []
+    integ.initialize()
+    for k in range(steps + 1):
+        if k:
+            integ.step()
+        x = X[None] + integ.data.u.numpy().transpose(1, 0, 2)
+        v = integ.data.v.numpy().transpose(1, 0, 2)
+        power.append(section_power(x, v, batch.fixed, batch.node_mass, batch.constraints, batch.cables, batch.cable_EA,
+                                   batch.cable_EA_compression, batch.cable_rest_length, below_node,
+                                   batch.constraint_active))
+    power = np.array(power)
+    flux = np.concatenate([np.zeros((1, power.shape[1])), np.cumsum(0.5 * dt * (power[1:] + power[:-1]), axis=0)])
+    below, ke0 = integ.energy_below.numpy(), integ.kinetic.numpy()[0]
+    assert np.all(below[-1] > 0.05 * ke0)  # the pulse has brought energy through the section
+    np.testing.assert_allclose(flux, below - below[0], rtol=0, atol=1e-3 * below[-1].max())

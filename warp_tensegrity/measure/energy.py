@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ENERGY_SHARES", "end_energy_share", "end_prisms", "energy_parts", "part_nodes", "pulse_energy_share", "station_prism"]
+__all__ = ["ENERGY_SHARES", "end_energy_share", "end_prisms", "energy_parts", "part_nodes", "pulse_energy_share",
+           "section_power", "station_prism"]
 
 ENERGY_SHARES = ("pulse_energy_share", "end_energy_share")
 """The per-case energy measures, [1] each."""
@@ -134,3 +135,66 @@ def end_energy_share(end, kinetic0, n_valid=None) -> np.ndarray:
     e0 = np.asarray(kinetic0, np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where((nv >= T) & (e0 > 0.0), end[:, -1] / e0, np.nan)
+
+
+def section_power(x, v, fixed, node_mass, bars, cables, EA, EAc, rest, below_node: int, bar_active=None) -> np.ndarray:
+    """(B,) energy flux [W] into the part below node ``below_node`` (nodes n < below_node and every
+    member with an end there) through the members that join it to the rest: the sum over those
+    members of -F . v at their other end o, F the member's force on o (energy.md: d/dt of that
+    part's energy). Host reference for one state (fp64, a dense solve per column: small columns).
+
+    ``x``, ``v`` (B, n_nodes, 3) positions [m] and velocities [m s-1] (v admissible: the bars'
+    length rates zero); ``fixed`` (n_nodes,) clamped nodes; ``node_mass`` (B or 1, n_nodes) [kg]
+    lumped (massless bars); ``bars`` (nb, 2) rigid members, ``cables`` (m, 2) with ``EA``, ``EAc``,
+    ``rest`` (B or 1, m) as :func:`energy_parts`; ``bar_active`` (B or 1, nb): 1 where the column has
+    that rigid member (default: all). Bar forces are the constraint forces of the
+    state: with b = x_j - x_i per bar, G (nb, 3 n) = [-b at i, b at j], M^-1 zero on clamped nodes,
+    (G M^-1 G^T) lam = -G M^-1 f - |v_j - v_i|^2 (the bars' second length derivative zero); the
+    force on j is lam b, on i -lam b."""
+    x, v = np.asarray(x, np.float64), np.asarray(v, np.float64)
+    B, n, _ = x.shape
+    bars, cables = np.asarray(bars).reshape(-1, 2), np.asarray(cables).reshape(-1, 2)
+    mass = np.broadcast_to(np.asarray(node_mass, np.float64), (B, n))
+    EA, EAc, rest = (np.broadcast_to(np.asarray(a, np.float64), (B, len(cables))) for a in (EA, EAc, rest))
+    active = np.ones((B, len(bars)), bool) if bar_active is None else np.broadcast_to(np.asarray(bar_active) != 0,
+                                                                                         (B, len(bars)))
+    all_bars = bars
+    out = np.empty(B)
+    for b in range(B):
+        bars = all_bars[active[b]]
+        ci, cj = cables[:, 0], cables[:, 1]
+        d = x[b, cj] - x[b, ci]
+        length = np.linalg.norm(d, axis=1)
+        stretch = length - rest[b]
+        tension = np.where(stretch < 0.0, EAc[b], EA[b]) * stretch / rest[b]
+        fc = (tension / length)[:, None] * d  # the cable's force on its first node; minus on its second
+        f = np.zeros((n, 3))
+        np.add.at(f, ci, fc)
+        np.add.at(f, cj, -fc)
+        minv = np.where(np.asarray(fixed), 0.0, 1.0 / mass[b])
+        bi, bj = bars[:, 0], bars[:, 1]
+        bb = x[b, bj] - x[b, bi]
+        G = np.zeros((len(bars), n, 3))
+        G[np.arange(len(bars)), bi] -= bb
+        G[np.arange(len(bars)), bj] += bb
+        G = G.reshape(len(bars), 3 * n)
+        gm = G * np.repeat(minv, 3)[None, :]
+        dv = v[b, bj] - v[b, bi]
+        lam = np.linalg.solve(gm @ G.T, -gm @ f.reshape(-1) - np.einsum("ki,ki->k", dv, dv)) if len(bars) else []
+        power = 0.0
+        for (i, j), force_j in ((cables[k], -fc[k]) for k in range(len(cables))):
+            power += _cut_term(i, j, force_j, v[b], below_node)
+        for k, (i, j) in enumerate(bars):
+            power += _cut_term(i, j, lam[k] * bb[k], v[b], below_node)
+        out[b] = power
+    return out
+
+
+def _cut_term(i: int, j: int, force_j, v, below_node: int) -> float:
+    """-F . v at the member's end outside the part below ``below_node`` (F its force there), where
+    the member joins the part to the rest; 0 otherwise. ``force_j``: its force on j (minus on i)."""
+    if (i < below_node) == (j < below_node):
+        return 0.0
+    if j >= below_node:
+        return -float(np.dot(force_j, v[j]))
+    return float(np.dot(force_j, v[i]))
