@@ -116,7 +116,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     if measure_here:
         n_valid = np.where(status != 0, np.maximum(fail_step - 1, 0) // every + 1, n_out)
         energy = None if integ.energy_parts is None else {"below": integ.energy_below, "end": integ.energy_end,
-                                             "kinetic": integ.kinetic, "station": station}
+                                                          "kinetic": integ.kinetic, "station": station, "end_prisms": k}
         measurements = measure_record(integ.strain, plan.output_times, n_valid=n_valid, timings=stages,
                                       energy=energy, **pulse)
     strain = None
@@ -207,7 +207,8 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     if plan.settings.measure == "host":
         from .measure.device import measure_host  # imports Warp (the record helpers): not at package import
 
-        measure_host(result, config.height, keep_strain=plan.settings.record_strain, station=pulse["station"])
+        measure_host(result, config.height, keep_strain=plan.settings.record_strain, station=pulse["station"],
+                     end_prisms=pulse["end_prisms"])
     result.info["choices"] = plan.choices()
     result.info["prism_height"] = float(config.height)  # for BatchResult.to_xarray's measurements
     # the per-case flag of the limit beta -> 1, evaluated when a dataset is built (it needs max_compression)

@@ -85,7 +85,7 @@ def test_shares_match_the_numpy_reference():
     s = (cfg.n_prisms - 1) // 2
     pulse = pulse_energy_share(r.station_energy, r.kinetic_energy[:, 0], r.time, host["arrival_time"],
                                host["peak_time"], host["width_10"], s, measurement_window(cfg.n_prisms))
-    end = end_energy_share(r.end_energy, r.kinetic_energy[:, 0])
+    end = end_energy_share(r.end_energy, r.kinetic_energy[:, 0], r.time, host["speed"], cfg.height, cfg.n_prisms, 3)
     assert np.all(np.isfinite(pulse)) and np.all((pulse > 0.5) & (pulse < 1.0))
     assert np.all((end > 0) & (end < 1))
     np.testing.assert_allclose(m["pulse_energy_share"], pulse, rtol=1e-12)

@@ -88,7 +88,7 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
     Only these cross to the host.
     ``timings`` (optional dict) receives ``measurement`` (device work) and ``transfer`` seconds.
     ``energy`` (optional): the energy measures (:mod:`.energy`) too, from the device records
-    ``below``, ``end`` and ``kinetic`` (n_time, B) and the ``station`` prism: adds
+    ``below``, ``end`` and ``kinetic`` (n_time, B), the ``station`` prism and the ``end_prisms``: adds
     ``pulse_energy_share``, ``end_energy_share`` (B,) and, with the stability probe,
     ``pulse_energy_share_sensitivity``.
     """
@@ -164,9 +164,10 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
                                            scal["speed"], scal["width_fwhm"], scal["width_10"], scal["prisms_measured"],
                                            scal["pulse_captured"]])
             if energy is not None:
-                wp.launch(energy_shares, B, [t_d, int(energy["station"]), lo, hi, energy["below"], energy["end"],
-                                             energy["kinetic"], nv_d, arrival, tp_time, scal["width_10"],
-                                             shares["pulse_energy_share"], shares["end_energy_share"]])
+                wp.launch(energy_shares, B, [t_d, h_d, int(energy["station"]), lo, hi, P, int(energy["end_prisms"]),
+                                             energy["below"], energy["end"], energy["kinetic"], nv_d, arrival, tp_time,
+                                             scal["width_10"], scal["speed"], shares["pulse_energy_share"],
+                                             shares["end_energy_share"]])
             wp.launch(snapshots, (T, B), [t_d, cut, strain, nv_d, whole, fit, lo_eff, hi_eff, P, sx, sy, sw])
             wp.launch(snapshot_fit, B, [h_d, sx, sy, sw, scal["speed_snapshot"]])
             out = {k: v.numpy().copy() for k, v in {**scal, **shares}.items()}  # copies: on the CPU numpy() is a view
@@ -236,27 +237,29 @@ def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact
     return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
 
 
-def energy_shares_host(result, m: dict, station: int) -> dict:
+def energy_shares_host(result, m: dict, station: int, end_prisms: int, prism_height: float) -> dict:
     """The energy shares (:mod:`.energy`) of a host result from its records and pulse measures ``m``."""
     ke, n = np.asarray(result.kinetic_energy, dtype=np.float64), np.shape(m["arrival_time"])[-1]
     n_valid = np.isfinite(ke).sum(axis=1)
     return {"pulse_energy_share": pulse_energy_share(result.station_energy, ke[:, 0], result.time, m["arrival_time"],
                                                      m["peak_time"], m["width_10"], station,
                                                      measurement_window(n), n_valid),
-            "end_energy_share": end_energy_share(result.end_energy, ke[:, 0], n_valid)}
+            "end_energy_share": end_energy_share(result.end_energy, ke[:, 0], result.time, m["speed"], prism_height, n,
+                                                 end_prisms, n_valid)}
 
 
-def measure_host(result, prism_height, keep_strain: bool = True, station: int | None = None) -> None:
+def measure_host(result, prism_height, keep_strain: bool = True, station: int | None = None,
+                 end_prisms: int | None = None) -> None:
     """The fallback (RunSettings.measure = 'host'): NumPy reference on the host copy of the record;
     sets ``result.measurements`` and the ``measurement`` stage seconds; drops the strain unless kept.
-    ``station``: the energy measures' station prism (where the result has the energy-parts record)."""
+    ``station``, ``end_prisms``: the energy measures' (where the result has the energy-parts record)."""
     t0 = _time.perf_counter()
     if result.strain is not None:
         s = np.asarray(result.strain, dtype=np.float64)
         with np.errstate(all="ignore"):
             m = measure_pulse(s, result.time, prism_height)
             if station is not None and result.station_energy is not None:
-                m.update(energy_shares_host(result, m, station))
+                m.update(energy_shares_host(result, m, station, end_prisms, prism_height))
             ok = np.isfinite(s).all(axis=(1, 2))
             q = np.where(np.isfinite(s), -s, 0.0)
             m["max_compression_finite"] = q.max(axis=(1, 2)) if s.size else np.full(s.shape[0], np.nan)

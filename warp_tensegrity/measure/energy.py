@@ -126,15 +126,20 @@ def pulse_energy_share(below, kinetic0, time, arrival_time, peak_time, width_10,
     return out
 
 
-def end_energy_share(end, kinetic0, n_valid=None) -> np.ndarray:
-    """(B,) share of the impact energy left in the end part at t_end [1]: ``end[:, -1] / kinetic0``;
-    NaN where the column failed before t_end (n_valid < n_out) or kinetic0 <= 0."""
+def end_energy_share(end, kinetic0, time, speed, prism_height, n_prisms: int, k: int, n_valid=None) -> np.ndarray:
+    """(B,) share of the impact energy left in the end part at t_end [1]: ``end[:, -1] / kinetic0``,
+    ``end`` (B, n_out) [J], ``kinetic0`` (B,) [J]. Only before the leading pulse, reflected at the
+    clamp, can be back in it: NaN unless the pulse ``speed`` (B,) [m s-1] is defined and
+    t_end < (2 n_prisms - k) prism_height / speed; NaN too where the column failed before t_end
+    (n_valid < n_out) or kinetic0 <= 0."""
     end = np.asarray(end, np.float64)
     B, T = end.shape
     nv = np.full(B, T) if n_valid is None else np.asarray(n_valid)
     e0 = np.asarray(kinetic0, np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where((nv >= T) & (e0 > 0.0), end[:, -1] / e0, np.nan)
+        back = (2 * n_prisms - k) * np.asarray(prism_height, np.float64) / np.asarray(speed, np.float64)
+        ok = (nv >= T) & (e0 > 0.0) & (time[-1] < back)
+        return np.where(ok, end[:, -1] / e0, np.nan)
 
 
 def section_power(x, v, fixed, node_mass, bars, cables, EA, EAc, rest, below_node: int, bar_active=None) -> np.ndarray:
