@@ -167,7 +167,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
             "stages": stages,
             **({"contact": integ.contact.summary()} if integ.contact is not None else {}),
-            **({"energy_station": station} if integ.energy_parts is not None else {}),
+            **({"energy_station": station, "energy_end_prisms": k} if integ.energy_parts is not None else {}),
         },
     )
 

@@ -382,6 +382,7 @@ def result_dataset(result, config=None, measurements: dict | None = None, attrs:
     if config is not None:
         for f in dataclasses.fields(config):
             a[f"scene_{f.name}"] = getattr(config, f.name)
+    a.update({k: result.info[k] for k in ("energy_station", "energy_end_prisms") if k in result.info})
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
     a.update(attrs)
     coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))

@@ -93,6 +93,7 @@ def test_shares_match_the_numpy_reference():
     assert np.all(m["pulse_energy_share_sensitivity"] == 0)
     ds = r.to_xarray(cfg)
     assert ds["pulse_energy_share"].attrs["units"] == "1" and ds["station_energy"].attrs["units"] == "J"
+    assert ds.attrs["energy_station"] == s and ds.attrs["energy_end_prisms"] == 3
 
 
 def test_a_station_outside_the_column_is_refused():
