@@ -103,11 +103,11 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         valid[b, last_slot + 1 :] = False
         ke[b, last_slot + 1 :] = np.nan
         ee[b, last_slot + 1 :] = np.nan
-    parts = {k: _to_host(a) for k, a in (("station_energy", integ.energy_below), ("end_energy", integ.energy_end))}
-    for a in parts.values():
+    records = {name: _to_host(a) for name, a in (("station_energy", integ.energy_below), ("end_energy", integ.energy_end))}
+    for a in records.values():  # (n_out, B)
         if a is not None:
             a[~valid.T] = np.nan
-    parts = {k: None if a is None else np.ascontiguousarray(a.T) for k, a in parts.items()}
+    records = {name: None if a is None else np.ascontiguousarray(a.T) for name, a in records.items()}
     scale = np.where(ke[:, 0] > 0, ke[:, 0], np.nan)
     with np.errstate(invalid="ignore"):
         dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
@@ -133,7 +133,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         strain=strain,
         kinetic_energy=ke,
         elastic_energy=ee,
-        **parts,
+        **records,
         energy_error=energy_error,
         bar_length_error=d.bar_err.numpy().astype(np.float64),
         status=status,
