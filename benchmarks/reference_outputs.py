@@ -119,9 +119,10 @@ def compute() -> dict:
 META_BLAS = "meta/blas"
 """The npz entry recording the BLAS the file was made with (JSON: :func:`blas_signature`)."""
 
-ROUND_OFF = {"strain", "kinetic_energy", "elastic_energy", "final_displacement", "final_velocity",
-             "twist_max", "twist_min", "height_ratio_min"}  # the last three: extremes of a state history
-MEASURES = {"amplitude", "speed", "width", "width_10", "arrival_time", "max_compression", "base_mode_ratio"}
+ROUND_OFF = {"strain", "kinetic_energy", "elastic_energy", "station_energy", "end_energy", "final_displacement",
+             "final_velocity", "twist_max", "twist_min", "height_ratio_min"}  # the last three: extremes of a state history
+MEASURES = {"amplitude", "speed", "width", "width_10", "arrival_time", "max_compression", "base_mode_ratio",
+            "pulse_energy_share", "end_energy_share"}
 ESTIMATES = {f"{k}_error" for k in ("amplitude", "speed", "width", "width_10", "arrival_time")}
 TOLERANCES = {
     **{k: ("peak", 2e-9, "an error estimate: the difference of two runs' measures, each at round-off (spread across "

@@ -42,7 +42,7 @@ LAYERS = [
      "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes", "kernels", "model", "integrate"},
     # measure
     {"measure.pulse_core", "measure.pulse", "measure", "measure.device_funcs", "measure.device_kernels", "measure.errors",
-     "measure.device", "measure.feasibility", "measure.nan_reasons"},
+     "measure.device", "measure.feasibility", "measure.nan_reasons", "measure.energy"},
     # a run's datasets, its execution and its calibration
     {"io", "result", "engine", "policy.calibrate"},
     # applications: sweeps, the lens, the validation gallery, figures, the public facade

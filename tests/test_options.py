@@ -98,7 +98,8 @@ def test_defaults_unchanged():
     want = dict(t_end=1.0, dt="auto", method="rattle", precision="auto", output_interval=None,
                 record_strain=True, record_energy=True, device=None, shard_size=256, dt_safety=None,
                 allow_unstable_dt=False, projection_tol=None, max_projection_iters=25, failure_bar_error=1e-3,
-                steps_per_graph=50, fused="auto", accuracy=None, truncate=True, groups=True, error_estimate=True, measure="device")
+                steps_per_graph=50, fused="auto", accuracy=None, truncate=True, groups=True, error_estimate=True, measure="device",
+                energy_station=None, energy_end_prisms=5)
     assert dataclasses.asdict(RunSettings()) == want
     # the spec and the API agree (record_strain used to default to false in specs only)
     assert S.parse_spec(_SPEC.replace("record_strain = true\n", "")).run["record_strain"] is True

@@ -14,6 +14,7 @@ from functools import partial
 
 import numpy as np
 
+from .measure.energy import end_prisms, part_nodes, station_prism
 from .measure.feasibility import pair_record, prism_record
 from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch, far_end
 from .policy.paths import lane_emulation
@@ -45,12 +46,20 @@ def _feasibility(integ, time) -> dict | None:
     return None
 
 
+def _levels_in_order(batch: NetworkBatch) -> bool:
+    """Whether level l holds nodes 3l..3l+2 (columns): the energy-parts record cuts by node index."""
+    ln = batch.level_nodes
+    return ln is not None and np.array_equal(ln, np.arange(ln.size).reshape(ln.shape))
+
+
 def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress=None, pulse: dict | None = None,
               plan: RunPlan | None = None) -> BatchResult:
     """Integrate a prepared batch; see :func:`simulate_batch` for columns. ``plan``: the run decided
     already (:func:`~warp_tensegrity.policy.decide.decide_batch` from ``settings`` otherwise).
     ``pulse``: keywords of :func:`~warp_tensegrity.measure.device.measure_record` (prism_height,
-    n_prisms, cut) to measure the record on the device (settings.measure = 'device')."""
+    n_prisms, cut) to measure the record on the device (settings.measure = 'device'); with the
+    energy measures (:mod:`~warp_tensegrity.measure.energy`) of T3 columns also ``station`` and
+    ``end_prisms``."""
     expect("run_batch", "batch", batch, NetworkBatch), expect("run_batch", "plan", plan, RunPlan, optional=True)
     expect_callable("run_batch", "progress", progress), expect("run_batch", "pulse", pulse, dict, optional=True)
     if plan is None:
@@ -63,8 +72,14 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     device = resolve_device(plan.device)
     # the measures need the record on the device, whether or not it crosses to the host
     record = settings.record_strain or settings.measure == "host" or (pulse is not None and settings.measure == "device")
+    pulse = None if pulse is None else dict(pulse)
+    station, k = (None, None) if pulse is None else (pulse.pop("station", None), pulse.pop("end_prisms", None))
+    parts = None
+    if station is not None and _levels_in_order(batch):
+        parts = part_nodes(pulse["n_prisms"], station, k, pulse.get("cut", 0))
     with lane_emulation(path, device):  # the CPU runs the lane step as fibers
-        integ = Integrator(batch, replace(settings, record_strain=record), dt, every, n_out, path=path)
+        integ = Integrator(batch, replace(settings, record_strain=record), dt, every, n_out, path=path,
+                           energy_parts=parts)
         wall, t_compile = integ.run(n_steps, progress)
     stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
     measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"
@@ -89,6 +104,11 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         valid[b, last_slot + 1 :] = False
         ke[b, last_slot + 1 :] = np.nan
         ee[b, last_slot + 1 :] = np.nan
+    records = {name: _to_host(a) for name, a in (("station_energy", integ.energy_below), ("end_energy", integ.energy_end))}
+    for a in records.values():  # (n_out, B)
+        if a is not None:
+            a[~valid.T] = np.nan
+    records = {name: None if a is None else np.ascontiguousarray(a.T) for name, a in records.items()}
     scale = np.where(ke[:, 0] > 0, ke[:, 0], np.nan)
     with np.errstate(invalid="ignore"):
         dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
@@ -96,8 +116,10 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     measurements = None
     if measure_here:
         n_valid = np.where(status != 0, np.maximum(fail_step - 1, 0) // every + 1, n_out)
+        energy = None if integ.energy_parts is None else {"below": integ.energy_below, "end": integ.energy_end,
+                                                          "kinetic": integ.kinetic, "station": station, "end_prisms": k}
         measurements = measure_record(integ.strain, plan.output_times, n_valid=n_valid, timings=stages,
-                                      **pulse)
+                                      energy=energy, **pulse)
     strain = None
     if integ.strain is not None and (settings.record_strain or settings.measure == "host"):
         strain = _to_host(integ.strain).transpose(2, 0, 1)  # (B, n_out, n_prisms)
@@ -112,6 +134,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         strain=strain,
         kinetic_energy=ke,
         elastic_energy=ee,
+        **records,
         energy_error=energy_error,
         bar_length_error=d.bar_err.numpy().astype(np.float64),
         status=status,
@@ -145,6 +168,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
             "stages": stages,
             **({"contact": integ.contact.summary()} if integ.contact is not None else {}),
+            **({"energy_station": station, "energy_end_prisms": k} if integ.energy_parts is not None else {}),
         },
     )
 
@@ -174,7 +198,9 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     t_build = time.perf_counter()
     batch = column_batch(sim_config, far_end_params(params, n, n_sim))
     t_build = time.perf_counter() - t_build
-    pulse = {"prism_height": config.height, "n_prisms": n, "cut": n - n_sim}
+    pulse = {"prism_height": config.height, "n_prisms": n, "cut": n - n_sim,
+             "station": station_prism(n, plan.settings.energy_station),
+             "end_prisms": end_prisms(n, plan.settings.energy_end_prisms)}
     result = run_batch(batch, progress=progress, pulse=pulse, plan=plan)
     result.params = dict(params)  # profiles of the whole column, not of the part simulated
     result.info["stages"]["build"] += t_build
@@ -183,7 +209,8 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     if plan.settings.measure == "host":
         from .measure.device import measure_host  # imports Warp (the record helpers): not at package import
 
-        measure_host(result, config.height, keep_strain=plan.settings.record_strain)
+        measure_host(result, config.height, keep_strain=plan.settings.record_strain, station=pulse["station"],
+                     end_prisms=pulse["end_prisms"])
     result.info["choices"] = plan.choices()
     result.info["prism_height"] = float(config.height)  # for BatchResult.to_xarray's measurements
     # the per-case flag of the limit beta -> 1, evaluated when a dataset is built (it needs max_compression)

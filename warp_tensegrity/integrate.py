@@ -57,9 +57,10 @@ class Integrator:
     """Holds the model, data and kernels of one batch and advances it on one Warp device."""
 
     def __init__(self, batch: NetworkBatch, settings: RunSettings, dt: float, output_every: int, n_out: int, *,
-                 path: Path):
+                 path: Path, energy_parts: tuple[int, int] | None = None):
         """``path``: staged or fused launches (:func:`warp_tensegrity.engine.choose_path`); the
-        fused path runs RATTLE only."""
+        fused path runs RATTLE only. ``energy_parts``: (below_node, end_node) of the energy-parts
+        record (:func:`warp_tensegrity.measure.energy.part_nodes`), None: not recorded."""
         if path in (Path.FUSED, Path.FUSED_SERIAL, Path.LANES) and settings.method != Method.RATTLE:
             raise SettingsError(f"the fused path needs method = 'rattle' (got method = {settings.method!r})")
         if settings.precision == Precision.AUTO:  # a batch stepped directly: no twin to verify fp32 (policy.groups)
@@ -90,6 +91,11 @@ class Integrator:
                 self.strain = wp.zeros((n_out, m.n_prisms, B), dtype=real)
             self.kinetic = wp.zeros((n_out, B), dtype=real)
             self.elastic = wp.zeros((n_out, B), dtype=real)
+            self.energy_parts = energy_parts
+            self.energy_below = self.energy_end = None
+            if energy_parts is not None:  # the energy measures' record (measure.energy)
+                self.energy_below = wp.zeros((n_out, B), dtype=real)
+                self.energy_end = wp.zeros((n_out, B), dtype=real)
             self.fk = None
             if self.path == Path.LANES:
                 if not (self.device.is_cuda or wp.config.enable_cpu_blocks):  # each lane would be a block of its own
@@ -108,7 +114,7 @@ class Integrator:
             self.contact = ContactStep(self.model, batch, self.device, COLUMN_BLOCK_DIM if self.device.is_cuda else 1)
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
-                                  self.ks.constrained_accel, self.k.record_energy)
+                                  self.ks.constrained_accel, self.k.record_energy, self.k.record_energy_parts)
         }
         self._group_arguments()
         self.build_time = time.perf_counter() - t0
@@ -197,6 +203,9 @@ class Integrator:
                          [self.every, d.u, d.step, self.strain], model="strain")
         self._launch(self.k.record_energy, m.n_columns,
                      [self.every, d.u, d.v, d.step, self.kinetic, self.elastic], model="energy")
+        if self.energy_parts is not None:
+            self._launch(self.k.record_energy_parts, m.n_columns, [self.every, *self.energy_parts, d.u, d.v, d.step,
+                                                                  self.energy_below, self.energy_end], model="energy")
         if m.n_prisms > 0:  # the feasibility record (types.FEASIBILITY_FLAGS), whether or not the strain is kept
             self._launch(self.k.record_feasibility, (m.n_prisms, m.n_columns), [self.every, d.u, d.status, d.step,
                          d.twist, d.twist_max, d.twist_min, d.height_min, d.left_slot], model="feasibility")
@@ -209,9 +218,11 @@ class Integrator:
         """Compile/load the kernels this method uses now, with the block size they launch with,
         so no load happens while stepping or capturing."""
         unused = {"record_pairs" if self.model.n_prisms > 0 else "record_feasibility"}  # the other feasibility record
+        if self.energy_parts is None:
+            unused.add("record_energy_parts")
         if self.fused:
             self.fk.load()
-            for name in ("record_strain", "record_energy", "record_feasibility", "record_pairs"):
+            for name in ("record_strain", "record_energy", "record_energy_parts", "record_feasibility", "record_pairs"):
                 if name not in unused:
                     kern = getattr(self.k, name)
                     kern.module.load(self.device, self._block_dim(kern))

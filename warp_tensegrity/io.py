@@ -36,6 +36,7 @@ import numpy as np
 import xarray as xr
 
 from . import atomic
+from .measure.energy import ENERGY_SHARES, end_prisms, station_prism
 from .policy.cost import netcdf_bytes
 from .scene.impact import kinematic_lock_strain
 from .options import COLUMN_PARAMETERS, PROFILE_FIELDS, PROFILED, ColumnParameters, opt_of
@@ -151,6 +152,16 @@ VAR_ATTRS = {
         "units": "1",
         "long_name": "axial prism strain (h - h0) / h, negative in compression",
     },
+    # the energy measures (measure.energy; docs/measurements.md "Energy measures")
+    "pulse_energy_share": {"units": "1", "long_name": "share of the impact energy the leading pulse carries through "
+                           "the station prism's section over its passage",
+                           "comment": "station: the dataset attribute energy_station (prism index from the clamp)"},
+    "end_energy_share": {"units": "1", "long_name": "share of the impact energy left at t_end in the energy_end_prisms "
+                         "prisms at the impacted end"},
+    "station_energy": {"units": "J", "long_name": "energy above the reference state on the clamp side of the station "
+                       "prism's section (the time integral of the energy flux through it)"},
+    "end_energy": {"units": "J", "long_name": "energy above the reference state of the energy_end_prisms prisms at "
+                   "the impacted end"},
     # the feasibility record (measure.feasibility; docs/model.md)
     "feasibility_flag": {
         "standard_name": "status_flag", "long_name": "how the column left the feasible set of the model (0: it stayed "
@@ -217,6 +228,8 @@ def spec_attrs(layout: Layout) -> dict:
         "t_end": r["t_end"],
         "record_strain": r["record_strain"],
         "record_energy": r["record_energy"],
+        "energy_station": station_prism(layout.scene.n_prisms, r.get("energy_station")),
+        "energy_end_prisms": end_prisms(layout.scene.n_prisms, r.get("energy_end_prisms", 5)),
     }
     if layout.description:
         a["comment"] = layout.description
@@ -330,6 +343,7 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
             dv["error_flag"] = (C, np.asarray(measurements["error_flag"], dtype=np.int8))
         if "measurement_flag" in measurements:
             dv["measurement_flag"] = (C, np.asarray(measurements["measurement_flag"], dtype=np.int8))
+        dv.update({k: (C, np.asarray(measurements[k], dtype=np.float64)) for k in ENERGY_SHARES if k in measurements})
         if "base_mode_ratio" in measurements:
             dv["base_mode_ratio"] = (C, np.asarray(measurements["base_mode_ratio"], dtype=np.float64))
             dv["beta_limit_flag"] = (C, np.asarray(measurements["beta_limit_flag"], dtype=np.int8))
@@ -352,6 +366,9 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
     if record_energy:
         dv["kinetic_energy"] = (("case", TIME), np.asarray(result.kinetic_energy, dtype=np.float64))
         dv["elastic_energy"] = (("case", TIME), np.asarray(result.elastic_energy, dtype=np.float64))
+        for k in ("station_energy", "end_energy"):  # the energy-parts record, where the run has one
+            if getattr(result, k, None) is not None:
+                dv[k] = (("case", TIME), np.asarray(getattr(result, k), dtype=np.float64))
     if record_strain is None:
         record_strain = result.strain is not None
     if record_strain:
@@ -405,6 +422,7 @@ def result_dataset(result, config=None, measurements: dict | None = None, attrs:
     if config is not None:
         for f in dataclasses.fields(config):
             a[f"scene_{f.name}"] = getattr(config, f.name)
+    a.update({k: result.info[k] for k in ("energy_station", "energy_end_prisms") if k in result.info})
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
     a.update(attrs)
     coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))

@@ -601,6 +601,14 @@ class RunSettings:
     'device' (Warp kernels on the device record; only the measures cross to the host), 'host'
     (NumPy reference on a host copy) or 'none'. Except with 'none', the strain record is kept on
     the device (n_out x n_prisms per column) even when record_strain is False."""
+    energy_station: Annotated[int | None, Opt("int", "1", ge=0, optional=True, special=(("auto", None),),
+                                              default_text='"auto"', rule_text=">= 0 and < the scene's n_prisms")] = None
+    """Station prism (index from the clamp) whose section the leading pulse's energy is measured through
+    (``pulse_energy_share``, docs/measurements.md "Energy measures"); None ('auto'): the prism at
+    mid-column, (n_prisms - 1) // 2. Must be < the scene's n_prisms."""
+    energy_end_prisms: Annotated[int, Opt("int", "1", ge=1)] = 5
+    """Prisms k at the impacted end whose energy at t_end is ``end_energy_share`` (the whole column
+    where it has fewer)."""
 
     def __post_init__(self):
         errors = []

@@ -63,6 +63,12 @@ class BatchResult:
     """Predicted stability limit of the method for the stiffest column [s]."""
     info: dict = field(default_factory=dict)
     """Extra facts: projection iterations, compile time, steps per graph, stage seconds, etc."""
+    station_energy: np.ndarray | None = None
+    """(B, n_out) energy above the reference state on the clamp side of the station's section
+    (the time integral of the energy flux through it, :mod:`warp_tensegrity.measure.energy`) [J]."""
+    end_energy: np.ndarray | None = None
+    """(B, n_out) energy above the reference state of the end part (the ``energy_end_prisms``
+    prisms at the impacted end) [J]."""
     measurements: dict | None = None
     """Pulse measures of every column (:func:`warp_tensegrity.measure.measure_pulse`'s dict and the
     record statistics of :func:`warp_tensegrity.measure.device.measure_record`), when
@@ -91,7 +97,7 @@ class BatchResult:
         return result_dataset(self, config=config, measurements=meas, attrs=attrs)
 
 
-_PER_COLUMN = ("strain", "kinetic_energy", "elastic_energy", "energy_error", "bar_length_error", "status", "fail_step",
+_PER_COLUMN = ("strain", "kinetic_energy", "elastic_energy", "station_energy", "end_energy", "energy_error", "bar_length_error", "status", "fail_step",
                "final_displacement", "final_velocity")
 
 

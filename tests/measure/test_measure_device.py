@@ -23,6 +23,8 @@ RTOL = 1e-12
 
 
 RECORD_STATS = ("max_compression", "max_compression_finite", "record_finite")
+ENERGY = ("pulse_energy_share", "end_energy_share", "pulse_energy_share_sensitivity")
+"""The engine's energy measures (measure.energy; tests/measure/test_energy.py), beside the pulse measures."""
 
 
 def record_stats(s) -> dict:
@@ -47,7 +49,7 @@ compared absolutely, far below any flag floor (1e-3)."""
 
 
 def assert_same(ref: dict, dev: dict, rtol: float = RTOL):
-    assert set(ref) <= set(dev) <= set(ref) | set(RECORD_STATS)
+    assert set(ref) <= set(dev) <= set(ref) | set(RECORD_STATS) | set(ENERGY)
     for k, a in ref.items():
         a, b = np.asarray(a, dtype=np.float64), np.asarray(dev[k], dtype=np.float64)
         assert a.shape == b.shape, k

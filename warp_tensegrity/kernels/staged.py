@@ -200,6 +200,76 @@ def _record_kernels(real):
         elastic[slot, w] = real(0.5) * ee
 
     @wp.kernel(enable_backward=False, module="unique")
+    def record_energy_parts(
+        # Model:
+        cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
+        cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
+        partner: wp.array(dtype=int), m_self: wp.array2d(dtype=real), m_cross: wp.array2d(dtype=real),
+        every: int, below_node: int, end_node: int,
+        # Data in:
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        # Data out:
+        below: wp.array2d(dtype=real), end: wp.array2d(dtype=real),
+    ):
+        """When step % every == 0, the energy above the reference state (kinetic + elastic - reference
+        elastic) of two parts of each column (measure.energy, docs/measurements.md "Energy measures"):
+        ``below``, nodes n < below_node and members with an end there (the clamp side of the station
+        section), and ``end``, nodes n >= end_node and members with both ends there (the k prisms at the
+        impacted end). Node n's kinetic term is record_energy's. A member's excess is
+        k/(2L) dl (dl + 2 (l0 - L)), dl = l - l0 = du.(2 b0 + du)/(l + l0): no cancellation of the
+        prestress energy. One thread per column."""
+        w = wp.tid()
+        s = step[0]
+        if s % every != 0:
+            return
+        slot = s / every
+        if slot >= below.shape[0]:
+            return
+        eb = real(0.0)
+        et = real(0.0)
+        for n in range(u.shape[0]):
+            if n >= below_node and n < end_node:
+                continue
+            vn = v[n, w]
+            ke = pget(m_self, n, w) * wp.dot(vn, vn)
+            p = partner[n]
+            if p >= 0:
+                ke += pget(m_cross, n, w) * wp.dot(vn, v[p, w])
+            if n < below_node:
+                eb += ke
+            if n >= end_node:
+                et += ke
+        for c in range(cab_i.shape[0]):
+            first = wp.min(cab_i[c], cab_j[c])
+            if first >= below_node and first < end_node:
+                continue
+            b0 = cab_dref[c]
+            du = u[cab_j[c], w] - u[cab_i[c], w]
+            l0 = wp.length(b0)
+            l = wp.length(b0 + du)
+            dl = wp.dot(du, b0 + b0 + du) / (l + l0)
+            L = pget(cab_L, c, w)
+            st = l - L
+            st0 = l0 - L
+            k = pget(cab_EA, c, w)
+            if st < real(0.0):
+                k = pget(cab_EAc, c, w)
+            k0 = pget(cab_EA, c, w)
+            if st0 < real(0.0):
+                k0 = pget(cab_EAc, c, w)
+            de = real(0.0)
+            if k == k0:
+                de = k / L * dl * (dl + st0 + st0)
+            else:  # the member went slack or taut: its two laws differ
+                de = (k * st * st - k0 * st0 * st0) / L
+            if first < below_node:
+                eb += de
+            if first >= end_node:
+                et += de
+        below[slot, w] = real(0.5) * eb
+        end[slot, w] = real(0.5) * et
+
+    @wp.kernel(enable_backward=False, module="unique")
     def record_feasibility(
         # Model:
         level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=real), level_ref: wp.array2d(dtype=vec),
@@ -264,4 +334,5 @@ def _record_kernels(real):
         cross_side[p, w] = side
 
     return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
+                           record_energy_parts=record_energy_parts,
                            record_feasibility=record_feasibility, record_pairs=record_pairs)

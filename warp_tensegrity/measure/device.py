@@ -41,8 +41,10 @@ import numpy as np
 import warp as wp
 
 from .device_funcs import f64
+from .energy import end_energy_share, pulse_energy_share
 from .device_kernels import (
     column_measures,
+    energy_shares,
     init_threshold,
     prism_stats,
     refine,
@@ -71,7 +73,7 @@ __all__ = ["measure_pulse_device", "measure_record", "TRIAL_SCALES"]
 def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None = None, cut: int = 0,
                    n_valid=None, threshold=None, skip_impact: int | None = None, skip_clamp: int | None = None,
                    end_fraction: float = DEFAULT_END_FRACTION, stability: float | None = STABILITY_EPS,
-                   timings: dict | None = None) -> dict[str, np.ndarray]:
+                   timings: dict | None = None, energy: dict | None = None) -> dict[str, np.ndarray]:
     """measure_pulse's outputs, computed on ``strain.device`` from a device record
     ``strain[k, j, b]`` (n_time, n_prisms - cut, B), float32 or float64 (the engine's layout).
 
@@ -85,6 +87,10 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
     is finite), ``max_compression_finite`` (non-finite samples as 0) and ``record_finite`` (bool).
     Only these cross to the host.
     ``timings`` (optional dict) receives ``measurement`` (device work) and ``transfer`` seconds.
+    ``energy`` (optional): the energy measures (:mod:`.energy`) too, from the device records
+    ``below``, ``end`` and ``kinetic`` (n_time, B), the ``station`` prism and the ``end_prisms``: adds
+    ``pulse_energy_share``, ``end_energy_share`` (B,) and, with the stability probe,
+    ``pulse_energy_share_sensitivity``.
     """
     _check_fraction("end_fraction", end_fraction)
     if stability is not None and not (np.isfinite(stability) and 0.0 < stability < 0.5):
@@ -127,6 +133,7 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
         scal = {k: zeros(B) for k in ("amplitude", "speed", "width_fwhm", "width_10", "prisms_measured",
                                       "speed_snapshot", "pulse_captured")}
         sx, sy, sw = zeros((T, B)), zeros((T, B)), zeros((T, B))
+        shares = {} if energy is None else {k: zeros(B) for k in ("pulse_energy_share", "end_energy_share")}
         if run:
             wp.launch(prism_stats, (P, B), [strain, cut, nv_d, qmax, fin])
 
@@ -134,7 +141,7 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
             """One pass of every measure with the decision parameters d; its outputs on the host."""
             if not run:
                 nan_b = np.full(B, np.nan)
-                out = {k: nan_b.copy() for k in list(scal) + ["threshold"]}
+                out = {k: nan_b.copy() for k in list(scal) + list(shares) + ["threshold"]}
                 out.update({k: np.full((B, P), np.nan) for k in ("arrival_time", "peak_time", "peak_value",
                                                                  "arrival_slope")})
                 return out
@@ -156,9 +163,14 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
                                            arrival, slope, jx, jw, fit, lo_eff, hi_eff, scal["amplitude"],
                                            scal["speed"], scal["width_fwhm"], scal["width_10"], scal["prisms_measured"],
                                            scal["pulse_captured"]])
+            if energy is not None:
+                wp.launch(energy_shares, B, [t_d, h_d, int(energy["station"]), lo, hi, P, int(energy["end_prisms"]),
+                                             energy["below"], energy["end"], energy["kinetic"], nv_d, arrival, tp_time,
+                                             scal["width_10"], scal["speed"], shares["pulse_energy_share"],
+                                             shares["end_energy_share"]])
             wp.launch(snapshots, (T, B), [t_d, cut, strain, nv_d, whole, fit, lo_eff, hi_eff, P, sx, sy, sw])
             wp.launch(snapshot_fit, B, [h_d, sx, sy, sw, scal["speed_snapshot"]])
-            out = {k: v.numpy().copy() for k, v in scal.items()}  # copies: on the CPU numpy() is a view
+            out = {k: v.numpy().copy() for k, v in {**scal, **shares}.items()}  # copies: on the CPU numpy() is a view
             out["threshold"] = trial.numpy().copy()
             out["arrival_time"] = arrival.numpy().T.copy()
             out["peak_time"] = tp_time.numpy().T.copy()
@@ -168,7 +180,10 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
 
         out = measure(base)
         if probes:
-            out.update(_sensitivities(out, [measure(d) for d in probes]))
+            probed = [measure(d) for d in probes]
+            out.update(_sensitivities(out, probed))
+            if energy is not None:
+                out["pulse_energy_share_sensitivity"] = _share_sensitivity(out["pulse_energy_share"], probed)
         wp.synchronize_device(dev)
         t1 = _time.perf_counter()
         del out["arrival_slope"]
@@ -187,6 +202,17 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
         timings["measurement"] = timings.get("measurement", 0.0) + (t1 - t0)
         timings["transfer"] = timings.get("transfer", 0.0) + (_time.perf_counter() - t1)
     return out
+
+
+def _share_sensitivity(a: np.ndarray, probed: list[dict]) -> np.ndarray:
+    """The stability probe's largest relative change of the pulse energy share (as
+    pulse_core._sensitivities: inf where a probe leaves it undefined, NaN where it is undefined)."""
+    worst = np.zeros(a.shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for pr in probed:
+            b = pr["pulse_energy_share"]
+            worst = np.maximum(worst, np.where(np.isnan(a), 0.0, np.where(np.isnan(b), np.inf, np.abs(b - a) / np.abs(a))))
+    return np.where(np.isnan(a), np.nan, worst)
 
 
 def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact: int | None = None,
@@ -211,14 +237,29 @@ def measure_pulse_device(strain, time, prism_height, threshold=None, skip_impact
     return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
 
 
-def measure_host(result, prism_height, keep_strain: bool = True) -> None:
+def energy_shares_host(result, m: dict, station: int, end_prisms: int, prism_height: float) -> dict:
+    """The energy shares (:mod:`.energy`) of a host result from its records and pulse measures ``m``."""
+    ke, n = np.asarray(result.kinetic_energy, dtype=np.float64), np.shape(m["arrival_time"])[-1]
+    n_valid = np.isfinite(ke).sum(axis=1)
+    return {"pulse_energy_share": pulse_energy_share(result.station_energy, ke[:, 0], result.time, m["arrival_time"],
+                                                     m["peak_time"], m["width_10"], station,
+                                                     measurement_window(n), n_valid),
+            "end_energy_share": end_energy_share(result.end_energy, ke[:, 0], result.time, m["speed"], prism_height, n,
+                                                 end_prisms, n_valid)}
+
+
+def measure_host(result, prism_height, keep_strain: bool = True, station: int | None = None,
+                 end_prisms: int | None = None) -> None:
     """The fallback (RunSettings.measure = 'host'): NumPy reference on the host copy of the record;
-    sets ``result.measurements`` and the ``measurement`` stage seconds; drops the strain unless kept."""
+    sets ``result.measurements`` and the ``measurement`` stage seconds; drops the strain unless kept.
+    ``station``, ``end_prisms``: the energy measures' (where the result has the energy-parts record)."""
     t0 = _time.perf_counter()
     if result.strain is not None:
         s = np.asarray(result.strain, dtype=np.float64)
         with np.errstate(all="ignore"):
             m = measure_pulse(s, result.time, prism_height)
+            if station is not None and result.station_energy is not None:
+                m.update(energy_shares_host(result, m, station, end_prisms, prism_height))
             ok = np.isfinite(s).all(axis=(1, 2))
             q = np.where(np.isfinite(s), -s, 0.0)
             m["max_compression_finite"] = q.max(axis=(1, 2)) if s.size else np.full(s.shape[0], np.nan)

@@ -490,3 +490,30 @@ def transit_width(strain: Any, time: wp.array(dtype=f64), b: int, cut: int, n_va
         return area / span
     a0 = wp.clamp((t0 - time[ka - 1]) / (time[ka] - time[ka - 1]), f64(0.0), f64(1.0))
     return w_first + a0 * (w_second - w_first)
+
+
+# ---------------------------------------------------------------------- energy measures (measure.energy)
+@wp.func
+def peak_time_at(tp_time: wp.array2d(dtype=f64), b: int, y: f64) -> f64:
+    """The leading peak's time at position y [prisms], linear between the prisms around it
+    (energy._interp_peak_time)."""
+    i = int(wp.floor(y))
+    f = y - f64(i)
+    if f == f64(0.0):
+        return tp_time[i, b]
+    return (f64(1.0) - f) * tp_time[i, b] + f * tp_time[i + 1, b]
+
+
+@wp.func
+def record_at(e: Any, time: wp.array(dtype=f64), b: int, n_valid: int, t: f64) -> f64:
+    """Record e[:, b] at time t [s], linear between the output samples; NaN past the last valid
+    one (energy._interp_record)."""
+    if not (wp.isfinite(t) and time[0] <= t and t <= time[n_valid - 1]):
+        return NAN
+    k = int(0)
+    while k + 1 < n_valid and time[k + 1] <= t:
+        k += 1
+    ek = f64(e[k, b])
+    if time[k] == t:
+        return ek
+    return ek + (t - time[k]) / (time[k + 1] - time[k]) * (f64(e[k + 1, b]) - ek)

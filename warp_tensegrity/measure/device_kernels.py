@@ -17,14 +17,16 @@ from .device_funcs import (
     median,
     parabola_offset,
     parabola_value,
+    peak_time_at,
     pw_sum,
     q_at,
     reached,
+    record_at,
     spatial_peak_index,
     transit_width,
 )
 
-__all__ = ["column_measures", "init_threshold", "load_kernels", "prism_stats", "refine", "snapshot_fit", "snapshots",
+__all__ = ["column_measures", "energy_shares", "init_threshold", "load_kernels", "prism_stats", "refine", "snapshot_fit", "snapshots",
            "track"]
 
 
@@ -328,10 +330,57 @@ def snapshot_fit(
         speed_snapshot[b] = -h * (sxy / sxx)
 
 
+@wp.kernel(enable_backward=False)
+def energy_shares(
+    # Model:
+    time: wp.array(dtype=f64), prism_height: wp.array(dtype=f64), station: int, lo: int, hi: int, n_prisms: int,
+    end_prisms: int,
+    # Data in:
+    below: Any, end: Any, kinetic: Any, n_valid: wp.array(dtype=int), arrival: wp.array2d(dtype=f64),
+    tp_time: wp.array2d(dtype=f64), width_10: wp.array(dtype=f64), speed: wp.array(dtype=f64),
+    # Data out:
+    pulse_share: wp.array(dtype=f64), end_share: wp.array(dtype=f64),
+):
+    """Column b's energy shares (measure.energy.pulse_energy_share, end_energy_share): the energy the
+    leading pulse carries through the station's section over its passage, and the energy left in the
+    end part at t_end (before the leading pulse's reflection at the clamp can be back there), each over
+    the impact energy kinetic[0, b]."""
+    b = wp.tid()
+    T = kinetic.shape[0]
+    nv = n_valid[b]
+    pulse_share[b] = NAN
+    end_share[b] = NAN
+    e0 = f64(kinetic[0, b])
+    if not (wp.isfinite(e0) and e0 > f64(0.0)):
+        return
+    back = f64(2 * n_prisms - end_prisms) * prism_height[b % prism_height.shape[0]] / speed[b]
+    if nv >= T and time[T - 1] < back:  # before the pulse reflected at the clamp can be back
+        end_share[b] = f64(end[T - 1, b]) / e0
+    d = width_10[b]
+    if not (wp.isfinite(d) and d > f64(0.0)):
+        return
+    ya = f64(station) + f64(1.0) + d
+    yb = f64(station) - d
+    ja = int(wp.ceil(ya))
+    jb = int(wp.floor(yb))
+    if jb < lo or ja > hi - 1:
+        return
+    for j in range(jb, ja + 1):
+        if not (wp.isfinite(arrival[j, b]) and wp.isfinite(tp_time[j, b])):
+            return
+    ta = peak_time_at(tp_time, b, ya)
+    tb = peak_time_at(tp_time, b, yb)
+    if not ta < tb:
+        return
+    pulse_share[b] = (record_at(below, time, b, nv, tb) - record_at(below, time, b, nv, ta)) / e0
+
+
 _STRAIN_KERNELS = (prism_stats, track, column_measures, snapshots)
 for _real in (wp.float32, wp.float64):
     for _kern in _STRAIN_KERNELS:
         wp.overload(_kern, {"strain": wp.array3d(dtype=_real)})
+    _rec = wp.array2d(dtype=_real)
+    wp.overload(energy_shares, {"below": _rec, "end": _rec, "kinetic": _rec})
 
 
 def load_kernels(device) -> None:

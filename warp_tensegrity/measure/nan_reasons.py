@@ -60,6 +60,7 @@ import numpy as np
 
 from ..types import MEASUREMENT_FLAGS as FLAGS
 from ..types import TIME
+from .energy import ENERGY_SHARES
 from .feasibility import left_before_measured
 from .pulse_core import SENSITIVITY_KEYS, STABILITY_FLOOR, measure_pulse, measurement_window
 
@@ -100,6 +101,8 @@ def measure_columns(result, prism_height: float) -> dict:
         "prisms_measured": m["prisms_measured"],
         "arrival_time": m["arrival_time"],
         "pulse_captured": m.get("pulse_captured", np.zeros(status.shape[0])),
+        # the energy measures (measure.energy): NaN where the run did not record them
+        **{k: m.get(k, np.full(status.shape[0], np.nan)) for k in ENERGY_SHARES},
     }
     out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in out.items()}
     for v in out.values():
@@ -122,6 +125,8 @@ def measure_columns(result, prism_height: float) -> dict:
         left = left_before_measured(t_left, m["peak_time"]) & ~bad
         for k in FLAGGED:
             out[k][left] = np.nan
+        out["pulse_energy_share"][left] = np.nan
+        out["end_energy_share"][np.isfinite(t_left)] = np.nan  # at t_end: NaN once the column left the set
         out["measurement_flag"][left] = FLAG["left_feasible_set"]
         with np.errstate(invalid="ignore"):
             out["arrival_time"][out["arrival_time"] >= t_left[:, None]] = np.nan

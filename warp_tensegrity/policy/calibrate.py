@@ -34,6 +34,7 @@ import numpy as np
 import psutil
 
 from ..atomic import oserror_line, write_text
+from ..measure.energy import end_prisms, part_nodes, station_prism
 from ..provenance import code_version
 from ..runtime import resolve_device, startup_seconds
 from ..scene.batch import ColumnParams, column_batch, column_params, far_end_params, has_profiles, reference_states
@@ -292,7 +293,9 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
     n_out = (warm_steps + 3 * seg_steps) // every + 1
     with lane_emulation(run.path, device):  # the CPU runs the lane step as fibers
         t0 = time.perf_counter()
-        integ = Integrator(batch, s, run.dt, every, n_out, path=run.path)
+        # the energy-parts record too, as simulate_batch steps it (a station at mid-column)
+        integ = Integrator(batch, s, run.dt, every, n_out, path=run.path,
+                           energy_parts=part_nodes(n_sim, station_prism(n_sim), end_prisms(n_sim, s.energy_end_prisms)))
         t_integ = time.perf_counter() - t0
         B = batch.n_columns
         with wp.ScopedDevice(integ.device):
@@ -314,7 +317,8 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
                 wp.synchronize_device(integ.device)
                 seg.append((time.perf_counter() - t0) / seg_steps)
             t_step = float(np.median(seg))
-            per_col, fixed = _array_bytes((integ.model, integ.data, integ.kinetic, integ.elastic), B)
+            per_col, fixed = _array_bytes((integ.model, integ.data, integ.kinetic, integ.elastic, integ.energy_below,
+                                           integ.energy_end), B)
             # measurement of a record of the run's length, up to PROBE_SAMPLES outputs (the cost model
             # scales it to the run's; sech^2 pulses crossing the column)
             T_full = min(run.n_out, PROBE_SAMPLES)

@@ -34,8 +34,8 @@ HOST_COPIES = 4
 """Host bytes a shard needs while stepping and measuring, in units of its output bytes
 (engine arrays, their float64 copies, measurement temporaries); calibrated by
 tests/sweep/test_store.py::test_peak_rss_stays_under_the_memory_limit."""
-MEASURE_VALUES = 10
-"""Per-column scalars of the output (pulse measures, flags, errors)."""
+MEASURE_VALUES = 12
+"""Per-column scalars of the output (pulse and energy measures, flags, errors)."""
 MAX_STEPS = 2**31 - 1
 """The device's step counter is a Warp ``int`` (int32), and so is every dimension of a Warp array:
 the output axis (at most one output per step) is bounded with it."""
@@ -75,19 +75,20 @@ def fmt_seconds(s: float) -> str:
 
 def output_bytes_per_column(n_out: int, n_prisms: int, record_strain: bool, record_energy: bool = True) -> int:
     """Bytes (float64) one column leaves in the output: measures and final state scalars, prism
-    heights, energy histories and the strain record when kept."""
-    return 8 * (MEASURE_VALUES + n_prisms + (2 * n_out if record_energy else 0) + (n_out * n_prisms if record_strain else 0))
+    heights, energy histories (kinetic, elastic and the two energy parts) and the strain record when kept."""
+    return 8 * (MEASURE_VALUES + n_prisms + (4 * n_out if record_energy else 0) + (n_out * n_prisms if record_strain else 0))
 
 
 BLOCK = 4096
 """Bytes a file or a directory takes on disk at least (a block of ext4 or XFS, a page of tmpfs)."""
-STORE_BLOCKS_PER_SHARD = 24
-"""Files and directories a shard adds to the Zarr store, at most: a chunk file per variable (17 with
-strain and energies) and the directories of the multi-dimensional ones' chunk keys; 17 files and
-2-3 directories measured per shard (sweeps/ci_small.toml, tests/test_faults.py)."""
-STORE_BLOCKS_FIXED = 128
+STORE_BLOCKS_PER_SHARD = 32
+"""Files and directories a shard adds to the Zarr store, at most: a chunk file per variable (21 with
+strain and energies) and the directories of the multi-dimensional ones' chunk keys; 27-28 measured per
+shard, 32 for the first (sweeps like tests/test_faults.py's, energy measures included)."""
+STORE_BLOCKS_FIXED = 160
 """Files and directories of the store whatever its shards: each variable's and coordinate's
-directory, metadata and coordinate chunks, the manifest and the spec copy (86 measured)."""
+directory, metadata and coordinate chunks, the manifest and the spec copy (130 measured, energy
+measures included)."""
 MANIFEST_BYTES_PER_SHARD = 4096
 """Bytes a done shard adds to manifest.json (a sha256 per variable and the shard's attributes;
 2.8 kB measured), counted twice: the manifest is replaced through a temporary copy."""
@@ -122,14 +123,15 @@ def disk_bytes(run, shard_sizes: list[int], n_columns: int, n_shards: int, recor
 
 
 def state_bytes_per_column(run) -> int:
-    """The engine's device arrays per column (state, constraint band, cable rest lengths, energies;
+    """The engine's device arrays per column (state, constraint band, cable rest lengths, energies and
+    energy parts;
     the strain record when kept, or when the pulse measures read it on the device)."""
     r = 4 if run.precision == "fp32" else 8
     state_vecs = 5 + (6 if run.method == Method.RK4 else 0)
     kept = run.settings.record_strain or run.settings.measure != "none"  # as engine.run_batch keeps it
     record = run.n_out * run.prisms_simulated if kept else 0
     return int(r * (3 * run.n_nodes * state_vecs + run.n_constraints * (run.bandwidth + 2) + 3 * run.n_cables
-                    + 2 * run.n_out + record))
+                    + 4 * run.n_out + record))
 
 
 def host_bytes_per_column(run, record_strain: bool, record_energy: bool = True) -> int:

@@ -139,6 +139,9 @@ def check_batch_arguments(func: str, config, params, settings, progress=None) ->
     per-column parameters as a plain dict (masked arrays refused)."""
     expect(func, "config", config, ColumnConfig), expect(func, "settings", settings, RunSettings)
     expect_callable(func, "progress", progress)
+    if settings.energy_station is not None and settings.energy_station >= config.n_prisms:
+        raise SettingsError(f"energy_station = {settings.energy_station!r}: must be < the scene's n_prisms = "
+                            f"{config.n_prisms}")
     return expect_params(func, params)
 
 

@@ -160,6 +160,7 @@ def template_dataset(plan: SweepPlan):
     result = SimpleNamespace(
         n_columns=1, status=np.zeros(1, np.int8), fail_step=np.full(1, -1, np.int64), energy_error=z(1),
         bar_length_error=z(1), kinetic_energy=z(1, T), elastic_energy=z(1, T), strain=z(1, T, P), time=time,
+        station_energy=z(1, T), end_energy=z(1, T),
         info={"output_step": steps if len(plan.groups) < 2 else None, "column_dt": np.full(1, plan.dt),
               "column_group": np.zeros(1, np.int32), "column_bits": np.full(1, 64, np.int8)}, feasibility=feasible_record(1))
     with np.errstate(all="ignore"):
