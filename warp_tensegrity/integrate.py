@@ -101,7 +101,8 @@ class Integrator:
                 if not (self.device.is_cuda or wp.config.enable_cpu_blocks):  # each lane would be a block of its own
                     raise SettingsError("the lane step on the CPU needs Warp's CPU blocks (wp.config.enable_cpu_blocks; "
                                         "engine runs switch them on: paths.lane_emulation)")
-                self.fk = LaneStep(m, batch, self.device, output_every, self.strain, self.kinetic, self.elastic)
+                self.fk = LaneStep(m, batch, self.device, output_every, self.strain, self.kinetic, self.elastic,
+                                   energy_parts, self.energy_below, self.energy_end)
             elif self.fused:
                 self.fk = FusedStep(m, self.device, self.fused_block, FUSED_STEPS,
                                     self.device.is_cuda or FUSED_SHARED_ON_CPU,

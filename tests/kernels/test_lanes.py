@@ -252,8 +252,9 @@ def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, pr
             np.testing.assert_array_equal(inside.feasibility[k], v, err_msg=k)
     if precision == "fp32":  # each member's stretch rounds differently here (lane geometry): against fp64
         ref = _run(cfg, params, False, device, "fp64", **kw)
-    for name in ("kinetic_energy", "elastic_energy"):
+    for name in ("kinetic_energy", "elastic_energy", "station_energy", "end_energy"):  # the last two: energy measures
         a, b = getattr(inside, name), getattr(after, name)
+        assert np.nanmax(np.abs(b)) > 0, name
         np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
         scale = np.nanmax(np.abs(b), axis=1)
         if precision == "fp64":

@@ -217,6 +217,31 @@ def feasibility_record(phi: Any, h: Any, h0j: Any, near: Any, slot: int, j: int,
 
 
 @wp.func
+def member_excess2(b0: Any, du: Any, EA: Any, EAc: Any, L: Any):
+    """Twice the elastic energy [J] of a member of reference vector b0 displaced by du above its value
+    at u = 0, under the bilinear law of :func:`cable_force`: k/L dl (dl + 2 (l0 - L)), dl = l - l0 =
+    du.(2 b0 + du)/(l + l0), with no cancellation of the prestress energy (the two laws' difference
+    where the member went slack or taut)."""
+    l0 = wp.length(b0)
+    l = wp.length(b0 + du)
+    dl = wp.dot(du, b0 + b0 + du) / (l + l0)
+    st = l - L
+    st0 = l0 - L
+    k = EA
+    if st < type(L)(0.0):
+        k = EAc
+    k0 = EA
+    if st0 < type(L)(0.0):
+        k0 = EAc
+    de = type(L)(0.0)
+    if k == k0:
+        de = k / L * dl * (dl + st0 + st0)
+    else:  # the member went slack or taut: its two laws differ
+        de = (k * st * st - k0 * st0 * st0) / L
+    return de
+
+
+@wp.func
 def cable_energy2(b: Any, EA: Any, EAc: Any, L: Any):
     """Twice the elastic energy [J] of a member of vector b under the bilinear law of
     :func:`cable_force`: k/L (s - L)^2."""

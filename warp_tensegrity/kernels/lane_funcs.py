@@ -137,6 +137,27 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         return vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]) + ut - X[i]
 
     @wp.func(inline=True)
+    def base_ends(xy: XY, X: Ext, j: int, k: int):
+        """(reference vector, displacement difference) [m] of base member k of the level at rows j ..
+        j + 2 (:func:`base_member` is their sum)."""
+        kn = (k + 1) % 3
+        return vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero), X[j + kn] - X[j + k]
+
+    @wp.func(inline=True)
+    def cross_ends(xy: XY, X: Ext, hz: Pv, hand: Pv, q: int, k: int):
+        """(reference vector, displacement difference) [m] of cross cable k of the lane's prism q."""
+        j = 3 * q + 3
+        kr = (k + 2) % 3
+        kl = (k + 1) % 3
+        xt = xy[j + kl]
+        ut = X[j + kl]
+        if hand[q] > zero:
+            xt = xy[j + kr]
+            ut = X[j + kr]
+        i = j - 3 + k
+        return vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]), ut - X[i]
+
+    @wp.func(inline=True)
     def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, base_ea: vec,
                rest: wp.array2d(dtype=real), wr: int, n: int, lane: int, g: int, wl: int):
         """Cable forces [N] on the lane's nodes: base members of its levels and cross cables of
@@ -401,7 +422,8 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         return ok
 
     return SimpleNamespace(Nodes=Nodes, Ext=Ext, XY=XY, Lv=Lv, Rows=Rows, Fac=Fac, Pv=Pv, vec=vec, ops=ops,
-                           bars=bars, extend=extend, impulse=impulse, forces=forces, energies=energies,
+                           bars=bars, extend=extend, impulse=impulse, forces=forces, energies=energies, base_ends=base_ends,
+                           cross_ends=cross_ends,
                            accelerations=accelerations, gram=gram,
                            factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
                            finite_nodes=finite_nodes, bar_residual=bar_residual)

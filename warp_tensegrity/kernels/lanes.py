@@ -17,7 +17,7 @@ import numpy as np
 import warp as wp
 
 from .common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
-                     feasibility_record, prism_twist_of, projection_status, set_failure)
+                     feasibility_record, member_excess2, prism_twist_of, projection_status, set_failure)
 from ..policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
 from .lane_funcs import make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
@@ -70,10 +70,13 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                prism_hand: wp.array(dtype=real), m_self: wp.array2d(dtype=real), strain: wp.array3d(dtype=real),
                kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real), twist: wp.array2d(dtype=real),
                twist_max: wp.array2d(dtype=real), twist_min: wp.array2d(dtype=real),
-               height_min: wp.array2d(dtype=real), left_slot: wp.array3d(dtype=int)):
+               height_min: wp.array2d(dtype=real), left_slot: wp.array3d(dtype=int), below_node: int, end_node: int,
+               below: wp.array2d(dtype=real), end: wp.array2d(dtype=real)):
         """The output records of the step that just ended, in the kernel (the staged record kernels'
         outputs: strain and the feasibility record through the same ``@wp.func`` bodies, so the same
-        bits; the energies summed lane by lane, so their last bits may differ): only a live column's."""
+        bits; the energies, and the energy parts of the energy measures where ``below`` has rows
+        (record_energy_parts, measure.energy), summed lane by lane, so their last bits may differ):
+        only a live column's."""
         X = f.extend(U, U, lane, g, wl)
         mass = Lv()
         for j in range(1, wp.static(P + 1)):
@@ -81,6 +84,39 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if L <= n:
                 mass[j] = m_self[3 * L, wM]
         e = f.energies(X, V, xyl, hzl, hnd, ex, cross, base_ea, rest, wr, n, mass, lane, g, wl)
+        if below.shape[0] > 0:  # the energy parts: nodes and members by their first node (record_energy_parts)
+            eb = zero
+            et = zero
+            for q in range(wp.static(P)):
+                if ex[q] != zero:
+                    m = wp.static(P) * lane + q
+                    for k in range(3):
+                        vv = V[3 * q + k]
+                        ke = mass[q + 1] * wp.dot(vv, vv)
+                        node = 3 * (m + 1) + k
+                        b0, du = f.base_ends(xyl, X, 3 * q + 3, k)
+                        eb_ = member_excess2(b0, du, base_ea[0], base_ea[1], rest[wr, 3 * n + 3 * m + 3 + k])
+                        first_b = 3 * (m + 1) + wp.min(k, (k + 1) % 3)
+                        c0, dc = f.cross_ends(xyl, X, hzl, hnd, q, k)
+                        ec_ = member_excess2(c0, dc, cross[0], cross[1], rest[wr, 3 * m + k])
+                        first_c = 3 * m + k
+                        if node < below_node:
+                            eb += ke
+                        if node >= end_node:
+                            et += ke
+                        if first_b < below_node:
+                            eb += eb_
+                        if first_b >= end_node:
+                            et += eb_
+                        if first_c < below_node:
+                            eb += ec_
+                        if first_c >= end_node:
+                            et += ec_
+            # (the clamped level 0's base members: no displacement, no excess)
+            sp = ops.segment_sum3(vec(eb, et, zero), g, wl)
+            if alive == 1 and lane == 0:
+                below[slot, w] = real(0.5) * sp[0]
+                end[slot, w] = real(0.5) * sp[1]
         if alive == 1:
             if lane == 0:
                 kinetic[slot, w] = real(0.5) * e[0]
@@ -120,8 +156,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
         twist: wp.array2d(dtype=real), twist_max: wp.array2d(dtype=real), twist_min: wp.array2d(dtype=real),
         height_min: wp.array2d(dtype=real), left_slot: wp.array3d(dtype=int),
+        below_node: int, end_node: int,
         # Data out:
         strain: wp.array3d(dtype=real), kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real),
+        below: wp.array2d(dtype=real), end: wp.array2d(dtype=real),
     ):
         """n_sub RATTLE steps of size h (init = 1: make v admissible and compute a(u) instead), with
         the output records of every step that is a multiple of ``every`` (:func:`record`)."""
@@ -233,7 +271,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     record(U, V, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl, w,
                            wc % m_self.shape[1],
                            so / every, alive, h0, level_ref, prism_hand, m_self, strain, kinetic, elastic, twist,
-                           twist_max, twist_min, height_min, left_slot)
+                           twist_max, twist_min, height_min, left_slot, below_node, end_node, below, end)
             if i == n_it:
                 break
             if init == 0:
@@ -318,9 +356,11 @@ class LaneStep:
     """The kernel writes the output records itself (:func:`make_lane_kernel`'s ``record``): a launch
     may span many outputs, and the Integrator launches no record kernels after it."""
 
-    def __init__(self, model: "Model", batch: "NetworkBatch", device, every: int, strain, kinetic, elastic):
+    def __init__(self, model: "Model", batch: "NetworkBatch", device, every: int, strain, kinetic, elastic,
+                 energy_parts: tuple[int, int] | None = None, below=None, end=None):
         """``every``: steps per output; ``strain`` (or None: not kept), ``kinetic``, ``elastic``: the
-        Integrator's record arrays, which the kernel fills."""
+        Integrator's record arrays, which the kernel fills; with ``energy_parts`` (below_node, end_node)
+        also the energy parts ``below`` and ``end`` (measure.energy)."""
         why = lane_support(batch)
         if why is not None:
             raise ValueError(f"the warp-per-column step does not take this batch: {why}")
@@ -351,7 +391,10 @@ class LaneStep:
         B = model.n_columns
         self.threads = -(-B * self.G // WARP) * WARP
         self.every = int(every)
-        self.records = (wp.zeros((0, 0, 0), dtype=real, device=d) if strain is None else strain, kinetic, elastic)
+        none = wp.zeros((0, 0), dtype=real, device=d)
+        self.parts = [int(x) for x in (energy_parts or (0, 0))]
+        self.records = (wp.zeros((0, 0, 0), dtype=real, device=d) if strain is None else strain, kinetic, elastic,
+                        none if energy_parts is None else below, none if energy_parts is None else end)
 
     @property
     def description(self) -> str:
@@ -372,7 +415,7 @@ class LaneStep:
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
-            data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.records])
+            data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.parts, *self.records])
 
     def advance_counter(self, data, n: int):
         wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device, block_dim=1)

@@ -23,8 +23,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_vec, node_force, pget,
-                     prism_twist)
+from .common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_excess2, member_vec,
+                     node_force, pget, prism_twist)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -243,25 +243,8 @@ def _record_kernels(real):
             first = wp.min(cab_i[c], cab_j[c])
             if first >= below_node and first < end_node:
                 continue
-            b0 = cab_dref[c]
-            du = u[cab_j[c], w] - u[cab_i[c], w]
-            l0 = wp.length(b0)
-            l = wp.length(b0 + du)
-            dl = wp.dot(du, b0 + b0 + du) / (l + l0)
-            L = pget(cab_L, c, w)
-            st = l - L
-            st0 = l0 - L
-            k = pget(cab_EA, c, w)
-            if st < real(0.0):
-                k = pget(cab_EAc, c, w)
-            k0 = pget(cab_EA, c, w)
-            if st0 < real(0.0):
-                k0 = pget(cab_EAc, c, w)
-            de = real(0.0)
-            if k == k0:
-                de = k / L * dl * (dl + st0 + st0)
-            else:  # the member went slack or taut: its two laws differ
-                de = (k * st * st - k0 * st0 * st0) / L
+            de = member_excess2(cab_dref[c], u[cab_j[c], w] - u[cab_i[c], w], pget(cab_EA, c, w), pget(cab_EAc, c, w),
+                                pget(cab_L, c, w))
             if first < below_node:
                 eb += de
             if first >= end_node:
