@@ -17,10 +17,12 @@ shows that an engine with a constant 5 % off fails some check.
 from __future__ import annotations
 
 from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_soliton
+from .striker import check_striker
 
 __all__ = ["CHECKS", "Check", "CheckGroup", "run_validation", "report"]
 
-CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal}
+CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal,
+          "striker": check_striker}
 """Every check group by name, in gallery order."""
 
 
