@@ -129,9 +129,17 @@ VAR_ATTRS = {
                   "(dt, steps, path; the dataset attribute run_groups describes each)"},
     "energy_error": {
         "units": "1",
-        "long_name": "max relative energy drift max_t |E(t) - E(0)| / KE(0) over the outputs",
+        "long_name": "max relative energy drift max_t |E(t) - E(0)| / KE(0) over the outputs (a striker's kinetic "
+                     "energy included in E and KE)",
     },
     "bar_length_error": {"units": "1", "long_name": "max relative bar-length error |l - L| / L over all steps and bars"},
+    # the striker (scene impact = 'striker'; docs/impact.md)
+    "striker_mass": {"units": "kg", "long_name": "mass of the striker"},
+    "striker_velocity": {"units": "m s-1", "long_name": "axial velocity of the striker (negative: toward the clamp)"},
+    "striker_force": {"units": "N", "long_name": "contact force between striker and end base, mean over the time "
+                      "step before the output (the striker's momentum change / dt; positive: pushing)"},
+    "striker_separation_time": {"units": "s", "long_name": "simulated time at which the striker first left the "
+                                "end base (start of the first step without contact force; NaN: never)"},
     "kinetic_energy": {"units": "J", "long_name": "kinetic energy of the column"},
     "elastic_energy": {"units": "J", "long_name": "elastic energy of all cables, prestress included"},
     "strain": {
@@ -309,6 +317,12 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
         dv.update({k: (C, np.asarray(feas[k], dtype=t)) for k, t in FEASIBILITY_VARS.items() if k in feas})
         for i, r in enumerate(FEASIBILITY_FLAGS if "feasibility_times" in feas else ()):
             dv[f"feasibility_time_{r}"] = (C, np.asarray(feas["feasibility_times"][:, i], dtype=np.float64))
+    striker = result.info.get("striker") if isinstance(getattr(result, "info", None), dict) else None
+    if striker is not None:
+        dv["striker_mass"] = (C, np.asarray(striker["mass"], dtype=np.float64))
+        dv["striker_separation_time"] = (C, np.asarray(striker["separation_time"], dtype=np.float64))
+        dv["striker_velocity"] = (("case", TIME), np.asarray(striker["velocity"], dtype=np.float64))
+        dv["striker_force"] = (("case", TIME), np.asarray(striker["force"], dtype=np.float64))
     if record_energy:
         dv["kinetic_energy"] = (("case", TIME), np.asarray(result.kinetic_energy, dtype=np.float64))
         dv["elastic_energy"] = (("case", TIME), np.asarray(result.elastic_energy, dtype=np.float64))
