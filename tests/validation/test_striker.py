@@ -14,7 +14,8 @@ from warp_tensegrity.scene.striker import blow_speed
 from warp_tensegrity.validation import report
 from warp_tensegrity.validation.closed_forms import rb_chain
 from warp_tensegrity.validation.figures import write_figures
-from warp_tensegrity.validation.striker import check_striker, striker_chain
+from warp_tensegrity.validation.checks import check_striker
+from warp_tensegrity.validation.striker import striker_chain
 
 ORIGINAL = scene_batch.column_batch
 

@@ -32,8 +32,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .network import NetworkError
-
 IMPACTS = ("velocity", "striker")
 """Values of the scene's ``impact`` option."""
 
@@ -53,9 +51,7 @@ def blow_speed(v0, striker_mass, m_end) -> np.ndarray:
 def attach_striker(batch, config, unit_velocity: np.ndarray) -> None:
     """Give a column batch (:func:`~.batch.column_batch`) its striker: the mass, the column's velocity
     after the blow (the ``rigid_members`` field at V1 instead of v0) and the striker's own V1.
-    Refuses what the model does not cover, naming the option."""
-    if config.striker_mass <= 0.0:
-        raise NetworkError(f"striker_mass = {config.striker_mass!r}: impact = 'striker' needs a striker mass > 0 [kg]")
+    (The scene has refused what the model does not cover: ``ColumnConfig._check_striker``.)"""
     v0 = batch.params["v0"]
     B = batch.n_columns
     m_end = np.broadcast_to(end_mass(unit_velocity, batch.node_mass), (B,))

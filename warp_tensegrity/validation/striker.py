@@ -1,5 +1,5 @@
-"""The striker check (issue 34 item 5): a mass striking the linear rigid-base (RB) chain, solved exactly,
-against the engine's striker (scene ``impact = 'striker'``). Derivation: docs/validation.md, "Striker".
+"""The reference of the striker check (issue 34 item 5; :func:`.checks.check_striker`): a mass striking the
+linear rigid-base (RB) chain, solved exactly. Derivation: docs/validation.md, "Striker".
 
 The reference is the RB column's exact 1-D chain (:mod:`.closed_forms`): levels 1..N above the clamp,
 masses m_eff (the struck end level m_eff / 2), springs K. The striker (mass M) moves with the end level
@@ -30,11 +30,9 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.optimize import brentq
 
-from .checks import J1_MAX, Check, CheckGroup, _run, chain_of
 from .closed_forms import RBChain
-from ..scene.columns import ColumnConfig
 
-__all__ = ["StrikerReference", "striker_chain", "check_striker"]
+__all__ = ["StrikerReference", "striker_chain"]
 
 
 @dataclass
@@ -142,49 +140,4 @@ def striker_chain(chain: RBChain, n_prisms: int, striker_mass: float, v0: float,
         if not touching:
             s0 = u[-1]
     return StrikerReference(time, vel, force, energy, strain, seps, contacts, V1)
-
-
-# ---------------------------------------------------------------------- the check
-def check_striker(n_prisms: int = 12, prestrain: float = 0.002, striker_mass: float = 0.2, peak_of_p: float = 0.005,
-                  t_end: float = 1.5, dt: float = 1e-3, device: str = "cpu"):
-    """The engine's striker on a small linear RB impact against :func:`striker_chain`: the striker's
-    velocity record, the energy in the column (what the striker handed over), the contact force while
-    they first touch and the time it leaves. v0 as in the Bessel check (first peak ``peak_of_p`` x p
-    under the velocity impact)."""
-    cfg = ColumnConfig(n_prisms=n_prisms, impact="striker", striker_mass=striker_mass)
-    ch = chain_of(cfg, prestrain)
-    v0 = peak_of_p * prestrain * ch.c0 / J1_MAX
-    r = _run(cfg, {"prestrain": prestrain, "v0": v0, "base_rigidity": 1.0}, t_end, 0.01, device, dt=dt)
-    eng = r.info["striker"]
-    ref = striker_chain(ch, n_prisms, striker_mass, v0, r.time)
-    e_col = r.kinetic_energy[0] + r.elastic_energy[0] - r.elastic_energy[0, 0]
-    t_sep = ref.separations[0] if ref.separations else np.nan
-    err_v = float(np.abs(eng["velocity"][0] - ref.velocity).max() / v0)
-    err_e = float(np.abs(e_col - ref.column_energy).max() / ref.column_energy.max())
-    # the recorded force is the step's mean (momentum change / dt): the reference at mid-step
-    first = (r.time > 0) & (r.time < t_sep - 2 * r.dt)
-    f_mid = striker_chain(ch, n_prisms, striker_mass, v0, r.time[first] - 0.5 * r.dt).force
-    err_f = float(np.abs(eng["force"][0][first] - f_mid).max() / ref.force.max())
-    t_eng = float(eng["separation_time"][0])
-    err_t = abs(t_eng - t_sep) / t_sep
-    checks = [
-        Check("striker_velocity", "max |engine - chain| of the striker's velocity over the record / v0",
-              err_v, 0.0, err_v, 1e-4),
-        Check("striker_energy", "max |engine - chain| of the column's energy (what the striker handed over) / its peak",
-              err_e, 0.0, err_e, 1e-4),
-        Check("striker_force", "max |engine - chain| of the contact force while first touching / its peak",
-              err_f, 0.0, err_f, 1e-3),
-        Check("striker_separation", "separation time, relative (the engine's resolution is dt)", t_eng, t_sep, err_t,
-              2.0 * r.dt / t_sep),
-    ]
-    notes = [f"{n_prisms} prisms, RB, p = {prestrain:g}, striker M = {striker_mass:g} kg (m_eff/2 = "
-             f"{0.5 * ch.m_eff:.4g} kg), v0 = {v0:.3g} m/s, V1 = {ref.blow_speed:.4g} m/s, dt = {r.dt:.3g} s; "
-             f"the chain: separations at {', '.join(f'{t:.4f}' for t in ref.separations)} s, contacts again at "
-             f"{', '.join(f'{t:.4f}' for t in ref.contacts) or 'none'} s; the engine: {int(eng['recontacts'][0])} "
-             f"contact(s) again; energy handed over {ref.column_energy[-1]:.4g} J of the striker's "
-             f"{0.5 * striker_mass * v0**2:.4g} J"]
-    return CheckGroup("striker", "A striker on the linear RB chain", checks,
-                      {"time": r.time, "engine_velocity": eng["velocity"][0], "chain_velocity": ref.velocity,
-                       "engine_force": eng["force"][0], "chain_force": ref.force, "engine_energy": e_col,
-                       "chain_energy": ref.column_energy, "v0": v0, "separations": ref.separations}, notes)
 
