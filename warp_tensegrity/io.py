@@ -140,6 +140,8 @@ VAR_ATTRS = {
                       "step before the output (the striker's momentum change / dt; positive: pushing)"},
     "striker_separation_time": {"units": "s", "long_name": "simulated time at which the striker first left the "
                                 "end base (start of the first step without contact force; NaN: never)"},
+    "striker_last_separation_time": {"units": "s", "long_name": "simulated time at which the striker's last free "
+                                     "flight began (NaN: touching the end base at t_end)"},
     "kinetic_energy": {"units": "J", "long_name": "kinetic energy of the column"},
     "elastic_energy": {"units": "J", "long_name": "elastic energy of all cables, prestress included"},
     "strain": {
@@ -321,6 +323,7 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
     if striker is not None:
         dv["striker_mass"] = (C, np.asarray(striker["mass"], dtype=np.float64))
         dv["striker_separation_time"] = (C, np.asarray(striker["separation_time"], dtype=np.float64))
+        dv["striker_last_separation_time"] = (C, np.asarray(striker["last_separation_time"], dtype=np.float64))
         dv["striker_velocity"] = (("case", TIME), np.asarray(striker["velocity"], dtype=np.float64))
         dv["striker_force"] = (("case", TIME), np.asarray(striker["force"], dtype=np.float64))
     if record_energy:

@@ -220,6 +220,9 @@ def overwrite_columns(result: BatchResult, index, other: BatchResult) -> None:
     if result.feasibility is not None and other.feasibility is not None:
         for k, v in other.feasibility.items():
             result.feasibility[k][index] = np.asarray(v)
+    if "striker" in result.info and "striker" in other.info:  # the striker's per-column records
+        for k, v in other.info["striker"].items():
+            result.info["striker"][k][index] = v
     if result.measurements is not None and other.measurements is not None:
         for k, v in other.measurements.items():
             mine = result.measurements.get(k)

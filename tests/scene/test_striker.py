@@ -74,11 +74,13 @@ def test_records_and_dataset_variables():
     s = r.info["striker"]
     assert int(r.status[0]) == 0 and r.energy_error[0] < 1e-4
     assert s["contact_residual"][0] < 1e-14
-    assert 0.0 < s["separation_time"][0] < 0.3 and s["velocity"][0, -1] > 0  # pushed back: it flies off upward
+    assert 0.0 < s["separation_time"][0] <= s["last_separation_time"][0] < 0.3
+    assert s["velocity"][0, -1] > 0  # pushed back: it flies off upward
     assert s["force"][0].min() >= 0.0 and s["force"][0].max() > 0.0
     ds = r.to_xarray(cfg)
     for name, units, dims in (("striker_velocity", "m s-1", ("case", "t")), ("striker_force", "N", ("case", "t")),
-                              ("striker_separation_time", "s", ("case",)), ("striker_mass", "kg", ("case",))):
+                              ("striker_separation_time", "s", ("case",)), ("striker_mass", "kg", ("case",)),
+                              ("striker_last_separation_time", "s", ("case",))):
         assert ds[name].dims == dims and ds[name].attrs["units"] == units and ds[name].attrs["long_name"]
     np.testing.assert_array_equal(ds["striker_velocity"].values, s["velocity"])
 

@@ -140,10 +140,10 @@ def make_striker_kernels(real):
                          status: wp.array(dtype=int), step: wp.array(dtype=int), g: wp.array2d(dtype=vec),
                          active: wp.array(dtype=int), v_start: wp.array(dtype=real), v: wp.array2d(dtype=vec),
                          V: wp.array(dtype=real), slope: wp.array(dtype=real), force: wp.array(dtype=real),
-                         sep_step: wp.array(dtype=int), contacts: wp.array(dtype=int)):
+                         sep_step: wp.array(dtype=int), contacts: wp.array(dtype=int), last_sep: wp.array(dtype=int)):
         """In contact: c' = V - z_end' made >= 0 by the impulse mu along P M^-1 grad c (g, projected).
         The step's contact force (the striker's momentum change / h), the first separation (the start
-        of the first step without a contact force) and the contacts after it."""
+        of the first step without a contact force), the last one and the contacts after the first."""
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
@@ -162,8 +162,9 @@ def make_striker_kernels(real):
         else:
             if sep_step[w] < 0:
                 sep_step[w] = step[0]
-            if contacts[w] % 2 == 0:
+            if contacts[w] % 2 == 0:  # it leaves now
                 contacts[w] = contacts[w] + 1
+                last_sep[w] = step[0]
         force[w] = M * (V[w] - v_start[w]) * inv_h
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -208,6 +209,7 @@ class StrikerStep:
         self.active = wp.zeros(B, dtype=int, device=device)
         self.contacts = wp.zeros(B, dtype=int, device=device)
         self.sep_step = wp.full(B, -1, dtype=int, device=device)
+        self.last_sep = wp.full(B, -1, dtype=int, device=device)
         vec = wp.types.vector(3, real)
         self.ut = wp.zeros((n, B), dtype=vec, device=device)
         self.g = wp.zeros((n, B), dtype=vec, device=device)
@@ -240,19 +242,23 @@ class StrikerStep:
     def velocities(self, data, h: float):
         self._launch(self.k.striker_velocity, [self.real(1.0 / h), self.nodes, self.mass, data.status, data.step,
                                                self.g, self.active, self.v_start, data.v, self.V, self.slope,
-                                               self.force, self.sep_step, self.contacts])
+                                               self.force, self.sep_step, self.contacts, self.last_sep])
 
     def record(self, data, every: int):
         self._launch(self.k.striker_record, [int(every), data.step, self.V, self.force, self.v_rec, self.f_rec])
 
     def summary(self, dt: float) -> dict:
         """Per column: the striker's velocity [m s-1] and contact force [N] at the output times (n_out, B
-        -> (B, n_out)), its mass [kg], the time it first separated [s] (NaN: it never did), the contacts
-        after that, and the largest |c| [m] left by the position stage."""
+        -> (B, n_out)), its mass [kg], the time it first separated [s] (NaN: it never did), the start of
+        its last free flight [s] (NaN: touching at the end), the contacts after the first separation, and
+        the largest |c| [m] left by the position stage."""
         sep = self.sep_step.numpy().astype(np.int64)
+        contacts = self.contacts.numpy().astype(np.int64)
+        last = np.where(contacts % 2 == 1, self.last_sep.numpy().astype(np.int64), -1)  # odd: apart at the end
         return {"velocity": self.v_rec.numpy().astype(np.float64).T,
                 "force": self.f_rec.numpy().astype(np.float64).T,
                 "mass": self.mass_host.copy(),
                 "separation_time": np.where(sep >= 0, sep * float(dt), np.nan),
-                "recontacts": self.contacts.numpy().astype(np.int64) // 2,
+                "last_separation_time": np.where(last >= 0, last * float(dt), np.nan),
+                "recontacts": contacts // 2,
                 "contact_residual": self.residual.numpy().astype(np.float64)}
