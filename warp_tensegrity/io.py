@@ -134,7 +134,6 @@ VAR_ATTRS = {
     },
     "bar_length_error": {"units": "1", "long_name": "max relative bar-length error |l - L| / L over all steps and bars"},
     # the striker (scene impact = 'striker'; docs/impact.md)
-    "striker_mass": {"units": "kg", "long_name": "mass of the striker"},
     "striker_velocity": {"units": "m s-1", "long_name": "axial velocity of the striker (negative: toward the clamp)"},
     "striker_force": {"units": "N", "long_name": "contact force between striker and end base, mean over the time "
                       "step before the output (the striker's momentum change / dt; positive: pushing)"},
@@ -249,6 +248,8 @@ def _coords(layout: Layout, params: dict, start: int, stop: int, time: np.ndarra
         coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     swept = layout.swept
     for p in COLUMN_PARAMETERS:
+        if p == "striker_mass" and getattr(layout.scene, "impact", "velocity") != "striker":
+            continue  # no striker, no striker mass
         if p in swept:
             coords[p] = _var(p, "case", np.asarray(params[p][start:stop], dtype=np.float64), COORD_ATTRS[p])
         else:
@@ -321,7 +322,6 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
             dv[f"feasibility_time_{r}"] = (C, np.asarray(feas["feasibility_times"][:, i], dtype=np.float64))
     striker = result.info.get("striker") if isinstance(getattr(result, "info", None), dict) else None
     if striker is not None:
-        dv["striker_mass"] = (C, np.asarray(striker["mass"], dtype=np.float64))
         dv["striker_separation_time"] = (C, np.asarray(striker["separation_time"], dtype=np.float64))
         dv["striker_last_separation_time"] = (C, np.asarray(striker["last_separation_time"], dtype=np.float64))
         dv["striker_velocity"] = (("case", TIME), np.asarray(striker["velocity"], dtype=np.float64))
@@ -384,7 +384,8 @@ def result_dataset(result, config=None, measurements: dict | None = None, attrs:
             a[f"scene_{f.name}"] = getattr(config, f.name)
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
     a.update(attrs)
-    coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
+    params = {k: v for k, v in result.params.items() if k != "striker_mass" or "striker" in result.info}
+    coords = params_coords(params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
     ds = batch_dataset(result, measurements, coords, a, record_energy=result.kinetic_energy is not None)
     for k, enc in _coordinate_encoding(ds).items():  # ds.to_netcdf() stays CF-clean, as the CLI's files
         ds[k].encoding.update(enc)

@@ -363,6 +363,9 @@ class ColumnParameters:
                                            default_text="scene's unit_mass",
                                            long_name="mass per unit (prism), lumped on the bases")] = None
     """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
+    striker_mass: Annotated[float | None, Opt("real", "kg", ge=0, le=MASS[1], optional=True,
+                                              default_text="scene's striker_mass", long_name="mass of the striker")] = None
+    """Striker mass M [kg] (scene impact = 'striker', where it must be > 0); None: the scene's striker_mass."""
 
 
 COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in ColumnParameters.__pydantic_fields__}

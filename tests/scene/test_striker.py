@@ -15,7 +15,6 @@ from warp_tensegrity.validation.striker import striker_chain
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({}, "striker_mass = 0.0: impact = 'striker' needs a striker mass > 0 [kg]"),
     ({"striker_mass": -1.0}, "striker_mass = -1.0: must lie in [0, 1e+06] [kg]"),
     ({"striker_mass": 0.1, "impact_admissibility": "end_twist"},
      "impact_admissibility = 'end_twist': impact = 'striker' needs impact_admissibility = 'rigid_members'"),
@@ -28,6 +27,18 @@ def test_what_the_striker_refuses(kwargs, message):
     with pytest.raises(NetworkError) as e:
         ColumnConfig(impact="striker", **kwargs)
     assert message in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("params, message", [
+    ({}, "striker_mass = 0.0: impact = 'striker' needs a striker mass > 0 [kg]"),
+    ({"striker_mass": [0.1, 0.0]}, "striker_mass[1] = 0.0: impact = 'striker' needs a striker mass > 0 [kg]"),
+    ({"striker_mass": [0.1, -2.0]}, "striker_mass[1] = -2.0: must lie in [0, 1e+06] [kg]"),
+])
+def test_a_striker_without_mass_is_refused(params, message):
+    """The mass is per column (the scene's is the default): zero is refused where the batch is built."""
+    with pytest.raises(NetworkError) as e:
+        column_batch(ColumnConfig(n_prisms=3, impact="striker"), {"v0": 0.01, **params})
+    assert str(e.value) == message
 
 
 def test_the_striker_takes_the_staged_rattle_step():
@@ -46,10 +57,10 @@ def test_the_striker_takes_the_staged_rattle_step():
 def test_the_blow(beta):
     """After the plastic blow the column moves with the rigid_members field at V1 = v0 M / (M + m_end),
     m_end the end's effective mass (for RB the chain's end mass m_eff/2), and so does the striker."""
-    M, v0 = 0.07, 0.02
-    cfg = ColumnConfig(n_prisms=5, impact="striker", striker_mass=M)
+    M, v0 = np.array([0.07, 0.3]), 0.02  # per column
+    cfg = ColumnConfig(n_prisms=5, impact="striker")
     p = {"prestrain": 0.002, "v0": [v0, 2 * v0], "base_rigidity": beta}
-    b = column_batch(cfg, p)
+    b = column_batch(cfg, {**p, "striker_mass": M})
     ref = column_batch(ColumnConfig(n_prisms=5), p)
     m_end = b.striker_end_mass
     if beta == 1.0:
@@ -79,7 +90,7 @@ def test_records_and_dataset_variables():
     assert s["force"][0].min() >= 0.0 and s["force"][0].max() > 0.0
     ds = r.to_xarray(cfg)
     for name, units, dims in (("striker_velocity", "m s-1", ("case", "t")), ("striker_force", "N", ("case", "t")),
-                              ("striker_separation_time", "s", ("case",)), ("striker_mass", "kg", ("case",)),
+                              ("striker_separation_time", "s", ("case",)), ("striker_mass", "kg", ()),
                               ("striker_last_separation_time", "s", ("case",))):
         assert ds[name].dims == dims and ds[name].attrs["units"] == units and ds[name].attrs["long_name"]
     np.testing.assert_array_equal(ds["striker_velocity"].values, s["velocity"])

@@ -255,11 +255,18 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
         batch.contact_gap = 2.0 * float(config.bar_radius)
         batch.restitution = float(config.restitution)
     if config.impact == "striker":  # the blow: the rigid_members field at the common speed (scene.striker)
-        attach_striker(batch, config, _unit_impact(config, False))
+        M = p["striker_mass"]
+        bad = np.flatnonzero(~(M > 0.0))
+        if bad.size:
+            where = f"[{int(bad[0])}]" if B > 1 else ""
+            raise NetworkError(f"striker_mass{where} = {float(M[bad[0]])!r}: impact = 'striker' needs a striker mass "
+                               "> 0 [kg]")
+        attach_striker(batch, M, _unit_impact(config, False))
     # the reference state depends on (prestrain, base rigidity, EA) only: check each distinct one once
     states, inverse = reference_states(p)
     if len(inverse) > len(states["prestrain"]):
-        batch.equilibrium_residual = column_batch(config, states).equilibrium_residual[inverse]
+        still = dataclasses.replace(config, impact="velocity") if config.impact == "striker" else config  # statics
+        batch.equilibrium_residual = column_batch(still, states).equilibrium_residual[inverse]
     else:
         batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(T, np.finfo(float).tiny)
     return batch

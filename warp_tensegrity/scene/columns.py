@@ -108,7 +108,8 @@ class ColumnConfig:
     pushes it back (a frictionless face on the end base's mean height; docs/impact.md). Needs method
     'rattle' and the 'rigid_members' blow; runs on the staged path, untruncated."""
     striker_mass: Annotated[float, Opt("real", "kg", ge=0, le=MASS[1])] = 0.0
-    """Mass M of the striker [kg] (impact = 'striker', where it must be > 0); 0: no striker."""
+    """Mass M of the striker [kg] (impact = 'striker', where every column's must be > 0; a sweep may vary
+    it per column); 0: not given."""
     contact: Annotated[str, Opt("choice", choices=CONTACT_MODELS)] = "none"
     """Bar contact: 'none' (default, the paper's model: bars are axes and pass through each other)
     or 'bars': the bars of each prism stay at least 2 bar_radius apart (axis to axis), a unilateral
@@ -143,9 +144,7 @@ class ColumnConfig:
             raise NetworkError(f"bar_mass = {self.bar_mass!r}: massive bars need n_prisms = 1 (the inner nodes of a "
                                f"column carry two bars; n_prisms = {self.n_prisms}): put the mass in unit_mass")
 
-    def _check_striker(self):
-        if self.striker_mass <= 0.0:
-            raise NetworkError(f"striker_mass = {self.striker_mass!r}: impact = 'striker' needs a striker mass > 0 [kg]")
+    def _check_striker(self):  # its mass is per column (scene.batch refuses 0 there)
         for key, value, need in (("impact_admissibility", self.impact_admissibility, "rigid_members"),
                                  ("contact", self.contact, "none")):
             if value != need:

@@ -48,14 +48,15 @@ def blow_speed(v0, striker_mass, m_end) -> np.ndarray:
     return np.asarray(v0, dtype=np.float64) * M / (M + np.asarray(m_end, dtype=np.float64))
 
 
-def attach_striker(batch, config, unit_velocity: np.ndarray) -> None:
-    """Give a column batch (:func:`~.batch.column_batch`) its striker: the mass, the column's velocity
-    after the blow (the ``rigid_members`` field at V1 instead of v0) and the striker's own V1.
-    (The scene has refused what the model does not cover: ``ColumnConfig._check_striker``.)"""
+def attach_striker(batch, striker_mass: np.ndarray, unit_velocity: np.ndarray) -> None:
+    """Give a column batch (:func:`~.batch.column_batch`) its striker of mass ``striker_mass`` [kg] per
+    column (> 0): the column's velocity after the blow (the ``rigid_members`` field ``unit_velocity`` at
+    v0 = 1, taken at V1 instead of v0) and the striker's own V1. (The scene and the batch have refused
+    what the model does not cover: ``ColumnConfig._check_striker``, ``column_batch``.)"""
     v0 = batch.params["v0"]
     B = batch.n_columns
     m_end = np.broadcast_to(end_mass(unit_velocity, batch.node_mass), (B,))
-    M = np.full(B, float(config.striker_mass))
+    M = np.broadcast_to(np.asarray(striker_mass, dtype=np.float64), (B,)).copy()
     V1 = blow_speed(v0, M, m_end)
     with np.errstate(invalid="ignore", divide="ignore"):
         scale = np.where(v0 > 0, V1 / np.where(v0 > 0, v0, 1.0), 0.0)
