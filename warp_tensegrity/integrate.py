@@ -113,7 +113,7 @@ class Integrator:
                 raise SettingsError(f"the striker runs on the staged path with method = 'rattle' (got path "
                                     f"{self.path.value}, method {settings.method!r})")
             self.striker = StrikerStep(self.model, batch, self.device, COLUMN_BLOCK_DIM if self.device.is_cuda else 1,
-                                       n_out)
+                                       n_out, settings.tolerance)
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy)

@@ -120,3 +120,15 @@ def test_a_heavy_striker_is_a_piston_not_the_velocity_impact():
     assert np.abs(r.info["striker"]["velocity"][0] / v0 + 1).max() < 1e-2  # the striker keeps v0 (0.4 % off by 1 s)
     velocity_impact = simulate_batch(cfg, params, settings)
     assert np.abs(velocity_impact.strain[0] - r.strain[0]).max() / peak > 0.3
+
+
+def test_fp32_keeps_the_contact_that_fp64_keeps():
+    """A touching striker is not taken for gone by the round-off of the gap: fp32 leaves where fp64 does
+    (within a step), not at the first step (the gap's tolerance, kernels.striker.striker_iterate)."""
+    cfg = ColumnConfig(n_prisms=6, impact="striker", striker_mass=0.1)
+    seps = []
+    for precision in ("fp32", "fp64"):
+        r = simulate_batch(cfg, {"prestrain": 0.002, "v0": 0.01, "base_rigidity": 1.0},
+                           RunSettings(t_end=0.3, dt=5e-4, output_interval=0.01, device="cpu", precision=precision))
+        seps.append(float(r.info["striker"]["separation_time"][0]))
+    assert seps[1] == pytest.approx(0.167, abs=1e-3) and abs(seps[0] - seps[1]) <= 5e-4 + 1e-12, seps

@@ -65,13 +65,16 @@ def make_striker_kernels(real):
             ut[n, w] = u[n, w]
 
     @wp.kernel(enable_backward=False, module="unique")
-    def striker_iterate(k: int, nodes: wp.array(dtype=int), minv_self: wp.array2d(dtype=real),
+    def striker_iterate(k: int, touch: real, nodes: wp.array(dtype=int), minv_self: wp.array2d(dtype=real),
                         mass: wp.array(dtype=real), status: wp.array(dtype=int), s: wp.array(dtype=real),
                         ut: wp.array2d(dtype=vec), slope: wp.array(dtype=real), u: wp.array2d(dtype=vec),
                         nu: wp.array(dtype=real), nu_prev: wp.array(dtype=real), c_prev: wp.array(dtype=real),
                         active: wp.array(dtype=int)):
         """c at the projected positions of the current nu; the next nu (k = 0: from the slope, then a
-        secant); the column restarts from its drifted positions moved by the next nu."""
+        secant); the column restarts from its drifted positions moved by the next nu. A gap up to
+        ``touch`` [m] (what the members' projection leaves of the positions: its tolerance times the
+        prism height) still touches, so a striker that touches is not taken for gone; no force unless
+        c < 0 there."""
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
@@ -79,11 +82,11 @@ def make_striker_kernels(real):
         c = s[w] + nu[w] / M - mean_z(u, nodes, w)
         nxt = nu[w]
         if k == 0:
-            if c >= real(0.0):  # apart (or just touching): no contact force this step
+            if c > touch:  # apart: no contact force this step
                 active[w] = 0
                 return
             active[w] = 1
-            nxt = -c / slope[w]
+            nxt = wp.max(-c / slope[w], real(0.0))
         else:
             if active[w] == 0:
                 return
@@ -188,7 +191,9 @@ def make_striker_kernels(real):
 class StrikerStep:
     """The striker's device arrays and launches for one model on one device (the staged RATTLE step)."""
 
-    def __init__(self, model, batch, device, block_dim: int, n_out: int):
+    def __init__(self, model, batch, device, block_dim: int, n_out: int, tolerance: float):
+        """``tolerance``: the projection's relative bar-length tolerance; a gap within it times the prism
+        height still touches (the positions are no more accurate than that)."""
         real = wp.float64 if model.precision == "fp64" else wp.float32
         npr = np.float64 if model.precision == "fp64" else np.float32
         self.real, self.device, self.block_dim = real, device, block_dim
@@ -196,6 +201,8 @@ class StrikerStep:
         B, n = model.n_columns, model.n_nodes
         self.n_columns = B
         self.model = model
+        z = batch.positions[np.asarray(batch.level_nodes), 2].mean(axis=1)
+        self.touch = float(tolerance) * float(np.abs(np.diff(z)).max())
         arr = lambda x: wp.array(np.ascontiguousarray(x, dtype=npr), dtype=real, device=device)  # noqa: E731
         self.mass_host = np.asarray(batch.striker_mass, dtype=np.float64)
         self.mass = arr(self.mass_host)
@@ -228,7 +235,7 @@ class StrikerStep:
                                             self.ut])
 
     def iterate(self, data, k: int):
-        self._launch(self.k.striker_iterate, [int(k), self.nodes, self.model.minv_self, self.mass, data.status, self.s,
+        self._launch(self.k.striker_iterate, [int(k), self.real(self.touch), self.nodes, self.model.minv_self, self.mass, data.status, self.s,
                                               self.ut, self.slope, data.u, self.nu, self.nu_prev, self.c_prev,
                                               self.active])
 
