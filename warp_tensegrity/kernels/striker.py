@@ -11,14 +11,16 @@ the end base's three nodes), a RATTLE constraint like the bars, solved jointly w
   linear in the positions, so c(nu) is a smooth scalar function of the scalar nu; it is solved by a
   secant on nu (:data:`ITERATIONS` updates, the first from the slope of the last velocity stage),
   each evaluation one pass of the staged members' projection (the same kernel, so the joint
-  projection is the members' own SHAKE along M^-1 G(u_start)^T plus the striker's row). The
-  velocities take the whole position correction / h (RATTLE). The largest |c| left over the run is
-  recorded (``contact_residual``).
-* **Velocities.** After the members' velocity projection P, a column in contact (nu > 0) whose
+  projection is the members' own SHAKE along M^-1 G(u_start)^T plus the striker's row; the secant is
+  written here because each evaluation is a launch of that device kernel). A gap within the members'
+  projection tolerance times the prism height still touches. The velocities take the whole position
+  correction / h (RATTLE). The largest |c| left over the run is recorded (``contact_residual``).
+* **Velocities.** After the members' velocity projection P, a column in contact (it touched in the
+  position stage) whose
   relative velocity c' = V - z_end' is negative gets the impulse mu along P M^-1 grad c: the
   velocity constraint is linear, so one more projection of M^-1 grad c (a scratch field) makes
   c' = 0 exactly (mu = -c' / (1/M + |grad c|^2_P)). c' >= 0: the striker leaves (no impulse).
-  A column apart (c >= 0 after the members' projection) gets nothing: the striker flies on.
+  A column apart (a gap after the members' projection) gets nothing: the striker flies on.
 
 No penalty stiffness enters, so the striker does not lower the stable time step. The contact force
 recorded is the striker's momentum change over the step / h (its only force), positive when it
