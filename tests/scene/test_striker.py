@@ -76,9 +76,9 @@ def test_the_blow(beta):
     np.testing.assert_allclose(kinetic, 0.5 * m_end * V1**2, rtol=1e-12)
 
 
-def test_records_and_dataset_variables():
+def test_records_and_dataset_variables(tmp_path):
     """A short run: energy (column + striker) kept to the integrator's order, the face on the end base's
-    mean height to round-off, and the CF variables of the striker in the dataset."""
+    mean height to round-off, and the CF variables of the striker in the dataset (CF-clean)."""
     cfg = ColumnConfig(n_prisms=4, impact="striker", striker_mass=0.05)
     r = simulate_batch(cfg, {"prestrain": 0.002, "v0": 0.05, "base_rigidity": 1.0},
                        RunSettings(t_end=0.3, dt=5e-4, output_interval=0.01, device="cpu", precision="fp64"))
@@ -94,6 +94,12 @@ def test_records_and_dataset_variables():
                               ("striker_last_separation_time", "s", ("case",))):
         assert ds[name].dims == dims and ds[name].attrs["units"] == units and ds[name].attrs["long_name"]
     np.testing.assert_array_equal(ds["striker_velocity"].values, s["velocity"])
+    pytest.importorskip("compliance_checker.runner")
+    from tests.test_cf import cf_messages
+
+    ds.to_netcdf(tmp_path / "striker.nc")
+    scores, messages = cf_messages(tmp_path / "striker.nc", tmp_path)
+    assert scores["scored_points"] == scores["possible_points"] and not messages, messages
 
 
 def test_a_heavy_striker_is_a_piston_not_the_velocity_impact():
