@@ -33,11 +33,12 @@ LAYERS = [
      "overrides", "sweep.errors"},
     # scene: networks, columns, batches (NumPy)
     {"scene.network", "scene.impact", "scene.sparse", "scene.columns", "scene.batch", "scene.coupling",
-     "scene.base_modes", "scene.contact", "scene"},
+     "scene.base_modes", "scene.contact", "scene.striker", "scene"},
     # policy: the run decided once, and its price
     {"policy", "policy.accuracy", "policy.cost", "policy.lane_fit", "policy.paths", "policy.decide", "policy.groups"},
     # sim: the device model, kernels, the Integrator
-    {"kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver", "kernels.contact", "kernels.fused",
+    {"kernels.common", "kernels.coop", "kernels.staged", "kernels.staged_solver", "kernels.contact", "kernels.striker",
+     "kernels.fused",
      "kernels.lane_ops",
      "kernels.lane_funcs", "kernels.lane_rigid", "kernels.lanes", "kernels", "model", "integrate"},
     # measure
@@ -50,7 +51,7 @@ LAYERS = [
      "sweep.plan", "sweep.shard", "sweep.dask", "sweep.run", "sweep", "lens.host", "lens.design", "lens.spec",
      "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
      "validation.reference_column", "validation.twist_chain",
-     "validation.linear", "validation.dispersion", "validation.checks", "validation.hetero", "validation.interface",
+     "validation.linear", "validation.dispersion", "validation.checks", "validation.striker", "validation.hetero", "validation.interface",
      "validation.diatomic", "validation.gallery", "validation.figures", "validation", "plot",
      "init_spec", "cli_args", ""},
     {"cli", "__main__"},

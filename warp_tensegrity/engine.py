@@ -96,7 +96,10 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     ee = _to_host(integ.elastic).T
     status = d.status.numpy().astype(np.int32)
     fail_step = d.fail_step.numpy().astype(np.int64)
+    striker = integ.striker.summary(dt) if integ.striker is not None else None
     E = ke + ee
+    if striker is not None:  # the striker's kinetic energy belongs to the conserved total
+        E = E + 0.5 * striker["mass"][:, None] * striker["velocity"] ** 2
     # only outputs written before a failure are meaningful
     valid = np.ones_like(E, dtype=bool)
     for b in np.flatnonzero(status):
@@ -109,7 +112,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         if a is not None:
             a[~valid.T] = np.nan
     records = {name: None if a is None else np.ascontiguousarray(a.T) for name, a in records.items()}
-    scale = np.where(ke[:, 0] > 0, ke[:, 0], np.nan)
+    k0 = ke[:, 0] if striker is None else ke[:, 0] + 0.5 * striker["mass"] * striker["velocity"][:, 0] ** 2
+    scale = np.where(k0 > 0, k0, np.nan)
     with np.errstate(invalid="ignore"):
         dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
         energy_error = dev.max(axis=1) / scale
@@ -169,6 +173,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
             "stages": stages,
             **({"contact": integ.contact.summary()} if integ.contact is not None else {}),
             **({"energy_station": station, "energy_end_prisms": k} if integ.energy_parts is not None else {}),
+            **({"striker": striker} if striker is not None else {}),
         },
     )
 

@@ -28,6 +28,7 @@ from .kernels.fused import FusedStep
 from .kernels.lanes import LaneStep
 from .kernels.staged import make_kernels
 from .kernels.staged_solver import make_solver_kernels
+from .kernels.striker import ITERATIONS as STRIKER_ITERATIONS, StrikerStep
 from .model import REAL, Data, Model, build_model, make_data
 from .runtime import resolve_device
 from .options import RunSettings, SettingsError
@@ -113,6 +114,13 @@ class Integrator:
                 raise SettingsError(f"bar contact runs on the staged path with method = 'rattle' (got path "
                                     f"{self.path.value}, method {settings.method!r})")
             self.contact = ContactStep(self.model, batch, self.device, COLUMN_BLOCK_DIM if self.device.is_cuda else 1)
+        self.striker = None
+        if batch.striker_mass is not None:  # a striker (scene impact = 'striker'): the staged RATTLE step only
+            if self.path != Path.STAGED or settings.method != Method.RATTLE:
+                raise SettingsError(f"the striker runs on the staged path with method = 'rattle' (got path "
+                                    f"{self.path.value}, method {settings.method!r})")
+            self.striker = StrikerStep(self.model, batch, self.device, COLUMN_BLOCK_DIM if self.device.is_cuda else 1,
+                                       n_out, settings.tolerance)
         self.column_kernels = {
             kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities, self.ks.factor_only,
                                   self.ks.constrained_accel, self.k.record_energy, self.k.record_energy_parts)
@@ -213,6 +221,8 @@ class Integrator:
         elif m.n_pairs > 0:
             self._launch(self.k.record_pairs, (m.n_pairs, m.n_columns), [self.every, d.u, d.status, d.step,
                          d.pair_distance_min, d.cross_side, d.pair_left_slot], model="pairs")
+        if self.striker is not None:
+            self.striker.record(d, self.every)
 
     # ------------------------------------------------------------------ steps
     def load_kernels(self):
@@ -230,6 +240,8 @@ class Integrator:
             return
         if self.contact is not None:
             self.contact.load()
+        if self.striker is not None:
+            self.striker.load()
         if self.settings.method != Method.RK4:
             unused |= {"rk_stage", "constrained_accel", "factor_only"}
         for name, kern in {**vars(self.k), **vars(self.ks)}.items():
@@ -249,6 +261,9 @@ class Integrator:
 
     def _rattle(self, h):
         d = self.data
+        if self.striker is not None:
+            self._rattle_striker(h)
+            return
         if self.contact is not None:
             self.contact.save_start(d)
         self._kick_drift(0.5 * h, h)
@@ -259,6 +274,24 @@ class Integrator:
         self._factor_project_velocities(d.u, d.v)
         if self.contact is not None:
             self.contact.velocities(d)
+
+    def _rattle_striker(self, h):
+        """RATTLE with the striker's unilateral row solved jointly with the members (kernels.striker):
+        the members' position projection once per secant evaluation of the contact multiplier, the
+        velocity projection once more for the impulse's direction."""
+        d, st = self.data, self.striker
+        self._kick_drift(0.5 * h, h)
+        st.drift(d, h)
+        self._project_positions(d.u_prev, 0.0)
+        for k in range(STRIKER_ITERATIONS):
+            st.iterate(d, k)
+            self._project_positions(d.u_prev, 0.0)
+        st.finish(d, h)
+        self._gather(d.u, d.v, 0.5 * h, d.a, d.v)
+        self._factor_project_velocities(d.u, d.v)
+        st.fill(d)
+        self._factor_project_velocities(d.u, st.g)
+        st.velocities(d, h)
 
     def _symplectic_euler(self, h):
         d = self.data

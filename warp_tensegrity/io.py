@@ -143,9 +143,18 @@ VAR_ATTRS = {
                   "(dt, steps, path; the dataset attribute run_groups describes each)"},
     "energy_error": {
         "units": "1",
-        "long_name": "max relative energy drift max_t |E(t) - E(0)| / KE(0) over the outputs",
+        "long_name": "max relative energy drift max_t |E(t) - E(0)| / KE(0) over the outputs (a striker's kinetic "
+                     "energy included in E and KE)",
     },
     "bar_length_error": {"units": "1", "long_name": "max relative bar-length error |l - L| / L over all steps and bars"},
+    # the striker (scene impact = 'striker'; docs/impact.md)
+    "striker_velocity": {"units": "m s-1", "long_name": "axial velocity of the striker (negative: toward the clamp)"},
+    "striker_force": {"units": "N", "long_name": "contact force between striker and end base, mean over the time "
+                      "step before the output (the striker's momentum change / dt; positive: pushing)"},
+    "striker_separation_time": {"units": "s", "long_name": "simulated time at which the striker first left the "
+                                "end base (start of the first step without contact force; NaN: never)"},
+    "striker_last_separation_time": {"units": "s", "long_name": "simulated time at which the striker's last free "
+                                     "flight began (NaN: touching the end base at t_end)"},
     "kinetic_energy": {"units": "J", "long_name": "kinetic energy of the column"},
     "elastic_energy": {"units": "J", "long_name": "elastic energy of all cables, prestress included"},
     "strain": {
@@ -265,6 +274,8 @@ def _coords(layout: Layout, params: dict, start: int, stop: int, time: np.ndarra
         coords["step"] = _var("step", TIME, np.asarray(steps, dtype=np.int64), COORD_ATTRS["step"])
     swept = layout.swept
     for p in COLUMN_PARAMETERS:
+        if p == "striker_mass" and getattr(layout.scene, "impact", "velocity") != "striker":
+            continue  # no striker, no striker mass
         if np.ndim(params[p]) == 2:  # a profile: per case where swept (itself, or a field of it), else one
             varies = p in swept or any(f"{p}_{f}" in swept for f in PROFILE_FIELDS)
             coords.update(profile_coords(p, np.asarray(params[p][start:stop], dtype=np.float64), per_case=varies))
@@ -363,6 +374,12 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
         dv.update({k: (C, np.asarray(feas[k], dtype=t)) for k, t in FEASIBILITY_VARS.items() if k in feas})
         for i, r in enumerate(FEASIBILITY_FLAGS if "feasibility_times" in feas else ()):
             dv[f"feasibility_time_{r}"] = (C, np.asarray(feas["feasibility_times"][:, i], dtype=np.float64))
+    striker = result.info.get("striker") if isinstance(getattr(result, "info", None), dict) else None
+    if striker is not None:
+        dv["striker_separation_time"] = (C, np.asarray(striker["separation_time"], dtype=np.float64))
+        dv["striker_last_separation_time"] = (C, np.asarray(striker["last_separation_time"], dtype=np.float64))
+        dv["striker_velocity"] = (("case", TIME), np.asarray(striker["velocity"], dtype=np.float64))
+        dv["striker_force"] = (("case", TIME), np.asarray(striker["force"], dtype=np.float64))
     if record_energy:
         dv["kinetic_energy"] = (("case", TIME), np.asarray(result.kinetic_energy, dtype=np.float64))
         dv["elastic_energy"] = (("case", TIME), np.asarray(result.elastic_energy, dtype=np.float64))
@@ -425,7 +442,8 @@ def result_dataset(result, config=None, measurements: dict | None = None, attrs:
     a.update({k: result.info[k] for k in ("energy_station", "energy_end_prisms") if k in result.info})
     a["history"] = f"{_time.strftime('%Y-%m-%dT%H:%M:%S%z')} made by BatchResult.to_xarray"
     a.update(attrs)
-    coords = params_coords(result.params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
+    params = {k: v for k, v in result.params.items() if k != "striker_mass" or "striker" in result.info}
+    coords = params_coords(params, result.n_columns, result.time, n_prisms, result.info.get("output_step"))
     ds = batch_dataset(result, measurements, coords, a, record_energy=result.kinetic_energy is not None)
     for k, enc in _coordinate_encoding(ds).items():  # ds.to_netcdf() stays CF-clean, as the CLI's files
         ds[k].encoding.update(enc)

@@ -367,6 +367,9 @@ class ColumnParameters:
                                            long_name="mass per unit (prism), lumped on the bases")] = None
     """Mass per unit (prism) [kg]; None: the scene's unit_mass; or a profile, one value per level
     (n_prisms + 1: the mass each base carries, the end bases half of theirs with end_base_mass = 'half')."""
+    striker_mass: Annotated[float | None, Opt("real", "kg", ge=0, le=MASS[1], optional=True,
+                                              default_text="scene's striker_mass", long_name="mass of the striker")] = None
+    """Striker mass M [kg] (scene impact = 'striker', where it must be > 0); None: the scene's striker_mass."""
 
 
 COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in ColumnParameters.__pydantic_fields__}

@@ -176,6 +176,12 @@ def merge_results(parts: list, n_columns: int, group_ids: list[int] | None = Non
             step_paths.append(r.info.get("step_path"))
     # the output steps and the beta-limit closure are one group's: not the merged columns'
     info = {k: v for k, v in first.info.items() if k not in ("output_step", "stages", "beta_limit")}
+    if all("striker" in r.info for r in results):  # the striker's per-column records, stitched
+        info["striker"] = {k: np.empty((n_columns,) + np.shape(v)[1:], dtype=np.asarray(v).dtype)
+                           for k, v in first.info["striker"].items()}
+        for c, r in zip(cols, results):
+            for k, v in r.info["striker"].items():
+                info["striker"][k][c] = v
     if all("beta_limit" in r.info for r in results):  # each part's closure on its columns, stitched
         info["beta_limit"] = partial(_stitched_beta_limit, [(c, r.info["beta_limit"]) for c, r in zip(cols, results)],
                                      n_columns)
@@ -223,6 +229,9 @@ def overwrite_columns(result: BatchResult, index, other: BatchResult) -> None:
     if result.feasibility is not None and other.feasibility is not None:
         for k, v in other.feasibility.items():
             result.feasibility[k][index] = np.asarray(v)
+    if "striker" in result.info and "striker" in other.info:  # the striker's per-column records
+        for k, v in other.info["striker"].items():
+            result.info["striker"][k][index] = v
     if result.measurements is not None and other.measurements is not None:
         for k, v in other.measurements.items():
             mine = result.measurements.get(k)

@@ -37,7 +37,7 @@ from .accuracy import (
 )
 from .cost import size_problems
 from .lane_fit import lane_refusal, lane_support
-from .paths import CONTACT_PATH, choose_path, gram_bandwidth
+from .paths import CONTACT_PATH, STRIKER_PATH, choose_path, gram_bandwidth
 
 ESTIMATE_CHUNK_BYTES = 4_000_000
 """Host bytes of the column batches built at a time where all of a run's columns are only bounded
@@ -164,7 +164,7 @@ def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings
     """The whole column, or with ``settings.truncate`` the prisms a front can reach within t_end
     (with bar contact, also a compaction front's reach)."""
     n = config.n_prisms
-    if not settings.truncate or n <= 4:
+    if not settings.truncate or n <= 4 or config.impact == "striker":  # a striker keeps pushing: no front bound
         return n
     hand = config.prism_handedness()
     if np.any(hand != hand[0]) and np.any(column_params(config, params)["base_rigidity"] >= Base.RIGID):
@@ -241,11 +241,16 @@ def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: st
         raise SettingsError(f"method = {settings.method!r}: bar contact (scene contact = 'bars') is a RATTLE projection; "
                             "use method = 'rattle'" + (" (run.accuracy chose it: give dt or dt_safety instead)"
                                                        if settings.accuracy is not None else ""))
+    striker = topology.striker_mass is not None
+    if striker and settings.method != "rattle":
+        raise SettingsError(f"method = {settings.method!r}: the striker (scene impact = 'striker') is a RATTLE "
+                            "constraint; use method = 'rattle'" + (" (run.accuracy chose it: give dt or dt_safety "
+                                                                   "instead)" if settings.accuracy is not None else ""))
     device = resolve_device(settings.device)  # initialises Warp (quietly)
-    path = choose_path(settings, device.is_cuda, n_columns, bandwidth, lanes, contact)
+    path = choose_path(settings, device.is_cuda, n_columns, bandwidth, lanes, contact, striker)
     reasons.append(f"dt = {dt:.4g} s: " + (f"{settings.dt_safety:.3g} x the stability limit {limit:.4g} s"
                                           if settings.dt == "auto" else "given"))
-    reasons.append(f"path {path.value}: " + (CONTACT_PATH if contact else
+    reasons.append(f"path {path.value}: " + (CONTACT_PATH if contact else STRIKER_PATH if striker else
                                                f"fused = {settings.fused!r} on {device.alias}, {n_columns} columns per launch"
                                                + ("" if lanes is None else f"; not the lane step: {lanes}")))
     run = RunPlan(settings=replace(settings, device=device.alias), dt=dt, dt_limit=limit, n_steps=n_steps,

@@ -60,12 +60,16 @@ CONTACT_PATH = "bar contact runs on the staged kernels only (kernels.contact; th
 """Why a run with bar contact (scene contact = 'bars') takes the staged path."""
 
 
+STRIKER_PATH = "the striker runs on the staged kernels only (kernels.striker; the fused and lane steps have none)"
+"""Why a run with a striker (scene impact = 'striker') takes the staged path."""
+
+
 def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int, bandwidth: int = 0,
-                lanes: str | None = NOT_CHECKED, contact: bool = False) -> Path:
+                lanes: str | None = NOT_CHECKED, contact: bool = False, striker: bool = False) -> Path:
     """The launch path. ``lanes``: why the lane step does not take the batch
     (:func:`.lane_fit.lane_support`, :func:`.lane_fit.lane_refusal`), None if it does.
     ``contact``: the batch has bar contact, which only the staged path steps (fused True or
-    'lanes' are refused with :data:`CONTACT_PATH`).
+    'lanes' are refused with :data:`CONTACT_PATH`); ``striker``: likewise a striker (:data:`STRIKER_PATH`).
 
     * fused 'lanes': the lane step on any device (the CPU emulates each warp with 32 fibers: slow,
       for tests), or a SettingsError that names why it does not take the batch;
@@ -77,9 +81,10 @@ def choose_path(settings: RunSettings, on_gpu: bool, n_columns: int, bandwidth: 
       half-bandwidth up to :data:`FUSED_MAX_BANDWIDTH` takes the fastest measured of the three on
       a GPU, and the CR fused step on the CPU (one lane per block there: no crossover measured).
       The lane step is never chosen on the CPU unless asked for."""
-    if contact:
+    if contact or striker:
         if settings.fused in (True, "lanes"):
-            raise SettingsError(f"fused = {settings.fused!r}: {CONTACT_PATH}; use fused = 'auto' or false")
+            raise SettingsError(f"fused = {settings.fused!r}: {CONTACT_PATH if contact else STRIKER_PATH}; "
+                                "use fused = 'auto' or false")
         return Path.STAGED
     if settings.fused == "lanes":
         if settings.method != Method.RATTLE:

@@ -20,6 +20,7 @@ from . import columns as col
 from . import sparse
 from .contact import prism_pairs
 from .network import Network, NetworkError
+from .striker import attach_striker
 
 
 @dataclass
@@ -63,6 +64,14 @@ class NetworkBatch:
     """Smallest distance 2 r allowed between the axes of a contact pair [m]."""
     restitution: float = 1.0
     """Restitution coefficient of a bar impact [1]."""
+    striker_mass: np.ndarray | None = None
+    """(B,) striker mass [kg] (scene impact = 'striker', :mod:`.striker`), or None: no striker."""
+    striker_velocity: np.ndarray | None = None
+    """(B,) striker velocity after the blow [m s-1] (along z: negative, downward)."""
+    striker_end_mass: np.ndarray | None = None
+    """(B,) effective mass of the struck end in the blow [kg]."""
+    striker_nodes: np.ndarray | None = None
+    """(3,) the end base's nodes, which the striker's face touches."""
 
 
 def _shrink(a: np.ndarray) -> np.ndarray:
@@ -341,10 +350,19 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
         batch.contact_pairs = bar_row[prism_pairs(topo.bars)].astype(np.int64)
         batch.contact_gap = 2.0 * float(config.bar_radius)
         batch.restitution = float(config.restitution)
+    if config.impact == "striker":  # the blow: the rigid_members field at the common speed (scene.striker)
+        M = p["striker_mass"]
+        bad = np.flatnonzero(~(M > 0.0))
+        if bad.size:
+            where = f"[{int(bad[0])}]" if B > 1 else ""
+            raise NetworkError(f"striker_mass{where} = {float(M[bad[0]])!r}: impact = 'striker' needs a striker mass "
+                               "> 0 [kg]")
+        attach_striker(batch, M, _unit_impact(config, False))
     # the reference state depends on (prestrain, base rigidity, EA) only: check each distinct one once
     states, inverse = reference_states(p)
     if len(inverse) > len(states["prestrain"]):
-        batch.equilibrium_residual = column_batch(config, states).equilibrium_residual[inverse]
+        still = dataclasses.replace(config, impact="velocity") if config.impact == "striker" else config  # statics
+        batch.equilibrium_residual = column_batch(still, states).equilibrium_residual[inverse]
     else:  # over the largest cross-cable tension of the column
         batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(
             T.max(axis=1) if T.ndim == 2 else T, np.finfo(float).tiny)

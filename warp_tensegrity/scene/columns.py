@@ -32,6 +32,7 @@ from ..options import MASS, Opt, check_column_param, fmt, options_class
 from . import sparse
 from .contact import CONTACT_MODELS, regular_gap
 from .impact import least_energy_impact
+from .striker import IMPACTS
 from .network import Network, NetworkError
 
 PAPER_CABLE_MODULUS = 5.48e6  # N m-2
@@ -101,6 +102,14 @@ class ColumnConfig:
     the constraint tangent space in the mass metric (a momentum-consistent impulsive load);
     'end_twist' - the free-end nodes keep exactly v_z = -v0 and get the smallest horizontal
     (twisting) velocity that satisfies the bars; no other node moves."""
+    impact: Annotated[str, Opt("choice", choices=IMPACTS)] = "velocity"
+    """'velocity' (default): the free end starts at v0 (impact_admissibility says how); 'striker': a
+    rigid mass striker_mass hits the free end at v0 and stays in unilateral contact until the column
+    pushes it back (a frictionless face on the end base's mean height; docs/impact.md). Needs method
+    'rattle' and the 'rigid_members' blow; runs on the staged path, untruncated."""
+    striker_mass: Annotated[float, Opt("real", "kg", ge=0, le=MASS[1])] = 0.0
+    """Mass M of the striker [kg] (impact = 'striker', where every column's must be > 0; a sweep may vary
+    it per column); 0: not given."""
     contact: Annotated[str, Opt("choice", choices=CONTACT_MODELS)] = "none"
     """Bar contact: 'none' (default, the paper's model: bars are axes and pass through each other)
     or 'bars': the bars of each prism stay at least 2 bar_radius apart (axis to axis), a unilateral
@@ -128,10 +137,20 @@ class ColumnConfig:
                                "(a cable thicker than the prism)")
         if self.contact == "bars":
             self._check_bar_radius()
+        if self.impact == "striker":
+            self._check_striker()
         if self.bar_mass > 0 and self.n_prisms > 1:
             # the consistent bar inertia needs class-1 networks; a column's inner nodes carry two bars
             raise NetworkError(f"bar_mass = {self.bar_mass!r}: massive bars need n_prisms = 1 (the inner nodes of a "
                                f"column carry two bars; n_prisms = {self.n_prisms}): put the mass in unit_mass")
+
+    def _check_striker(self):  # its mass is per column (scene.batch refuses 0 there)
+        for key, value, need in (("impact_admissibility", self.impact_admissibility, "rigid_members"),
+                                 ("contact", self.contact, "none")):
+            if value != need:
+                raise NetworkError(f"{key} = {value!r}: impact = 'striker' needs {key} = {need!r}")
+        if self.bar_mass > 0:
+            raise NetworkError(f"bar_mass = {self.bar_mass!r}: impact = 'striker' needs massless bars (0)")
 
     def reference_gap(self) -> float:
         """Distance [m] between two bar axes of a prism at the reference (the scene's twist)."""

@@ -134,6 +134,8 @@ class SweepSpec:
             return float(self.scene.cable_EA)
         if name == "unit_mass":
             return float(self.scene.unit_mass)
+        if name == "striker_mass":
+            return float(self.scene.striker_mass)
         return float(PARAM_DEFAULTS[name])
 
     def column_params(self) -> dict[str, np.ndarray]:

@@ -20,14 +20,15 @@ shows that an engine with a constant 5 % off fails some check.
 
 from __future__ import annotations
 
-from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_soliton
+from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_soliton, check_striker
 from .diatomic import check_diatomic
 from .interface import check_interface
 
 __all__ = ["CHECKS", "Check", "CheckGroup", "run_validation", "report"]
 
 CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal,
-          "interface": check_interface, "diatomic": check_diatomic}
+          "interface": check_interface, "diatomic": check_diatomic,
+          "striker": check_striker}
 """Every check group by name, in gallery order."""
 
 

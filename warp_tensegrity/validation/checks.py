@@ -22,12 +22,14 @@ from .dispersion import bands, chain_wavenumbers, mode_frequencies, ringing_freq
 from .gallery import Check, CheckGroup
 from .linear import modal_analysis
 from .reference_column import ReferenceColumn, reference_column
+from .striker import striker_chain
 from ..engine import simulate_batch
 from ..measure import measure_pulse
 from ..scene.columns import ColumnConfig
 from ..options import RunSettings
 
-__all__ = ["Check", "CheckGroup", "check_bessel", "check_soliton", "check_dispersion", "check_fb_modal", "chain_of"]
+__all__ = ["Check", "CheckGroup", "check_bessel", "check_soliton", "check_dispersion", "check_fb_modal", "check_striker",
+           "chain_of"]
 
 J1_MAX = 0.5818652242  # max of J_1 (the struck prism's first peak is (v0/c0) J1_MAX)
 
@@ -264,3 +266,49 @@ def check_fb_modal(n_prisms: int = 8, prestrain: float = 0.002, v0: float = 1e-7
     notes.append("the reference network is rebuilt from the paper's geometry and the closed-form self-stress "
                  "(reference_column), so an error in the engine's scene builder is not shared by it")
     return CheckGroup("fb_modal", "FB small impact against the modal sum", checks, data, notes)
+
+
+# ---------------------------------------------------------------------- 5. a striker on the linear chain
+def check_striker(n_prisms: int = 12, prestrain: float = 0.002, striker_mass: float = 0.2, peak_of_p: float = 0.005,
+                  t_end: float = 1.5, dt: float = 1e-3, device: str = "cpu"):
+    """The engine's striker on a small linear RB impact against :func:`striker_chain`: the striker's
+    velocity record, the energy in the column (what the striker handed over), the contact force while
+    they first touch and the time it leaves. v0 as in the Bessel check (first peak ``peak_of_p`` x p
+    under the velocity impact)."""
+    cfg = ColumnConfig(n_prisms=n_prisms, impact="striker", striker_mass=striker_mass)
+    ch = chain_of(cfg, prestrain)
+    v0 = peak_of_p * prestrain * ch.c0 / J1_MAX
+    r = _run(cfg, {"prestrain": prestrain, "v0": v0, "base_rigidity": 1.0}, t_end, 0.01, device, dt=dt)
+    eng = r.info["striker"]
+    ref = striker_chain(ch, n_prisms, striker_mass, v0, r.time)
+    e_col = r.kinetic_energy[0] + r.elastic_energy[0] - r.elastic_energy[0, 0]
+    t_sep = ref.separations[0] if ref.separations else np.nan
+    err_v = float(np.abs(eng["velocity"][0] - ref.velocity).max() / v0)
+    err_e = float(np.abs(e_col - ref.column_energy).max() / ref.column_energy.max())
+    # the recorded force is the step's mean (momentum change / dt): the reference at mid-step
+    first = (r.time > 0) & (r.time < t_sep - 2 * r.dt)
+    f_mid = striker_chain(ch, n_prisms, striker_mass, v0, r.time[first] - 0.5 * r.dt).force
+    err_f = float(np.abs(eng["force"][0][first] - f_mid).max() / ref.force.max())
+    t_eng = float(eng["separation_time"][0])
+    err_t = abs(t_eng - t_sep) / t_sep
+    checks = [
+        Check("striker_velocity", "max |engine - chain| of the striker's velocity over the record / v0",
+              err_v, 0.0, err_v, 1e-4),
+        Check("striker_energy", "max |engine - chain| of the column's energy (what the striker handed over) / its peak",
+              err_e, 0.0, err_e, 1e-4),
+        Check("striker_force", "max |engine - chain| of the contact force while first touching / its peak",
+              err_f, 0.0, err_f, 1e-3),
+        Check("striker_separation", "separation time, relative (the engine's resolution is dt)", t_eng, t_sep, err_t,
+              2.0 * r.dt / t_sep),
+    ]
+    notes = [f"{n_prisms} prisms, RB, p = {prestrain:g}, striker M = {striker_mass:g} kg (m_eff/2 = "
+             f"{0.5 * ch.m_eff:.4g} kg), v0 = {v0:.3g} m/s, V1 = {ref.blow_speed:.4g} m/s, dt = {r.dt:.3g} s; "
+             f"the chain: separations at {', '.join(f'{t:.4f}' for t in ref.separations)} s, contacts again at "
+             f"{', '.join(f'{t:.4f}' for t in ref.contacts) or 'none'} s; the engine: {int(eng['recontacts'][0])} "
+             f"contact(s) again; energy handed over {ref.column_energy[-1]:.4g} J of the striker's "
+             f"{0.5 * striker_mass * v0**2:.4g} J"]
+    return CheckGroup("striker", "A striker on the linear RB chain", checks,
+                      {"time": r.time, "engine_velocity": eng["velocity"][0], "chain_velocity": ref.velocity,
+                       "engine_force": eng["force"][0], "chain_force": ref.force, "engine_energy": e_col,
+                       "chain_energy": ref.column_energy, "v0": v0, "separations": ref.separations}, notes)
+

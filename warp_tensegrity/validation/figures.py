@@ -237,12 +237,33 @@ def figure_diatomic(g):
     ax2.legend(fontsize=7, loc="upper left")
     fig.suptitle("RB column, level masses m | 2m: a packet inside the gap dies at the complex Bloch wavenumber's rate, "
                  "one in the acoustic band passes", fontsize=10)
+
+
+def figure_striker(g):
+    """The striker's velocity and contact force, and the column's energy, engine against the chain."""
+    d = g.data
+    fig, axes = _figure(3, 13.0, 3.8)
+    axes = axes[0]
+    t = d["time"]
+    for ax, (key, label, scale) in zip(axes, (("velocity", "striker velocity / v0", 1.0 / d["v0"]),
+                                              ("force", "contact force [nN]", 1e9),
+                                              ("energy", "energy in the column [fJ]", 1e15))):
+        ax.plot(t, d[f"chain_{key}"] * scale, "k-", lw=2.5, alpha=0.35, label="linear chain (exact)")
+        ax.plot(t, d[f"engine_{key}"] * scale, "C3.", ms=2.5, label="engine")
+        for ts in d["separations"]:
+            ax.axvline(ts, color="0.6", lw=0.8, ls="--")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(label)
+    axes[0].legend(loc="lower right", fontsize=8)
+    c = {k.name: k for k in g.checks}
+    fig.suptitle(f"{g.title}: velocity error {c['striker_velocity'].error:.1e} v0, energy error "
+                 f"{c['striker_energy'].error:.1e} (dashed: separations)", fontsize=10)
     return fig
 
 
 FIGURES = {"bessel": figure_bessel, "soliton": figure_soliton, "dispersion": figure_dispersion,
            "fb_modal": figure_fb_modal, "interface": figure_interface,
-           "diatomic": figure_diatomic}
+           "diatomic": figure_diatomic, "striker": figure_striker}
 
 
 def write_figures(groups, directory) -> list[Path]:
