@@ -14,7 +14,7 @@ from functools import partial
 
 import numpy as np
 
-from .measure.energy import end_prisms, part_nodes, station_prism
+from .measure.energy import end_prisms, impact_energy, part_nodes, station_prism
 from .measure.feasibility import pair_record, prism_record
 from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch, far_end
 from .policy.paths import lane_emulation
@@ -112,7 +112,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         if a is not None:
             a[~valid.T] = np.nan
     records = {name: None if a is None else np.ascontiguousarray(a.T) for name, a in records.items()}
-    k0 = ke[:, 0] if striker is None else ke[:, 0] + 0.5 * striker["mass"] * striker["velocity"][:, 0] ** 2
+    k0 = impact_energy(ke[:, 0], striker)  # the striker's kinetic energy belongs to it
     scale = np.where(k0 > 0, k0, np.nan)
     with np.errstate(invalid="ignore"):
         dev = np.where(valid, np.abs(E - E[:, :1]), 0.0)
@@ -121,7 +121,8 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     if measure_here:
         n_valid = np.where(status != 0, np.maximum(fail_step - 1, 0) // every + 1, n_out)
         energy = None if integ.energy_parts is None else {"below": integ.energy_below, "end": integ.energy_end,
-                                                          "kinetic": integ.kinetic, "station": station, "end_prisms": k}
+                                                          "kinetic": integ.kinetic, "impact": k0, "station": station,
+                                                          "end_prisms": k}
         measurements = measure_record(integ.strain, plan.output_times, n_valid=n_valid, timings=stages,
                                       energy=energy, **pulse)
     strain = None

@@ -88,6 +88,11 @@ def test_records_and_dataset_variables(tmp_path):
     assert 0.0 < s["separation_time"][0] <= s["last_separation_time"][0] < 0.3
     assert s["velocity"][0, -1] > 0  # pushed back: it flies off upward
     assert s["force"][0].min() >= 0.0 and s["force"][0].max() > 0.0
+    # the energy shares are of the impact energy, the striker's included (measure.energy.impact_energy)
+    from warp_tensegrity.measure.energy import impact_energy
+
+    e0 = impact_energy(r.kinetic_energy[:, 0], s)
+    np.testing.assert_allclose(e0, r.kinetic_energy[:, 0] + 0.5 * 0.05 * s["velocity"][:, 0] ** 2, rtol=1e-15)
     ds = r.to_xarray(cfg)
     for name, units, dims in (("striker_velocity", "m s-1", ("case", "t")), ("striker_force", "N", ("case", "t")),
                               ("striker_separation_time", "s", ("case",)), ("striker_mass", "kg", ()),

@@ -41,7 +41,7 @@ import numpy as np
 import warp as wp
 
 from .device_funcs import f64
-from .energy import end_energy_share, pulse_energy_share
+from .energy import end_energy_share, impact_energy, pulse_energy_share
 from .device_kernels import (
     column_measures,
     energy_shares,
@@ -88,7 +88,8 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
     Only these cross to the host.
     ``timings`` (optional dict) receives ``measurement`` (device work) and ``transfer`` seconds.
     ``energy`` (optional): the energy measures (:mod:`.energy`) too, from the device records
-    ``below``, ``end`` and ``kinetic`` (n_time, B), the ``station`` prism and the ``end_prisms``: adds
+    ``below``, ``end`` and ``kinetic`` (n_time, B), the ``impact`` energy (B,) [J]
+    (:func:`~.energy.impact_energy`), the ``station`` prism and the ``end_prisms``: adds
     ``pulse_energy_share``, ``end_energy_share`` (B,) and, with the stability probe,
     ``pulse_energy_share_sensitivity``.
     """
@@ -165,7 +166,9 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
                                            scal["pulse_captured"]])
             if energy is not None:
                 wp.launch(energy_shares, B, [t_d, h_d, int(energy["station"]), lo, hi, P, int(energy["end_prisms"]),
-                                             energy["below"], energy["end"], energy["kinetic"], nv_d, arrival, tp_time,
+                                             energy["below"], energy["end"], energy["kinetic"],
+                                             wp.array(np.asarray(energy["impact"], dtype=np.float64), dtype=f64),
+                                             nv_d, arrival, tp_time,
                                              scal["width_10"], scal["speed"], shares["pulse_energy_share"],
                                              shares["end_energy_share"]])
             wp.launch(snapshots, (T, B), [t_d, cut, strain, nv_d, whole, fit, lo_eff, hi_eff, P, sx, sy, sw])
@@ -241,10 +244,11 @@ def energy_shares_host(result, m: dict, station: int, end_prisms: int, prism_hei
     """The energy shares (:mod:`.energy`) of a host result from its records and pulse measures ``m``."""
     ke, n = np.asarray(result.kinetic_energy, dtype=np.float64), np.shape(m["arrival_time"])[-1]
     n_valid = np.isfinite(ke).sum(axis=1)
-    return {"pulse_energy_share": pulse_energy_share(result.station_energy, ke[:, 0], result.time, m["arrival_time"],
+    e0 = impact_energy(ke[:, 0], result.info.get("striker"))
+    return {"pulse_energy_share": pulse_energy_share(result.station_energy, e0, result.time, m["arrival_time"],
                                                      m["peak_time"], m["width_10"], station,
                                                      measurement_window(n), n_valid),
-            "end_energy_share": end_energy_share(result.end_energy, ke[:, 0], result.time, m["speed"], prism_height, n,
+            "end_energy_share": end_energy_share(result.end_energy, e0, result.time, m["speed"], prism_height, n,
                                                  end_prisms, n_valid)}
 
 

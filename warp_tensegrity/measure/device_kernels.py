@@ -336,7 +336,8 @@ def energy_shares(
     time: wp.array(dtype=f64), prism_height: wp.array(dtype=f64), station: int, lo: int, hi: int, n_prisms: int,
     end_prisms: int,
     # Data in:
-    below: Any, end: Any, kinetic: Any, n_valid: wp.array(dtype=int), arrival: wp.array2d(dtype=f64),
+    below: Any, end: Any, kinetic: Any, impact: wp.array(dtype=f64), n_valid: wp.array(dtype=int),
+    arrival: wp.array2d(dtype=f64),
     tp_time: wp.array2d(dtype=f64), width_10: wp.array(dtype=f64), speed: wp.array(dtype=f64),
     # Data out:
     pulse_share: wp.array(dtype=f64), end_share: wp.array(dtype=f64),
@@ -344,13 +345,13 @@ def energy_shares(
     """Column b's energy shares (measure.energy.pulse_energy_share, end_energy_share): the energy the
     leading pulse carries through the station's section over its passage, and the energy left in the
     end part at t_end (before the leading pulse's reflection at the clamp can be back there), each over
-    the impact energy kinetic[0, b]."""
+    the impact energy impact[b] (measure.energy.impact_energy; ``kinetic`` gives the record's length)."""
     b = wp.tid()
     T = kinetic.shape[0]
     nv = n_valid[b]
     pulse_share[b] = NAN
     end_share[b] = NAN
-    e0 = f64(kinetic[0, b])
+    e0 = impact[b]
     if not (wp.isfinite(e0) and e0 > f64(0.0)):
         return
     back = f64(2 * n_prisms - end_prisms) * prism_height[b % prism_height.shape[0]] / speed[b]

@@ -45,6 +45,16 @@ def part_nodes(n_prisms: int, station: int, k: int, cut: int = 0) -> tuple[int, 
     return 3 * max(station + 1 - cut, 0), 3 * max(n_prisms - k - cut, 0)
 
 
+def impact_energy(kinetic0, striker: dict | None = None) -> np.ndarray:
+    """(B,) the impact energy [J] the shares are taken of: the kinetic energy at t = 0 (the column's
+    ``kinetic0``), with a striker (``striker``: the run's record, ``mass`` (B,) [kg] and ``velocity``
+    (B, n_time) [m s-1]) the striker's too, after the plastic blow that starts the contact."""
+    e0 = np.asarray(kinetic0, dtype=np.float64)
+    if striker is not None:
+        e0 = e0 + 0.5 * np.asarray(striker["mass"], np.float64) * np.asarray(striker["velocity"], np.float64)[:, 0] ** 2
+    return e0
+
+
 def energy_parts(u, v, node_mass, cables, dref, EA, EAc, rest, below_node: int, end_node: int,
                  m_cross=None, partner=None) -> tuple[np.ndarray, np.ndarray]:
     """(below, end) energies [J], each (B,), of the state ``u``, ``v`` (B, n_nodes, 3) [m, m s-1]:
