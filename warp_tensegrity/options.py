@@ -363,6 +363,10 @@ class ColumnParameters:
                                            default_text="scene's unit_mass",
                                            long_name="mass per unit (prism), lumped on the bases")] = None
     """Mass per unit (prism) [kg]; None: the scene's unit_mass."""
+    preload: Annotated[float, Opt("real", "N", ge=0, le=MAX_EA, why="F0 is the static compressive force on the free end",
+                                  long_name="static axial compressive force on the free end (preload F0)")] = 0.0
+    """Static axial compressive force F0 on the free end [N], a dead load in equilibrium before the
+    impact (scene.preload); 0: none (the column as without it, bit for bit)."""
 
 
 COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in ColumnParameters.__pydantic_fields__}

@@ -20,6 +20,7 @@ from . import columns as col
 from . import sparse
 from .contact import prism_pairs
 from .network import Network, NetworkError
+from .preload import apply_preload
 
 
 @dataclass
@@ -63,6 +64,14 @@ class NetworkBatch:
     """Smallest distance 2 r allowed between the axes of a contact pair [m]."""
     restitution: float = 1.0
     """Restitution coefficient of a bar impact [1]."""
+    initial_displacement: np.ndarray | None = None
+    """(B, n_nodes, 3) initial displacement from ``positions`` [m]: a preloaded column starts from its
+    static equilibrium (scene.preload); None: every column starts at the reference."""
+    external_force: np.ndarray | None = None
+    """(B or 1, n_nodes, 3) dead load on the nodes [N] (the end preload); None: none."""
+    static_dz: np.ndarray | None = None
+    """(B or 1, n_prisms) prism height change of the initial equilibrium [m]; the strain is recorded
+    from it (from the preloaded state, not from ``positions``); None: 0."""
 
 
 def _shrink(a: np.ndarray) -> np.ndarray:
@@ -251,6 +260,8 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
         batch.equilibrium_residual = column_batch(config, states).equilibrium_residual[inverse]
     else:
         batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(T, np.finfo(float).tiny)
+    if np.any(p["preload"] > 0):  # the loaded columns start from their static equilibrium
+        apply_preload(batch, config, topo, p)
     return batch
 
 
