@@ -29,12 +29,14 @@ if TYPE_CHECKING:
 
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
-                     fast_math: bool = False, smem_spill_block: int = 0):
+                     fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
     has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
     approximate fp32 division and square root; ``smem_spill_block``: the launch's threads per block,
-    with which register spills may go to shared memory instead of local memory, 0: not). Launch
+    with which register spills may go to shared memory instead of local memory, 0: not; ``loaded``:
+    the batch has a dead load (the end preload), added to the cable forces; compiled out otherwise, so
+    an unloaded batch runs today's code). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual)
@@ -72,7 +74,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         xy: wp.array(dtype=vec2), hz: wp.array(dtype=real), hand: wp.array(dtype=int),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
         minv_self: wp.array2d(dtype=real), rest: wp.array2d(dtype=real), con_active: wp.array2d(dtype=real),
-        n_columns: int,
+        ext_force: wp.array2d(dtype=vec), n_columns: int,
         tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, init: int, step: wp.array(dtype=int),
         # Data in/out:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
@@ -127,6 +129,13 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             elif j > 0:
                 q = wp.max(j - 1, 0)
                 hzl[q] = real(1.0)  # padding prisms: finite, inert geometry
+        Fx = Nodes()  # the dead load on the lane's nodes
+        if wp.static(loaded):
+            for j in range(1, wp.static(P + 1)):
+                L = wp.static(P) * lane + j
+                if L <= n:
+                    for k in range(3):
+                        Fx[3 * j - 3 + k] = ext_force[3 * L + k, wc % ext_force.shape[1]]
         rig = con_active[wp.min(3, con_active.shape[0] - 1), wc % con_active.shape[1]]  # the column's links
         if wp.static(not rigid):
             rig = zero
@@ -231,8 +240,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         if lane == 0:
                             set_failure(status, fail_step, w, code, s0 + i + 1)
                         alive = 0
-            A = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl),
-                                minv)
+            Fn = f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl)
+            if wp.static(loaded):
+                Fn = Fn + Fx
+            A = f.accelerations(Fn, minv)
             V = V + A * kick
         if alive == 1:
             store(U, V, A, u, v, a, lane, n, w)
@@ -277,7 +288,8 @@ class LaneStep:
         prec = model.precision
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
                                         LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid,
-                                        self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0)
+                                        self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
+                                        batch.external_force is not None and bool(np.any(batch.external_force)))
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
@@ -307,7 +319,8 @@ class LaneStep:
     def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
         m, r = self.model, self.real
         wp.launch(self.kernels.lane_steps, dim=self.threads, block_dim=self.block_dim, device=self.device, inputs=[
-            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.con_active, m.n_columns,
+            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.con_active, m.ext_force,
+            m.n_columns,
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step])
