@@ -6,7 +6,10 @@
   periodic column; the RB band and its long-wave limit against c0 (a check of the reference only);
   the simulated speed against the same measure on the Bessel form;
 * ``fb_modal``: the flexible-base (FB) small impact, under two impacts, against the modal sum of
-  :mod:`.linear` on the column rebuilt from the closed forms (:mod:`.reference_column`).
+  :mod:`.linear` on the column rebuilt from the closed forms (:mod:`.reference_column`);
+* ``preload``: the RB column under an end preload F0: its static height and twist against the
+  prism's force-displacement law along the mechanism path, and a small impact on it against the
+  chain of its tangent stiffness (:mod:`.preload`).
 
 Every check runs the engine except those marked ``engine=False`` (checks of the reference only; the
 report says so). ``warp-tensegrity validate`` runs :func:`run_validation` and draws :mod:`.figures`;
@@ -17,10 +20,12 @@ shows that an engine with a constant 5 % off fails some check.
 from __future__ import annotations
 
 from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_soliton
+from .preload import check_preload
 
 __all__ = ["CHECKS", "Check", "CheckGroup", "run_validation", "report"]
 
-CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal}
+CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal,
+          "preload": check_preload}
 """Every check group by name, in gallery order."""
 
 
