@@ -261,7 +261,7 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     else:
         batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(T, np.finfo(float).tiny)
     if np.any(p["preload"] > 0):  # the loaded columns start from their static equilibrium
-        apply_preload(batch, config, topo, p)
+        apply_preload(batch, config, p, col.impact_velocity)
     return batch
 
 

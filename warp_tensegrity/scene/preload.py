@@ -279,33 +279,47 @@ def _twisted(twist: np.ndarray, limit: float) -> str:
 
 
 # ---------------------------------------------------------------------- a batch of columns
-def apply_preload(batch, config, topo, p) -> None:
-    """Put the columns of ``batch`` (scene.batch.column_batch's, parameters ``p``) with preload > 0
-    into their static equilibrium: their initial displacement, the dead load, the prism heights the
-    strain is recorded from, an impact velocity admissible at that state (the scene's convention
-    at the loaded geometry) and the equilibrium residual (over max(EA p, F0)). One solve per
-    distinct (prestrain, base rigidity, EA, F0); columns with F0 = 0 are left as they are."""
-    from . import columns as col  # the scene builder (imports this module's siblings only)
+def column_network(batch, b: int) -> Network:
+    """Column b of a batch (scene.batch.NetworkBatch) as a Network: its active rigid members, its
+    cables with EA > 0 (a rigid base's members are links instead), exactly the members the engine steps."""
+    row = lambda a: np.broadcast_to(a, (batch.n_columns,) + a.shape[1:])[b]  # noqa: E731 (a (B or 1, ...) field)
+    bars = row(batch.constraint_active) > 0
+    cab = row(batch.cable_EA) > 0
+    names = [nm for nm, keep in zip(batch.cable_names or [], cab) if keep] or None
+    return Network(positions=batch.positions, node_mass=row(batch.node_mass), fixed=batch.fixed,
+                   bars=batch.constraints[bars], bar_mass=row(batch.constraint_mass)[bars], cables=batch.cables[cab],
+                   cable_EA=row(batch.cable_EA)[cab], cable_rest_length=row(batch.cable_rest_length)[cab],
+                   cable_EA_compression=row(batch.cable_EA_compression)[cab], cable_names=names)
 
-    B, n = batch.n_columns, topo.n_nodes
+
+def apply_preload(batch, config, p, impact) -> None:
+    """Put the columns of ``batch`` (scene.batch.column_batch's, parameters ``p``, scene ``config``) with
+    preload > 0 into their static equilibrium: their initial displacement, the dead load, the prism
+    heights the strain is recorded from, an impact velocity admissible at that state (the scene's
+    convention at the loaded geometry; ``impact``: scene.columns.impact_velocity, passed in since this
+    module sits below the scene builder) and the equilibrium residual (over max(EA p, F0)). One solve
+    per distinct (prestrain, base rigidity, EA, F0); columns with F0 = 0 are left as they are."""
+    B, X, levels = batch.n_columns, batch.positions, batch.level_nodes
+    n = X.shape[0]
     F = p["preload"]
     key = np.stack([p["prestrain"], p["base_rigidity"], p["cable_EA"], F], axis=1)
     loaded = np.flatnonzero(F > 0)
-    uniq, inverse = np.unique(key[loaded], axis=0, return_inverse=True)
-    end = topo.level_nodes[-1]
+    uniq, first, inverse = np.unique(key[loaded], axis=0, return_index=True, return_inverse=True)
+    end = levels[-1]
     disp = np.zeros((B, n, 3))
-    dz = np.zeros((B, topo.level_nodes.shape[0] - 1))
+    dz = np.zeros((B, levels.shape[0] - 1))
+    heights = lambda x: np.diff(x[levels, 2].mean(axis=1))  # noqa: E731 (prism heights [m])
     for s, (prestrain, beta, EA, F0) in enumerate(uniq):
-        scene = col.build_column(config, prestrain=float(prestrain), v0=0.0, base_rigidity=float(beta),
-                                 cable_EA=float(EA), topology=topo)
+        net = column_network(batch, int(loaded[first[s]]))
         try:
-            state = solve_preload(scene.network, end, F0, topo.level_nodes)
+            state = solve_preload(net, end, F0, levels)
         except NetworkError as e:
             raise NetworkError(f"{e} (prestrain = {prestrain!r}, base_rigidity = {beta!r}, cable_EA = {EA!r} N)") from None
         cols = loaded[inverse.reshape(-1) == s]
-        disp[cols] = state.positions - topo.positions
-        dz[cols] = col.prism_heights(topo, state.positions) - col.prism_heights(topo, topo.positions)
-        batch.velocity[cols] = p["v0"][cols, None, None] * _unit_impact(config, topo, scene.network, state.positions)[None]
+        disp[cols] = state.positions - X
+        dz[cols] = heights(state.positions) - heights(X)
+        v1 = _unit_impact(config, net, levels, state.positions, impact)
+        batch.velocity[cols] = p["v0"][cols, None, None] * v1[None]
         batch.equilibrium_residual[cols] = state.residual / max(EA * prestrain, F0)
     batch.initial_displacement = disp
     batch.external_force = np.zeros((B, n, 3))
@@ -313,20 +327,22 @@ def apply_preload(batch, config, topo, p) -> None:
     batch.static_dz = dz
 
 
-def _unit_impact(config, topo, net: Network, x: np.ndarray) -> np.ndarray:
+def _unit_impact(config, net: Network, levels: np.ndarray, x: np.ndarray, impact) -> np.ndarray:
     """(n_nodes, 3) the scene's impact velocity at v0 = 1 m/s, admissible at the state x."""
-    from . import columns as col
     from . import sparse
     from .impact import least_energy_impact
 
-    end = topo.level_nodes[-1]
+    end = levels[-1]
     if config.impact_admissibility == "rigid_members":  # bars and base members rigid at x
-        members = np.concatenate([topo.bars, topo.base])
-        mass = col.node_masses(topo, config.unit_mass)
-        if sparse.use_dense(9 * config.n_prisms):
-            return least_energy_impact(x, np.diag(mass), topo.fixed, members, end, 1.0)
-        return sparse.least_energy_impact(x, mass, topo.fixed, members, end, 1.0)
+        n = levels.shape[0] - 1
+        k = np.arange(3)
+        bars = np.stack([(3 * np.arange(n)[:, None] + k).ravel(), (3 * np.arange(1, n + 1)[:, None] + k).ravel()], 1)
+        base = np.stack([(3 * np.arange(n + 1)[:, None] + k).ravel(), (3 * np.arange(n + 1)[:, None] + (k + 1) % 3).ravel()], 1)
+        members = np.concatenate([bars, base])
+        if sparse.use_dense(9 * n):
+            return least_energy_impact(x, np.diag(net.node_mass), net.fixed, members, end, 1.0)
+        return sparse.least_energy_impact(x, net.node_mass, net.fixed, members, end, 1.0)
     moved = Network(positions=x, node_mass=net.node_mass, fixed=net.fixed, bars=net.bars, bar_mass=net.bar_mass,
                     cables=net.cables, cable_EA=net.cable_EA, cable_rest_length=net.cable_rest_length,
                     cable_EA_compression=net.cable_EA_compression)
-    return col.impact_velocity(moved, end, 1.0, config.impact_admissibility)
+    return impact(moved, end, 1.0, config.impact_admissibility)

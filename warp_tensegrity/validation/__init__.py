@@ -19,8 +19,7 @@ shows that an engine with a constant 5 % off fails some check.
 
 from __future__ import annotations
 
-from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_soliton
-from .preload import check_preload
+from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_preload, check_soliton
 
 __all__ = ["CHECKS", "Check", "CheckGroup", "run_validation", "report"]
 
