@@ -34,8 +34,9 @@ from .network import Network, NetworkError
 
 NEWTON_TOL = 1e-12
 """Relative residual (force over the load scale, bar error over the bar length) of a converged state."""
-MAX_NEWTON = 40
-"""Newton iterations per load increment."""
+MAX_NEWTON = 15
+"""Newton iterations per load increment (from the last equilibrium it converges in ~5; an increment
+that needs more is cut instead)."""
 FIRST_INCREMENTS = 4
 """Load increments tried first (an increment is halved when it fails, down to 1/2^MAX_HALVINGS of
 the first, and doubled after each success)."""
@@ -163,6 +164,7 @@ def _newton(net, x, lam, f_ext, dof, scale_f):
     xerr = 16.0 * np.finfo(float).eps * float(np.abs(x).max())
     tol_f = max(NEWTON_TOL * scale_f, xerr * float((net.cable_EA / net.cable_rest_length).max(initial=0.0)))
     tol_g = max(NEWTON_TOL * Lmax, xerr) * Lmax
+    r0 = None
     for _ in range(MAX_NEWTON):
         J = _jacobian(net, x, dof)
         b = x[net.bars[:, 1]] - x[net.bars[:, 0]]
@@ -170,6 +172,9 @@ def _newton(net, x, lam, f_ext, dof, scale_f):
         r = _forces(net, x, f_ext).reshape(-1)[free] + J.T @ lam
         if np.abs(r).max() <= tol_f and np.abs(g).max() <= tol_g:
             return x, lam
+        r0 = np.abs(r).max() if r0 is None else r0
+        if np.abs(r).max() > 1e3 * r0:  # diverging: cut the increment now
+            return None
         H = _hessian(net, x, lam, dof, nf)
         A = sparse.bmat([[H, J.T], [J, None]], format="csc")
         try:
