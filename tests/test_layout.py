@@ -33,7 +33,7 @@ LAYERS = [
      "overrides", "sweep.errors"},
     # scene: networks, columns, batches (NumPy)
     {"scene.network", "scene.impact", "scene.sparse", "scene.columns", "scene.batch", "scene.coupling",
-     "scene.base_modes", "scene.contact", "scene.striker", "scene"},
+     "scene.base_modes", "scene.contact", "scene.striker", "scene.preload", "scene"},
     # policy: the run decided once, and its price
     {"policy", "policy.accuracy", "policy.cost", "policy.lane_fit", "policy.paths", "policy.decide", "policy.groups"},
     # sim: the device model, kernels, the Integrator
@@ -51,7 +51,7 @@ LAYERS = [
      "sweep.plan", "sweep.shard", "sweep.dask", "sweep.run", "sweep", "lens.host", "lens.design", "lens.spec",
      "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
      "validation.reference_column", "validation.twist_chain",
-     "validation.linear", "validation.dispersion", "validation.checks", "validation.striker", "validation.hetero", "validation.interface",
+     "validation.linear", "validation.dispersion", "validation.preload", "validation.checks", "validation.striker", "validation.hetero", "validation.interface",
      "validation.diatomic", "validation.gallery", "validation.figures", "validation", "plot",
      "init_spec", "cli_args", ""},
     {"cli", "__main__"},

@@ -139,11 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_validate_parser(sub, common) -> None:
     p = sub.add_parser("validate", parents=[common], help="check the engine against closed forms (docs/validation.md)",
                        description="Run the validation gallery (fp64): the Bessel impact, the sonic-vacuum "
-                                   "solitary wave, the Bloch dispersion, the FB modal sum and a striker on the linear "
-                                   "chain; print every number against its tolerance; exit 1 if one fails.")
+                                   "solitary wave, the Bloch dispersion, the FB modal sum, the interface, the diatomic gap, a "
+                                   "striker on the linear chain and the end preload; print every number against its tolerance; exit 1 if one fails.")
     p.add_argument("-o", "--output", default=None, metavar="FIGDIR", help="write one figure per check into FIGDIR")
     p.add_argument("--only", nargs="+", default=None, metavar="NAME",
-                   help="run these checks only: bessel, soliton, dispersion, fb_modal, interface, diatomic, striker")
+                   help="run these checks only: bessel, soliton, dispersion, fb_modal, interface, diatomic, striker, preload")
     add_device(p, "cpu", "cpu")
 
 

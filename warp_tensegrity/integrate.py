@@ -79,7 +79,7 @@ class Integrator:
             lanes = self.device.is_cuda or wp.config.enable_cpu_blocks  # the CPU emulates lanes only on request
             self.fused_block = (FUSED_BLOCK_DIM if lanes else 1) if self.fused else None
             m = self.model
-            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused)
+            self.data: Data = make_data(m, batch.velocity, settings.method, self.fused, batch.initial_displacement)
             real = REAL[settings.precision]
             self.real = real
             self.k = make_kernels(real)

@@ -104,7 +104,7 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
     node_start, node_member = node_member_csr(X.shape[0], cab)
     node_other, node_dref = node_incidence(node_start, node_member, cab, dref_e)
     ncon_start, ncon_member = node_member_csr(X.shape[0], cons.reshape(-1, 2))
-    level_nodes = h0 = level_ref = prism_hand = pair_nodes = pair_dref = pair_kind = None
+    level_nodes = h0 = level_ref = prism_hand = pair_nodes = pair_dref = pair_kind = static_dz = None
     n_prisms = n_pairs = 0
     if batch.level_nodes is not None:
         level_nodes = batch.level_nodes.astype(np.int32)
@@ -115,6 +115,7 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
         level_ref = (XL - XL.mean(axis=1, keepdims=True)).astype(npr)
         # right-handed: the top base turned clockwise seen from +z (scene.columns), a negative z-rotation
         prism_hand = -np.sign(np.cross(level_ref[:-1], level_ref[1:])[..., 2].sum(axis=1))
+        static_dz = np.zeros((1, n_prisms)) if batch.static_dz is None else batch.static_dz
     else:
         pairs = member_pairs(X, cons, cab)
         n_pairs = len(pairs[0])
@@ -131,7 +132,8 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
         partner=partner, mass_blocks=mass_blocks(partner_full),
         m_self=m_self, m_cross=m_cross, minv_self=minv_self, minv_cross=minv_cross,
         level_nodes=level_nodes, h0=h0, level_ref=level_ref, prism_hand=prism_hand,
-        pair_nodes=pair_nodes, pair_dref=pair_dref, pair_kind=pair_kind,
+        pair_nodes=pair_nodes, pair_dref=pair_dref, pair_kind=pair_kind, static_dz=static_dz,
+        ext_force=np.zeros((1, X.shape[0], 3)) if batch.external_force is None else batch.external_force,
     )
     # the batch's own arrays, by their declared source (types.Field.source)
     arrays.update({f.name: getattr(batch, f.source) for f in types.MODEL_FIELDS if f.source})
@@ -140,10 +142,10 @@ def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
 
 def device_array(a: np.ndarray | None, field: types.Field, real, device) -> wp.array | None:
     """The declared array ``field`` on the device from its host values (None stays None when optional);
-    a per-column parameter's (Bp, k) rows are transposed to (k, Bp), the column index fastest."""
+    a per-column parameter's (Bp, k) rows (vec3: (Bp, k, 3)) are transposed to (k, Bp), the column index fastest."""
     if a is None and field.optional:
         return None
-    a = np.ascontiguousarray(np.asarray(a).T if field.per_column else a)
+    a = np.ascontiguousarray(np.swapaxes(np.asarray(a), 0, 1) if field.per_column else a)
     if a.ndim != field.ndim + (field.dtype == "vec3"):
         raise ValueError(f"{field.name}: host array of shape {a.shape} for the declared {field.shape} {field.dtype}")
     return wp.array(a, dtype=array_type(field.dtype, field.ndim, real).dtype, device=device)
@@ -168,8 +170,10 @@ Data = make_dataclass(
                "each (n, B) vec3."})
 
 
-def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = False) -> Data:
-    """velocity: (B, n, 3) initial velocity [m s-1]. With ``fused`` the staged kernels' scratch
+def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = False,
+              displacement: np.ndarray | None = None) -> Data:
+    """velocity: (B, n, 3) initial velocity [m s-1]; displacement: (B, n, 3) initial displacement from
+    the reference [m] (a preloaded column's equilibrium), None: 0. With ``fused`` the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders; the fused step keeps its own
     rows, :class:`warp_tensegrity.kernels.fused.FusedStep`)."""
     real = REAL[model.precision]
@@ -179,7 +183,8 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = Fal
     nc = max(model.n_constraints, 1)
     z = lambda: wp.zeros((n, B), dtype=vec, device=d)  # noqa: E731
     common = dict(
-        u=z(), v=_device_velocity(velocity, model, vec), a=z(),
+        u=z() if displacement is None else _device_velocity(displacement, model, vec),
+        v=_device_velocity(velocity, model, vec), a=z(),
         status=wp.zeros(B, dtype=wp.int32, device=d),
         fail_step=wp.full(B, -1, dtype=wp.int32, device=d),
         iters=wp.zeros(B, dtype=wp.int32, device=d),
@@ -210,6 +215,6 @@ def _feasibility_data(model: Model, real) -> dict:
 
 
 def _device_velocity(velocity: np.ndarray, model: Model, vec) -> wp.array:
-    """(B, n, 3) host -> (n, B) vec3 device."""
+    """(B, n, 3) host -> (n, B) vec3 device (velocities and displacements)."""
     host = np.ascontiguousarray(np.transpose(velocity, (1, 0, 2))).astype(NP_REAL[model.precision])
     return wp.array(host, dtype=vec, device=model.device)

@@ -370,6 +370,10 @@ class ColumnParameters:
     striker_mass: Annotated[float | None, Opt("real", "kg", ge=0, le=MASS[1], optional=True,
                                               default_text="scene's striker_mass", long_name="mass of the striker")] = None
     """Striker mass M [kg] (scene impact = 'striker', where it must be > 0); None: the scene's striker_mass."""
+    preload: Annotated[float, Opt("real", "N", ge=0, le=MAX_EA, why="F0 is the static compressive force on the free end",
+                                  long_name="static axial compressive force on the free end (preload F0)")] = 0.0
+    """Static axial compressive force F0 on the free end [N], a dead load in equilibrium before the
+    impact (scene.preload); 0: none (the column as without it, bit for bit)."""
 
 
 COLUMN_PARAMETERS = {name: opt_of(ColumnParameters, name).unit for name in ColumnParameters.__pydantic_fields__}

@@ -221,6 +221,8 @@ DIVERGING = {"prestrain": [0.002] * 4, "v0": [0.05] * 4, "base_rigidity": [0.0, 
     (7, "RRLRLLR", RIGID, "fp64", {}),  # 4 columns per warp, rigid bases
     (50, "alternating", MIXED, "fp32", {}),  # 2 levels per lane
     (2, "right", DIVERGING, "fp64", {"t_end": 0.1, "dt": 1e-3, "allow_unstable_dt": True}),
+    (5, "right", {"prestrain": [0.002, 0.004], "v0": [0.01, 0.02], "base_rigidity": [1.0, 0.0],
+                  "preload": [1e-3, 5e-4]}, "fp64", {}),  # an end preload: a dead load, strain from its equilibrium
 ])
 def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, precision, kw, device, monkeypatch):
     """Issue 33 item 1: the lane kernel writes the records of the outputs its launches span. Against

@@ -143,3 +143,9 @@ def test_fp32_keeps_the_contact_that_fp64_keeps():
                            RunSettings(t_end=0.3, dt=5e-4, output_interval=0.01, device="cpu", precision=precision))
         seps.append(float(r.info["striker"]["separation_time"][0]))
     assert seps[1] == pytest.approx(0.167, abs=1e-3) and abs(seps[0] - seps[1]) <= 5e-4 + 1e-12, seps
+
+
+def test_a_striker_on_a_preloaded_column_is_refused():
+    with pytest.raises(NetworkError, match=r"preload\[1\] = 0.01: a striker on a preloaded column is not modelled"):
+        column_batch(ColumnConfig(n_prisms=3, impact="striker", striker_mass=0.1),
+                     {"v0": 0.01, "prestrain": 0.002, "preload": [0.0, 0.01]})

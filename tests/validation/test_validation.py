@@ -286,6 +286,6 @@ def test_validate_command(tmp_path, capsys):
     assert "fb_modal_record" in out and "fb_modal_end_twist" in out and "pass" in out and "FAIL" not in out
     assert (tmp_path / "validation_fb_modal.png").exists() and (tmp_path / "validation_fb_modal_2.png").exists()
     assert cli.main(["validate", "--only", "nope"]) == 1
-    assert set(CHECKS) == {"bessel", "soliton", "dispersion", "fb_modal", "interface", "diatomic", "striker"}
+    assert set(CHECKS) == {"bessel", "soliton", "dispersion", "fb_modal", "interface", "diatomic", "striker", "preload"}
     with pytest.raises(ValueError):
         run_validation(["nope"])

@@ -68,12 +68,15 @@ def cable_force(b: Any, EA: Any, EAc: Any, L: Any):
 def node_force(
     node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), node_other: wp.array(dtype=int),
     node_dref: wp.array(dtype=Any), cab_EA: wp.array2d(dtype=Any), cab_EAc: wp.array2d(dtype=Any),
-    cab_L: wp.array2d(dtype=Any), u: wp.array2d(dtype=Any), n: int, c: int, wE: int, wC: int, wL: int,
+    cab_L: wp.array2d(dtype=Any), ext_force: wp.array2d(dtype=Any), u: wp.array2d(dtype=Any), n: int, c: int,
+    wE: int, wC: int, wL: int, wF: int,
 ):
-    """Sum of the cable forces [N] on node n at the displacement ``u[:, c]``, each along its
-    vector from n to the cable's other end; wE, wC, wL: the column's index into EA, EA_c, L."""
+    """Sum of the external (dead) load ``ext_force[n, wF]`` and the cable forces [N] on node n at the
+    displacement ``u[:, c]``, each along its vector from n to the cable's other end; wE, wC, wL, wF:
+    the column's index into EA, EA_c, L and the load. The sum starts from the load, so a zero load
+    (+0) gives the cable sum bit for bit."""
     un = u[n, c]
-    f = type(un)()
+    f = ext_force[n, wF]
     for t in range(node_start[n], node_start[n + 1]):
         e = node_member[t]
         f += cable_force(node_dref[t] + u[node_other[t], c] - un, cab_EA[e, wE], cab_EAc[e, wC], cab_L[e, wL])

@@ -48,7 +48,7 @@ from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, 
 wp.set_module_options({"enable_backward": False})
 
 MODEL_PART = ("con_i", "con_j", "con_dref", "con_L", "con_active", "partner", "minv_self", "minv_cross", "cab_EA",
-              "cab_EAc", "cab_L", "node_start", "node_member", "node_other", "node_dref")
+              "cab_EAc", "cab_L", "node_start", "node_member", "node_other", "node_dref", "ext_force")
 """The :data:`~warp_tensegrity.types.MODEL_FIELDS` the contact kernels read (besides CONTACT_FIELDS)."""
 MAX_PASSES = 8
 """Most active-set passes of one contact solve."""
@@ -238,14 +238,15 @@ def make_contact_kernels(real, bandwidth: int):
         wL = w % m.cab_L.shape[1]
         ws = w % m.minv_self.shape[1]
         wx = w % m.minv_cross.shape[1]
+        wF = w % m.ext_force.shape[1]
         for n in range(u.shape[0]):
-            f = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc, m.cab_L, u,
-                           n, w, wE, wC, wL)
+            f = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc, m.cab_L,
+                           m.ext_force, u, n, w, wE, wC, wL, wF)
             acc = f * m.minv_self[n, ws]
             p = m.partner[n]
             if p >= 0:
                 fp = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc, m.cab_L,
-                                u, p, w, wE, wC, wL)
+                                m.ext_force, u, p, w, wE, wC, wL, wF)
                 acc = acc + fp * m.minv_cross[n, wx]
             a[n, w] = acc
 

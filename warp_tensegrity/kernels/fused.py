@@ -83,9 +83,10 @@ def make_node_funcs(real):
         wL = w % m.cab_L.shape[1]
         ws = w % m.minv_self.shape[1]
         wx = w % m.minv_cross.shape[1]
+        wF = w % m.ext_force.shape[1]
         for n in range(lane, nn, bd):
             q[n, I] = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc,
-                                 m.cab_L, q, n, U, wE, wC, wL)
+                                 m.cab_L, m.ext_force, q, n, U, wE, wC, wL, wF)
         block_sync()
         for n in range(lane, nn, bd):
             acc = minv_apply(m, q, n, ws, wx)
@@ -473,7 +474,7 @@ class FusedStep:
     def _column_view(self, a):
         """The (n, B) parameter ``a`` as an (n, B) view of a (B, n) copy: a block's lanes read a column's
         values from adjacent addresses (coalesced), where the model's layout puts them B apart."""
-        t = wp.array(np.ascontiguousarray(a.numpy().T), dtype=a.dtype, device=a.device)
+        t = wp.array(np.ascontiguousarray(np.swapaxes(a.numpy(), 0, 1)), dtype=a.dtype, device=a.device)  # vec3 too
         self._column_major.append(t)
         return t.transpose()
 

@@ -208,28 +208,31 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         return a
 
     @wp.func(inline=True)
-    def energies(X: Ext, V: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, base_ea: vec,
+    def energies(X: Ext, V: Nodes, F: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, base_ea: vec,
                  rest: wp.array2d(dtype=real), wr: int, n: int, mass: Lv, lane: int, g: int, wl: int):
-        """(2 T, 2 W, 0) [J] of the column, on every lane of its segment: twice its kinetic energy
-        (the lane's nodes, masses ``mass`` per level) and twice its elastic energy (the cross cables
-        of the lane's prisms and the base members of its levels; lane 0 also the clamped level 0's),
-        each lane's share summed by :func:`.lane_ops.segment_sum3`. X: the lane's displacements with
-        the level below first (:func:`extend`)."""
+        """(2 T, 2 W, f . u) [J] of the column, on every lane of its segment: twice its kinetic energy
+        (the lane's nodes, masses ``mass`` per level), twice its elastic energy (the cross cables of
+        the lane's prisms and the base members of its levels; lane 0 also the clamped level 0's) and
+        the work of the dead load F on the lane's nodes (the preload; 0 without), each lane's share
+        summed by :func:`.lane_ops.segment_sum3`. X: the lane's displacements with the level below
+        first (:func:`extend`)."""
         ke = zero
         ee = zero
+        wk = zero
         for q in range(P):
             m = wp.min(P * lane + q, n - 1)
             if ex[q] != zero:
                 for k in range(3):
                     vv = V[3 * q + k]
                     ke += mass[q + 1] * wp.dot(vv, vv)
+                    wk += wp.dot(F[3 * q + k], X[3 * q + 3 + k])
                     ee += cable_energy2(base_member(xy, X, 3 * q + 3, k), base_ea[0], base_ea[1],
                                         rest[wr, 3 * n + 3 * m + 3 + k])
                     ee += cable_energy2(cross_member(xy, X, hz, hand, q, k), cross[0], cross[1], rest[wr, 3 * m + k])
         if lane == 0:
             for k in range(3):
                 ee += cable_energy2(base_member(xy, X, 0, k), base_ea[0], base_ea[1], rest[wr, 3 * n + k])
-        return ops.segment_sum3(vec(ke, ee, zero), g, wl)
+        return ops.segment_sum3(vec(ke, ee, wk), g, wl)
 
     @wp.func(inline=True)
     def gram(Bm: Nodes, minv: Lv, ex: Pv, n: int, lane: int, g: int, wl: int):

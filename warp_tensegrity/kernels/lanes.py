@@ -29,12 +29,14 @@ if TYPE_CHECKING:
 
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
-                     fast_math: bool = False, smem_spill_block: int = 0):
+                     fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
     has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
     approximate fp32 division and square root; ``smem_spill_block``: the launch's threads per block,
-    with which register spills may go to shared memory instead of local memory, 0: not). Launch
+    with which register spills may go to shared memory instead of local memory, 0: not; ``loaded``:
+    the batch has a dead load (the end preload), added to the cable forces; compiled out otherwise, so
+    an unloaded batch runs today's code). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2)
@@ -64,9 +66,9 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     a[node, w] = A[3 * j - 3 + k]
 
     @wp.func(inline=True)
-    def record(U: Nodes, V: Nodes, xyl: XY, hzl: Pv, hnd: Pv, ex: Pv, cross: vec, base_ea: vec,
+    def record(U: Nodes, V: Nodes, Fx: Nodes, xyl: XY, hzl: Pv, hnd: Pv, ex: Pv, cross: vec, base_ea: vec,
                rest: wp.array2d(dtype=real), wr: int, n: int, lane: int, g: int, wl: int, w: int, wM: int, slot: int,
-               alive: int, h0: wp.array(dtype=real), level_ref: wp.array2d(dtype=vec),
+               alive: int, h0: wp.array(dtype=real), static_dz: wp.array2d(dtype=real), level_ref: wp.array2d(dtype=vec),
                prism_hand: wp.array(dtype=real), m_self: wp.array2d(dtype=real), strain: wp.array3d(dtype=real),
                kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real), twist: wp.array2d(dtype=real),
                twist_max: wp.array2d(dtype=real), twist_min: wp.array2d(dtype=real),
@@ -83,7 +85,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             L = wp.static(P) * lane + j
             if L <= n:
                 mass[j] = m_self[3 * L, wM]
-        e = f.energies(X, V, xyl, hzl, hnd, ex, cross, base_ea, rest, wr, n, mass, lane, g, wl)
+        e = f.energies(X, V, Fx, xyl, hzl, hnd, ex, cross, base_ea, rest, wr, n, mass, lane, g, wl)
         if below.shape[0] > 0:  # the energy parts: nodes and members by their first node (record_energy_parts)
             eb = zero
             et = zero
@@ -92,7 +94,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     m = wp.static(P) * lane + q
                     for k in range(3):
                         vv = V[3 * q + k]
-                        ke = mass[q + 1] * wp.dot(vv, vv)
+                        ke = mass[q + 1] * wp.dot(vv, vv) - real(2.0) * wp.dot(Fx[3 * q + k], X[3 * q + 3 + k])
                         node = 3 * (m + 1) + k
                         b0, du = f.base_ends(xyl, X, 3 * q + 3, k)
                         eb_ = member_excess2(b0, du, base_ea[0], base_ea[1], rest[wr, 3 * n + 3 * m + 3 + k])
@@ -120,7 +122,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         if alive == 1:
             if lane == 0:
                 kinetic[slot, w] = real(0.5) * e[0]
-                elastic[slot, w] = real(0.5) * e[1]
+                elastic[slot, w] = real(0.5) * e[1] - e[2]  # with the dead load's potential -f . u
             for q in range(wp.static(P)):
                 if ex[q] != zero:
                     m = wp.static(P) * lane + q  # the prism: levels m (rows 3 q ..) and m + 1 of X
@@ -135,7 +137,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     feasibility_record(phi, h, h0[m], near, slot, m, w, twist, twist_max, twist_min, height_min,
                                        left_slot)
                     if strain.shape[0] > 0:
-                        strain[slot, m, w] = (h - h0[m]) / h
+                        strain[slot, m, w] = (h - (h0[m] + static_dz[m, w % static_dz.shape[1]])) / h
 
     spill = {"enable_cuda_smem_spilling": True, "launch_bounds": smem_spill_block} if smem_spill_block else {}
 
@@ -146,9 +148,9 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         xy: wp.array(dtype=vec2), hz: wp.array(dtype=real), hand: wp.array(dtype=int),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real),
         minv_self: wp.array2d(dtype=real), rest: wp.array2d(dtype=real), con_active: wp.array2d(dtype=real),
-        n_columns: int,
-        h0: wp.array(dtype=real), level_ref: wp.array2d(dtype=vec), prism_hand: wp.array(dtype=real),
-        m_self: wp.array2d(dtype=real), every: int,
+        ext_force: wp.array2d(dtype=vec), n_columns: int,
+        h0: wp.array(dtype=real), static_dz: wp.array2d(dtype=real), level_ref: wp.array2d(dtype=vec),
+        prism_hand: wp.array(dtype=real), m_self: wp.array2d(dtype=real), every: int,
         tol: real, max_iter: int, fail_tol: real, h: real, n_sub: int, init: int, step: wp.array(dtype=int),
         # Data in/out:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec),
@@ -210,6 +212,13 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             elif j > 0:
                 q = wp.max(j - 1, 0)
                 hzl[q] = real(1.0)  # padding prisms: finite, inert geometry
+        Fx = Nodes()  # the dead load on the lane's nodes
+        if wp.static(loaded):
+            for j in range(1, wp.static(P + 1)):
+                L = wp.static(P) * lane + j
+                if L <= n:
+                    for k in range(3):
+                        Fx[3 * j - 3 + k] = ext_force[3 * L + k, wc % ext_force.shape[1]]
         rig = con_active[wp.min(3, con_active.shape[0] - 1), wc % con_active.shape[1]]  # the column's links
         if wp.static(not rigid):
             rig = zero
@@ -268,10 +277,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if i > 0:
                 so = s0 + i
                 if so % every == 0 and so / every < kinetic.shape[0]:  # an output step: warp-uniform (one s0)
-                    record(U, V, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl, w,
+                    record(U, V, Fx, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl, w,
                            wc % m_self.shape[1],
-                           so / every, alive, h0, level_ref, prism_hand, m_self, strain, kinetic, elastic, twist,
-                           twist_max, twist_min, height_min, left_slot, below_node, end_node, below, end)
+                           so / every, alive, h0, static_dz, level_ref, prism_hand, m_self, strain, kinetic, elastic,
+                           twist, twist_max, twist_min, height_min, left_slot, below_node, end_node, below, end)
             if i == n_it:
                 break
             if init == 0:
@@ -321,8 +330,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         if lane == 0:
                             set_failure(status, fail_step, w, code, s0 + i + 1)
                         alive = 0
-            A = f.accelerations(f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl),
-                                minv)
+            Fn = f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl)
+            if wp.static(loaded):
+                Fn = Fn + Fx
+            A = f.accelerations(Fn, minv)
             V = V + A * kick
         if alive == 1:
             store(U, V, A, u, v, a, lane, n, w)
@@ -375,7 +386,8 @@ class LaneStep:
         prec = model.precision
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
                                         LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid,
-                                        self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0)
+                                        self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
+                                        batch.external_force is not None and bool(np.any(batch.external_force)))
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
@@ -410,8 +422,9 @@ class LaneStep:
     def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
         m, r = self.model, self.real
         wp.launch(self.kernels.lane_steps, dim=self.threads, block_dim=self.block_dim, device=self.device, inputs=[
-            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.con_active, m.n_columns,
-            m.h0, m.level_ref, m.prism_hand, m.m_self, self.every,
+            self.xy, self.hz, self.hand, m.cab_EA, m.cab_EAc, m.minv_self, self.rest, m.con_active, m.ext_force,
+            m.n_columns,
+            m.h0, m.static_dz, m.level_ref, m.prism_hand, m.m_self, self.every,
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,

@@ -47,6 +47,7 @@ def _node_kernels(real):
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
         node_start: wp.array(dtype=int), node_member: wp.array(dtype=int), node_other: wp.array(dtype=int),
         node_dref: wp.array(dtype=vec), mass_blocks: wp.array2d(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
+        ext_force: wp.array2d(dtype=vec),
         status: wp.array(dtype=int),
         # Data in:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), kick: real,
@@ -62,16 +63,18 @@ def _node_kernels(real):
         wC = w % cab_EAc.shape[1]
         wL = w % cab_L.shape[1]
         ws = w % minv_self.shape[1]
+        wF = w % ext_force.shape[1]
         na = mass_blocks[blk, 0]
         nb = mass_blocks[blk, 1]
-        fa = node_force(node_start, node_member, node_other, node_dref, cab_EA, cab_EAc, cab_L, u, na, w, wE, wC, wL)
+        fa = node_force(node_start, node_member, node_other, node_dref, cab_EA, cab_EAc, cab_L, ext_force, u, na, w,
+                        wE, wC, wL, wF)
         if nb < 0:
             acc = fa * minv_self[na, ws]
             a[na, w] = acc
             v_out[na, w] = v[na, w] + acc * kick
         else:
-            fb = node_force(node_start, node_member, node_other, node_dref, cab_EA, cab_EAc, cab_L, u, nb, w,
-                            wE, wC, wL)
+            fb = node_force(node_start, node_member, node_other, node_dref, cab_EA, cab_EAc, cab_L, ext_force, u, nb,
+                            w, wE, wC, wL, wF)
             wx = w % minv_cross.shape[1]
             acc = fa * minv_self[na, ws] + fb * minv_cross[na, wx]
             a[na, w] = acc
@@ -143,13 +146,14 @@ def _record_kernels(real):
     @wp.kernel(enable_backward=False, module="unique")
     def record_strain(
         # Model:
-        level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=real), every: int,
+        level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=real), static_dz: wp.array2d(dtype=real), every: int,
         # Data in:
         u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
         # Data out:
         strain: wp.array3d(dtype=real),
     ):
-        """strain[slot, j, w] = (h - h0)/h of prism j when step % every == 0."""
+        """strain[slot, j, w] = (h - hs)/h of prism j when step % every == 0, hs = h0 + static_dz the
+        prism's height in the column's initial equilibrium (h0 without a preload)."""
         j, w = wp.tid()
         s = step[0]
         if s % every != 0:
@@ -163,7 +167,7 @@ def _record_kernels(real):
             zb += u[level_nodes[j, c], w][2]
             zt += u[level_nodes[j + 1, c], w][2]
         h = h0[j] + (zt - zb) / real(3.0)
-        strain[slot, j, w] = (h - h0[j]) / h
+        strain[slot, j, w] = (h - (h0[j] + pget(static_dz, j, w))) / h
 
     @wp.kernel(enable_backward=False, module="unique")
     def record_energy(
@@ -171,13 +175,15 @@ def _record_kernels(real):
         cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
         partner: wp.array(dtype=int), m_self: wp.array2d(dtype=real), m_cross: wp.array2d(dtype=real),
-        every: int,
+        ext_force: wp.array2d(dtype=vec), every: int,
         # Data in:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
         # Data out:
         kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real),
     ):
-        """Kinetic 1/2 v^T M v and elastic sum 1/2 k (s - L)^2 per column when step % every == 0."""
+        """Kinetic 1/2 v^T M v and elastic sum 1/2 k (s - L)^2 per column when step % every == 0; the
+        elastic energy includes the dead load's potential -f_ext . u (0 without a preload), so their sum
+        is conserved."""
         w = wp.tid()
         s = step[0]
         if s % every != 0:
@@ -186,9 +192,11 @@ def _record_kernels(real):
         if slot >= kinetic.shape[0]:
             return
         ke = real(0.0)
+        work = real(0.0)  # of the dead load: f_ext . u
         for n in range(u.shape[0]):
             vn = v[n, w]
             ke += pget(m_self, n, w) * wp.dot(vn, vn)
+            work += wp.dot(ext_force[n, w % ext_force.shape[1]], u[n, w])
             p = partner[n]
             if p >= 0:
                 ke += pget(m_cross, n, w) * wp.dot(vn, v[p, w])
@@ -197,7 +205,7 @@ def _record_kernels(real):
             b = member_vec(cab_dref, cab_i, cab_j, u, c, w)
             ee += cable_energy2(b, pget(cab_EA, c, w), pget(cab_EAc, c, w), pget(cab_L, c, w))
         kinetic[slot, w] = real(0.5) * ke
-        elastic[slot, w] = real(0.5) * ee
+        elastic[slot, w] = real(0.5) * ee - work
 
     @wp.kernel(enable_backward=False, module="unique")
     def record_energy_parts(
@@ -205,7 +213,7 @@ def _record_kernels(real):
         cab_i: wp.array(dtype=int), cab_j: wp.array(dtype=int), cab_dref: wp.array(dtype=vec),
         cab_EA: wp.array2d(dtype=real), cab_EAc: wp.array2d(dtype=real), cab_L: wp.array2d(dtype=real),
         partner: wp.array(dtype=int), m_self: wp.array2d(dtype=real), m_cross: wp.array2d(dtype=real),
-        every: int, below_node: int, end_node: int,
+        ext_force: wp.array2d(dtype=vec), every: int, below_node: int, end_node: int,
         # Data in:
         u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
         # Data out:
@@ -215,7 +223,8 @@ def _record_kernels(real):
         elastic) of two parts of each column (measure.energy, docs/measurements.md "Energy measures"):
         ``below``, nodes n < below_node and members with an end there (the clamp side of the station
         section), and ``end``, nodes n >= end_node and members with both ends there (the k prisms at the
-        impacted end). Node n's kinetic term is record_energy's. A member's excess is
+        impacted end). Node n's kinetic term is record_energy's, less the dead load's work f_ext . u on
+        it (the preload's potential, as in record_energy; 0 without). A member's excess is
         k/(2L) dl (dl + 2 (l0 - L)), dl = l - l0 = du.(2 b0 + du)/(l + l0): no cancellation of the
         prestress energy. One thread per column."""
         w = wp.tid()
@@ -235,6 +244,7 @@ def _record_kernels(real):
             p = partner[n]
             if p >= 0:
                 ke += pget(m_cross, n, w) * wp.dot(vn, v[p, w])
+            ke -= real(2.0) * wp.dot(ext_force[n, w % ext_force.shape[1]], u[n, w])  # (twice, as ke)
             if n < below_node:
                 eb += ke
             if n >= end_node:

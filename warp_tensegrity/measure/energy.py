@@ -56,19 +56,23 @@ def impact_energy(kinetic0, striker: dict | None = None) -> np.ndarray:
 
 
 def energy_parts(u, v, node_mass, cables, dref, EA, EAc, rest, below_node: int, end_node: int,
-                 m_cross=None, partner=None) -> tuple[np.ndarray, np.ndarray]:
+                 m_cross=None, partner=None, ext_force=None) -> tuple[np.ndarray, np.ndarray]:
     """(below, end) energies [J], each (B,), of the state ``u``, ``v`` (B, n_nodes, 3) [m, m s-1]:
     the part below node ``below_node`` (nodes n < below_node and the members with an end there) and
     the part from ``end_node`` up (nodes and members wholly there). ``node_mass`` (B or 1, n_nodes)
     [kg] (the diagonal of M; ``m_cross`` (B or 1, n_nodes) and ``partner`` (n_nodes,) its
     off-diagonal, massive bars); ``cables`` (m, 2), ``dref`` (m, 3) [m] reference member vectors;
-    ``EA``, ``EAc`` (B or 1, m) [N] tension and compression stiffness, ``rest`` (B or 1, m) [m]."""
+    ``EA``, ``EAc`` (B or 1, m) [N] tension and compression stiffness, ``rest`` (B or 1, m) [m];
+    ``ext_force`` (B or 1, n_nodes, 3) [N]: a dead load (the preload), whose potential -f . u joins
+    each node's term (None: none)."""
     u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
     ke = np.asarray(node_mass, np.float64) * np.einsum("bni,bni->bn", v, v)
     if partner is not None:
         p = np.asarray(partner)
         has = p >= 0
         ke[:, has] += np.asarray(m_cross, np.float64)[:, has] * np.einsum("bni,bni->bn", v[:, has], v[:, p[has]])
+    if ext_force is not None:
+        ke = ke - 2.0 * np.einsum("bni,bni->bn", np.broadcast_to(np.asarray(ext_force, np.float64), u.shape), u)
     i, j = np.asarray(cables)[:, 0], np.asarray(cables)[:, 1]
     b0 = np.asarray(dref, np.float64)
     l0 = np.linalg.norm(b0, axis=1)

@@ -171,6 +171,8 @@ def prisms_to_simulate(config: ColumnConfig, params: dict, settings: RunSettings
         # rigid links in a mixed-handed column form a kinematic chain that carries motion ahead of
         # any elastic front, decaying only ~2x per prism (measured): no prism is safely at rest
         return n
+    if np.any(column_params(config, params)["preload"] > 0):
+        return n  # a preload stresses the whole column: the far prisms are not at their reference
     # a local bound: the last prisms of a uniform column; the whole column where a profile varies along it
     local = omega_bound(config, params) if has_profiles(params) else omega_bound(far_end(config, 4), params)
     reach = reachable_prisms(local, settings.t_end, n)

@@ -21,6 +21,7 @@ from . import sparse
 from .contact import prism_pairs
 from .network import Network, NetworkError
 from .striker import attach_striker
+from .preload import apply_preload
 
 
 @dataclass
@@ -72,6 +73,14 @@ class NetworkBatch:
     """(B,) effective mass of the struck end in the blow [kg]."""
     striker_nodes: np.ndarray | None = None
     """(3,) the end base's nodes, which the striker's face touches."""
+    initial_displacement: np.ndarray | None = None
+    """(B, n_nodes, 3) initial displacement from ``positions`` [m]: a preloaded column starts from its
+    static equilibrium (scene.preload); None: every column starts at the reference."""
+    external_force: np.ndarray | None = None
+    """(B or 1, n_nodes, 3) dead load on the nodes [N] (the end preload); None: none."""
+    static_dz: np.ndarray | None = None
+    """(B or 1, n_prisms) prism height change of the initial equilibrium [m]; the strain is recorded
+    from it (from the preloaded state, not from ``positions``); None: 0."""
 
 
 def _shrink(a: np.ndarray) -> np.ndarray:
@@ -357,6 +366,11 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
             where = f"[{int(bad[0])}]" if B > 1 else ""
             raise NetworkError(f"striker_mass{where} = {float(M[bad[0]])!r}: impact = 'striker' needs a striker mass "
                                "> 0 [kg]")
+        loaded = np.flatnonzero(p["preload"] > 0)
+        if loaded.size:  # the blow is solved at the unloaded reference (scene.striker)
+            where = f"[{int(loaded[0])}]" if B > 1 else ""
+            raise NetworkError(f"preload{where} = {float(p['preload'][loaded[0]])!r}: a striker on a preloaded column "
+                               "is not modelled; give impact = 'velocity' or preload = 0")
         attach_striker(batch, M, _unit_impact(config, False))
     # the reference state depends on (prestrain, base rigidity, EA) only: check each distinct one once
     states, inverse = reference_states(p)
@@ -366,6 +380,8 @@ def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     else:  # over the largest cross-cable tension of the column
         batch.equilibrium_residual = equilibrium_residuals(batch) / np.maximum(
             T.max(axis=1) if T.ndim == 2 else T, np.finfo(float).tiny)
+    if np.any(p["preload"] > 0):  # the loaded columns start from their static equilibrium
+        apply_preload(batch, config, p, col.impact_velocity)
     return batch
 
 

@@ -11,6 +11,9 @@
   the discrete chain's impedances (:mod:`.interface`);
 * ``diatomic``: an RB column of level masses m | 2m driven by wave packets inside and outside its band gap
   against its two-level Bloch cell and complex Bloch wavenumber (:mod:`.diatomic`);
+* ``preload``: the RB column under an end preload F0: its static height and twist against the
+  prism's force-displacement law along the mechanism path, and a small impact on it against the
+  chain of its tangent stiffness (:mod:`.preload`).
 
 Every check runs the engine except those marked ``engine=False`` (checks of the reference only; the
 report says so). ``warp-tensegrity validate`` runs :func:`run_validation` and draws :mod:`.figures`;
@@ -20,7 +23,8 @@ shows that an engine with a constant 5 % off fails some check.
 
 from __future__ import annotations
 
-from .checks import Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_soliton, check_striker
+from .checks import (Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_preload, check_soliton,
+                     check_striker)
 from .diatomic import check_diatomic
 from .interface import check_interface
 
@@ -28,7 +32,7 @@ __all__ = ["CHECKS", "Check", "CheckGroup", "run_validation", "report"]
 
 CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal,
           "interface": check_interface, "diatomic": check_diatomic,
-          "striker": check_striker}
+          "striker": check_striker, "preload": check_preload}
 """Every check group by name, in gallery order."""
 
 

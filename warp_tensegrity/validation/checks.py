@@ -15,12 +15,15 @@ error there is not shared. Nothing is compared with stored engine output. A chec
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .closed_forms import RBChain, bessel_compression, power_chain_soliton, rb_chain
 from .dispersion import bands, chain_wavenumbers, mode_frequencies, ringing_frequency
 from .gallery import Check, CheckGroup
 from .linear import modal_analysis
+from .preload import preload_force, preload_height, preload_path, scaled_chain
 from .reference_column import ReferenceColumn, reference_column
 from .striker import striker_chain
 from ..engine import simulate_batch
@@ -28,7 +31,7 @@ from ..measure import measure_pulse
 from ..scene.columns import ColumnConfig
 from ..options import RunSettings
 
-__all__ = ["Check", "CheckGroup", "check_bessel", "check_soliton", "check_dispersion", "check_fb_modal", "check_striker",
+__all__ = ["Check", "CheckGroup", "check_bessel", "check_soliton", "check_dispersion", "check_fb_modal", "check_striker", "check_preload",
            "chain_of"]
 
 J1_MAX = 0.5818652242  # max of J_1 (the struck prism's first peak is (v0/c0) J1_MAX)
@@ -312,3 +315,60 @@ def check_striker(n_prisms: int = 12, prestrain: float = 0.002, striker_mass: fl
                        "engine_force": eng["force"][0], "chain_force": ref.force, "engine_energy": e_col,
                        "chain_energy": ref.column_energy, "v0": v0, "separations": ref.separations}, notes)
 
+
+
+# ---------------------------------------------------------------------- 5. end preload (issue 34)
+def check_preload(n_prisms: int = 8, prestrain: float = 0.01, load_of_tension: float = 3.0, peak_of_p: float = 1e-4,
+                  t_end: float = 1.0, tolerance_static: float = 1e-7, tolerance_speed: float = 1e-3,
+                  device: str = "cpu"):
+    """The engine's preloaded RB column against :func:`.preload.preload_path`: F0 = ``load_of_tension`` x EA p.
+    Two columns: one at rest (it must stay in its static state: its height and twist against the
+    closed form), one struck by a small impact (its strain record against the chain's Bessel form,
+    the chain's frequency fitted: the speed against the tangent-stiffness speed)."""
+    from scipy.optimize import minimize_scalar
+
+    cfg = ColumnConfig(n_prisms=n_prisms)
+    EA = cfg.cable_EA
+    F0 = load_of_tension * EA * prestrain
+    path = preload_path(F0, EA, cfg.radius, cfg.height, cfg.unit_mass, prestrain)
+    ch = path.chain()
+    c_chain = ch.c0  # h sqrt(K_t/m_eff): the chain's speed in loaded heights per second
+    v0 = peak_of_p * prestrain * c_chain / J1_MAX
+    r = _run(cfg, {"prestrain": prestrain, "base_rigidity": 1.0, "preload": F0, "v0": np.array([0.0, v0])},
+             t_end, 0.01, device)
+    f = r.feasibility
+    h_eng = float(np.mean(f["prism_height_ratio_min"][0])) * cfg.height
+    phi_eng = float(np.mean(f["prism_twist_last"][0]))
+    still = float(np.abs(r.strain[0]).max())
+    eng = r.strain[1]
+    ref = -bessel_compression(r.time, n_prisms, v0, ch)
+    peak = float(np.abs(ref).max())
+
+    def misfit(scale):  # the engine record against the Bessel form of a chain of frequency scale x omega_c
+        return float(np.abs(eng + bessel_compression(r.time, n_prisms, v0, scaled_chain(ch, scale))).max())
+
+    fit = minimize_scalar(misfit, bounds=(0.9, 1.1), method="bounded", options={"xatol": 1e-9})
+    speed = path.speed * fit.x
+    checks = [
+        Check("preload_height", "|h_engine - h(F0)| / (h0 - h(F0)), the static shortening", h_eng, path.height,
+              abs(h_eng - path.height) / (cfg.height - path.height), tolerance_static),
+        Check("preload_twist", "|phi_engine - phi(F0)| / (phi(F0) - 5 pi/6), the static twist", phi_eng, path.twist,
+              abs(phi_eng - path.twist) / (path.twist - cfg.twist), tolerance_static),
+        Check("preload_at_rest", "max |strain| of the preloaded column left at rest / p", still / prestrain, 0.0,
+              still / prestrain, tolerance_static),
+        Check("preload_speed", "|c_fit - c_t| / c_t: the struck column's speed (Bessel fit) against "
+              "h0 sqrt(K_t/m_eff)", speed, path.speed, abs(fit.x - 1.0), tolerance_speed),
+        Check("preload_record", "max |engine - Bessel(K_t, m_eff)| over every prism and time / peak",
+              misfit(1.0) / peak, 0.0, misfit(1.0) / peak, 5.0 * tolerance_speed),
+    ]
+    base = rb_chain(EA, cfg.radius, cfg.height, cfg.unit_mass, prestrain)
+    notes = [f"{n_prisms} prisms, RB, p = {prestrain:g}, F0 = {F0:.6g} N ({load_of_tension:g} EA p): closed form "
+             f"phi = {path.twist:.9g} rad, h/h0 = {path.height / cfg.height:.9g}, K_t = {path.stiffness:.6g} N/m "
+             f"(unloaded K = {base.K:.6g}), m_eff = {path.m_eff:.6g} kg (unloaded {base.m_eff:.6g}), "
+             f"c_t = {path.speed:.6g} m/s (unloaded c0 = {base.c0:.6g}); v0 = {v0:.3g} m/s, dt = {r.dt:.3g} s"]
+    phis = np.linspace(cfg.twist, math.pi - 0.02, 200)
+    return CheckGroup("preload", "End preload: static compression and small waves on the loaded RB column", checks,
+                      {"time": r.time, "engine": eng, "bessel": ref, "path": path, "phi": phis,
+                       "force": preload_force(phis, EA, cfg.radius, cfg.height, prestrain),
+                       "height": preload_height(phis, cfg.radius, cfg.height),
+                       "h0": cfg.height, "engine_height": h_eng, "F0": F0}, notes)

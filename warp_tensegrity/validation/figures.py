@@ -15,7 +15,7 @@ from ..atomic import replacing
 from ..plot import PRISM_LABEL, dispersion
 
 __all__ = ["FIGURES", "write_figures", "figure_bessel", "figure_soliton", "figure_dispersion", "figure_fb_modal",
-           "figure_interface", "figure_diatomic"]
+           "figure_interface", "figure_diatomic", "figure_preload"]
 
 
 def _figure(ncols: int, width: float = 10.0, height: float = 4.0, nrows: int = 1):
@@ -261,9 +261,30 @@ def figure_striker(g):
     return fig
 
 
+def figure_preload(g):
+    """Two figures: the force-displacement law along the mechanism path with the engine's static
+    state, and the small impact on the loaded column against the chain of its tangent stiffness."""
+    d = g.data
+    by_name = {c.name: c for c in g.checks}
+    fig, axes = _figure(1, 5.5, 4.0)
+    ax = axes[0][0]
+    ax.plot(1.0 - d["height"] / d["h0"], d["force"], "k-", lw=1.2, label="F0(delta), closed form (mechanism path)")
+    ax.plot([1.0 - d["engine_height"] / d["h0"]], [d["F0"]], "o", color="C3", ms=6, label="engine: static state under F0")
+    ax.set_ylim(0.0, 4.0 * d["F0"])
+    ax.set_xlabel("static shortening delta/h0 = 1 - h/h0 [-]")
+    ax.set_ylabel("end preload F0 [N]")
+    ax.legend(fontsize=7, loc="lower right")
+    _stamp(ax, by_name["preload_height"], 0.02, 0.98)
+    _stamp(ax, by_name["preload_twist"], 0.02, 0.90)
+    record = _record_vs_reference(g, "bessel", "Bessel form of the chain (K_t, m_eff)",
+                                  [d["engine"].shape[1] - 1 - k for k in (0, 2, 4)])
+    _stamp(record.axes[0], by_name["preload_speed"], 0.02, 0.90)
+    return [fig, record]
+
+
 FIGURES = {"bessel": figure_bessel, "soliton": figure_soliton, "dispersion": figure_dispersion,
            "fb_modal": figure_fb_modal, "interface": figure_interface,
-           "diatomic": figure_diatomic, "striker": figure_striker}
+           "diatomic": figure_diatomic, "striker": figure_striker, "preload": figure_preload}
 
 
 def write_figures(groups, directory) -> list[Path]:
