@@ -5,6 +5,8 @@
 #   PART=check       the lane tests on CUDA (records inside against the record kernels, lanes against staged)
 #   PART=throughput  lanes column-steps/s, 50 prisms: FB fp32 at B = 1,536 and 16,384, FB fp64 and RB fp32 at 16,384
 #   PART=phase       phase_large end to end (benchmarks/end_to_end.py) in precision PRECISION (fp64, fp32 or auto)
+#   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
+#                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
 # sweeps/ (git archive BASE_COMMIT warp_tensegrity benchmarks sweeps | tar -x -C BASE_DIR), run from there.
 #   GIT_COMMIT=<commit measured> BASE_COMMIT=<baseline> PART=... bash benchmarks/gpu_issue33.sh $OUT BASE_DIR
@@ -19,7 +21,7 @@ run_in() {  # run_in new|base CMD...: in this tree or in BASE, with the commit o
 }
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WARP_CACHE_PATH=${WARP_CACHE_PATH:-/tmp/warp_cache}
 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/gpu.txt"
-case "${PART:?PART=check, throughput or phase}" in
+case "${PART:?PART=check, throughput, phase or interface}" in
 check)
     python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes.py --device cuda:0 \
         -k "records_inside or match_staged or diverging" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
@@ -39,4 +41,8 @@ phase)
         run_in $v python -m benchmarks.end_to_end "$OUT/phase_large_$P.toml" --device cuda:0 \
             --out "$OUT/end_to_end_phase_large_${P}_$v.json" 2>&1 | tail -3
     done ;;
+interface)
+    python -m benchmarks.end_to_end sweeps/interface.toml --device cuda:0 --keep "$OUT" \
+        --out "$OUT/end_to_end_interface.json" 2>&1 | tail -3
+    WT_INTERFACE_NC="$OUT/interface.nc" WT_FIG_DIR="$OUT" python analysis/interface.py 2>&1 | tail -5 ;;
 esac
