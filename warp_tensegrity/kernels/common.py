@@ -126,6 +126,18 @@ def projection_status(err: Any, fail_tol: Any):
 
 
 @wp.func
+def output_slot(s: int, every: int, n_out: int):
+    """The output slot of step s: s / every where s is a multiple of ``every`` (and the slot is below
+    ``n_out``, the record's length; n_out < 0: a record of running values, no bound), else -1: no
+    record at this step. Every record kernel gates on it."""
+    slot = int(-1)
+    if s % every == 0:
+        if n_out < 0 or s / every < n_out:
+            slot = s / every
+    return slot
+
+
+@wp.func
 def set_failure(status: wp.array(dtype=int), fail_step: wp.array(dtype=int), w: int, code: int, at_step: int):
     """Flag column w (first failure only) with ``code`` at step ``at_step``."""
     if status[w] == STATUS_OK:

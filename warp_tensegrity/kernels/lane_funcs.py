@@ -116,46 +116,51 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         return d
 
     @wp.func(inline=True)
-    def base_member(xy: XY, X: Ext, j: int, k: int):
-        """Vector [m] of base member k of the level at rows j .. j + 2 of X: node (k + 1) % 3 - node k."""
+    def base_parts(xy: XY, X: Ext, j: int, k: int):
+        """(reference vector, displacement of its second node, of its first) [m] of base member k of
+        the level at rows j .. j + 2 of X: node k to node (k + 1) % 3."""
         kn = (k + 1) % 3
-        return vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero) + X[j + kn] - X[j + k]
+        return vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero), X[j + kn], X[j + k]
+
+    @wp.func(inline=True)
+    def cross_parts(xy: XY, X: Ext, hz: Pv, hand: Pv, q: int, k: int):
+        """(reference vector, displacement of its top node, of its bottom node) [m] of cross cable k of
+        the lane's prism q: bottom node k to top node (k + 2) % 3 (right-handed) or (k + 1) % 3
+        (left-handed)."""
+        j = 3 * q + 3
+        kr = (k + 2) % 3
+        kl = (k + 1) % 3
+        xt = xy[j + kl]
+        ut = X[j + kl]
+        if hand[q] > zero:
+            xt = xy[j + kr]
+            ut = X[j + kr]
+        i = j - 3 + k
+        return vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]), ut, X[i]
+
+    @wp.func(inline=True)
+    def base_member(xy: XY, X: Ext, j: int, k: int):
+        """Vector [m] of base member k of the level at rows j .. j + 2 of X (:func:`base_parts`)."""
+        b0, un, uk = base_parts(xy, X, j, k)
+        return b0 + un - uk
 
     @wp.func(inline=True)
     def cross_member(xy: XY, X: Ext, hz: Pv, hand: Pv, q: int, k: int):
-        """Vector [m] of cross cable k of the lane's prism q: bottom node k to top node (k + 2) % 3
-        (right-handed) or (k + 1) % 3 (left-handed)."""
-        j = 3 * q + 3
-        kr = (k + 2) % 3
-        kl = (k + 1) % 3
-        xt = xy[j + kl]
-        ut = X[j + kl]
-        if hand[q] > zero:
-            xt = xy[j + kr]
-            ut = X[j + kr]
-        i = j - 3 + k
-        return vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]) + ut - X[i]
+        """Vector [m] of cross cable k of the lane's prism q (:func:`cross_parts`)."""
+        b0, ut, ub = cross_parts(xy, X, hz, hand, q, k)
+        return b0 + ut - ub
 
     @wp.func(inline=True)
     def base_ends(xy: XY, X: Ext, j: int, k: int):
-        """(reference vector, displacement difference) [m] of base member k of the level at rows j ..
-        j + 2 (:func:`base_member` is their sum)."""
-        kn = (k + 1) % 3
-        return vec(xy[j + kn, 0] - xy[j + k, 0], xy[j + kn, 1] - xy[j + k, 1], zero), X[j + kn] - X[j + k]
+        """(reference vector, displacement difference) [m] of base member k (:func:`base_parts`)."""
+        b0, un, uk = base_parts(xy, X, j, k)
+        return b0, un - uk
 
     @wp.func(inline=True)
     def cross_ends(xy: XY, X: Ext, hz: Pv, hand: Pv, q: int, k: int):
-        """(reference vector, displacement difference) [m] of cross cable k of the lane's prism q."""
-        j = 3 * q + 3
-        kr = (k + 2) % 3
-        kl = (k + 1) % 3
-        xt = xy[j + kl]
-        ut = X[j + kl]
-        if hand[q] > zero:
-            xt = xy[j + kr]
-            ut = X[j + kr]
-        i = j - 3 + k
-        return vec(xt[0] - xy[i, 0], xt[1] - xy[i, 1], hz[q]), ut - X[i]
+        """(reference vector, displacement difference) [m] of cross cable k (:func:`cross_parts`)."""
+        b0, ut, ub = cross_parts(xy, X, hz, hand, q, k)
+        return b0, ut - ub
 
     @wp.func(inline=True)
     def forces(U: Nodes, xy: XY, hz: Pv, hand: Pv, ex: Pv, cross: vec, base_ea: vec,

@@ -17,7 +17,8 @@ import numpy as np
 import warp as wp
 
 from .common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
-                     feasibility_record, member_excess2, prism_twist_of, projection_status, set_failure)
+                     feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
+                     set_failure)
 from ..policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
 from .lane_funcs import make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
@@ -275,11 +276,11 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     set_failure(status, fail_step, w, code, s0 + wp.max(i, 1))
                 alive = 0
             if i > 0:
-                so = s0 + i
-                if so % every == 0 and so / every < kinetic.shape[0]:  # an output step: warp-uniform (one s0)
+                slot = output_slot(s0 + i, every, kinetic.shape[0])
+                if slot >= 0:  # an output step: warp-uniform (one s0)
                     record(U, V, Fx, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl, w,
                            wc % m_self.shape[1],
-                           so / every, alive, h0, static_dz, level_ref, prism_hand, m_self, strain, kinetic, elastic,
+                           slot, alive, h0, static_dz, level_ref, prism_hand, m_self, strain, kinetic, elastic,
                            twist, twist_max, twist_min, height_min, left_slot, below_node, end_node, below, end)
             if i == n_it:
                 break

@@ -24,7 +24,7 @@ from types import SimpleNamespace
 import warp as wp
 
 from .common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_excess2, member_vec,
-                     node_force, pget, prism_twist)
+                     node_force, output_slot, pget, prism_twist)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -155,11 +155,8 @@ def _record_kernels(real):
         """strain[slot, j, w] = (h - hs)/h of prism j when step % every == 0, hs = h0 + static_dz the
         prism's height in the column's initial equilibrium (h0 without a preload)."""
         j, w = wp.tid()
-        s = step[0]
-        if s % every != 0:
-            return
-        slot = s / every
-        if slot >= strain.shape[0]:
+        slot = output_slot(step[0], every, strain.shape[0])
+        if slot < 0:
             return
         zb = real(0.0)
         zt = real(0.0)
@@ -185,11 +182,8 @@ def _record_kernels(real):
         elastic energy includes the dead load's potential -f_ext . u (0 without a preload), so their sum
         is conserved."""
         w = wp.tid()
-        s = step[0]
-        if s % every != 0:
-            return
-        slot = s / every
-        if slot >= kinetic.shape[0]:
+        slot = output_slot(step[0], every, kinetic.shape[0])
+        if slot < 0:
             return
         ke = real(0.0)
         work = real(0.0)  # of the dead load: f_ext . u
@@ -228,11 +222,8 @@ def _record_kernels(real):
         k/(2L) dl (dl + 2 (l0 - L)), dl = l - l0 = du.(2 b0 + du)/(l + l0): no cancellation of the
         prestress energy. One thread per column."""
         w = wp.tid()
-        s = step[0]
-        if s % every != 0:
-            return
-        slot = s / every
-        if slot >= below.shape[0]:
+        slot = output_slot(step[0], every, below.shape[0])
+        if slot < 0:
             return
         eb = real(0.0)
         et = real(0.0)
@@ -279,10 +270,9 @@ def _record_kernels(real):
         touch), twist <= pi/3 (cross cables touch), h <= 0 (the prism inverted). An inverted prism's
         twist is not updated (its axis has flipped). One thread per prism and column: no atomics."""
         j, w = wp.tid()
-        s = step[0]
-        if s % every != 0 or status[w] != STATUS_OK:
+        slot = output_slot(step[0], every, -1)  # running extremes and first slots: no length
+        if slot < 0 or status[w] != STATUS_OK:
             return
-        slot = s / every
         near = real(PI)
         if slot > 0:
             near = twist[j, w]
@@ -305,10 +295,9 @@ def _record_kernels(real):
         the last output's; a side seen outside the members is forgotten (members may pass around
         each other's ends). One thread per pair and column."""
         p, w = wp.tid()
-        s = step[0]
-        if s % every != 0 or status[w] != STATUS_OK:
+        slot = output_slot(step[0], every, -1)  # running extremes and first slots: no length
+        if slot < 0 or status[w] != STATUS_OK:
             return
-        slot = s / every
         i0 = pair_nodes[p, 0]
         j0 = pair_nodes[p, 2]
         bi = pair_dref[p, 0] + u[pair_nodes[p, 1], w] - u[i0, w]

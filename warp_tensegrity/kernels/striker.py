@@ -34,7 +34,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from .common import STATUS_OK
+from .common import STATUS_OK, output_slot
 
 wp.set_module_options({"enable_backward": False})
 
@@ -177,11 +177,8 @@ def make_striker_kernels(real):
                        v_rec: wp.array2d(dtype=real), f_rec: wp.array2d(dtype=real)):
         """The striker's velocity and the last step's contact force when step % every == 0."""
         w = wp.tid()
-        n = step[0]
-        if n % every != 0:
-            return
-        slot = n / every
-        if slot >= v_rec.shape[0]:
+        slot = output_slot(step[0], every, v_rec.shape[0])
+        if slot < 0:
             return
         v_rec[slot, w] = V[w]
         f_rec[slot, w] = force[w]
