@@ -21,7 +21,6 @@ the table of docs/validation.md (error / tolerance).
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 from contextlib import contextmanager
 
@@ -32,7 +31,7 @@ import warp_tensegrity.scene.batch as scene_batch
 from warp_tensegrity.validation import CHECKS, report, run_validation
 
 FACTOR = 1.05
-ORIGINAL = scene_batch.column_batch
+from tests.validation.engine_patch import ORIGINAL, engine_builds_with
 
 
 def _cables(batch):
@@ -99,17 +98,8 @@ def perturbed_engine(name: str, factor: float = FACTOR):
     """Within the block the engine (and the policy that plans its runs) builds its scenes with ``name``
     scaled by ``factor``; the validation references are untouched."""
     wrapped = perturbed_column_batch(name, factor)
-    patched = [m for k, m in list(sys.modules.items())
-               if k.startswith("warp_tensegrity.") and not k.startswith("warp_tensegrity.validation")
-               and k != "warp_tensegrity.scene.batch" and getattr(m, "column_batch", None) is ORIGINAL]
-    assert any(m.__name__ == "warp_tensegrity.engine" for m in patched)
-    for m in patched:
-        m.column_batch = wrapped
-    try:
+    with engine_builds_with(wrapped):
         yield
-    finally:
-        for m in patched:
-            m.column_batch = ORIGINAL
 
 
 def run_perturbed(name: str | None, groups=None) -> dict[str, tuple[float, float]]:

@@ -2,13 +2,11 @@
 its reference against a direct integration, the engine passing it, and a 5 % error in the striker's mass
 (on the engine side only) failing it."""
 
-import sys
 from contextlib import contextmanager
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
-import warp_tensegrity.scene.batch as scene_batch
 from warp_tensegrity import ColumnConfig
 from warp_tensegrity.scene.striker import blow_speed
 from warp_tensegrity.validation import report
@@ -17,7 +15,7 @@ from warp_tensegrity.validation.figures import write_figures
 from warp_tensegrity.validation.checks import check_striker
 from warp_tensegrity.validation.striker import striker_chain
 
-ORIGINAL = scene_batch.column_batch
+from tests.validation.engine_patch import ORIGINAL, engine_builds_with
 
 
 def test_the_reference_solves_the_chain():
@@ -78,17 +76,8 @@ def heavier_striker(factor: float):
             batch.striker_mass, batch.striker_velocity = M, -V1
         return batch
 
-    patched = [m for k, m in list(sys.modules.items())
-               if k.startswith("warp_tensegrity.") and not k.startswith("warp_tensegrity.validation")
-               and k != "warp_tensegrity.scene.batch" and getattr(m, "column_batch", None) is ORIGINAL]
-    assert any(m.__name__ == "warp_tensegrity.engine" for m in patched)
-    for m in patched:
-        m.column_batch = column_batch
-    try:
+    with engine_builds_with(column_batch):
         yield
-    finally:
-        for m in patched:
-            m.column_batch = ORIGINAL
 
 
 def test_a_five_percent_error_in_the_striker_mass_fails():

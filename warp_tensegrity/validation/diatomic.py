@@ -29,29 +29,12 @@ from __future__ import annotations
 import numpy as np
 
 from . import hetero
-from .closed_forms import rb_chain
 from .dispersion import _omega, _rank, bloch_cell
 from .gallery import Check, CheckGroup
 from ..engine import run_batch
-from ..options import RunSettings
 from ..scene.columns import ColumnConfig
 
 __all__ = ["cos_q", "bloch_factor", "band_edges", "bloch_cell_two_levels", "check_diatomic"]
-
-
-def _chain(config: ColumnConfig, prestrain: float):
-    """The RB chain of ``config``'s prism at ``prestrain`` (:func:`.closed_forms.rb_chain`)."""
-    return rb_chain(config.cable_EA, config.radius, config.height, config.unit_mass, prestrain)
-
-
-def _run(batch, t_end: float, dt: float, device: str, output_interval: float | None = None):
-    """The engine's fp64 run of a graded column (:func:`~warp_tensegrity.engine.run_batch`), its strain recorded."""
-    settings = RunSettings(t_end=t_end, output_interval=dt if output_interval is None else output_interval, dt=dt,
-                           truncate=False, device=device, precision="fp64", measure="none")
-    r = run_batch(batch, settings)
-    if int(np.max(r.status)) != 0:
-        raise RuntimeError(f"validation run failed (status {r.status})")
-    return r
 
 
 def cos_q(omega, K: float, m1: float, m2: float):
@@ -147,7 +130,7 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
     (reference only). Frequencies in units of sqrt(K/m_eff) (the lead's cut-off is 2)."""
     cfg = ColumnConfig(n_prisms=n_diatomic + n_lead)
     m, h0 = cfg.unit_mass, cfg.height
-    ch = _chain(cfg, prestrain)
+    ch = hetero.chain_at(cfg, prestrain)
     K, m1, m2 = ch.K, ch.m_eff, mass_ratio * ch.m_eff
     Omega = np.sqrt(K / m1)
     edges = band_edges(K, m1, m2)
@@ -171,7 +154,8 @@ def check_diatomic(prestrain: float = 0.002, mass_ratio: float = 2.0, n_diatomic
         batch = hetero.graded_batch(ColumnConfig(n_prisms=N), np.full(N, prestrain), level_mass,
                                     _packet(N, lead, w0 * Omega, sig, Omega, amplitude))
         t_joint = lead / v_lead
-        r = _run(batch, t_joint + 4.0 * sig / v_lead + 8.0 / Omega, dt, device)
+        t_end = t_joint + 4.0 * sig / v_lead + 8.0 / Omega
+        r = hetero.checked(run_batch(batch, hetero.graded_settings(t_end, dt, device)))
         runs[name] = {"time": r.time, "strain": r.strain[0], "omega0": w0 * Omega, "sigma": sig, "t_joint": t_joint,
                       "dt": r.dt, "residual": float(batch.equilibrium_residual[0]), "n_prisms": N}
     # inside the gap: every cell's record predicted from the joint's through lambda(w)^c

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .closed_forms import rb_chain
+from ..options import RunSettings
 from ..scene import batch as scene_batch
 from ..scene import columns as col
 
-__all__ = ["graded_batch", "EQUILIBRIUM_TOLERANCE"]
+__all__ = ["graded_batch", "chain_at", "graded_settings", "checked", "EQUILIBRIUM_TOLERANCE"]
 
 EQUILIBRIUM_TOLERANCE = 1e-10
 """Largest equilibrium residual of the built reference state, relative to the largest cross-cable tension."""
@@ -91,3 +93,23 @@ def graded_batch(config: col.ColumnConfig, prestrain_per_prism, level_mass, leve
         raise RuntimeError(f"graded column out of equilibrium: residual {residual.max():.3g} of the largest tension")
     batch.equilibrium_residual = residual
     return batch
+
+
+def chain_at(config: col.ColumnConfig, prestrain: float):
+    """The RB chain of ``config``'s prism at ``prestrain`` (:func:`.closed_forms.rb_chain`)."""
+    return rb_chain(config.cable_EA, config.radius, config.height, config.unit_mass, prestrain)
+
+
+def graded_settings(t_end: float, dt: float, device: str, output_interval: float | None = None) -> RunSettings:
+    """The settings of the engine's fp64 run of a graded column (:func:`~warp_tensegrity.engine.run_batch`),
+    its strain recorded. (The checks call run_batch themselves: importing the engine here would make
+    the import chains one module longer than tests/test_layout.py allows.)"""
+    return RunSettings(t_end=t_end, output_interval=dt if output_interval is None else output_interval, dt=dt,
+                       truncate=False, device=device, precision="fp64", measure="none")
+
+
+def checked(result):
+    """``result``, refused where a column failed (a validation run must run clean)."""
+    if int(np.max(result.status)) != 0:
+        raise RuntimeError(f"validation run failed (status {result.status})")
+    return result

@@ -36,29 +36,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import hetero
-from .closed_forms import rb_chain
 from .dispersion import bands
 from .gallery import Check, CheckGroup
 from ..engine import run_batch
-from ..options import RunSettings
 from ..scene.columns import ColumnConfig
 
 __all__ = ["InterfaceTheory", "interface_theory", "discrete_coefficients", "check_interface"]
-
-
-def _chain(config: ColumnConfig, prestrain: float):
-    """The RB chain of ``config``'s prism at ``prestrain`` (:func:`.closed_forms.rb_chain`)."""
-    return rb_chain(config.cable_EA, config.radius, config.height, config.unit_mass, prestrain)
-
-
-def _run(batch, t_end: float, dt: float, device: str, output_interval: float | None = None):
-    """The engine's fp64 run of a graded column (:func:`~warp_tensegrity.engine.run_batch`), its strain recorded."""
-    settings = RunSettings(t_end=t_end, output_interval=dt if output_interval is None else output_interval, dt=dt,
-                           truncate=False, device=device, precision="fp64", measure="none")
-    r = run_batch(batch, settings)
-    if int(np.max(r.status)) != 0:
-        raise RuntimeError(f"validation run failed (status {r.status})")
-    return r
 
 
 @dataclass(frozen=True)
@@ -101,7 +84,7 @@ def interface_theory(config: ColumnConfig, p1: float, p2: float) -> InterfaceThe
     """The joint of an RB segment at prestrain ``p1`` (incident side) and one at ``p2``, of ``config``'s
     prism and level mass: c from the Bloch cell's long-wave limit (:func:`.dispersion.bands`, k h0 = 1e-3),
     m_eff from the RB chain."""
-    m_eff = _chain(config, p1).m_eff
+    m_eff = hetero.chain_at(config, p1).m_eff
     k = 1e-3 / config.height
     c1, c2 = (bands(config, p, 1.0, k=[k]).long_wave_speed() for p in (p1, p2))
     return InterfaceTheory(c1, c2, m_eff * c1 / config.height, m_eff * c2 / config.height, config.height)
@@ -155,7 +138,8 @@ def check_interface(p1: float = 0.002, p2: float = 0.0005, n1: int = 42, n2: int
         raise ValueError("check_interface: the stations are too close to the ends or the joint for the pulse width")
     pp = np.concatenate([np.full(n2, p2), np.full(n1, p1)])
     batch = hetero.graded_batch(cfg, pp, level_mass, velocity)
-    r = _run(batch, max(t_ref, t_tra) + half, dt, device, output_interval=0.02)
+    settings = hetero.graded_settings(max(t_ref, t_tra) + half, dt, device, output_interval=0.02)
+    r = hetero.checked(run_batch(batch, settings))
     t, q = r.time, r.strain[0]
     a_inc, c_inc = _moments(t, q[:, s1], t_inc, half)
     a_ref, _ = _moments(t, q[:, s1], t_ref, half)
@@ -175,7 +159,7 @@ def check_interface(p1: float = 0.002, p2: float = 0.0005, n1: int = 42, n2: int
     pk = lambda tc, y: y[(t >= tc - half) & (t <= tc + half)]  # noqa: E731
     peak_inc = float(pk(t_inc, q[:, s1]).min())
     peak_R, peak_T = float(pk(t_ref, q[:, s1]).max()) / peak_inc, float(pk(t_tra, q[:, s2]).min()) / peak_inc
-    ch1, ch2 = _chain(cfg, p1), _chain(cfg, p2)
+    ch1, ch2 = hetero.chain_at(cfg, p1), hetero.chain_at(cfg, p2)
     w_rms = th.c1 / (np.sqrt(2.0) * sigma * h0)
     R_w, T_w = discrete_coefficients(ch1.K, ch2.K, ch1.m_eff, [w_rms])
     notes = [f"{N} prisms (RB): {n1} at p1 = {p1:g} (struck side), {n2} at p2 = {p2:g}; stations {d1} prisms before and "
