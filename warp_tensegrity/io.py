@@ -156,10 +156,12 @@ VAR_ATTRS = {
     "striker_last_separation_time": {"units": "s", "long_name": "simulated time at which the striker's last free "
                                      "flight began (NaN: touching the end base at t_end)"},
     "kinetic_energy": {"units": "J", "long_name": "kinetic energy of the column"},
-    "elastic_energy": {"units": "J", "long_name": "elastic energy of all cables, prestress included"},
+    "elastic_energy": {"units": "J", "long_name": "elastic energy of all cables, prestress included, and the end "
+                       "preload's potential -F0 . u (0 without a preload)"},
     "strain": {
         "units": "1",
-        "long_name": "axial prism strain (h - h0) / h, negative in compression",
+        "long_name": "axial prism strain (h - hs) / h, negative in compression (hs: the prism's height at rest, "
+                     "h0, or under an end preload its static height)",
     },
     # the energy measures (measure.energy; docs/measurements.md "Energy measures")
     "pulse_energy_share": {"units": "1", "long_name": "share of the impact energy the leading pulse carries through "
