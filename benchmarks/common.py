@@ -1,6 +1,6 @@
 """Shared pieces of the benchmark scripts: run metadata, batch preparation, timing, memory.
 
-Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.integrate` is used
+Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.sim.integrate` is used
 as it is, with two harness-side choices (both stated in benchmarks/README.md):
 
 * the batch of B columns is built once at a small size (``BASE_COLUMNS`` distinct columns with
@@ -283,8 +283,9 @@ def kernel_modules(spaces) -> list:
 def rattle_modules(precision: str, bandwidths=(3, 6), register_caps=(None,)):
     """Modules of the staged RATTLE kernels for the Gram-matrix half-bandwidths of FB (3) and RB (6)
     columns and the given register caps (the solver kernels are compiled per bandwidth and cap)."""
-    from warp_tensegrity.kernels import make_kernels, make_solver_kernels
-    from warp_tensegrity.model import REAL
+    from warp_tensegrity.sim.staged.kernels import make_kernels
+    from warp_tensegrity.sim.staged.solver import make_solver_kernels
+    from warp_tensegrity.sim.model import REAL
 
     real = REAL[precision]
     return kernel_modules([make_kernels(real)] + [make_solver_kernels(real, bw, regs) for bw in bandwidths
@@ -296,7 +297,7 @@ def precompile(device, precisions, max_workers: int | None = None) -> float:
     threads. Returns the seconds taken."""
     import warp as wp
 
-    from warp_tensegrity import integrate
+    from warp_tensegrity.sim import integrate
 
     caps = (None, integrate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
     mods = []
@@ -359,7 +360,7 @@ def integrator_bytes(integ) -> dict:
             out["data"] += sum(_array_bytes(x) for x in v.values())
         else:
             out["data"] += _array_bytes(v)
-    fk = getattr(integ, "fk", None)  # the fused step's own rows (kernels.fused.FusedStep)
+    fk = getattr(integ, "fk", None)  # the fused step's own rows (sim.block.kernels.FusedStep)
     if fk is not None:
         for name in ("sx", "sq", "sa", "sb", "xy", "hz", "hand"):  # FusedStep's rows or LaneStep's lane arrays
             if getattr(fk, name, None) is not None:
@@ -441,7 +442,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     """Build an Integrator for ``batch``, warm it up (kernels, graph capture), then time
     ``reps`` segments of n steps each (n chosen so that all segments take about target_s).
 
-    ``path``: 'fused' (one block per column, :mod:`warp_tensegrity.kernels.fused`, block cyclic
+    ``path``: 'fused' (one block per column, :mod:`warp_tensegrity.sim.block.kernels`, block cyclic
     reduction), 'fused-serial' (the same with lane 0's serial banded Cholesky) or 'staged' (one
     kernel per stage, the columns' solves one thread each).
 
@@ -453,7 +454,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     import warp as wp
 
     from warp_tensegrity import RunSettings
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.types import Path as LaunchPath
 
     B = batch.n_columns

@@ -1,4 +1,4 @@
-"""Launch shape of the fused step (kernels/fused.py) on one GPU: lanes per column block and where
+"""Launch shape of the fused step (sim/block/kernels.py) on one GPU: lanes per column block and where
 the column's rows live (block shared memory or per-column global rows), with the kernel's
 registers, spills, static shared memory and resident blocks per SM read from the CUDA driver.
 
@@ -38,10 +38,10 @@ def main(argv=None):
     a = ap.parse_args(argv)
     import warp as wp
 
-    import warp_tensegrity.kernels.fused as F
+    import warp_tensegrity.sim.block.kernels as F
     from warp_tensegrity import RunSettings
-    from warp_tensegrity import integrate as simulate
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim import integrate as simulate
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.types import Path as LaunchPath
 
     wp.config.quiet = True

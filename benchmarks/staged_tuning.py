@@ -26,7 +26,7 @@ WINDOWS = {"auto": None, "on": True, "off": False}
 
 
 def shapes(device, batches, blocks, regs, target_s: float, bases, precisions, windows=("auto",)) -> list[dict]:
-    from warp_tensegrity import integrate
+    from warp_tensegrity.sim import integrate
 
     rows = []
     defaults = (integrate.COLUMN_BLOCK_DIM, integrate.COLUMN_MAX_REGISTERS, integrate.COLUMN_CAP_FROM,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import integrate
+from warp_tensegrity.sim import integrate
 from warp_tensegrity.engine import simulate_batch
 from warp_tensegrity.policy.decide import prisms_to_simulate
 from warp_tensegrity.scene.columns import ColumnConfig

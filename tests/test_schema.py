@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import ColumnConfig, RunSettings, model, types
-from warp_tensegrity.integrate import Integrator
-from warp_tensegrity.kernels import fused
-from warp_tensegrity.kernels.staged import make_kernels
-from warp_tensegrity.kernels.staged_solver import make_solver_kernels
+from warp_tensegrity import ColumnConfig, RunSettings, types
+from warp_tensegrity.sim import model
+from warp_tensegrity.sim.integrate import Integrator
+from warp_tensegrity.sim.block import kernels as fused
+from warp_tensegrity.sim.staged.kernels import make_kernels
+from warp_tensegrity.sim.staged.solver import make_solver_kernels
 from warp_tensegrity.scene.batch import column_batch
 from warp_tensegrity.types import ARGUMENT_GROUPS, DATA_FIELDS, MODEL_FIELDS, SCRATCH_FIELDS, Field, Path, group_fields
 

@@ -66,7 +66,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         expect("run_batch", "settings", settings, RunSettings)
         plan = decide_batch(batch, settings)
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
-    from .integrate import Integrator  # imports Warp: not at package import, loads with the first run
+    from .sim.integrate import Integrator  # imports Warp: not at package import, loads with the first run
 
     settings, dt, every, n_steps, n_out, path = plan.settings, plan.dt, plan.output_every, plan.n_steps, plan.n_out, plan.path
     device = resolve_device(plan.device)

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, integrate, simulate_batch
-from warp_tensegrity.kernels.fused import SHARED_BYTES_MAX, shared_plan, solver_reals
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
+from warp_tensegrity.sim import integrate
+from warp_tensegrity.sim.block.kernels import SHARED_BYTES_MAX, shared_plan, solver_reals
 from warp_tensegrity.sweep import SpecError, parse_spec
 
 CASES = {  # FB and RB, slack-cable impacts and a prestressed one

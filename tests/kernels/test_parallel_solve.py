@@ -1,4 +1,4 @@
-"""The fused step's lane-parallel constraint solve (block cyclic reduction, kernels/coop.py).
+"""The fused step's lane-parallel constraint solve (block cyclic reduction, sim/block/coop.py).
 
 Warp's CPU device runs a block's lanes only with ``wp.config.enable_cpu_blocks``; every test here
 switches it on, so the lane split and the barriers of the GPU kernel run in CI.
@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import ColumnConfig, RunSettings, integrate, simulate_batch
-from warp_tensegrity.kernels.coop import block_sync, make_cr_funcs
+from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
+from warp_tensegrity.sim import integrate
+from warp_tensegrity.sim.block.coop import block_sync, make_cr_funcs
 
 
 @pytest.fixture
@@ -157,7 +158,7 @@ def test_lane_parallel_step_fp32(lanes):
 
 
 def test_fused_node_slots_are_the_types_slots():
-    from warp_tensegrity.kernels import common
+    from warp_tensegrity.sim import common
     from warp_tensegrity.types import Slot
 
     assert common.NQ == len(Slot)

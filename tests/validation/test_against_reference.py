@@ -7,7 +7,7 @@ import warp as wp
 from warp_tensegrity.validation import linear
 from warp_tensegrity import Network, RunSettings, column_batch, network_batch, run_batch, simulate_batch
 from tests.references.reference import ClassOneMatrixForm, ReferenceSystem, integrate_matrix_form
-from warp_tensegrity.integrate import Integrator
+from warp_tensegrity.sim.integrate import Integrator
 from warp_tensegrity.scene.columns import ColumnConfig, build_column, prism_heights
 from warp_tensegrity.types import Path
 

@@ -39,10 +39,10 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from .. import types
-from ..scene.contact import contact_arrays
-from ..scene.coupling import mass_entries
-from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_residual, make_band_funcs, \
+from ... import types
+from ...scene.contact import contact_arrays
+from ...scene.coupling import mass_entries
+from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_residual, make_band_funcs, \
     member_vec, node_force, set_failure
 
 wp.set_module_options({"enable_backward": False})

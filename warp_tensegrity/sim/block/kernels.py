@@ -27,8 +27,8 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from .. import types
-from .common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3,
+from ... import types
+from ..common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3,
                      make_band_funcs, make_gram_row, member_vec, node_force, node_impulse, projection_status,
                      set_failure)
 from .coop import band_reals, block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
@@ -442,7 +442,7 @@ class FusedStep:
     records_inside = False
     """Its launches end on output steps, and the Integrator's record kernels run after them."""
 
-    model: object  # warp_tensegrity.model.Model
+    model: object  # warp_tensegrity.sim.model.Model
     device: object  # wp.context.Device
     block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
     steps_per_launch: int  # most RATTLE steps per launch

@@ -12,12 +12,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from . import types
-from .kernels.common import array_type
-from .scene.coupling import constraint_coupling, mass_entries  # noqa: F401 (the device model is built from them)
+from .. import types
+from .common import array_type
+from ..scene.coupling import constraint_coupling, mass_entries  # noqa: F401 (the device model is built from them)
 
 if TYPE_CHECKING:
-    from .scene.batch import NetworkBatch
+    from ..scene.batch import NetworkBatch
 
 
 REAL = {"fp32": wp.float32, "fp64": wp.float64}
@@ -175,7 +175,7 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = Fal
     """velocity: (B, n, 3) initial velocity [m s-1]; displacement: (B, n, 3) initial displacement from
     the reference [m] (a preloaded column's equilibrium), None: 0. With ``fused`` the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders; the fused step keeps its own
-    rows, :class:`warp_tensegrity.kernels.fused.FusedStep`)."""
+    rows, :class:`warp_tensegrity.sim.block.kernels.FusedStep`)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d = model.device

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .common import (
+from ..common import (
     STATUS_CONSTRAINT,
     STATUS_NONFINITE,
     STATUS_OK,

@@ -1,6 +1,6 @@
 """Warp kernels of the integrator step, generated once per precision.
 
-Layout (see :mod:`warp_tensegrity.model`): every batched array is ``(n_items, B)`` with the
+Layout (see :mod:`warp_tensegrity.sim.model`): every batched array is ``(n_items, B)`` with the
 column index ``w`` fastest, so per-node/per-member launches ``dim=(n_items, B)`` and
 per-column solver threads (``dim=B``, looping over items) both read coalesced memory.
 Per-column parameters may have a trailing size of 1 (shared) and are read as ``p[k, w % p.shape[1]]``;
@@ -23,7 +23,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_excess2, member_vec,
+from ..common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_excess2, member_vec,
                      node_force, output_slot, pget, prism_twist)
 
 wp.set_module_options({"enable_backward": False})

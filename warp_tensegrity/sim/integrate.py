@@ -23,19 +23,19 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from .kernels.contact import ContactStep
-from .kernels.fused import FusedStep
-from .kernels.lanes import LaneStep
-from .kernels.staged import make_kernels
-from .kernels.staged_solver import make_solver_kernels
-from .kernels.striker import ITERATIONS as STRIKER_ITERATIONS, StrikerStep
+from .staged.contact import ContactStep
+from .block.kernels import FusedStep
+from .lanes.lanes import LaneStep
+from .staged.kernels import make_kernels
+from .staged.solver import make_solver_kernels
+from .staged.striker import ITERATIONS as STRIKER_ITERATIONS, StrikerStep
 from .model import REAL, Data, Model, build_model, make_data
-from .runtime import resolve_device
-from .options import RunSettings, SettingsError
-from .types import ARGUMENT_GROUPS, Method, Path, Precision, RKStage, group_fields
+from ..runtime import resolve_device
+from ..options import RunSettings, SettingsError
+from ..types import ARGUMENT_GROUPS, Method, Path, Precision, RKStage, group_fields
 
 if TYPE_CHECKING:
-    from .scene.batch import NetworkBatch
+    from ..scene.batch import NetworkBatch
 
 _W1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 YOSHIDA = (_W1, 1.0 - 2.0 * _W1, _W1)
@@ -268,7 +268,7 @@ class Integrator:
             self.contact.save_start(d)
         self._kick_drift(0.5 * h, h)
         self._project_positions(d.u_prev, 1.0 / h)
-        if self.contact is not None:  # bar pairs closer than 2 r join the projection (kernels.contact)
+        if self.contact is not None:  # bar pairs closer than 2 r join the projection (sim.staged.contact)
             self.contact.positions(d, self.settings, d.u_prev, h)
         self._gather(d.u, d.v, 0.5 * h, d.a, d.v)
         self._factor_project_velocities(d.u, d.v)
@@ -276,7 +276,7 @@ class Integrator:
             self.contact.velocities(d)
 
     def _rattle_striker(self, h):
-        """RATTLE with the striker's unilateral row solved jointly with the members (kernels.striker):
+        """RATTLE with the striker's unilateral row solved jointly with the members (sim.staged.striker):
         the members' position projection once per secant evaluation of the contact multiplier, the
         velocity projection once more for the impulse's direction."""
         d, st = self.data, self.striker

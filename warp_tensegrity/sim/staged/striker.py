@@ -34,7 +34,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from .common import STATUS_OK, output_slot
+from ..common import STATUS_OK, output_slot
 
 wp.set_module_options({"enable_backward": False})
 
