@@ -297,7 +297,7 @@ def precompile(device, precisions, max_workers: int | None = None) -> float:
     threads. Returns the seconds taken."""
     import warp as wp
 
-    from warp_tensegrity.sim import integrate
+    from warp_tensegrity.sim.staged import step as integrate  # the staged step's launch constants
 
     caps = (None, integrate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
     mods = []
@@ -360,7 +360,7 @@ def integrator_bytes(integ) -> dict:
             out["data"] += sum(_array_bytes(x) for x in v.values())
         else:
             out["data"] += _array_bytes(v)
-    fk = getattr(integ, "fk", None)  # the fused step's own rows (sim.block.kernels.FusedStep)
+    fk = getattr(integ, "stepper", None)  # the Step's own rows (sim.block.step.FusedStep, sim.lanes.lanes.LaneStep)
     if fk is not None:
         for name in ("sx", "sq", "sa", "sb", "xy", "hz", "hand"):  # FusedStep's rows or LaneStep's lane arrays
             if getattr(fk, name, None) is not None:
@@ -472,7 +472,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     if path == "staged":
         # the needed kernels were force-loaded with the launch block size; Integrator.load_kernels
         # would also compile the RK4-only kernels (and, on the CPU, a second block-size variant)
-        mods = kernel_modules([integ.k, integ.ks])
+        mods = kernel_modules([integ.k, integ.stepper.ks])
         integ.load_kernels = lambda: wp.force_load(device=device, modules=mods, max_workers=0)  # cheap when loaded
     wp.synchronize_device(device)
     pool1 = mempool_used(device)
@@ -496,7 +496,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
         spg = int(max(1, min(steps_per_graph, math.floor(seg / 3.0 / max(probe, 1e-9)))))
         if path != "staged":
             # whole fused launches: each launch factors A(u) once, so short launches would over-count it
-            q = integ.fk.steps_per_launch
+            q = integ.stepper.steps_per_launch
             spg = max(q, spg - spg % q)
         integ.settings.steps_per_graph = spg
         integ.advance(spg)  # capture + first replay

@@ -19,7 +19,7 @@ from . import common
 
 def lane_resources(integ) -> dict:
     """Registers, local bytes and resident warps per SM of the loaded lane kernel (CUDA driver)."""
-    fk = integ.fk
+    fk = integ.stepper
     out = common.kernel_resources(fk.kernels.lane_steps, integ.device, fk.block_dim)
     out["levels_per_lane"], out["lanes_per_column"] = fk.P, fk.G
     return out

@@ -62,7 +62,7 @@ def test_docstring_model_data_and_struct_agree_with_the_schema():
         if f.per_column:
             assert a.shape[1] in (1, m.n_columns), f.name
     for f in SCRATCH_FIELDS:
-        assert getattr(integ.fk, f.name).ndim == f.ndim, f.name
+        assert getattr(integ.stepper, f.name).ndim == f.ndim, f.name
     for f in DATA_FIELDS:
         assert getattr(integ.data, f.name).ndim == f.ndim, f.name
 
@@ -108,10 +108,10 @@ def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
     assert m.con_k.shape == (m.n_constraints, 2) and np.all(m.con_k.numpy() == 7.0)
     assert "Model.con_k" in types.field_table()
     assert "con_k" in fused.make_node_funcs(wp.float64).ColumnModel.vars
-    assert integ.fk.cm.con_k.shape == m.con_k.shape  # a column-major view of it
-    assert np.all(integ.fk.cm.con_k.numpy() == 7.0)
-    assert any(a is m.con_k for a in integ.args["positions"]) and len(integ.args["positions"]) == len(
-        base.args["positions"]) + 1
+    assert integ.stepper.cm.con_k.shape == m.con_k.shape  # a column-major view of it
+    assert np.all(integ.stepper.cm.con_k.numpy() == 7.0)
+    assert any(a is m.con_k for a in integ.launcher.args["positions"]) and len(integ.launcher.args["positions"]) == len(
+        base.launcher.args["positions"]) + 1
     integ.run(10)
     for name in ("u", "v", "a"):
         assert np.array_equal(getattr(integ.data, name).numpy(), getattr(base.data, name).numpy()), name
@@ -131,7 +131,7 @@ def test_a_batch_array_is_one_edit_in_types(monkeypatch, fresh_fused):
     integ = _integrator()
     m = integ.model
     assert np.array_equal(m.cab_c.numpy(), m.cab_L.numpy())  # (ne, Bp), the column index fastest
-    assert "Model.cab_c" in types.field_table() and integ.fk.cm.cab_c.shape == m.cab_c.shape
+    assert "Model.cab_c" in types.field_table() and integ.stepper.cm.cab_c.shape == m.cab_c.shape
     assert "cab_c" in fused.make_node_funcs(wp.float64).ColumnModel.vars
     integ.run(10)
     for name in ("u", "v", "a"):

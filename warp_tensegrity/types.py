@@ -142,7 +142,7 @@ class Base(float, Enum):
 
 
 class Slot(IntEnum):
-    """Slots of a node's row in the fused step's scratch (``sim.block.kernels.FusedStep.sq``: rows (n, NQ)
+    """Slots of a node's row in the fused step's scratch (``sim.block.step.FusedStep.sq``: rows (n, NQ)
     per column; the accelerations have a row of their own, ``sa``)."""
 
     U = 0
@@ -310,7 +310,7 @@ SCRATCH_FIELDS = (
     Field("sx", "real", "(B, nx, 1)", "--", "solver rows: CR storage or the serial right-hand side; lane reduction"),
     Field("sb", "real", "(B, nc, bw+1, 1)", "--", "the serial solver's band"),
 )
-"""The fused step's own rows (``sim.block.kernels.FusedStep``; size-1 where they live in shared memory)."""
+"""The fused step's own rows (``sim.block.step.FusedStep``; size-1 where they live in shared memory)."""
 
 
 CONTACT_FIELDS = (

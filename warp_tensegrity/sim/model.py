@@ -175,7 +175,7 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = Fal
     """velocity: (B, n, 3) initial velocity [m s-1]; displacement: (B, n, 3) initial displacement from
     the reference [m] (a preloaded column's equilibrium), None: 0. With ``fused`` the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders; the fused step keeps its own
-    rows, :class:`warp_tensegrity.sim.block.kernels.FusedStep`)."""
+    rows, :class:`warp_tensegrity.sim.block.step.FusedStep`)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d = model.device
