@@ -37,9 +37,8 @@ BASE_COLUMNS = 64
 PRESTRAIN_RANGE = (0.005, 0.02)
 V0_RANGE = (0.01, 0.05)  # m/s
 
-# kernels of one RATTLE step (Integrator._rattle + advance_counter + record_energy)
-RATTLE_KERNELS = ("kick_drift", "project_positions", "gather_accel", "factor_project_velocities",
-                  "advance_counter", "record_energy")
+# kernels of one RATTLE step (StagedStep.rattle + record_energy; the step counter: kernel_modules)
+RATTLE_KERNELS = ("kick_drift", "project_positions", "gather_accel", "factor_project_velocities", "record_energy")
 
 
 # ---------------------------------------------------------------------- metadata
@@ -273,11 +272,13 @@ def rattle_dt(batch, safety: float = 0.25) -> float:
 
 # ---------------------------------------------------------------------- kernels
 def kernel_modules(spaces) -> list:
-    """Modules of the RATTLE step's kernels found in the given kernel namespaces."""
+    """Modules of the RATTLE step's kernels found in the given kernel namespaces, and the step counter's."""
     import warp as wp
 
+    from warp_tensegrity.sim.step import advance_counter_by
+
     return [getattr(ns, n).module for ns in spaces for n in RATTLE_KERNELS
-            if isinstance(getattr(ns, n, None), wp.Kernel)]
+            if isinstance(getattr(ns, n, None), wp.Kernel)] + [advance_counter_by.module]
 
 
 def rattle_modules(precision: str, bandwidths=(3, 6), register_caps=(None,)):

@@ -126,6 +126,15 @@ def projection_status(err: Any, fail_tol: Any):
 
 
 @wp.func
+def newton_stop(err: Any, prev: Any, tol: Any, it: int, max_iter: int):
+    """Whether a projection's Newton iteration stops at the largest relative bar error ``err``
+    (``prev``: the last iteration's) after ``it`` iterations: converged (err <= tol), out of
+    iterations, or stalled at round-off just above tol (less than halved, under 10 tol), where more
+    iterations cannot help. Every step family's stall rule (a NaN err never stops it here)."""
+    return (err <= tol or it >= max_iter) or (it > 0 and err > type(err)(0.5) * prev and err < type(err)(10.0) * tol)
+
+
+@wp.func
 def output_slot(s: int, every: int, n_out: int):
     """The output slot of step s: s / every where s is a multiple of ``every`` (and the slot is below
     ``n_out``, the record's length; n_out < 0: a record of running values, no bound), else -1: no

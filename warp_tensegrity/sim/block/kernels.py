@@ -29,7 +29,7 @@ import warp as wp
 
 from ... import types
 from ..common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3,
-                     make_band_funcs, make_gram_row, member_vec, node_force, node_impulse, projection_status,
+                     make_band_funcs, make_gram_row, member_vec, newton_stop, node_force, node_impulse, projection_status,
                      set_failure)
 from .coop import band_reals, block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
 
@@ -271,10 +271,8 @@ def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
                             e_lane = e
                 x[k, 0] = r
             err = block_max(x, red, e_lane, lane, bd)
-            if err <= tol or it >= max_iter:
+            if newton_stop(err, prev, tol, it, max_iter):
                 break
-            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                break  # stalled at round-off just above tol
             solve(x, band, nc, lane, bd)
             apply_impulse(m, q, P, x, real(1.0), real(1.0) / h, w, lane, bd)
             it += 1

@@ -43,7 +43,7 @@ from ... import types
 from ...scene.contact import contact_arrays
 from ...scene.coupling import mass_entries
 from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_residual, make_band_funcs, \
-    member_vec, node_force, set_failure
+    member_vec, newton_stop, node_force, set_failure
 
 wp.set_module_options({"enable_backward": False})
 
@@ -334,10 +334,8 @@ def make_contact_kernels(real, bandwidth: int):
                         if not (ec <= err):
                             err = ec
                 st.clam[k, w] = r
-            if err <= tol or it >= max_iter:
+            if newton_stop(err, prev, tol, it, max_iter):
                 break
-            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                break  # stalled at round-off just above tol
             band_solve(st.cband, st.clam, nr, w)
             for p in range(npr):
                 if st.pair_act[p, w] == 1:

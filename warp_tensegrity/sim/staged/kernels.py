@@ -140,10 +140,6 @@ def _record_kernels(real):
     vec = wp.types.vector(3, real)
 
     @wp.kernel(enable_backward=False, module="unique")
-    def advance_counter(step: wp.array(dtype=int)):
-        step[0] = step[0] + 1
-
-    @wp.kernel(enable_backward=False, module="unique")
     def record_strain(
         # Model:
         level_nodes: wp.array2d(dtype=int), h0: wp.array(dtype=real), static_dz: wp.array2d(dtype=real), every: int,
@@ -315,6 +311,6 @@ def _record_kernels(real):
                 pair_left_slot[p, w] = slot
         cross_side[p, w] = side
 
-    return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
+    return SimpleNamespace(record_strain=record_strain, record_energy=record_energy,
                            record_energy_parts=record_energy_parts,
                            record_feasibility=record_feasibility, record_pairs=record_pairs)

@@ -20,6 +20,7 @@ from ..common import (
     bar_residual,
     finite3,
     make_band_funcs,
+    newton_stop,
     make_gram_row,
     member_vec,
     node_impulse,
@@ -237,10 +238,8 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
                     if not (e <= err):  # also catches NaN
                         err = e
                 lam[k, w] = r
-            if err <= tol or it >= max_iter:
+            if newton_stop(err, prev, tol, it, max_iter):
                 break
-            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                break  # stalled at round-off just above tol: more iterations cannot help
             band_solve(band, lam, lam.shape[0], w)
             apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, ug,
                           lam, imp, real(1.0), u, inv_dt, v, w)
