@@ -11,7 +11,7 @@ import pytest
 import warp as wp
 
 from warp_tensegrity import ColumnConfig, RunSettings, types
-from warp_tensegrity.sim import model
+from warp_tensegrity.sim import fields_gen, model
 from warp_tensegrity.sim.integrate import Integrator
 from warp_tensegrity.sim.block import kernels as fused
 from warp_tensegrity.sim.staged.kernels import make_kernels
@@ -42,7 +42,7 @@ def test_docstring_model_data_and_struct_agree_with_the_schema():
             row = f"{owner}.{f.name}"
             lines = [line for line in types.__doc__.splitlines() if line.split()[:1] == [row]]
             assert len(lines) == 1 and f"{f.shape} {f.dtype}" in lines[0] and f.doc in lines[0], row
-    sizes = [n for n, _ in model.MODEL_SIZES]
+    sizes = [n for n, _ in fields_gen.MODEL_SIZES]
     assert [f.name for f in dataclasses.fields(model.Model)] == sizes + [f.name for f in MODEL_FIELDS]
     assert [f.name for f in dataclasses.fields(model.Data)] == [f.name for f in DATA_FIELDS] + ["rk"]
     for real in (wp.float32, wp.float64):
@@ -87,13 +87,14 @@ def fresh_fused():
 
 
 def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
-    """One entry more in MODEL_FIELDS (with its host values): Model, the docstring table, the fused
+    """One entry more in MODEL_FIELDS (with its host values; sim/fields.py written again): Model, the docstring table, the fused
     struct (filled by FusedStep) and the argument group all carry it, and the fused step runs
     with it as before."""
     base = _integrator()
     base.run(10)
     extra = Field("con_k", "real", "(nc, Bp)", "N m-1", "an extra per-column bar parameter", ("fused", "positions"))
     monkeypatch.setattr(types, "MODEL_FIELDS", MODEL_FIELDS + (extra,))
+    monkeypatch.setattr(model, "Model", fields_gen.classes()[0])  # the written-out Model, regenerated
     for f in FUSED_CACHES:  # the kernel factories are cached per precision (the schema is fixed at import)
         f.cache_clear()
     host_arrays = model.host_arrays
@@ -119,13 +120,14 @@ def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
 
 def test_a_batch_array_is_one_edit_in_types(monkeypatch, fresh_fused):
     """A field whose host values the batch holds (``source``): its declaration in types.MODEL_FIELDS is
-    the only edit. Model, the table, the fused struct and its argument group carry it, with the
+    the only edit (and sim/fields.py written again). Model, the table, the fused struct and its argument group carry it, with the
     batch's values laid out as declared, and the step runs as before."""
     base = _integrator()
     base.run(10)
     extra = Field("cab_c", "real", "(ne, Bp)", "N s m-1", "a per-column cable parameter", ("fused",),
                   source="cable_rest_length")
     monkeypatch.setattr(types, "MODEL_FIELDS", MODEL_FIELDS + (extra,))
+    monkeypatch.setattr(model, "Model", fields_gen.classes()[0])  # the written-out Model, regenerated
     for f in FUSED_CACHES:
         f.cache_clear()
     integ = _integrator()

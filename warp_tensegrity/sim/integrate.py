@@ -18,7 +18,7 @@ from .block import step as _block  # noqa: F401 (registers the block Steps)
 from .lanes import step as _lanes  # noqa: F401 (registers the lane Step)
 from .model import REAL, Data, Model, build_model, make_data
 from .staged.kernels import make_kernels
-from .staged.step import Launcher, StagedStep
+from .staged.step import Launcher, StagedStep  # noqa: F401 (registers the staged Step)
 from .step import STEPS, Step
 from ..runtime import resolve_device
 from ..options import RunSettings, SettingsError

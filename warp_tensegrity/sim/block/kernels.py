@@ -21,17 +21,15 @@ has one lane unless ``wp.config.enable_cpu_blocks`` emulates the lanes (the test
 """
 
 import functools
-from dataclasses import dataclass
 from types import SimpleNamespace
 
-import numpy as np
 import warp as wp
 
 from ... import types
 from ..common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3,
                      make_band_funcs, make_gram_row, member_vec, newton_stop, node_force, node_impulse, projection_status,
                      set_failure)
-from .coop import band_reals, block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
+from .coop import block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
 
 SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
 SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
