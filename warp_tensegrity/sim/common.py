@@ -10,8 +10,7 @@ resolved to the wrong overload depending on compile order: do not.)
 
 import functools
 import math
-from types import SimpleNamespace
-from typing import Any
+from typing import Any, NamedTuple
 
 import warp as wp
 
@@ -350,6 +349,15 @@ def make_gram_row(real, bandwidth: int):
     return gram_row, rowvec
 
 
+class BandFuncs(NamedTuple):
+    """The serial banded Cholesky's bodies for one precision and half-bandwidth."""
+
+    band_row: wp.Function
+    factor_store_row: wp.Function
+    band_solve: wp.Function
+    rowvec: type
+
+
 @functools.cache
 def make_band_funcs(real, bandwidth: int):
     """The sequential banded Cholesky of one thread (a staged solver thread per column, or lane 0
@@ -447,4 +455,4 @@ def make_band_funcs(real, bandwidth: int):
             xk, xw = sweep_row(cur, s, xw)
             x[k, w] = xk
 
-    return SimpleNamespace(band_row=band_row, factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)
+    return BandFuncs(band_row=band_row, factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)

@@ -21,7 +21,7 @@ has one lane unless ``wp.config.enable_cpu_blocks`` emulates the lanes (the test
 """
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
@@ -51,6 +51,16 @@ def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int
     nodes = SHARED_NODES and not (solver == "serial" and bandwidth > SERIAL_SHARED_NODES_MAX_BANDWIDTH)
     q_cap = n_nodes * NQ if nodes and x_cap * real_bytes + qs <= budget else 0
     return x_cap, q_cap
+
+
+class NodeFuncs(NamedTuple):
+    """The fused step's per-node bodies and its model struct."""
+
+    ColumnModel: type
+    block_max: wp.Function
+    gather_kick: wp.Function
+    apply_impulse: wp.Function
+    vec: type
 
 
 @functools.cache
@@ -109,8 +119,16 @@ def make_node_funcs(real):
             q[n, V] = q[n, V] - dn * scale_v
         block_sync()
 
-    return SimpleNamespace(ColumnModel=ColumnModel, block_max=block_max, gather_kick=gather_kick,
-                           apply_impulse=apply_impulse, vec=vec)
+    return NodeFuncs(ColumnModel=ColumnModel, block_max=block_max, gather_kick=gather_kick,
+                     apply_impulse=apply_impulse, vec=vec)
+
+
+class FactorFuncs(NamedTuple):
+    """The fused step's Gram factor and solve."""
+
+    rows: wp.Function
+    solve: wp.Function
+    factor_gram: wp.Function
 
 
 @functools.cache
@@ -211,7 +229,18 @@ def make_factor_funcs(real, bandwidth: int, solver: str = "cr"):
         else:
             return factor_blocks(m, q, x, red, w, lane, bd)
 
-    return SimpleNamespace(rows=rows, solve=solve, factor_gram=factor_gram)
+    return FactorFuncs(rows=rows, solve=solve, factor_gram=factor_gram)
+
+
+class ColumnFuncs(NamedTuple):
+    """The fused step's projections."""
+
+    ColumnModel: type
+    gather_kick: wp.Function
+    factor_gram: wp.Function
+    project_velocities: wp.Function
+    project_positions: wp.Function
+    vec: type
 
 
 @functools.cache
@@ -276,8 +305,17 @@ def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
             it += 1
         return err, it
 
-    return SimpleNamespace(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=ff.factor_gram,
-                           project_velocities=project_velocities, project_positions=project_positions, vec=vec)
+    return ColumnFuncs(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=ff.factor_gram,
+                       project_velocities=project_velocities, project_positions=project_positions, vec=vec)
+
+
+class StepFuncs(NamedTuple):
+    """The fused step's RATTLE steps."""
+
+    first_factor: wp.Function
+    rattle_steps: wp.Function
+    ColumnModel: type
+    vec: type
 
 
 @functools.cache
@@ -342,7 +380,16 @@ def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
                 break
         return worst, most
 
-    return SimpleNamespace(first_factor=first_factor, rattle_steps=rattle_steps, ColumnModel=ColumnModel, vec=vec)
+    return StepFuncs(first_factor=first_factor, rattle_steps=rattle_steps, ColumnModel=ColumnModel, vec=vec)
+
+
+class FusedKernels(NamedTuple):
+    """The fused step's kernel and its types."""
+
+    real: type
+    vec: type
+    ColumnModel: type
+    rattle_columns: wp.Kernel
 
 
 @functools.cache
@@ -422,4 +469,4 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0, sol
             a[n, w] = qa[n]
         block_sync()  # CPU fibers may start the next block as lanes finish: its loads must wait for our stores
 
-    return SimpleNamespace(real=real, vec=vec, ColumnModel=ColumnModel, rattle_columns=rattle_columns)
+    return FusedKernels(real=real, vec=vec, ColumnModel=ColumnModel, rattle_columns=rattle_columns)

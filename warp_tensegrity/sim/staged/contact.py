@@ -34,7 +34,7 @@ a pair touches; a contact step then costs a few in-thread RATTLE substeps with t
 """
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
@@ -64,6 +64,17 @@ SIN_MIN = 0.1
 """Pairs whose axes are closer to parallel (sin of their angle below this) have no contact geometry."""
 TOUCH = 1e-6
 """Pairs within 2 r (1 + TOUCH) count as touching in the velocity stage."""
+
+
+class ContactKernels(NamedTuple):
+    """The contact step's structs and kernels."""
+
+    ContactModel: type
+    ContactState: type
+    vec: type
+    contact_positions: wp.Kernel
+    contact_velocities: wp.Kernel
+    pair_geometry: wp.Function
 
 
 @functools.cache
@@ -664,9 +675,9 @@ def make_contact_kernels(real, bandwidth: int):
                 set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
                 return
 
-    return SimpleNamespace(ContactModel=ContactModel, ContactState=ContactState, vec=vec,
-                           contact_positions=contact_positions, contact_velocities=contact_velocities,
-                           pair_geometry=pair_geometry)
+    return ContactKernels(ContactModel=ContactModel, ContactState=ContactState, vec=vec,
+                          contact_positions=contact_positions, contact_velocities=contact_velocities,
+                          pair_geometry=pair_geometry)
 
 
 class ContactStep:

@@ -19,7 +19,7 @@ import them from there (not re-exported here: that would lengthen the import cha
 
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
@@ -29,12 +29,34 @@ from ..common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_recor
 wp.set_module_options({"enable_backward": False})
 
 
+class StagedKernels(NamedTuple):
+    """The staged step's per-node kernels and the output records, by name (:func:`make_kernels`)."""
+
+    real: type
+    vec: type
+    gather_accel: wp.Kernel
+    kick_drift: wp.Kernel
+    rk_stage: wp.Kernel
+    record_strain: wp.Kernel
+    record_energy: wp.Kernel
+    record_energy_parts: wp.Kernel
+    record_feasibility: wp.Kernel
+    record_pairs: wp.Kernel
+
+
 @functools.cache
-def make_kernels(real):
+def make_kernels(real) -> StagedKernels:
     """Kernels for scalar type ``real`` (wp.float32 or wp.float64): the per-node step kernels
     and the output records."""
-    return SimpleNamespace(real=real, vec=wp.types.vector(3, real), **vars(_node_kernels(real)),
-                           **vars(_record_kernels(real)))
+    return StagedKernels(real, wp.types.vector(3, real), *_node_kernels(real), *_record_kernels(real))
+
+
+class NodeKernels(NamedTuple):
+    """The per-node step kernels."""
+
+    gather_accel: wp.Kernel
+    kick_drift: wp.Kernel
+    rk_stage: wp.Kernel
 
 
 @functools.cache
@@ -132,7 +154,17 @@ def _node_kernels(real):
             u_next[n, w] = u0[n, w] + du * c_next
             v_next[n, w] = v0[n, w] + dv * c_next
 
-    return SimpleNamespace(gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage)
+    return NodeKernels(gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage)
+
+
+class RecordKernels(NamedTuple):
+    """The output record kernels."""
+
+    record_strain: wp.Kernel
+    record_energy: wp.Kernel
+    record_energy_parts: wp.Kernel
+    record_feasibility: wp.Kernel
+    record_pairs: wp.Kernel
 
 
 @functools.cache
@@ -311,6 +343,6 @@ def _record_kernels(real):
                 pair_left_slot[p, w] = slot
         cross_side[p, w] = side
 
-    return SimpleNamespace(record_strain=record_strain, record_energy=record_energy,
-                           record_energy_parts=record_energy_parts,
-                           record_feasibility=record_feasibility, record_pairs=record_pairs)
+    return RecordKernels(record_strain=record_strain, record_energy=record_energy,
+                         record_energy_parts=record_energy_parts,
+                         record_feasibility=record_feasibility, record_pairs=record_pairs)

@@ -9,7 +9,7 @@ alike. Layout and argument grouping as in :mod:`.staged` (the per-node kernels a
 
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
@@ -113,6 +113,13 @@ def _assemble_funcs(real, bandwidth: int, bar_window: bool):
     return assemble_factor_window if bar_window else assemble_factor_reload
 
 
+class ProjectionFuncs(NamedTuple):
+    """The impulse and rate bodies of the projections."""
+
+    apply_impulse: wp.Function
+    project_rates: wp.Function
+
+
 @functools.cache
 def _projection_funcs(real, bandwidth: int):
     """Impulse application and the rate projection of one column thread."""
@@ -179,11 +186,23 @@ def _projection_funcs(real, bandwidth: int):
         apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, u, lam,
                       imp, real(1.0), y, real(0.0), y, w)
 
-    return SimpleNamespace(apply_impulse=apply_impulse, project_rates=project_rates)
+    return ProjectionFuncs(apply_impulse=apply_impulse, project_rates=project_rates)
+
+
+class SolverKernels(NamedTuple):
+    """The staged step's per-column constraint-solver kernels, by name (:func:`make_solver_kernels`)."""
+
+    real: type
+    bandwidth: int
+    project_positions: wp.Kernel
+    factor_project_velocities: wp.Kernel
+    factor_only: wp.Kernel
+    constrained_accel: wp.Kernel
 
 
 @functools.cache
-def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
+def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None,
+                        bar_window: bool | None = None) -> SolverKernels:
     """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
     the Gram-matrix half-bandwidth ``bandwidth`` compiled in (see :func:`.common.make_band_funcs`).
     ``max_registers`` caps the registers per CUDA thread (``__maxnreg__``; None: the compiler's
@@ -192,10 +211,8 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
     if bar_window is None:
         bar_window = real == wp.float32
     kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
-    ns = SimpleNamespace(real=real, bandwidth=int(bandwidth))
-    ns.project_positions = _position_kernel(real, bandwidth, bar_window, kopts)
-    ns.__dict__.update(vars(_factor_kernels(real, bandwidth, bar_window, kopts)))
-    return ns
+    return SolverKernels(real, int(bandwidth), _position_kernel(real, bandwidth, bar_window, kopts),
+                         *_factor_kernels(real, bandwidth, bar_window, kopts))
 
 
 def _position_kernel(real, bandwidth, bar_window, kopts):
@@ -253,6 +270,14 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
             bar_err[w] = err
 
     return project_positions
+
+
+class FactorKernels(NamedTuple):
+    """The factor-and-solve kernels."""
+
+    factor_project_velocities: wp.Kernel
+    factor_only: wp.Kernel
+    constrained_accel: wp.Kernel
 
 
 def _factor_kernels(real, bandwidth, bar_window, kopts):
@@ -346,5 +371,5 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 1, band, a, lam, imp, w)
 
-    return SimpleNamespace(factor_project_velocities=factor_project_velocities, factor_only=factor_only,
-                           constrained_accel=constrained_accel)
+    return FactorKernels(factor_project_velocities=factor_project_velocities, factor_only=factor_only,
+                         constrained_accel=constrained_accel)
