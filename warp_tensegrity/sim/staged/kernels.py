@@ -48,15 +48,7 @@ class StagedKernels(NamedTuple):
 def make_kernels(real) -> StagedKernels:
     """Kernels for scalar type ``real`` (wp.float32 or wp.float64): the per-node step kernels
     and the output records."""
-    return StagedKernels(real, wp.types.vector(3, real), *_node_kernels(real), *_record_kernels(real))
-
-
-class NodeKernels(NamedTuple):
-    """The per-node step kernels."""
-
-    gather_accel: wp.Kernel
-    kick_drift: wp.Kernel
-    rk_stage: wp.Kernel
+    return StagedKernels(real=real, vec=wp.types.vector(3, real), **_node_kernels(real), **_record_kernels(real))
 
 
 @functools.cache
@@ -154,17 +146,7 @@ def _node_kernels(real):
             u_next[n, w] = u0[n, w] + du * c_next
             v_next[n, w] = v0[n, w] + dv * c_next
 
-    return NodeKernels(gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage)
-
-
-class RecordKernels(NamedTuple):
-    """The output record kernels."""
-
-    record_strain: wp.Kernel
-    record_energy: wp.Kernel
-    record_energy_parts: wp.Kernel
-    record_feasibility: wp.Kernel
-    record_pairs: wp.Kernel
+    return {"gather_accel": gather_accel, "kick_drift": kick_drift, "rk_stage": rk_stage}
 
 
 @functools.cache
@@ -343,6 +325,5 @@ def _record_kernels(real):
                 pair_left_slot[p, w] = slot
         cross_side[p, w] = side
 
-    return RecordKernels(record_strain=record_strain, record_energy=record_energy,
-                         record_energy_parts=record_energy_parts,
-                         record_feasibility=record_feasibility, record_pairs=record_pairs)
+    return {"record_strain": record_strain, "record_energy": record_energy, "record_energy_parts": record_energy_parts,
+            "record_feasibility": record_feasibility, "record_pairs": record_pairs}

@@ -211,8 +211,9 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None,
     if bar_window is None:
         bar_window = real == wp.float32
     kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
-    return SolverKernels(real, int(bandwidth), _position_kernel(real, bandwidth, bar_window, kopts),
-                         *_factor_kernels(real, bandwidth, bar_window, kopts))
+    return SolverKernels(real=real, bandwidth=int(bandwidth),
+                         project_positions=_position_kernel(real, bandwidth, bar_window, kopts),
+                         **_factor_kernels(real, bandwidth, bar_window, kopts))
 
 
 def _position_kernel(real, bandwidth, bar_window, kopts):
@@ -270,14 +271,6 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
             bar_err[w] = err
 
     return project_positions
-
-
-class FactorKernels(NamedTuple):
-    """The factor-and-solve kernels."""
-
-    factor_project_velocities: wp.Kernel
-    factor_only: wp.Kernel
-    constrained_accel: wp.Kernel
 
 
 def _factor_kernels(real, bandwidth, bar_window, kopts):
@@ -371,5 +364,5 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
                       u, v, 1, band, a, lam, imp, w)
 
-    return FactorKernels(factor_project_velocities=factor_project_velocities, factor_only=factor_only,
-                         constrained_accel=constrained_accel)
+    return {"factor_project_velocities": factor_project_velocities, "factor_only": factor_only,
+            "constrained_accel": constrained_accel}
