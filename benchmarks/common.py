@@ -38,7 +38,7 @@ PRESTRAIN_RANGE = (0.005, 0.02)
 V0_RANGE = (0.01, 0.05)  # m/s
 
 # kernels of one RATTLE step (StagedStep.rattle + record_energy; the step counter: kernel_modules)
-RATTLE_KERNELS = ("kick_drift", "project_positions", "gather_accel", "factor_project_velocities", "record_energy")
+RATTLE_KERNELS = ("kick_drift", "project_positions", "gather_accel", "factor_project", "record_energy")
 
 
 # ---------------------------------------------------------------------- metadata

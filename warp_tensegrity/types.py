@@ -211,7 +211,7 @@ class Field(NamedTuple):
 ARGUMENT_GROUPS = {
     "fused": "the fused step's struct ``ColumnModel`` (:mod:`warp_tensegrity.sim.block.kernels`)",
     "positions": "``project_positions``",
-    "velocities": "``factor_project_velocities`` and ``constrained_accel``",
+    "velocities": "``factor_project`` (velocities and the index-1 accelerations)",
     "factor": "``factor_only``",
     "gather": "``gather_accel``",
     "energy": "``record_energy``",

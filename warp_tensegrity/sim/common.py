@@ -83,6 +83,16 @@ def node_force(
 
 
 @wp.func
+def force_columns(EA: wp.array2d(dtype=Any), EAc: wp.array2d(dtype=Any), L: wp.array2d(dtype=Any),
+                  ext: wp.array2d(dtype=Any), minv_self: wp.array2d(dtype=Any), minv_cross: wp.array2d(dtype=Any),
+                  w: int):
+    """Column w's index (w modulo the parameter's Bp) into each per-column parameter of the forces and
+    the inverse masses: (EA, EA_c, rest length, dead load, self, cross)."""
+    return (w % EA.shape[1], w % EAc.shape[1], w % L.shape[1], w % ext.shape[1], w % minv_self.shape[1],
+            w % minv_cross.shape[1])
+
+
+@wp.func
 def bar_residual(b: Any, L: Any):
     """(r, e): the Newton residual r = (|b|^2 - L^2)/2 [m2] and the relative length error e."""
     bb = wp.dot(b, b)

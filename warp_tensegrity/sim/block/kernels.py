@@ -26,7 +26,7 @@ from typing import NamedTuple
 import warp as wp
 
 from ... import types
-from ..common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3,
+from ..common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3, force_columns,
                      make_band_funcs, make_gram_row, member_vec, newton_stop, node_force, node_impulse, projection_status,
                      set_failure)
 from .coop import block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
@@ -86,12 +86,7 @@ def make_node_funcs(real):
                     bd: int):
         """qa = M^-1 f(U); V += kick qa. Forces go through slot I first, so each is evaluated once."""
         nn = m.partner.shape[0]
-        wE = w % m.cab_EA.shape[1]
-        wC = w % m.cab_EAc.shape[1]
-        wL = w % m.cab_L.shape[1]
-        ws = w % m.minv_self.shape[1]
-        wx = w % m.minv_cross.shape[1]
-        wF = w % m.ext_force.shape[1]
+        wE, wC, wL, wF, ws, wx = force_columns(m.cab_EA, m.cab_EAc, m.cab_L, m.ext_force, m.minv_self, m.minv_cross, w)
         for n in range(lane, nn, bd):
             q[n, I] = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc,
                                  m.cab_L, m.ext_force, q, n, U, wE, wC, wL, wF)

@@ -42,8 +42,8 @@ import warp as wp
 from ... import types
 from ...scene.contact import contact_arrays
 from ...scene.coupling import mass_entries
-from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_residual, make_band_funcs, \
-    member_vec, newton_stop, node_force, set_failure
+from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_residual, force_columns, \
+    make_band_funcs, member_vec, newton_stop, node_force, set_failure
 
 wp.set_module_options({"enable_backward": False})
 
@@ -244,12 +244,7 @@ def make_contact_kernels(real, bandwidth: int):
     @wp.func
     def accelerations(m: ContactModel, u: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec), w: int):
         """a = M^-1 f(u), as the staged gather_accel computes it."""
-        wE = w % m.cab_EA.shape[1]
-        wC = w % m.cab_EAc.shape[1]
-        wL = w % m.cab_L.shape[1]
-        ws = w % m.minv_self.shape[1]
-        wx = w % m.minv_cross.shape[1]
-        wF = w % m.ext_force.shape[1]
+        wE, wC, wL, wF, ws, wx = force_columns(m.cab_EA, m.cab_EAc, m.cab_L, m.ext_force, m.minv_self, m.minv_cross, w)
         for n in range(u.shape[0]):
             f = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc, m.cab_L,
                            m.ext_force, u, n, w, wE, wC, wL, wF)

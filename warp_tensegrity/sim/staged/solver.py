@@ -195,9 +195,8 @@ class SolverKernels(NamedTuple):
     real: type
     bandwidth: int
     project_positions: wp.Kernel
-    factor_project_velocities: wp.Kernel
+    factor_project: wp.Kernel
     factor_only: wp.Kernel
-    constrained_accel: wp.Kernel
 
 
 @functools.cache
@@ -295,34 +294,6 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         return ok
 
     @wp.kernel(**kopts)
-    def factor_project_velocities(
-        # Model:
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
-        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        # Data in:
-        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
-        # Data out:
-        band: wp.array3d(dtype=real), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
-    ):
-        """Factor A(u) (kept for the next position projection) and project v onto G(u) v = 0."""
-        w = wp.tid()
-        if status[w] != STATUS_OK:
-            return
-        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                              minv_self, minv_cross, u, step, band, status, fail_step, w):
-            return
-        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
-                      u, v, 0, band, v, lam, imp, w)
-        for n in range(u.shape[0]):
-            if not finite3(v[n, w]):
-                set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
-                return
-
-    @wp.kernel(**kopts)
     def factor_only(
         # Model:
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
@@ -341,7 +312,7 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
                        minv_self, minv_cross, u, step, band, status, fail_step, w)
 
     @wp.kernel(**kopts)
-    def constrained_accel(
+    def factor_project(
         # Model:
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
         con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
@@ -349,20 +320,29 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
         partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
         # Data in:
-        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int), rates: int,
         # Data out:
-        band: wp.array3d(dtype=real), a: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+        band: wp.array3d(dtype=real), out: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real),
+        imp: wp.array2d(dtype=vec), status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
     ):
-        """Index-1 multipliers: A lam = G a_free + |b'|^2; a -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
+        """Factor A(u) (kept for the next position projection), then ``rates`` = 0: project the
+        velocities ``out`` (= v) onto G(u) v = 0; 1: the index-1 multipliers A lam = G a_free + |b'|^2,
+        a = ``out`` -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
         if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
                               minv_self, minv_cross, u, step, band, status, fail_step, w):
             return
-        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
-                      u, v, 1, band, a, lam, imp, w)
+        if rates == 1:
+            project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                          u, v, 1, band, out, lam, imp, w)
+        else:  # v is not read: out is the one velocity array, read and written (no aliased second view)
+            project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                          u, out, 0, band, out, lam, imp, w)
+            for n in range(u.shape[0]):
+                if not finite3(out[n, w]):
+                    set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
+                    return
 
-    return {"factor_project_velocities": factor_project_velocities, "factor_only": factor_only,
-            "constrained_accel": constrained_accel}
+    return {"factor_project": factor_project, "factor_only": factor_only}

@@ -96,8 +96,8 @@ class StagedStep(Step):
         self.k = make_kernels(real)
         regs = COLUMN_MAX_REGISTERS if device.is_cuda and batch.n_columns >= COLUMN_CAP_FROM else None
         self.ks = make_solver_kernels(real, model.bandwidth, regs, COLUMN_BAR_WINDOW)
-        launcher.column_kernels |= {kern.key for kern in (self.ks.project_positions, self.ks.factor_project_velocities,
-                                                          self.ks.factor_only, self.ks.constrained_accel)}
+        launcher.column_kernels |= {kern.key for kern in (self.ks.project_positions, self.ks.factor_project,
+                                                          self.ks.factor_only)}
         block = COLUMN_BLOCK_DIM if device.is_cuda else 1
         self.contact = None
         if batch.contact_pairs is not None:  # bar contact (scene contact = 'bars')
@@ -115,9 +115,9 @@ class StagedStep(Step):
             self.contact.load()
         if self.striker is not None:
             self.striker.load()
-        names = ["gather_accel", "kick_drift", "project_positions", "factor_project_velocities"]
+        names = ["gather_accel", "kick_drift", "project_positions", "factor_project"]
         if self.settings.method == Method.RK4:
-            names += ["rk_stage", "constrained_accel", "factor_only"]
+            names += ["rk_stage", "factor_only"]
         for name in names:
             self.L.load(getattr(self.k, name) if hasattr(self.k, name) else getattr(self.ks, name))
 
@@ -142,33 +142,32 @@ class StagedStep(Step):
         self.L.launch(self.k.kick_drift, (m.n_nodes, m.n_columns),
                       [d.status, d.a, self.real(kick), self.real(drift), d.u, d.v, d.u_prev])
 
+    def _solve(self, kernel, group: str, inputs):
+        """A per-column constraint-solver launch (none without constraints)."""
+        if self.model.n_constraints:
+            self.L.launch(kernel, self.model.n_columns, inputs, model=group)
+
     def project_positions(self, ug, inv_dt):
-        m, d = self.model, self.data
-        if m.n_constraints == 0:
-            return
-        self.L.launch(self.ks.project_positions, m.n_columns, self.L.projection + [
-            self.real(inv_dt), d.band, ug, d.step, d.u, d.v, d.lam, d.imp, d.bar_err, d.iters, d.status, d.fail_step],
-            model="positions")
+        d = self.data
+        self._solve(self.ks.project_positions, "positions", self.L.projection + [
+            self.real(inv_dt), d.band, ug, d.step, d.u, d.v, d.lam, d.imp, d.bar_err, d.iters, d.status, d.fail_step])
+
+    def factor_project(self, u, v, rates: int, out):
+        """Factor A(u), then project the velocities ``out`` (``rates`` 0) or the accelerations ``out``
+        at velocities v (1: the index-1 right-hand side)."""
+        d = self.data
+        self._solve(self.ks.factor_project, "velocities", [u, v, d.step, rates, d.band, out, d.lam, d.imp, d.status,
+                                                           d.fail_step])
 
     def factor_project_velocities(self, u, v):
-        m, d = self.model, self.data
-        if m.n_constraints == 0:
-            return
-        self.L.launch(self.ks.factor_project_velocities, m.n_columns,
-                      [u, d.step, d.band, v, d.lam, d.imp, d.status, d.fail_step], model="velocities")
-
-    def factor(self, u):
-        m, d = self.model, self.data
-        if m.n_constraints == 0:
-            return
-        self.L.launch(self.ks.factor_only, m.n_columns, [u, d.step, d.band, d.status, d.fail_step], model="factor")
+        self.factor_project(u, v, 0, v)
 
     def constrained_accel(self, u, v, a):
-        m, d = self.model, self.data
-        if m.n_constraints == 0:
-            return
-        self.L.launch(self.ks.constrained_accel, m.n_columns,
-                      [u, v, d.step, d.band, a, d.lam, d.imp, d.status, d.fail_step], model="velocities")
+        self.factor_project(u, v, 1, a)
+
+    def factor(self, u):
+        d = self.data
+        self._solve(self.ks.factor_only, "factor", [u, d.step, d.band, d.status, d.fail_step])
 
     # ------------------------------------------------------------------ methods
     def rattle(self, h):
