@@ -100,6 +100,17 @@ def bar_residual(b: Any, L: Any):
 
 
 @wp.func
+def bar_row(dref: wp.array(dtype=Any), ni: wp.array(dtype=int), nj: wp.array(dtype=int), L: wp.array(dtype=Any),
+            u: wp.array2d(dtype=Any), k: int, c: int, err: Any):
+    """Bar k's residual at ``u[:, c]`` (:func:`bar_residual`), its relative error, and the running
+    largest error ``err`` after it (a NaN kept: ``not (e <= err)`` also catches it)."""
+    r, e = bar_residual(member_vec(dref, ni, nj, u, k, c), L[k])
+    if not (e <= err):
+        err = e
+    return r, e, err
+
+
+@wp.func
 def node_impulse(
     con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=Any),
     ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),

@@ -42,7 +42,7 @@ import warp as wp
 from ... import types
 from ...scene.contact import contact_arrays
 from ...scene.coupling import mass_entries
-from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_residual, force_columns, \
+from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_row, force_columns, \
     make_band_funcs, member_vec, newton_stop, node_force, set_failure
 
 wp.set_module_options({"enable_backward": False})
@@ -328,11 +328,9 @@ def make_contact_kernels(real, bandwidth: int):
                 if row_active(m, st, k, w, wa):
                     idx = m.row_index[k]
                     if m.row_kind[k] == 0:
-                        r, e = bar_residual(member_vec(m.con_dref, m.con_i, m.con_j, u, idx, w), m.con_L[idx])
+                        r, e, err = bar_row(m.con_dref, m.con_i, m.con_j, m.con_L, u, idx, w, err)
                         if not (e <= errb):
                             errb = e
-                        if not (e <= err):
-                            err = e
                     else:
                         D, nrm, s, t = pair_geometry(m, st, u, idx, w)
                         r = D - gap

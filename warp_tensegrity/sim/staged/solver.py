@@ -17,12 +17,12 @@ from ..common import (
     STATUS_CONSTRAINT,
     STATUS_NONFINITE,
     STATUS_OK,
-    bar_residual,
+    bar_row,
     finite3,
     make_band_funcs,
-    newton_stop,
     make_gram_row,
     member_vec,
+    newton_stop,
     node_impulse,
     set_failure,
 )
@@ -251,9 +251,7 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
             for k in range(nc):
                 r = real(0.0)
                 if con_active[k, wa] > real(0.0):
-                    r, e = bar_residual(member_vec(con_dref, con_i, con_j, u, k, w), con_L[k])
-                    if not (e <= err):  # also catches NaN
-                        err = e
+                    r, e, err = bar_row(con_dref, con_i, con_j, con_L, u, k, w, err)
                 lam[k, w] = r
             if newton_stop(err, prev, tol, it, max_iter):
                 break
