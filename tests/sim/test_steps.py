@@ -21,7 +21,7 @@ from warp_tensegrity.types import Path
 PARAMS = {"prestrain": [0.0, 0.002, 0.002], "v0": [0.05, 0.1, 0.08], "base_rigidity": [0.0, 0.5, 1.0]}
 DT, EVERY, N_OUT = 5e-4, 7, 4  # 21 steps: launches of the block step end between outputs
 TOL = 1e-11
-N_PRISMS = 7  # the lane kernel of tests/kernels/test_lanes.py's 7-prism case (one compile per CI run)
+N_PRISMS = 50  # the kernel variants of the paper's cases (tests/sim/test_same_physics.py): no compile of its own
 
 
 def _final(path: Path, step: type[Step], n_prisms: int = N_PRISMS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
