@@ -160,7 +160,8 @@ class Integrator:
         every = 1 if free else self.every  # launches may end anywhere, or on an output step
         unit = st.steps_per_launch if free else every
         period = self.graph_steps or unit * max(1, -(-int(self.settings.steps_per_graph) // unit))
-        graphable = self.device.is_cuda and period <= MAX_GRAPH_STEPS
+        # a one-step-per-launch Step (staged) captures steps_per_graph steps whatever their number, as it always did
+        graphable = self.device.is_cuda and (period <= MAX_GRAPH_STEPS or st.steps_per_launch == 1)
         while n > 0:
             phase = self.steps_done % every
             if graphable and phase == 0 and n >= period:
