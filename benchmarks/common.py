@@ -1,6 +1,6 @@
 """Shared pieces of the benchmark scripts: run metadata, batch preparation, timing, memory.
 
-Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.integrate` is used
+Nothing here changes the engine: the Integrator of :mod:`warp_tensegrity.sim.integrate` is used
 as it is, with two harness-side choices (both stated in benchmarks/README.md):
 
 * the batch of B columns is built once at a small size (``BASE_COLUMNS`` distinct columns with
@@ -37,9 +37,8 @@ BASE_COLUMNS = 64
 PRESTRAIN_RANGE = (0.005, 0.02)
 V0_RANGE = (0.01, 0.05)  # m/s
 
-# kernels of one RATTLE step (Integrator._rattle + advance_counter + record_energy)
-RATTLE_KERNELS = ("kick_drift", "project_positions", "gather_accel", "factor_project_velocities",
-                  "advance_counter", "record_energy")
+# kernels of one RATTLE step (StagedStep.rattle + record_energy; the step counter: kernel_modules)
+RATTLE_KERNELS = ("kick_drift", "project_positions", "gather_accel", "factor_project", "record_energy")
 
 
 # ---------------------------------------------------------------------- metadata
@@ -273,18 +272,21 @@ def rattle_dt(batch, safety: float = 0.25) -> float:
 
 # ---------------------------------------------------------------------- kernels
 def kernel_modules(spaces) -> list:
-    """Modules of the RATTLE step's kernels found in the given kernel namespaces."""
+    """Modules of the RATTLE step's kernels found in the given kernel namespaces, and the step counter's."""
     import warp as wp
 
+    from warp_tensegrity.sim.step import advance_counter_by
+
     return [getattr(ns, n).module for ns in spaces for n in RATTLE_KERNELS
-            if isinstance(getattr(ns, n, None), wp.Kernel)]
+            if isinstance(getattr(ns, n, None), wp.Kernel)] + [advance_counter_by.module]
 
 
 def rattle_modules(precision: str, bandwidths=(3, 6), register_caps=(None,)):
     """Modules of the staged RATTLE kernels for the Gram-matrix half-bandwidths of FB (3) and RB (6)
     columns and the given register caps (the solver kernels are compiled per bandwidth and cap)."""
-    from warp_tensegrity.kernels import make_kernels, make_solver_kernels
-    from warp_tensegrity.model import REAL
+    from warp_tensegrity.sim.staged.kernels import make_kernels
+    from warp_tensegrity.sim.staged.solver import make_solver_kernels
+    from warp_tensegrity.sim.model import REAL
 
     real = REAL[precision]
     return kernel_modules([make_kernels(real)] + [make_solver_kernels(real, bw, regs) for bw in bandwidths
@@ -296,7 +298,7 @@ def precompile(device, precisions, max_workers: int | None = None) -> float:
     threads. Returns the seconds taken."""
     import warp as wp
 
-    from warp_tensegrity import integrate
+    from warp_tensegrity.sim.staged import step as integrate  # the staged step's launch constants
 
     caps = (None, integrate.COLUMN_MAX_REGISTERS) if device.is_cuda else (None,)  # capped from COLUMN_CAP_FROM
     mods = []
@@ -359,7 +361,7 @@ def integrator_bytes(integ) -> dict:
             out["data"] += sum(_array_bytes(x) for x in v.values())
         else:
             out["data"] += _array_bytes(v)
-    fk = getattr(integ, "fk", None)  # the fused step's own rows (kernels.fused.FusedStep)
+    fk = getattr(integ, "stepper", None)  # the Step's own rows (sim.block.step.FusedStep, sim.lanes.lanes.LaneStep)
     if fk is not None:
         for name in ("sx", "sq", "sa", "sb", "xy", "hz", "hand"):  # FusedStep's rows or LaneStep's lane arrays
             if getattr(fk, name, None) is not None:
@@ -441,7 +443,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     """Build an Integrator for ``batch``, warm it up (kernels, graph capture), then time
     ``reps`` segments of n steps each (n chosen so that all segments take about target_s).
 
-    ``path``: 'fused' (one block per column, :mod:`warp_tensegrity.kernels.fused`, block cyclic
+    ``path``: 'fused' (one block per column, :mod:`warp_tensegrity.sim.block.kernels`, block cyclic
     reduction), 'fused-serial' (the same with lane 0's serial banded Cholesky) or 'staged' (one
     kernel per stage, the columns' solves one thread each).
 
@@ -453,7 +455,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     import warp as wp
 
     from warp_tensegrity import RunSettings
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.types import Path as LaunchPath
 
     B = batch.n_columns
@@ -471,7 +473,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
     if path == "staged":
         # the needed kernels were force-loaded with the launch block size; Integrator.load_kernels
         # would also compile the RK4-only kernels (and, on the CPU, a second block-size variant)
-        mods = kernel_modules([integ.k, integ.ks])
+        mods = kernel_modules([integ.k, integ.stepper.ks])
         integ.load_kernels = lambda: wp.force_load(device=device, modules=mods, max_workers=0)  # cheap when loaded
     wp.synchronize_device(device)
     pool1 = mempool_used(device)
@@ -495,7 +497,7 @@ def time_batch(batch, base_label: str, n_prisms: int, precision: str, device, ta
         spg = int(max(1, min(steps_per_graph, math.floor(seg / 3.0 / max(probe, 1e-9)))))
         if path != "staged":
             # whole fused launches: each launch factors A(u) once, so short launches would over-count it
-            q = integ.fk.steps_per_launch
+            q = integ.stepper.steps_per_launch
             spg = max(q, spg - spg % q)
         integ.settings.steps_per_graph = spg
         integ.advance(spg)  # capture + first replay

@@ -1,4 +1,4 @@
-"""Launch shape of the fused step (kernels/fused.py) on one GPU: lanes per column block and where
+"""Launch shape of the fused step (sim/block/kernels.py) on one GPU: lanes per column block and where
 the column's rows live (block shared memory or per-column global rows), with the kernel's
 registers, spills, static shared memory and resident blocks per SM read from the CUDA driver.
 
@@ -23,7 +23,7 @@ VARIANTS = {  # name: (lanes per block, shared budget [bytes], node rows shared)
 
 def kernel_resources(integ) -> dict:
     """Resources of the fused kernel as loaded for this Integrator (:func:`common.kernel_resources`)."""
-    return common.kernel_resources(integ.fk.kernels.rattle_columns, integ.device, integ.fk.block_dim)
+    return common.kernel_resources(integ.stepper.kernels.rattle_columns, integ.device, integ.stepper.block_dim)
 
 
 def main(argv=None):
@@ -38,10 +38,10 @@ def main(argv=None):
     a = ap.parse_args(argv)
     import warp as wp
 
-    import warp_tensegrity.kernels.fused as F
+    import warp_tensegrity.sim.block.kernels as F
     from warp_tensegrity import RunSettings
-    from warp_tensegrity import integrate as simulate
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.block import step as simulate
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.types import Path as LaunchPath
 
     wp.config.quiet = True
@@ -71,7 +71,7 @@ def main(argv=None):
                             integ = Integrator(common.tile_batch(small, 64), s, dt, 1, 2, path=LaunchPath.FUSED)
                             integ.load_kernels()
                             res = kernel_resources(integ) if device.is_cuda else {}
-                            res["rows"] = integ.fk.description
+                            res["rows"] = integ.stepper.description
                         p.update(variant=name, block_dim=bd, **res)
                         print(f"[coop] {base} {prec} {name} B={B}: {p['column_steps_per_s']:.4g} col-steps/s "
                               f"{res}", flush=True)

@@ -42,7 +42,8 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
     import warp as wp
 
     wp.config.quiet = True
-    from warp_tensegrity import cli, engine, integrate  # noqa: F401 - the modules a run imports
+    from warp_tensegrity import cli, engine  # noqa: F401 - the modules a run imports
+    from warp_tensegrity.sim import integrate  # noqa: F401 - the modules a run imports
     from warp_tensegrity import io as D
     from warp_tensegrity.measure import device as _measure_device  # noqa: F401
     from warp_tensegrity.sweep import plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store

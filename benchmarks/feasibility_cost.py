@@ -30,7 +30,7 @@ OUTPUT_INTERVAL = 0.002  # s, as sweeps/phase_large.toml
 def _integrators(batch, settings, path, steps):
     """(with, without): Integrators of ``batch`` with records for ``steps`` steps, the second
     dropping the record_feasibility launches."""
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.policy.decide import decide_batch
     from warp_tensegrity.types import Path
 

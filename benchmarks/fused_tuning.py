@@ -62,7 +62,7 @@ def agreement(device: str) -> list[dict]:
 
 
 def shapes(device, batches, blocks, subs, target_s: float) -> list[dict]:
-    from warp_tensegrity import integrate
+    from warp_tensegrity.sim.block import step as integrate  # the block step's launch constants
 
     rows = []
     defaults = (integrate.FUSED_BLOCK_DIM, integrate.FUSED_STEPS)

@@ -5,6 +5,8 @@
 #   PART=check       the lane tests on CUDA (records inside against the record kernels, lanes against staged)
 #   PART=throughput  lanes column-steps/s, 50 prisms: FB fp32 at B = 1,536 and 16,384, FB fp64 and RB fp32 at 16,384
 #   PART=phase       phase_large end to end (benchmarks/end_to_end.py) in precision PRECISION (fp64, fp32 or auto)
+#   PART=same_physics every registered Step against the staged path, fp64, to t = 1 s: the paper's 12 cases
+#                    and lanes_check's (50, 7, 100 prisms) (benchmarks/same_physics.py; exit 1 over 1e-11)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -21,7 +23,7 @@ run_in() {  # run_in new|base CMD...: in this tree or in BASE, with the commit o
 }
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WARP_CACHE_PATH=${WARP_CACHE_PATH:-/tmp/warp_cache}
 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/gpu.txt"
-case "${PART:?PART=check, throughput, phase or interface}" in
+case "${PART:?PART=check, throughput, phase, same_physics or interface}" in
 check)
     python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes.py --device cuda:0 \
         -k "records_inside or match_staged or diverging" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
@@ -41,6 +43,8 @@ phase)
         run_in $v python -m benchmarks.end_to_end "$OUT/phase_large_$P.toml" --device cuda:0 \
             --out "$OUT/end_to_end_phase_large_${P}_$v.json" 2>&1 | tail -3
     done ;;
+same_physics)
+    python -m benchmarks.same_physics --device cuda:0 --out "$OUT/same_physics_h200.json" 2>&1 | tail -3 ;;
 interface)
     python -m benchmarks.end_to_end sweeps/interface.toml --device cuda:0 --keep "$OUT" \
         --out "$OUT/end_to_end_interface.json" 2>&1 | tail -3

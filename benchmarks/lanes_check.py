@@ -1,4 +1,4 @@
-"""The warp-per-column step (kernels/lanes.py) on one GPU: agreement with the staged kernels (an
+"""The warp-per-column step (sim/lanes/lanes.py) on one GPU: agreement with the staged kernels (an
 independent implementation of the same RATTLE) and the kernel's resources from the CUDA driver.
 
 * fp64, 50 prisms, flexible and elastic bases (beta 0, 0.5, 0.9), right and alternating handedness,
@@ -19,7 +19,7 @@ from . import common
 
 def lane_resources(integ) -> dict:
     """Registers, local bytes and resident warps per SM of the loaded lane kernel (CUDA driver)."""
-    fk = integ.fk
+    fk = integ.stepper
     out = common.kernel_resources(fk.kernels.lane_steps, integ.device, fk.block_dim)
     out["levels_per_lane"], out["lanes_per_column"] = fk.P, fk.G
     return out
@@ -46,7 +46,7 @@ def main(argv=None):
     import warp as wp
 
     from warp_tensegrity import ColumnConfig
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.scene.batch import column_batch
 
     wp.config.quiet = True
@@ -55,7 +55,7 @@ def main(argv=None):
         wp.config.enable_cpu_blocks = True  # lane emulation (a check of the script; no resources there)
     doc = {"kind": "lanes_check", "meta": common.run_metadata(wp.get_device(a.device)), "cases": [], "resources": []}
     p, v0, beta = np.meshgrid([0.0, 0.002], [0.05, 0.1, 0.15], [0.0, 0.5, 0.9, 1.0], indexing="ij")
-    from warp_tensegrity.kernels.lane_rigid import MAX_RIGID_LEVELS_PER_LANE
+    from warp_tensegrity.sim.lanes.lane_rigid import MAX_RIGID_LEVELS_PER_LANE
 
     for n in a.prisms:
         keep = np.ones(p.size, bool) if n <= 32 * MAX_RIGID_LEVELS_PER_LANE else beta.ravel() < 1.0

@@ -1,4 +1,4 @@
-"""Launch and compile options of the warp-per-column step (kernels/lanes.py) on one GPU: register
+"""Launch and compile options of the warp-per-column step (sim/lanes/lanes.py) on one GPU: register
 cap per thread, threads per block, steps per launch, CUDA fast math (fp32) and register spills to
 shared memory, with the kernel's registers and spills, its rate at B = 1,536 and 16,384, and (fast
 math) the largest bar-length error of 16 paper-like columns to t = 0.5 s.
@@ -52,8 +52,8 @@ def main(argv=None):
     import warp as wp
 
     from warp_tensegrity import RunSettings
-    from warp_tensegrity.integrate import Integrator
-    from warp_tensegrity.kernels import lanes
+    from warp_tensegrity.sim.integrate import Integrator
+    from warp_tensegrity.sim.lanes import lanes
     from warp_tensegrity.types import Path as LaunchPath
 
     wp.config.quiet = True

@@ -78,7 +78,7 @@ def device_bytes(batch, settings) -> dict:
     """Bytes of every Warp array the Integrator allocates for this batch and these settings."""
     import warp as wp
 
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.policy.decide import decide_batch
 
     run = decide_batch(batch, settings)
@@ -622,7 +622,7 @@ def main(argv=None):
 
     wp.config.quiet = True
     wp.init()
-    from warp_tensegrity.integrate import resolve_device
+    from warp_tensegrity.sim.integrate import resolve_device
 
     from .common import run_metadata, write_json
 

@@ -76,7 +76,7 @@ def base_label(base) -> str:
 def column_counts(n_prisms: int, base) -> dict:
     """n, ne, nc, bw, ncpl of the engine's column model (same constraint order as column_batch)."""
     from warp_tensegrity.scene import columns as col
-    from warp_tensegrity.model import constraint_coupling
+    from warp_tensegrity.sim.model import constraint_coupling
 
     lab = base_label(base)
     topo = col.column_topology(col.ColumnConfig(n_prisms=n_prisms))
@@ -151,7 +151,7 @@ def kernel_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float
 def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float, output_every: int = 100,
                 steps_per_launch: int = 16, rows_in_shared: bool = True, solver: str = "cr") -> dict:
     """{part: (bytes, flops)} per column-step of the fused step with the block-cyclic-reduction
-    solve (warp_tensegrity/kernels/fused.py, the CR in kernels/coop.py), counted from their loops.
+    solve (warp_tensegrity/sim/block/kernels.py, the CR in sim/block/coop.py), counted from their loops.
 
     Flops (S = max(bw, 1), nb = nc / S blocks): kick-drift 9n; per Newton iteration the residual
     (bar vector 6, |b|^2 5, r and e 6: 17 nc), the CR solve (forward: kept blocks two S x S
@@ -192,9 +192,9 @@ def fused_costs(n: int, ne: int, nc: int, bw: int, ncpl: int, r: int, it: float,
 
 
 def lanes_costs(n_prisms: int, r: int, it: float, output_every: int = 100, steps_per_launch: int = 64) -> dict:
-    """{part: (bytes, flops)} per column-step of the warp-per-column step (kernels/lanes.py,
+    """{part: (bytes, flops)} per column-step of the warp-per-column step (sim/lanes/lanes.py,
     flexible bases), counted from its loops. nn = 3 n free nodes, nc = 3 n bars, ne = 6 n + 3
-    cables; P levels per lane and G lanes (kernels.lanes.lane_shape). A bar row of a chain solve
+    cables; P levels per lane and G lanes (sim.lanes.lanes.lane_shape). A bar row of a chain solve
     costs the lane's Thomas sweep (5 (P - 1) / P), its reduced row (4 / P), 2 log2 G PCR FMAs per
     lane (4 log2 G / P per row) and the back substitution (4 (P - 1) / P); the factor about twice
     that plus 14 per row for the Gram entries. Bars: vector 8, residual 12; impulse 18 per node;
@@ -221,7 +221,7 @@ def lanes_costs(n_prisms: int, r: int, it: float, output_every: int = 100, steps
 
 
 def lanes_rigid_costs(n_prisms: int, r: int, it: float, output_every: int = 100, steps_per_launch: int = 64) -> dict:
-    """:func:`lanes_costs` plus the ring links of rigid bases (kernels/lane_rigid.py), per lane
+    """:func:`lanes_costs` plus the ring links of rigid bases (sim/lanes/lane_rigid.py), per lane
     (ceil(n / P) lanes): per level the link vectors and residuals (~30 a Newton iteration), the
     couplings (~105), the links' 3 x 3 inverse (~40) and their Schur complement (~270); the first
     row's block inverse and spikes (~265, P = 2); block PCR ~240 a level, a final inverse; a solve

@@ -4,7 +4,7 @@ Column-steps/s of the staged RATTLE step for 50-prism columns (FB and RB, fp32 a
 the batch size, for CUDA threads per block of the column-solver kernels and a cap on their
 registers per thread (``__maxnreg__``; fewer registers let more columns run at once, at the price
 of spills), and with or without the bar vectors of the last bw + 1 rows in registers during the
-Gram-matrix assembly. The engine's choice: ``integrate.COLUMN_BLOCK_DIM`` threads per block,
+Gram-matrix assembly. The engine's choice: ``sim.staged.step.COLUMN_BLOCK_DIM`` threads per block,
 ``COLUMN_MAX_REGISTERS`` registers from ``COLUMN_CAP_FROM`` columns up, and
 ``COLUMN_BAR_WINDOW`` (None: the window for fp32 only).
 
@@ -26,7 +26,7 @@ WINDOWS = {"auto": None, "on": True, "off": False}
 
 
 def shapes(device, batches, blocks, regs, target_s: float, bases, precisions, windows=("auto",)) -> list[dict]:
-    from warp_tensegrity import integrate
+    from warp_tensegrity.sim.staged import step as integrate  # the staged step's launch constants
 
     rows = []
     defaults = (integrate.COLUMN_BLOCK_DIM, integrate.COLUMN_MAX_REGISTERS, integrate.COLUMN_CAP_FROM,

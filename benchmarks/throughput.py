@@ -206,7 +206,7 @@ def ncu_mode(args):
     B = args.ncu_batch
     common.precompile(device, [prec])
     from warp_tensegrity import RunSettings
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
     from warp_tensegrity.types import Path as LaunchPath
 
     batch = common.tile_batch(common.build_base_batch(npr, BASES[base], min(common.BASE_COLUMNS, B)), B)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import integrate
+from warp_tensegrity.sim.block import step as block_step
 from warp_tensegrity.engine import simulate_batch
 from warp_tensegrity.policy.decide import prisms_to_simulate
 from warp_tensegrity.scene.columns import ColumnConfig
@@ -43,15 +43,15 @@ class _Lanes:
     names = ("FUSED_BLOCK_DIM", "FUSED_SHARED_ON_CPU")
 
     def __enter__(self):
-        self.old = [wp.config.enable_cpu_blocks] + [getattr(integrate, n) for n in self.names]
+        self.old = [wp.config.enable_cpu_blocks] + [getattr(block_step, n) for n in self.names]
         wp.config.enable_cpu_blocks = True
-        integrate.FUSED_BLOCK_DIM = 4
-        integrate.FUSED_SHARED_ON_CPU = True
+        block_step.FUSED_BLOCK_DIM = 4
+        block_step.FUSED_SHARED_ON_CPU = True
 
     def __exit__(self, *exc):
         wp.config.enable_cpu_blocks = self.old[0]
         for n, v in zip(self.names, self.old[1:]):
-            setattr(integrate, n, v)
+            setattr(block_step, n, v)
 
 
 @pytest.mark.parametrize("absurd", ["v0", "stiffness"])

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import ColumnConfig, RunSettings, model, types
-from warp_tensegrity.integrate import Integrator
-from warp_tensegrity.kernels import fused
-from warp_tensegrity.kernels.staged import make_kernels
-from warp_tensegrity.kernels.staged_solver import make_solver_kernels
+from warp_tensegrity import ColumnConfig, RunSettings, types
+from warp_tensegrity.sim import fields_gen, model
+from warp_tensegrity.sim.integrate import Integrator
+from warp_tensegrity.sim.block import kernels as fused
+from warp_tensegrity.sim.staged.kernels import make_kernels
+from warp_tensegrity.sim.staged.solver import make_solver_kernels
 from warp_tensegrity.scene.batch import column_batch
 from warp_tensegrity.types import ARGUMENT_GROUPS, DATA_FIELDS, MODEL_FIELDS, SCRATCH_FIELDS, Field, Path, group_fields
 
@@ -41,7 +42,7 @@ def test_docstring_model_data_and_struct_agree_with_the_schema():
             row = f"{owner}.{f.name}"
             lines = [line for line in types.__doc__.splitlines() if line.split()[:1] == [row]]
             assert len(lines) == 1 and f"{f.shape} {f.dtype}" in lines[0] and f.doc in lines[0], row
-    sizes = [n for n, _ in model.MODEL_SIZES]
+    sizes = [n for n, _ in fields_gen.MODEL_SIZES]
     assert [f.name for f in dataclasses.fields(model.Model)] == sizes + [f.name for f in MODEL_FIELDS]
     assert [f.name for f in dataclasses.fields(model.Data)] == [f.name for f in DATA_FIELDS] + ["rk"]
     for real in (wp.float32, wp.float64):
@@ -61,7 +62,7 @@ def test_docstring_model_data_and_struct_agree_with_the_schema():
         if f.per_column:
             assert a.shape[1] in (1, m.n_columns), f.name
     for f in SCRATCH_FIELDS:
-        assert getattr(integ.fk, f.name).ndim == f.ndim, f.name
+        assert getattr(integ.stepper, f.name).ndim == f.ndim, f.name
     for f in DATA_FIELDS:
         assert getattr(integ.data, f.name).ndim == f.ndim, f.name
 
@@ -70,7 +71,7 @@ def test_kernel_model_arguments_are_their_group():
     """Each hand-written kernel lists its group's fields first, by name, in the declared order."""
     k, ks = make_kernels(wp.float64), make_solver_kernels(wp.float64, 3)
     for kernel, group in ((k.gather_accel, "gather"), (ks.project_positions, "positions"),
-                          (ks.factor_project_velocities, "velocities"), (ks.constrained_accel, "velocities"),
+                          (ks.factor_project, "velocities"),
                           (ks.factor_only, "factor"), (k.record_energy, "energy"), (k.record_strain, "strain"),
                           (k.record_feasibility, "feasibility"), (k.record_pairs, "pairs")):
         names = [f.name for f in group_fields(group)]
@@ -86,13 +87,14 @@ def fresh_fused():
 
 
 def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
-    """One entry more in MODEL_FIELDS (with its host values): Model, the docstring table, the fused
+    """One entry more in MODEL_FIELDS (with its host values; sim/fields.py written again): Model, the docstring table, the fused
     struct (filled by FusedStep) and the argument group all carry it, and the fused step runs
     with it as before."""
     base = _integrator()
     base.run(10)
     extra = Field("con_k", "real", "(nc, Bp)", "N m-1", "an extra per-column bar parameter", ("fused", "positions"))
     monkeypatch.setattr(types, "MODEL_FIELDS", MODEL_FIELDS + (extra,))
+    monkeypatch.setattr(model, "Model", fields_gen.classes()[0])  # the written-out Model, regenerated
     for f in FUSED_CACHES:  # the kernel factories are cached per precision (the schema is fixed at import)
         f.cache_clear()
     host_arrays = model.host_arrays
@@ -107,10 +109,10 @@ def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
     assert m.con_k.shape == (m.n_constraints, 2) and np.all(m.con_k.numpy() == 7.0)
     assert "Model.con_k" in types.field_table()
     assert "con_k" in fused.make_node_funcs(wp.float64).ColumnModel.vars
-    assert integ.fk.cm.con_k.shape == m.con_k.shape  # a column-major view of it
-    assert np.all(integ.fk.cm.con_k.numpy() == 7.0)
-    assert any(a is m.con_k for a in integ.args["positions"]) and len(integ.args["positions"]) == len(
-        base.args["positions"]) + 1
+    assert integ.stepper.cm.con_k.shape == m.con_k.shape  # a column-major view of it
+    assert np.all(integ.stepper.cm.con_k.numpy() == 7.0)
+    assert any(a is m.con_k for a in integ.launcher.args["positions"]) and len(integ.launcher.args["positions"]) == len(
+        base.launcher.args["positions"]) + 1
     integ.run(10)
     for name in ("u", "v", "a"):
         assert np.array_equal(getattr(integ.data, name).numpy(), getattr(base.data, name).numpy()), name
@@ -118,19 +120,20 @@ def test_adding_a_field_is_one_declaration(monkeypatch, fresh_fused):
 
 def test_a_batch_array_is_one_edit_in_types(monkeypatch, fresh_fused):
     """A field whose host values the batch holds (``source``): its declaration in types.MODEL_FIELDS is
-    the only edit. Model, the table, the fused struct and its argument group carry it, with the
+    the only edit (and sim/fields.py written again). Model, the table, the fused struct and its argument group carry it, with the
     batch's values laid out as declared, and the step runs as before."""
     base = _integrator()
     base.run(10)
     extra = Field("cab_c", "real", "(ne, Bp)", "N s m-1", "a per-column cable parameter", ("fused",),
                   source="cable_rest_length")
     monkeypatch.setattr(types, "MODEL_FIELDS", MODEL_FIELDS + (extra,))
+    monkeypatch.setattr(model, "Model", fields_gen.classes()[0])  # the written-out Model, regenerated
     for f in FUSED_CACHES:
         f.cache_clear()
     integ = _integrator()
     m = integ.model
     assert np.array_equal(m.cab_c.numpy(), m.cab_L.numpy())  # (ne, Bp), the column index fastest
-    assert "Model.cab_c" in types.field_table() and integ.fk.cm.cab_c.shape == m.cab_c.shape
+    assert "Model.cab_c" in types.field_table() and integ.stepper.cm.cab_c.shape == m.cab_c.shape
     assert "cab_c" in fused.make_node_funcs(wp.float64).ColumnModel.vars
     integ.run(10)
     for name in ("u", "v", "a"):

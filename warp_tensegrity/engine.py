@@ -66,7 +66,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
         expect("run_batch", "settings", settings, RunSettings)
         plan = decide_batch(batch, settings)
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
-    from .integrate import Integrator  # imports Warp: not at package import, loads with the first run
+    from .sim.integrate import Integrator  # imports Warp: not at package import, loads with the first run
 
     settings, dt, every, n_steps, n_out, path = plan.settings, plan.dt, plan.output_every, plan.n_steps, plan.n_out, plan.path
     device = resolve_device(plan.device)
@@ -169,7 +169,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
             "initialize_time": t_compile,
             "graph_steps": integ.graph_steps,
             "force_evaluations_per_step": FORCE_EVALS[settings.method],
-            "step_path": integ.fk.description if integ.fused else "staged (one kernel per stage)",
+            "step_path": integ.stepper.description,
             "equilibrium_residual": None if batch.equilibrium_residual is None else batch.equilibrium_residual.copy(),
             "stages": stages,
             **({"contact": integ.contact.summary()} if integ.contact is not None else {}),

@@ -6,8 +6,8 @@ Nothing here imports Warp (specs validate without it).
 Device arrays
 -------------
 Every device array is declared once, as a :class:`Field` of :data:`MODEL_FIELDS`,
-:data:`DATA_FIELDS` or :data:`SCRATCH_FIELDS` below: :class:`~warp_tensegrity.model.Model` and
-:class:`~warp_tensegrity.model.Data`, the fused step's struct and the launch argument groups
+:data:`DATA_FIELDS` or :data:`SCRATCH_FIELDS` below: :class:`~warp_tensegrity.sim.model.Model` and
+:class:`~warp_tensegrity.sim.model.Data`, the fused step's struct and the launch argument groups
 (:data:`ARGUMENT_GROUPS`) are made from them, and so is this table.
 
 ``B`` = columns in the batch, ``Bp`` = B or 1 (a per-column parameter shared by all columns),
@@ -95,7 +95,7 @@ how the limit base_rigidity -> 1 converges for a case."""
 
 
 class Method(StrEnum):
-    """Time integrators (see :mod:`warp_tensegrity.integrate`)."""
+    """Time integrators (see :mod:`warp_tensegrity.sim.integrate`)."""
 
     RATTLE = "rattle"
     RK4 = "rk4"
@@ -142,7 +142,7 @@ class Base(float, Enum):
 
 
 class Slot(IntEnum):
-    """Slots of a node's row in the fused step's scratch (``kernels.fused.FusedStep.sq``: rows (n, NQ)
+    """Slots of a node's row in the fused step's scratch (``sim.block.step.FusedStep.sq``: rows (n, NQ)
     per column; the accelerations have a row of their own, ``sa``)."""
 
     U = 0
@@ -196,7 +196,7 @@ class Field(NamedTuple):
     source: str | None = None
     """The :class:`~warp_tensegrity.scene.batch.NetworkBatch` attribute holding its host values, as
     the batch holds them ((Bp, k) for a per-column parameter); None: computed by
-    :func:`warp_tensegrity.model.host_arrays`. With a source, declaring a field is its only edit."""
+    :func:`warp_tensegrity.sim.model.host_arrays`. With a source, declaring a field is its only edit."""
 
     @property
     def ndim(self) -> int:
@@ -209,9 +209,9 @@ class Field(NamedTuple):
 
 
 ARGUMENT_GROUPS = {
-    "fused": "the fused step's struct ``ColumnModel`` (:mod:`warp_tensegrity.kernels.fused`)",
+    "fused": "the fused step's struct ``ColumnModel`` (:mod:`warp_tensegrity.sim.block.kernels`)",
     "positions": "``project_positions``",
-    "velocities": "``factor_project_velocities`` and ``constrained_accel``",
+    "velocities": "``factor_project`` (velocities and the index-1 accelerations)",
     "factor": "``factor_only``",
     "gather": "``gather_accel``",
     "energy": "``record_energy``",
@@ -275,7 +275,7 @@ MODEL_FIELDS = (
           ("pairs",), optional=True),
     Field("pair_kind", "int32", "(nxp,)", "--", "0: two bars, 1: two cables (read on the host)", optional=True),
 )
-"""Topology and per-column parameters (:class:`~warp_tensegrity.model.Model`)."""
+"""Topology and per-column parameters (:class:`~warp_tensegrity.sim.model.Model`)."""
 
 DATA_FIELDS = (
     Field("u", "vec3", "(n, B)", "m", "displacement from the reference"),
@@ -290,7 +290,7 @@ DATA_FIELDS = (
     Field("iters", "int32", "(B,)", "--", "largest projection iteration count seen"),
     Field("bar_err", "real", "(B,)", "1", "max relative bar-length error after projection"),
     Field("step", "int32", "(1,)", "--", "completed steps"),
-    # the feasibility record (kernels.staged.record_feasibility, at output steps; (1, 1) placeholders
+    # the feasibility record (sim.staged.kernels.record_feasibility, at output steps; (1, 1) placeholders
     # where the batch has no prisms, or no pairs)
     Field("twist", "real", "(np, B)", "rad", "prism twist at the last output, unwrapped"),
     Field("twist_max", "real", "(np, B)", "rad", "largest prism twist over the outputs"),
@@ -301,7 +301,7 @@ DATA_FIELDS = (
     Field("cross_side", "int32", "(nxp, B)", "--", "side of the pair's oriented axis distance, 0 when not facing"),
     Field("pair_left_slot", "int32", "(nxp, B)", "--", "first output slot at which the pair crossed, -1 never"),
 )
-"""Mutable state (:class:`~warp_tensegrity.model.Data`; staged-only arrays are size-1 placeholders
+"""Mutable state (:class:`~warp_tensegrity.sim.model.Data`; staged-only arrays are size-1 placeholders
 on the fused paths)."""
 
 SCRATCH_FIELDS = (
@@ -310,7 +310,7 @@ SCRATCH_FIELDS = (
     Field("sx", "real", "(B, nx, 1)", "--", "solver rows: CR storage or the serial right-hand side; lane reduction"),
     Field("sb", "real", "(B, nc, bw+1, 1)", "--", "the serial solver's band"),
 )
-"""The fused step's own rows (``kernels.fused.FusedStep``; size-1 where they live in shared memory)."""
+"""The fused step's own rows (``sim.block.step.FusedStep``; size-1 where they live in shared memory)."""
 
 
 CONTACT_FIELDS = (
@@ -331,7 +331,7 @@ CONTACT_FIELDS = (
     Field("anode_row", "int32", "(nin,)", "--", "row of the node's incidence"),
     Field("anode_slot", "int32", "(nin,)", "--", "slot of the node's incidence"),
 )
-"""The contact system's topology (scene contact = 'bars', :mod:`warp_tensegrity.kernels.contact`):
+"""The contact system's topology (scene contact = 'bars', :mod:`warp_tensegrity.sim.staged.contact`):
 rows of rigid members and bar pairs, each pair right after its later bar; a row's slots are its nodes
 (a member's i, j; a pair's P_i, Q_i, P_j, Q_j)."""
 
@@ -358,7 +358,7 @@ CONTACT_STATE_FIELDS = (
     Field("contact_first", "int32", "(B,)", "--", "step of the first contact, -1 if none"),
     Field("contact_substeps", "int32", "(B,)", "--", "RATTLE substeps the column's contact steps took"),
 )
-"""State of the contact projection (:class:`warp_tensegrity.kernels.contact.ContactStep`)."""
+"""State of the contact projection (:class:`warp_tensegrity.sim.staged.contact.ContactStep`)."""
 
 
 def group_fields(group: str, fields: tuple[Field, ...] | None = None) -> tuple[Field, ...]:

@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, integrate, simulate_batch
-from warp_tensegrity.kernels.fused import SHARED_BYTES_MAX, shared_plan, solver_reals
+from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
+from warp_tensegrity.sim.block import step as block_step
+from warp_tensegrity.sim.staged import step as staged_step
+from warp_tensegrity.sim.block.kernels import SHARED_BYTES_MAX, shared_plan, solver_reals
 from warp_tensegrity.sweep import SpecError, parse_spec
 
 CASES = {  # FB and RB, slack-cable impacts and a prestressed one
@@ -29,7 +31,7 @@ def _pair(precision, device, cfg=ColumnConfig(n_prisms=8), params=CASES, **kw):
 @pytest.mark.parametrize("precision, tol", [("fp64", 1e-11), ("fp32", 1e-3)])
 def test_fused_matches_staged(precision, tol, device):
     staged, fused = _pair(precision, device)
-    assert staged.info["output_every"] > integrate.FUSED_STEPS  # records fall between launch ends
+    assert staged.info["output_every"] > block_step.FUSED_STEPS  # records fall between launch ends
     assert np.all(staged.status == 0) and np.all(fused.status == 0)
     scale = np.abs(staged.strain).max(axis=(1, 2))
     assert np.all(scale > 1e-6)
@@ -47,16 +49,16 @@ def test_emulated_lanes_and_shared_rows_match_staged():
     """Four lanes per block on the CPU (Warp's CPU block emulation, real barriers) with the band
     in the shared-memory buffer: the lane split, the barriers and the shared rows the GPU uses."""
     names = ("FUSED_BLOCK_DIM", "FUSED_SHARED_ON_CPU")
-    old = [wp.config.enable_cpu_blocks] + [getattr(integrate, n) for n in names]
+    old = [wp.config.enable_cpu_blocks] + [getattr(block_step, n) for n in names]
     try:
         wp.config.enable_cpu_blocks = True
-        integrate.FUSED_BLOCK_DIM = 4
-        integrate.FUSED_SHARED_ON_CPU = True
+        block_step.FUSED_BLOCK_DIM = 4
+        block_step.FUSED_SHARED_ON_CPU = True
         staged, fused = _pair("fp64", "cpu", cfg=ColumnConfig(n_prisms=5))
     finally:
         wp.config.enable_cpu_blocks = old[0]
         for n, v in zip(names, old[1:]):
-            setattr(integrate, n, v)
+            setattr(block_step, n, v)
     rel = np.abs(fused.strain - staged.strain).max() / np.abs(staged.strain).max()
     assert rel < 1e-11, rel
     assert np.all(fused.bar_length_error <= 1e-12)
@@ -113,7 +115,7 @@ def test_gram_assembly_with_bar_window_matches_reload(precision, tol, device, mo
     the one that reloads them for every coupling term (FB and RB columns, slack and taut)."""
     runs = {}
     for window in (False, True):
-        monkeypatch.setattr(integrate, "COLUMN_BAR_WINDOW", window)
+        monkeypatch.setattr(staged_step, "COLUMN_BAR_WINDOW", window)
         s = RunSettings(t_end=0.1, dt=5e-4, precision=precision, device=device, fused=False, truncate=False,
                         output_interval=0.01)
         runs[window] = simulate_batch(ColumnConfig(n_prisms=8), CASES, s)

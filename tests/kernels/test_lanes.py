@@ -1,4 +1,4 @@
-"""The lane step (one warp per column, kernels/lanes.py; on the CPU each warp is emulated by 32
+"""The lane step (one warp per column, sim/lanes/lanes.py; on the CPU each warp is emulated by 32
 fibers) against the staged kernels, an independent implementation of the same RATTLE: same numbers
 to round-off, same flags; which batches it takes (``lane_support`` on a batch, ``lane_refusal`` on a
 scene: they agree); and the policy that picks it (GPU decisions are pure functions of the inputs)."""
@@ -10,7 +10,7 @@ import pytest
 import warp as wp
 
 from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
-from warp_tensegrity.kernels.lanes import LANE_STEPS, LaneStep
+from warp_tensegrity.sim.lanes.lanes import LANE_STEPS, LaneStep
 from warp_tensegrity.policy.decide import decide, far_end
 from warp_tensegrity.policy.lane_fit import MAX_LEVELS_PER_LANE, lane_refusal, lane_shape, lane_support
 from warp_tensegrity.policy.paths import NOT_CHECKED, choose_path
@@ -22,7 +22,7 @@ from warp_tensegrity.types import Path
 
 # flexible, elastic and nearly rigid bases in one batch; slack and prestressed impacts
 MIXED = {"prestrain": [0.0, 0.002, 0.002], "v0": [0.005, 0.1, 0.05], "base_rigidity": [0.0, 0.5, 0.95]}
-# the same with rigid bases (ring links as constraints: kernels/lane_rigid.py), slack and prestressed
+# the same with rigid bases (ring links as constraints: sim/lanes/lane_rigid.py), slack and prestressed
 RIGID = {"prestrain": [0.0, 0.002, 0.002, 0.0, 0.002], "v0": [0.005, 0.1, 0.05, 0.005, 0.1],
          "base_rigidity": [0.0, 0.5, 0.95, 1.0, 1.0]}
 
@@ -125,7 +125,7 @@ def test_lane_refusal_agrees_with_lane_support(cfg, params, n_sim, words):
 def test_the_cpu_runs_the_lane_step_only_emulated(monkeypatch):
     """Without Warp's CPU blocks each lane would be a block of its own (shuffles and votes would
     read nothing): the Integrator refuses rather than hang or compute garbage."""
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
 
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", False)
     with pytest.raises(SettingsError, match="CPU blocks"):

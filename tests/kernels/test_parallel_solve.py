@@ -1,4 +1,4 @@
-"""The fused step's lane-parallel constraint solve (block cyclic reduction, kernels/coop.py).
+"""The fused step's lane-parallel constraint solve (block cyclic reduction, sim/block/coop.py).
 
 Warp's CPU device runs a block's lanes only with ``wp.config.enable_cpu_blocks``; every test here
 switches it on, so the lane split and the barriers of the GPU kernel run in CI.
@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_tensegrity import ColumnConfig, RunSettings, integrate, simulate_batch
-from warp_tensegrity.kernels.coop import block_sync, make_cr_funcs
+from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
+from warp_tensegrity.sim.block import step as block_step
+from warp_tensegrity.sim.block.coop import block_sync, make_cr_funcs
 
 
 @pytest.fixture
@@ -17,8 +18,8 @@ def lanes(monkeypatch):
     """Emulated lanes on the CPU, with the solver and node rows in the block's shared buffer."""
     def use(n):
         monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-        monkeypatch.setattr(integrate, "FUSED_BLOCK_DIM", n)
-        monkeypatch.setattr(integrate, "FUSED_SHARED_ON_CPU", True)
+        monkeypatch.setattr(block_step, "FUSED_BLOCK_DIM", n)
+        monkeypatch.setattr(block_step, "FUSED_SHARED_ON_CPU", True)
     return use
 
 
@@ -157,7 +158,7 @@ def test_lane_parallel_step_fp32(lanes):
 
 
 def test_fused_node_slots_are_the_types_slots():
-    from warp_tensegrity.kernels import common
+    from warp_tensegrity.sim import common
     from warp_tensegrity.types import Slot
 
     assert common.NQ == len(Slot)
@@ -217,7 +218,7 @@ def test_serial_solver_variant_matches_staged_and_cr(case, shared, lanes, monkey
     from warp_tensegrity.types import Path
 
     lanes(4)
-    monkeypatch.setattr(integrate, "FUSED_SHARED_ON_CPU", shared)
+    monkeypatch.setattr(block_step, "FUSED_SHARED_ON_CPU", shared)
     cfg, params = COLUMNS[case]
     s = RunSettings(t_end=0.03, dt=5e-4, device="cpu", truncate=False, output_interval=0.01)
     out = {}

@@ -22,7 +22,7 @@ PARAMS = {"prestrain": [0.002, 0.01, 0.005], "v0": [0.3, 0.05, 0.1], "base_rigid
 
 def _parts_run(n: int, station: int, k: int, n_out: int = 6, every: int = 120):
     """(records (below, end, kinetic, elastic) each (n_out, B), NumPy parts of the state at each output)."""
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
 
     cfg = ColumnConfig(n_prisms=n)
     batch = column_batch(cfg, column_params(cfg, PARAMS))
@@ -107,7 +107,7 @@ def test_flux_through_the_section_integrates_to_the_energy_passed():
     forces times the velocities of their ends across the section, bar forces from the state's
     constraint solve: energy.section_power, NumPy), integrated over time (trapezoids over every
     step), equals the change of the recorded energy on that side to the integration error."""
-    from warp_tensegrity.integrate import Integrator
+    from warp_tensegrity.sim.integrate import Integrator
 
     n, s, steps, dt = 4, 1, 1500, 2e-4
     cfg = ColumnConfig(n_prisms=n)

@@ -222,7 +222,7 @@ def test_vectorised_member_coupling_and_masses_are_the_loops(n, mode, hand, mass
     """model.constraint_coupling / mass_entries (vectorised for long columns, issue 23) give the
     device exactly what the per-member loops gave, rigid links, mixed handedness and massive bars included."""
     pytest.importorskip("warp")
-    from warp_tensegrity.model import constraint_coupling, mass_entries
+    from warp_tensegrity.sim.model import constraint_coupling, mass_entries
 
     cfg = ColumnConfig(n_prisms=n, impact_admissibility=mode, handedness=hand, bar_mass=0.01 if massive else 0.0)
     for beta in ([0.0], [1.0], [0.0, 1.0, 0.5]):

@@ -105,7 +105,7 @@ def test_profiles_are_recorded():
 
 
 def test_ea_profile_is_kept_off_the_lane_step_and_paths_agree():
-    """The lane step reads one EA per column (kernels/lanes.py): the policy routes an EA profile off it,
+    """The lane step reads one EA per column (sim/lanes/lanes.py): the policy routes an EA profile off it,
     and the paths it may take give the staged path's numbers."""
     params = {"prestrain": Profile.segments(0.01, 0.05, 3), "cable_EA": Profile.grade(0.3, 0.6), "v0": 0.05,
               "base_rigidity": 0.5}

@@ -135,7 +135,7 @@ def test_a_heavy_striker_is_a_piston_not_the_velocity_impact():
 
 def test_fp32_keeps_the_contact_that_fp64_keeps():
     """A touching striker is not taken for gone by the round-off of the gap: fp32 leaves where fp64 does
-    (within a step), not at the first step (the gap's tolerance, kernels.striker.striker_iterate)."""
+    (within a step), not at the first step (the gap's tolerance, sim.staged.striker.striker_iterate)."""
     cfg = ColumnConfig(n_prisms=6, impact="striker", striker_mass=0.1)
     seps = []
     for precision in ("fp32", "fp64"):

@@ -7,7 +7,7 @@ import warp as wp
 from warp_tensegrity.validation import linear
 from warp_tensegrity import Network, RunSettings, column_batch, network_batch, run_batch, simulate_batch
 from tests.references.reference import ClassOneMatrixForm, ReferenceSystem, integrate_matrix_form
-from warp_tensegrity.integrate import Integrator
+from warp_tensegrity.sim.integrate import Integrator
 from warp_tensegrity.scene.columns import ColumnConfig, build_column, prism_heights
 from warp_tensegrity.types import Path
 
@@ -131,7 +131,7 @@ def test_gathered_acceleration_is_minv_f(precision, rtol, device):
         d = integ.data
         vec = wp.types.vector(3, integ.real)
         d.u.assign(wp.array(np.ascontiguousarray(dx.transpose(1, 0, 2)), dtype=vec, device=d.u.device))
-        integ._gather(d.u, d.v, 0.0, d.a, d.u_prev)  # v_out: a scratch row
+        integ.stepper.gather(d.u, d.v, 0.0, d.a, d.u_prev)  # v_out: a scratch row
         a = d.a.numpy().transpose(1, 0, 2)
         for b, net in enumerate(nets):
             ref = ReferenceSystem(net)

@@ -1,6 +1,6 @@
 """Energy measures of a column (NumPy, float64): where the impact energy goes. Definitions in
 ``docs/measurements.md`` ("Energy measures"); the engine records the parts on the device
-(``kernels.staged.record_energy_parts``) and computes the shares there
+(``sim.staged.kernels.record_energy_parts``) and computes the shares there
 (:func:`warp_tensegrity.measure.device.measure_record`); this module is the reference the tests
 compare against, and the definition of the parts.
 

@@ -4,7 +4,7 @@ record, and the end-of-run summary of it.
 
 The engine keeps, per prism (or, in a network that is not a column, per member pair) and column,
 running extremes and the first output slot of each reason (:data:`~warp_tensegrity.types.FEASIBILITY_FLAGS`,
-``kernels.staged.record_feasibility`` and ``record_pairs``); :func:`prism_record` and
+``sim.staged.kernels.record_feasibility`` and ``record_pairs``); :func:`prism_record` and
 :func:`pair_record` reduce them to one value per case. Pure NumPy; docs/model.md states the
 domain and what a flag means for the measures (:func:`left_before_measured`).
 """

@@ -246,7 +246,7 @@ def _write_cache(path: Path, cal: dict) -> None:
 def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
     import warp as wp  # Warp and the kernels load with a probe, not with the package
 
-    from ..integrate import Integrator  # imports Warp: not at package import
+    from ..sim.integrate import Integrator  # imports Warp: not at package import
     from ..measure.device import measure_record  # imports Warp: not at package import
     from ..measure.device_kernels import load_kernels  # imports Warp
 

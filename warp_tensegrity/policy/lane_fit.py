@@ -1,4 +1,4 @@
-"""Which T3 columns the one-warp-per-column step (:mod:`warp_tensegrity.kernels.lanes`) takes, in
+"""Which T3 columns the one-warp-per-column step (:mod:`warp_tensegrity.sim.lanes.lanes`) takes, in
 NumPy alone, so the policy decides without loading Warp: the lane map's shape (:func:`lane_shape`),
 a built batch (:func:`lane_support`) and a scene before any batch is built (:func:`lane_refusal`);
 the two agree on column batches (tests/kernels/test_lanes.py)."""
@@ -125,7 +125,7 @@ def lane_refusal(config, params: dict, n_prisms: int | None = None) -> str | Non
     if config.bar_mass > 0:
         return "massive bars (consistent bar inertia couples node pairs)"
     if np.ndim(params.get("cable_EA", 0.0)) == 2:
-        # the lane step holds one cross-cable and one base-member EA per column (kernels/lanes.py)
+        # the lane step holds one cross-cable and one base-member EA per column (sim/lanes/lanes.py)
         return "a cable_EA profile along the column (the lane step takes one EA per column)"
     if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
         return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a {WARP}-lane warp"

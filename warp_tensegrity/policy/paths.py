@@ -1,6 +1,6 @@
 """The launch path of a batch (:func:`choose_path`): the staged kernels, the fused step (a block
 per column, its constraint solve by block cyclic reduction or serially on lane 0) or the lane step
-(one warp per column, :mod:`warp_tensegrity.kernels.lanes`), from the settings, the device, the
+(one warp per column, :mod:`warp_tensegrity.sim.lanes.lanes`), from the settings, the device, the
 batch's width and Gram band, and whether the lane step takes the batch.
 
 Whether the lane step takes the batch: :mod:`.lane_fit`. :func:`~.decide.decide` calls
@@ -56,11 +56,11 @@ NOT_CHECKED = "the batch was not checked for the lane step"
 (and fused = 'lanes' is refused with this reason)."""
 
 
-CONTACT_PATH = "bar contact runs on the staged kernels only (kernels.contact; the fused and lane steps have none)"
+CONTACT_PATH = "bar contact runs on the staged kernels only (sim.staged.contact; the fused and lane steps have none)"
 """Why a run with bar contact (scene contact = 'bars') takes the staged path."""
 
 
-STRIKER_PATH = "the striker runs on the staged kernels only (kernels.striker; the fused and lane steps have none)"
+STRIKER_PATH = "the striker runs on the staged kernels only (sim.staged.striker; the fused and lane steps have none)"
 """Why a run with a striker (scene impact = 'striker') takes the staged path."""
 
 

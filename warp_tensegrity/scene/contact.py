@@ -1,6 +1,6 @@
 """Bar contact (issue 32), host side, NumPy: the bar pairs of each prism, the signed distance of their
 axes, the contact twist of a regular prism, and the augmented constraint system (rigid members and
-contact rows) whose Gram matrix the contact projection factors (:mod:`warp_tensegrity.kernels.contact`).
+contact rows) whose Gram matrix the contact projection factors (:mod:`warp_tensegrity.sim.staged.contact`).
 
 Geometry. Bars i and j of a prism are segments P_i -> Q_i and P_j -> Q_j (bottom -> top node). The
 signed axis distance is

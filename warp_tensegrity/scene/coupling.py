@@ -1,5 +1,5 @@
 """The constraint Gram matrix's coupling pattern and the mass entries of a network batch, in NumPy:
-what the device model is built from (:mod:`warp_tensegrity.model`) and what the policy reads the
+what the device model is built from (:mod:`warp_tensegrity.sim.model`) and what the policy reads the
 Gram half-bandwidth from (:func:`warp_tensegrity.policy.paths.gram_bandwidth`) without Warp."""
 
 from __future__ import annotations

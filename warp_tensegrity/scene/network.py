@@ -1,7 +1,7 @@
 """A tensegrity network on the host: nodes, rigid bars and elastic cables (float64 NumPy).
 
 This is the scene-level description every other stage starts from. It knows nothing of
-Warp or batching; :mod:`warp_tensegrity.model` turns a batch of networks of one topology
+Warp or batching; :mod:`warp_tensegrity.sim.model` turns a batch of networks of one topology
 into device arrays.
 
 Conventions (paper, Sec. 2.1): bar ``k`` joining nodes ``(i, j)`` has vector

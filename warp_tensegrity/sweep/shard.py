@@ -163,7 +163,7 @@ def template_dataset(plan: SweepPlan):
         station_energy=z(1, T), end_energy=z(1, T),
         info={"output_step": steps if len(plan.groups) < 2 else None, "column_dt": np.full(1, plan.dt),
               "column_group": np.zeros(1, np.int32), "column_bits": np.full(1, 64, np.int8)}, feasibility=feasible_record(1))
-    if spec.scene.impact == "striker":  # the striker's records (kernels.striker)
+    if spec.scene.impact == "striker":  # the striker's records (sim.staged.striker)
         result.info["striker"] = {"velocity": z(1, T), "force": z(1, T), "mass": z(1), "separation_time": z(1),
                                   "last_separation_time": z(1), "recontacts": np.zeros(1, np.int64),
                                   "contact_residual": z(1)}

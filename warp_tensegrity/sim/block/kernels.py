@@ -21,17 +21,15 @@ has one lane unless ``wp.config.enable_cpu_blocks`` emulates the lanes (the test
 """
 
 import functools
-from dataclasses import dataclass
-from types import SimpleNamespace
+from typing import NamedTuple
 
-import numpy as np
 import warp as wp
 
-from .. import types
-from .common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3,
-                     make_band_funcs, make_gram_row, member_vec, node_force, node_impulse, projection_status,
+from ... import types
+from ..common import (NQ, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, I, P, U, V, array_type, bar_residual, finite3, force_columns,
+                     make_band_funcs, make_gram_row, member_vec, newton_stop, node_force, node_impulse, projection_status,
                      set_failure)
-from .coop import band_reals, block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
+from .coop import block_size, block_sync, make_block_max, make_cr_funcs, shared_snippet, solver_reals
 
 SHARED_BYTES_MAX = 46 * 1024  # static shared memory a block may take (48 KiB CUDA limit, some slack)
 SHARED_NODES = True  # node rows in shared memory too when they fit after the solver rows
@@ -53,6 +51,16 @@ def shared_plan(n_nodes: int, n_constraints: int, bandwidth: int, block_dim: int
     nodes = SHARED_NODES and not (solver == "serial" and bandwidth > SERIAL_SHARED_NODES_MAX_BANDWIDTH)
     q_cap = n_nodes * NQ if nodes and x_cap * real_bytes + qs <= budget else 0
     return x_cap, q_cap
+
+
+class NodeFuncs(NamedTuple):
+    """The fused step's per-node bodies and its model struct."""
+
+    ColumnModel: type
+    block_max: wp.Function
+    gather_kick: wp.Function
+    apply_impulse: wp.Function
+    vec: type
 
 
 @functools.cache
@@ -78,12 +86,7 @@ def make_node_funcs(real):
                     bd: int):
         """qa = M^-1 f(U); V += kick qa. Forces go through slot I first, so each is evaluated once."""
         nn = m.partner.shape[0]
-        wE = w % m.cab_EA.shape[1]
-        wC = w % m.cab_EAc.shape[1]
-        wL = w % m.cab_L.shape[1]
-        ws = w % m.minv_self.shape[1]
-        wx = w % m.minv_cross.shape[1]
-        wF = w % m.ext_force.shape[1]
+        wE, wC, wL, wF, ws, wx = force_columns(m.cab_EA, m.cab_EAc, m.cab_L, m.ext_force, m.minv_self, m.minv_cross, w)
         for n in range(lane, nn, bd):
             q[n, I] = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc,
                                  m.cab_L, m.ext_force, q, n, U, wE, wC, wL, wF)
@@ -111,8 +114,16 @@ def make_node_funcs(real):
             q[n, V] = q[n, V] - dn * scale_v
         block_sync()
 
-    return SimpleNamespace(ColumnModel=ColumnModel, block_max=block_max, gather_kick=gather_kick,
-                           apply_impulse=apply_impulse, vec=vec)
+    return NodeFuncs(ColumnModel=ColumnModel, block_max=block_max, gather_kick=gather_kick,
+                     apply_impulse=apply_impulse, vec=vec)
+
+
+class FactorFuncs(NamedTuple):
+    """The fused step's Gram factor and solve."""
+
+    rows: wp.Function
+    solve: wp.Function
+    factor_gram: wp.Function
 
 
 @functools.cache
@@ -213,7 +224,18 @@ def make_factor_funcs(real, bandwidth: int, solver: str = "cr"):
         else:
             return factor_blocks(m, q, x, red, w, lane, bd)
 
-    return SimpleNamespace(rows=rows, solve=solve, factor_gram=factor_gram)
+    return FactorFuncs(rows=rows, solve=solve, factor_gram=factor_gram)
+
+
+class ColumnFuncs(NamedTuple):
+    """The fused step's projections."""
+
+    ColumnModel: type
+    gather_kick: wp.Function
+    factor_gram: wp.Function
+    project_velocities: wp.Function
+    project_positions: wp.Function
+    vec: type
 
 
 @functools.cache
@@ -271,17 +293,24 @@ def make_column_funcs(real, bandwidth: int, solver: str = "cr"):
                             e_lane = e
                 x[k, 0] = r
             err = block_max(x, red, e_lane, lane, bd)
-            if err <= tol or it >= max_iter:
+            if newton_stop(err, prev, tol, it, max_iter):
                 break
-            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                break  # stalled at round-off just above tol
             solve(x, band, nc, lane, bd)
             apply_impulse(m, q, P, x, real(1.0), real(1.0) / h, w, lane, bd)
             it += 1
         return err, it
 
-    return SimpleNamespace(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=ff.factor_gram,
-                           project_velocities=project_velocities, project_positions=project_positions, vec=vec)
+    return ColumnFuncs(ColumnModel=ColumnModel, gather_kick=nf.gather_kick, factor_gram=ff.factor_gram,
+                       project_velocities=project_velocities, project_positions=project_positions, vec=vec)
+
+
+class StepFuncs(NamedTuple):
+    """The fused step's RATTLE steps."""
+
+    first_factor: wp.Function
+    rattle_steps: wp.Function
+    ColumnModel: type
+    vec: type
 
 
 @functools.cache
@@ -346,7 +375,16 @@ def make_step_funcs(real, bandwidth: int, solver: str = "cr"):
                 break
         return worst, most
 
-    return SimpleNamespace(first_factor=first_factor, rattle_steps=rattle_steps, ColumnModel=ColumnModel, vec=vec)
+    return StepFuncs(first_factor=first_factor, rattle_steps=rattle_steps, ColumnModel=ColumnModel, vec=vec)
+
+
+class FusedKernels(NamedTuple):
+    """The fused step's kernel and its types."""
+
+    real: type
+    vec: type
+    ColumnModel: type
+    rattle_columns: wp.Kernel
 
 
 @functools.cache
@@ -426,78 +464,4 @@ def make_fused_kernels(real, bandwidth: int, x_cap: int = 0, q_cap: int = 0, sol
             a[n, w] = qa[n]
         block_sync()  # CPU fibers may start the next block as lanes finish: its loads must wait for our stores
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def advance_counter_by(step: wp.array(dtype=int), n: int):
-        step[0] = step[0] + n
-
-    return SimpleNamespace(real=real, vec=vec, ColumnModel=ColumnModel, rattle_columns=rattle_columns,
-                           advance_counter_by=advance_counter_by)
-
-
-@dataclass
-class FusedStep:
-    """Scratch (:data:`warp_tensegrity.types.SCRATCH_FIELDS`) and launches of the fused step for one
-    model on one device: :meth:`launch` (n_sub steps or the initialisation), :meth:`advance_counter`."""
-
-    records_inside = False
-    """Its launches end on output steps, and the Integrator's record kernels run after them."""
-
-    model: object  # warp_tensegrity.model.Model
-    device: object  # wp.context.Device
-    block_dim: int  # lanes per column block (1 on the CPU unless lanes are emulated)
-    steps_per_launch: int  # most RATTLE steps per launch
-    shared: bool = True  # solver / node rows in block shared memory where they fit
-    solver: str = "cr"  # constraint solver: "cr" (lanes in parallel) or "serial" (lane 0)
-
-    def __post_init__(self):
-        m, sv = self.model, self.solver
-        real = self.real = wp.float64 if m.precision == "fp64" else wp.float32
-        rb = 8 if real == wp.float64 else 4
-        self.x_cap, self.q_cap = (shared_plan(m.n_nodes, m.n_constraints, m.bandwidth, self.block_dim, rb, solver=sv)
-                                  if self.shared else (0, 0))
-        nbr = band_reals(m.n_constraints, m.bandwidth, sv)
-        k = self.kernels = make_fused_kernels(real, m.bandwidth, self.x_cap, self.q_cap, sv,
-                                              max(m.n_constraints, 1) if nbr else 0)
-        B, d = m.n_columns, m.device
-        nx = solver_reals(m.n_constraints, m.bandwidth, self.block_dim, sv) - nbr
-        self.sx = wp.zeros((1, 1, 1) if self.x_cap else (B, nx, 1), dtype=real, device=d)
-        self.sb = wp.zeros((B, max(m.n_constraints, 1), m.bandwidth + 1, 1) if nbr and not self.x_cap else (1, 1, 1, 1),
-                           dtype=real, device=d)
-        self.sq = wp.zeros((1, 1, 1) if self.q_cap else (B, m.n_nodes, NQ), dtype=k.vec, device=d)
-        self.sa = wp.zeros((B, m.n_nodes), dtype=k.vec, device=d)
-        self.cm = k.ColumnModel()
-        self._column_major = []  # the copies the struct's views point into (kept alive here)
-        for f in types.group_fields("fused"):
-            a = getattr(m, f.name)
-            setattr(self.cm, f.name, self._column_view(a) if a.ndim == 2 and a.shape[1] > 1 else a)
-
-    def _column_view(self, a):
-        """The (n, B) parameter ``a`` as an (n, B) view of a (B, n) copy: a block's lanes read a column's
-        values from adjacent addresses (coalesced), where the model's layout puts them B apart."""
-        t = wp.array(np.ascontiguousarray(np.swapaxes(a.numpy(), 0, 1)), dtype=a.dtype, device=a.device)  # vec3 too
-        self._column_major.append(t)
-        return t.transpose()
-
-    @property
-    def description(self) -> str:
-        where = ("shared" if self.x_cap else "global") + "/" + ("shared" if self.q_cap else "global")
-        how = "block cyclic reduction" if self.solver == "cr" else "serial banded Cholesky on lane 0"
-        name = "fused" if self.solver == "cr" else "fused-serial"
-        return f"{name} ({how}, {self.block_dim} lanes per column; solver/node rows {where})"
-
-    def load(self):
-        self.kernels.rattle_columns.module.load(self.device, self.block_dim)
-        self.kernels.advance_counter_by.module.load(self.device, 1 if not self.device.is_cuda else 256)
-
-    def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
-        r, d = self.real, data
-        wp.launch_tiled(self.kernels.rattle_columns, dim=[self.model.n_columns], block_dim=self.block_dim,
-                        device=self.device, inputs=[
-                            self.cm, r(settings.tolerance), int(settings.max_projection_iters),
-                            r(settings.failure_bar_error), r(dt), int(n_sub), int(init), d.step,
-                            d.u, d.v, d.a, d.bar_err, d.iters, d.status, d.fail_step,
-                            self.sq, self.sx, self.sb, self.sa])
-
-    def advance_counter(self, data, n: int):
-        wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device,
-                  block_dim=1 if not self.device.is_cuda else 256)
+    return FusedKernels(real=real, vec=vec, ColumnModel=ColumnModel, rattle_columns=rattle_columns)

@@ -20,7 +20,7 @@ tests/test_layout.py).
 """
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
@@ -86,6 +86,22 @@ def make_block_max(real):
         return m
 
     return block_max
+
+
+class BlockFuncs(NamedTuple):
+    """Small dense blocks of the cyclic reduction: types and bodies."""
+
+    mat: type
+    vec: type
+    mload: wp.Function
+    mstore: wp.Function
+    vload: wp.Function
+    vstore: wp.Function
+    spd_inverse: wp.Function
+    col: wp.Function
+    col_store: wp.Function
+    mv: wp.Function
+    mtv: wp.Function
 
 
 @functools.cache
@@ -178,8 +194,17 @@ def make_block_funcs(real, S: int):
                 y[r] += x[off + k * S + r, 0] * v[k]
         return y
 
-    return SimpleNamespace(mat=mat, vec=vecS, mload=mload, mstore=mstore, vload=vload, vstore=vstore,
-                           spd_inverse=spd_inverse, col=col, col_store=col_store, mv=mv, mtv=mtv)
+    return BlockFuncs(mat=mat, vec=vecS, mload=mload, mstore=mstore, vload=vload, vstore=vstore,
+                      spd_inverse=spd_inverse, col=col, col_store=col_store, mv=mv, mtv=mtv)
+
+
+class CRFuncs(NamedTuple):
+    """The block cyclic reduction's factor and solve."""
+
+    cr_factor: wp.Function
+    cr_solve: wp.Function
+    mat: type
+    vec: type
 
 
 @functools.cache
@@ -276,4 +301,4 @@ def make_cr_funcs(real, S: int):
             block_sync()
             s = s / 2
 
-    return SimpleNamespace(cr_factor=cr_factor, cr_solve=cr_solve, mat=bf.mat, vec=bf.vec)
+    return CRFuncs(cr_factor=cr_factor, cr_solve=cr_solve, mat=bf.mat, vec=bf.vec)

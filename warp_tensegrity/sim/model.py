@@ -1,23 +1,23 @@
 """Device model and data: the arrays the kernels read. Their names, shapes, dtypes and units are
 declared once, in :data:`warp_tensegrity.types.MODEL_FIELDS` and :data:`~warp_tensegrity.types.DATA_FIELDS`;
-:class:`Model` and :class:`Data` are made from them, and :func:`build_model` fills them by name.
+:class:`Model` and :class:`Data` are written out from them (:mod:`.fields`, by :mod:`.fields_gen`),
+and :func:`build_model` fills them by name.
 """
 
 from __future__ import annotations
 
-import functools
-from dataclasses import make_dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
-from . import types
-from .kernels.common import array_type
-from .scene.coupling import constraint_coupling, mass_entries  # noqa: F401 (the device model is built from them)
+from .. import types
+from .common import array_type
+from .fields import Data, Model
+from ..scene.coupling import constraint_coupling, mass_entries  # noqa: F401 (the device model is built from them)
 
 if TYPE_CHECKING:
-    from .scene.batch import NetworkBatch
+    from ..scene.batch import NetworkBatch
 
 
 REAL = {"fp32": wp.float32, "fp64": wp.float64}
@@ -46,11 +46,6 @@ def node_member_csr(n_nodes: int, members: np.ndarray):
     return start, mid.astype(np.int32)
 
 
-MODEL_SIZES = (("precision", str), ("device", str), ("n_columns", int), ("n_nodes", int), ("n_constraints", int),
-               ("n_cables", int), ("bandwidth", int), ("n_prisms", int), ("n_pairs", int))
-"""Model's sizes beside its arrays (``bandwidth``: half-bandwidth of the Gram matrix in the chosen ordering;
-``n_pairs``: member pairs checked for crossing, networks that are not columns)."""
-
 MAX_PAIRS = 1 << 16
 """Most member pairs a network's feasibility record checks (the nearest, by reference midpoint distance)."""
 
@@ -74,19 +69,6 @@ def member_pairs(X: np.ndarray, bars: np.ndarray, cables: np.ndarray):
     dref = np.stack([X[nodes[:, 1]] - X[nodes[:, 0]], X[nodes[:, 3]] - X[nodes[:, 2]], X[nodes[:, 2]] - X[nodes[:, 0]]],
                     axis=1)
     return nodes, dref, kind
-
-
-@functools.cache
-def model_class(fields: tuple[types.Field, ...]) -> type:
-    """The Model dataclass of these array declarations: the sizes, then one ``wp.array`` attribute per field."""
-    arrays = [(f.name, "wp.array | None" if f.optional else "wp.array") for f in fields]
-    return make_dataclass("Model", [*MODEL_SIZES, *arrays], namespace={
-        "__module__": __name__,
-        "__doc__": "Topology and per-column parameters on the device (:data:`warp_tensegrity.types.MODEL_FIELDS`), "
-                   "and the sizes."})
-
-
-Model = model_class(types.MODEL_FIELDS)
 
 
 def host_arrays(batch: NetworkBatch, precision: str) -> tuple[dict, dict]:
@@ -159,15 +141,7 @@ def build_model(batch: NetworkBatch, precision: str, device) -> Model:
     if set(host) != {f.name for f in fields}:
         raise KeyError(f"host arrays {sorted(set(host) ^ {f.name for f in fields})} undeclared or not computed")
     real = REAL[precision]
-    return model_class(fields)(device=str(device), **sizes,
-                               **{f.name: device_array(host[f.name], f, real, device) for f in fields})
-
-
-Data = make_dataclass(
-    "Data", [*((f.name, "wp.array") for f in types.DATA_FIELDS), ("rk", "dict | None")],
-    namespace={"__module__": __name__, "__doc__": "Mutable state of a batch on the device "
-               "(:data:`warp_tensegrity.types.DATA_FIELDS`); ``rk``: RK4 scratch u0, v0, acc_u, acc_v, us, vs, "
-               "each (n, B) vec3."})
+    return Model(device=str(device), **sizes, **{f.name: device_array(host[f.name], f, real, device) for f in fields})
 
 
 def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = False,
@@ -175,7 +149,7 @@ def make_data(model: Model, velocity: np.ndarray, method: str, fused: bool = Fal
     """velocity: (B, n, 3) initial velocity [m s-1]; displacement: (B, n, 3) initial displacement from
     the reference [m] (a preloaded column's equilibrium), None: 0. With ``fused`` the staged kernels' scratch
     (u_prev, imp, band, lam) is not allocated (size-1 placeholders; the fused step keeps its own
-    rows, :class:`warp_tensegrity.kernels.fused.FusedStep`)."""
+    rows, :class:`warp_tensegrity.sim.block.step.FusedStep`)."""
     real = REAL[model.precision]
     vec = wp.types.vector(3, real)
     d = model.device

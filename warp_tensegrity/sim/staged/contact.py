@@ -34,16 +34,16 @@ a pair touches; a contact step then costs a few in-thread RATTLE substeps with t
 """
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
 
-from .. import types
-from ..scene.contact import contact_arrays
-from ..scene.coupling import mass_entries
-from .common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_residual, make_band_funcs, \
-    member_vec, node_force, set_failure
+from ... import types
+from ...scene.contact import contact_arrays
+from ...scene.coupling import mass_entries
+from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_row, force_columns, \
+    make_band_funcs, member_vec, newton_stop, node_force, set_failure
 
 wp.set_module_options({"enable_backward": False})
 
@@ -64,6 +64,17 @@ SIN_MIN = 0.1
 """Pairs whose axes are closer to parallel (sin of their angle below this) have no contact geometry."""
 TOUCH = 1e-6
 """Pairs within 2 r (1 + TOUCH) count as touching in the velocity stage."""
+
+
+class ContactKernels(NamedTuple):
+    """The contact step's structs and kernels."""
+
+    ContactModel: type
+    ContactState: type
+    vec: type
+    contact_positions: wp.Kernel
+    contact_velocities: wp.Kernel
+    pair_geometry: wp.Function
 
 
 @functools.cache
@@ -233,12 +244,7 @@ def make_contact_kernels(real, bandwidth: int):
     @wp.func
     def accelerations(m: ContactModel, u: wp.array2d(dtype=vec), a: wp.array2d(dtype=vec), w: int):
         """a = M^-1 f(u), as the staged gather_accel computes it."""
-        wE = w % m.cab_EA.shape[1]
-        wC = w % m.cab_EAc.shape[1]
-        wL = w % m.cab_L.shape[1]
-        ws = w % m.minv_self.shape[1]
-        wx = w % m.minv_cross.shape[1]
-        wF = w % m.ext_force.shape[1]
+        wE, wC, wL, wF, ws, wx = force_columns(m.cab_EA, m.cab_EAc, m.cab_L, m.ext_force, m.minv_self, m.minv_cross, w)
         for n in range(u.shape[0]):
             f = node_force(m.node_start, m.node_member, m.node_other, m.node_dref, m.cab_EA, m.cab_EAc, m.cab_L,
                            m.ext_force, u, n, w, wE, wC, wL, wF)
@@ -322,11 +328,9 @@ def make_contact_kernels(real, bandwidth: int):
                 if row_active(m, st, k, w, wa):
                     idx = m.row_index[k]
                     if m.row_kind[k] == 0:
-                        r, e = bar_residual(member_vec(m.con_dref, m.con_i, m.con_j, u, idx, w), m.con_L[idx])
+                        r, e, err = bar_row(m.con_dref, m.con_i, m.con_j, m.con_L, u, idx, w, err)
                         if not (e <= errb):
                             errb = e
-                        if not (e <= err):
-                            err = e
                     else:
                         D, nrm, s, t = pair_geometry(m, st, u, idx, w)
                         r = D - gap
@@ -334,10 +338,8 @@ def make_contact_kernels(real, bandwidth: int):
                         if not (ec <= err):
                             err = ec
                 st.clam[k, w] = r
-            if err <= tol or it >= max_iter:
+            if newton_stop(err, prev, tol, it, max_iter):
                 break
-            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                break  # stalled at round-off just above tol
             band_solve(st.cband, st.clam, nr, w)
             for p in range(npr):
                 if st.pair_act[p, w] == 1:
@@ -666,9 +668,9 @@ def make_contact_kernels(real, bandwidth: int):
                 set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
                 return
 
-    return SimpleNamespace(ContactModel=ContactModel, ContactState=ContactState, vec=vec,
-                           contact_positions=contact_positions, contact_velocities=contact_velocities,
-                           pair_geometry=pair_geometry)
+    return ContactKernels(ContactModel=ContactModel, ContactState=ContactState, vec=vec,
+                          contact_positions=contact_positions, contact_velocities=contact_velocities,
+                          pair_geometry=pair_geometry)
 
 
 class ContactStep:

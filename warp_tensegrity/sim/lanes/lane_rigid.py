@@ -22,7 +22,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from ..policy.lane_fit import MAX_RIGID_LEVELS_PER_LANE
+from ...policy.lane_fit import MAX_RIGID_LEVELS_PER_LANE
 
 
 

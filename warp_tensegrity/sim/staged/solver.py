@@ -9,19 +9,20 @@ alike. Layout and argument grouping as in :mod:`.staged` (the per-node kernels a
 
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
-from .common import (
+from ..common import (
     STATUS_CONSTRAINT,
     STATUS_NONFINITE,
     STATUS_OK,
-    bar_residual,
+    bar_row,
     finite3,
     make_band_funcs,
     make_gram_row,
     member_vec,
+    newton_stop,
     node_impulse,
     set_failure,
 )
@@ -112,6 +113,13 @@ def _assemble_funcs(real, bandwidth: int, bar_window: bool):
     return assemble_factor_window if bar_window else assemble_factor_reload
 
 
+class ProjectionFuncs(NamedTuple):
+    """The impulse and rate bodies of the projections."""
+
+    apply_impulse: wp.Function
+    project_rates: wp.Function
+
+
 @functools.cache
 def _projection_funcs(real, bandwidth: int):
     """Impulse application and the rate projection of one column thread."""
@@ -178,11 +186,22 @@ def _projection_funcs(real, bandwidth: int):
         apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, u, lam,
                       imp, real(1.0), y, real(0.0), y, w)
 
-    return SimpleNamespace(apply_impulse=apply_impulse, project_rates=project_rates)
+    return ProjectionFuncs(apply_impulse=apply_impulse, project_rates=project_rates)
+
+
+class SolverKernels(NamedTuple):
+    """The staged step's per-column constraint-solver kernels, by name (:func:`make_solver_kernels`)."""
+
+    real: type
+    bandwidth: int
+    project_positions: wp.Kernel
+    factor_project: wp.Kernel
+    factor_only: wp.Kernel
 
 
 @functools.cache
-def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, bar_window: bool | None = None):
+def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None,
+                        bar_window: bool | None = None) -> SolverKernels:
     """Per-column constraint-solver kernels (one thread per column) for scalar type ``real``, with
     the Gram-matrix half-bandwidth ``bandwidth`` compiled in (see :func:`.common.make_band_funcs`).
     ``max_registers`` caps the registers per CUDA thread (``__maxnreg__``; None: the compiler's
@@ -191,10 +210,9 @@ def make_solver_kernels(real, bandwidth: int, max_registers: int | None = None, 
     if bar_window is None:
         bar_window = real == wp.float32
     kopts = {"enable_backward": False, "module": "unique", "cuda_max_registers": max_registers}
-    ns = SimpleNamespace(real=real, bandwidth=int(bandwidth))
-    ns.project_positions = _position_kernel(real, bandwidth, bar_window, kopts)
-    ns.__dict__.update(vars(_factor_kernels(real, bandwidth, bar_window, kopts)))
-    return ns
+    return SolverKernels(real=real, bandwidth=int(bandwidth),
+                         project_positions=_position_kernel(real, bandwidth, bar_window, kopts),
+                         **_factor_kernels(real, bandwidth, bar_window, kopts))
 
 
 def _position_kernel(real, bandwidth, bar_window, kopts):
@@ -233,14 +251,10 @@ def _position_kernel(real, bandwidth, bar_window, kopts):
             for k in range(nc):
                 r = real(0.0)
                 if con_active[k, wa] > real(0.0):
-                    r, e = bar_residual(member_vec(con_dref, con_i, con_j, u, k, w), con_L[k])
-                    if not (e <= err):  # also catches NaN
-                        err = e
+                    r, e, err = bar_row(con_dref, con_i, con_j, con_L, u, k, w, err)
                 lam[k, w] = r
-            if err <= tol or it >= max_iter:
+            if newton_stop(err, prev, tol, it, max_iter):
                 break
-            if it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                break  # stalled at round-off just above tol: more iterations cannot help
             band_solve(band, lam, lam.shape[0], w)
             apply_impulse(con_i, con_j, con_dref, ncon_start, ncon_member, partner, minv_self, minv_cross, ug,
                           lam, imp, real(1.0), u, inv_dt, v, w)
@@ -278,34 +292,6 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         return ok
 
     @wp.kernel(**kopts)
-    def factor_project_velocities(
-        # Model:
-        con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
-        con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
-        cpl_a: wp.array(dtype=int), cpl_cross: wp.array(dtype=int), cpl_sign: wp.array(dtype=real),
-        ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
-        partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
-        # Data in:
-        u: wp.array2d(dtype=vec), step: wp.array(dtype=int),
-        # Data out:
-        band: wp.array3d(dtype=real), v: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
-    ):
-        """Factor A(u) (kept for the next position projection) and project v onto G(u) v = 0."""
-        w = wp.tid()
-        if status[w] != STATUS_OK:
-            return
-        if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
-                              minv_self, minv_cross, u, step, band, status, fail_step, w):
-            return
-        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
-                      u, v, 0, band, v, lam, imp, w)
-        for n in range(u.shape[0]):
-            if not finite3(v[n, w]):
-                set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
-                return
-
-    @wp.kernel(**kopts)
     def factor_only(
         # Model:
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
@@ -324,7 +310,7 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
                        minv_self, minv_cross, u, step, band, status, fail_step, w)
 
     @wp.kernel(**kopts)
-    def constrained_accel(
+    def factor_project(
         # Model:
         con_i: wp.array(dtype=int), con_j: wp.array(dtype=int), con_dref: wp.array(dtype=vec),
         con_active: wp.array2d(dtype=real), cpl_start: wp.array(dtype=int), cpl_l: wp.array(dtype=int),
@@ -332,20 +318,29 @@ def _factor_kernels(real, bandwidth, bar_window, kopts):
         ncon_start: wp.array(dtype=int), ncon_member: wp.array(dtype=int),
         partner: wp.array(dtype=int), minv_self: wp.array2d(dtype=real), minv_cross: wp.array2d(dtype=real),
         # Data in:
-        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int),
+        u: wp.array2d(dtype=vec), v: wp.array2d(dtype=vec), step: wp.array(dtype=int), rates: int,
         # Data out:
-        band: wp.array3d(dtype=real), a: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real), imp: wp.array2d(dtype=vec),
-        status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
+        band: wp.array3d(dtype=real), out: wp.array2d(dtype=vec), lam: wp.array2d(dtype=real),
+        imp: wp.array2d(dtype=vec), status: wp.array(dtype=int), fail_step: wp.array(dtype=int),
     ):
-        """Index-1 multipliers: A lam = G a_free + |b'|^2; a -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
+        """Factor A(u) (kept for the next position projection), then ``rates`` = 0: project the
+        velocities ``out`` (= v) onto G(u) v = 0; 1: the index-1 multipliers A lam = G a_free + |b'|^2,
+        a = ``out`` -= M^-1 G^T lam (the paper's RK4 right-hand side)."""
         w = wp.tid()
         if status[w] != STATUS_OK:
             return
         if not factor_or_flag(con_i, con_j, con_dref, con_active, cpl_start, cpl_l, cpl_a, cpl_cross, cpl_sign,
                               minv_self, minv_cross, u, step, band, status, fail_step, w):
             return
-        project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
-                      u, v, 1, band, a, lam, imp, w)
+        if rates == 1:
+            project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                          u, v, 1, band, out, lam, imp, w)
+        else:  # v is not read: out is the one velocity array, read and written (no aliased second view)
+            project_rates(con_i, con_j, con_dref, con_active, ncon_start, ncon_member, partner, minv_self, minv_cross,
+                          u, out, 0, band, out, lam, imp, w)
+            for n in range(u.shape[0]):
+                if not finite3(out[n, w]):
+                    set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
+                    return
 
-    return SimpleNamespace(factor_project_velocities=factor_project_velocities, factor_only=factor_only,
-                           constrained_accel=constrained_accel)
+    return {"factor_project": factor_project, "factor_only": factor_only}

@@ -1,6 +1,6 @@
 """Warp kernels of the integrator step, generated once per precision.
 
-Layout (see :mod:`warp_tensegrity.model`): every batched array is ``(n_items, B)`` with the
+Layout (see :mod:`warp_tensegrity.sim.model`): every batched array is ``(n_items, B)`` with the
 column index ``w`` fastest, so per-node/per-member launches ``dim=(n_items, B)`` and
 per-column solver threads (``dim=B``, looping over items) both read coalesced memory.
 Per-column parameters may have a trailing size of 1 (shared) and are read as ``p[k, w % p.shape[1]]``;
@@ -19,22 +19,36 @@ import them from there (not re-exported here: that would lengthen the import cha
 
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
-from .common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_excess2, member_vec,
+from ..common import (PI, STATUS_OK, axis_pair, cable_energy2, feasibility_record, member_excess2, member_vec,
                      node_force, output_slot, pget, prism_twist)
 
 wp.set_module_options({"enable_backward": False})
 
 
+class StagedKernels(NamedTuple):
+    """The staged step's per-node kernels and the output records, by name (:func:`make_kernels`)."""
+
+    real: type
+    vec: type
+    gather_accel: wp.Kernel
+    kick_drift: wp.Kernel
+    rk_stage: wp.Kernel
+    record_strain: wp.Kernel
+    record_energy: wp.Kernel
+    record_energy_parts: wp.Kernel
+    record_feasibility: wp.Kernel
+    record_pairs: wp.Kernel
+
+
 @functools.cache
-def make_kernels(real):
+def make_kernels(real) -> StagedKernels:
     """Kernels for scalar type ``real`` (wp.float32 or wp.float64): the per-node step kernels
     and the output records."""
-    return SimpleNamespace(real=real, vec=wp.types.vector(3, real), **vars(_node_kernels(real)),
-                           **vars(_record_kernels(real)))
+    return StagedKernels(real=real, vec=wp.types.vector(3, real), **_node_kernels(real), **_record_kernels(real))
 
 
 @functools.cache
@@ -132,16 +146,12 @@ def _node_kernels(real):
             u_next[n, w] = u0[n, w] + du * c_next
             v_next[n, w] = v0[n, w] + dv * c_next
 
-    return SimpleNamespace(gather_accel=gather_accel, kick_drift=kick_drift, rk_stage=rk_stage)
+    return {"gather_accel": gather_accel, "kick_drift": kick_drift, "rk_stage": rk_stage}
 
 
 @functools.cache
 def _record_kernels(real):
     vec = wp.types.vector(3, real)
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def advance_counter(step: wp.array(dtype=int)):
-        step[0] = step[0] + 1
 
     @wp.kernel(enable_backward=False, module="unique")
     def record_strain(
@@ -315,6 +325,5 @@ def _record_kernels(real):
                 pair_left_slot[p, w] = slot
         cross_side[p, w] = side
 
-    return SimpleNamespace(advance_counter=advance_counter, record_strain=record_strain, record_energy=record_energy,
-                           record_energy_parts=record_energy_parts,
-                           record_feasibility=record_feasibility, record_pairs=record_pairs)
+    return {"record_strain": record_strain, "record_energy": record_energy, "record_energy_parts": record_energy_parts,
+            "record_feasibility": record_feasibility, "record_pairs": record_pairs}

@@ -16,17 +16,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from .common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
+from ..common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
                      feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
                      set_failure)
-from ..policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
+from ...policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
 from .lane_funcs import make_lane_funcs
 from .lane_ops import make_lane_ops, warp_any
 from .lane_rigid import make_rigid_funcs
 
 if TYPE_CHECKING:
     from ..model import Model
-    from ..scene.batch import NetworkBatch
+    from ...scene.batch import NetworkBatch
 
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,

@@ -29,17 +29,28 @@ the approach), like the blow.
 """
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
 
-from .common import STATUS_OK, output_slot
+from ..common import STATUS_OK, output_slot
 
 wp.set_module_options({"enable_backward": False})
 
 ITERATIONS = 4
 """Secant updates of the contact multiplier per step (each one pass of the members' projection)."""
+
+
+class StrikerKernels(NamedTuple):
+    """The striker's kernels."""
+
+    striker_drift: wp.Kernel
+    striker_iterate: wp.Kernel
+    striker_finish: wp.Kernel
+    striker_fill: wp.Kernel
+    striker_velocity: wp.Kernel
+    striker_record: wp.Kernel
 
 
 @functools.cache
@@ -183,8 +194,8 @@ def make_striker_kernels(real):
         v_rec[slot, w] = V[w]
         f_rec[slot, w] = force[w]
 
-    return SimpleNamespace(striker_drift=striker_drift, striker_iterate=striker_iterate, striker_finish=striker_finish,
-                           striker_fill=striker_fill, striker_velocity=striker_velocity, striker_record=striker_record)
+    return StrikerKernels(striker_drift=striker_drift, striker_iterate=striker_iterate, striker_finish=striker_finish,
+                          striker_fill=striker_fill, striker_velocity=striker_velocity, striker_record=striker_record)
 
 
 class StrikerStep:
@@ -226,7 +237,7 @@ class StrikerStep:
         wp.launch(kernel, dim=self.n_columns, inputs=inputs, device=self.device, block_dim=self.block_dim)
 
     def load(self):
-        for kern in vars(self.k).values():
+        for kern in self.k:
             kern.module.load(self.device, self.block_dim)
 
     def drift(self, data, h: float):

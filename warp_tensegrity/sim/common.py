@@ -10,8 +10,7 @@ resolved to the wrong overload depending on compile order: do not.)
 
 import functools
 import math
-from types import SimpleNamespace
-from typing import Any
+from typing import Any, NamedTuple
 
 import warp as wp
 
@@ -84,10 +83,31 @@ def node_force(
 
 
 @wp.func
+def force_columns(EA: wp.array2d(dtype=Any), EAc: wp.array2d(dtype=Any), L: wp.array2d(dtype=Any),
+                  ext: wp.array2d(dtype=Any), minv_self: wp.array2d(dtype=Any), minv_cross: wp.array2d(dtype=Any),
+                  w: int):
+    """Column w's index (w modulo the parameter's Bp) into each per-column parameter of the forces and
+    the inverse masses: (EA, EA_c, rest length, dead load, self, cross)."""
+    return (w % EA.shape[1], w % EAc.shape[1], w % L.shape[1], w % ext.shape[1], w % minv_self.shape[1],
+            w % minv_cross.shape[1])
+
+
+@wp.func
 def bar_residual(b: Any, L: Any):
     """(r, e): the Newton residual r = (|b|^2 - L^2)/2 [m2] and the relative length error e."""
     bb = wp.dot(b, b)
     return type(L)(0.5) * (bb - L * L), wp.abs(wp.sqrt(bb) - L) / L
+
+
+@wp.func
+def bar_row(dref: wp.array(dtype=Any), ni: wp.array(dtype=int), nj: wp.array(dtype=int), L: wp.array(dtype=Any),
+            u: wp.array2d(dtype=Any), k: int, c: int, err: Any):
+    """Bar k's residual at ``u[:, c]`` (:func:`bar_residual`), its relative error, and the running
+    largest error ``err`` after it (a NaN kept: ``not (e <= err)`` also catches it)."""
+    r, e = bar_residual(member_vec(dref, ni, nj, u, k, c), L[k])
+    if not (e <= err):
+        err = e
+    return r, e, err
 
 
 @wp.func
@@ -123,6 +143,15 @@ def projection_status(err: Any, fail_tol: Any):
     elif err > fail_tol:
         code = STATUS_CONSTRAINT
     return code
+
+
+@wp.func
+def newton_stop(err: Any, prev: Any, tol: Any, it: int, max_iter: int):
+    """Whether a projection's Newton iteration stops at the largest relative bar error ``err``
+    (``prev``: the last iteration's) after ``it`` iterations: converged (err <= tol), out of
+    iterations, or stalled at round-off just above tol (less than halved, under 10 tol), where more
+    iterations cannot help. Every step family's stall rule (a NaN err never stops it here)."""
+    return (err <= tol or it >= max_iter) or (it > 0 and err > type(err)(0.5) * prev and err < type(err)(10.0) * tol)
 
 
 @wp.func
@@ -341,6 +370,15 @@ def make_gram_row(real, bandwidth: int):
     return gram_row, rowvec
 
 
+class BandFuncs(NamedTuple):
+    """The serial banded Cholesky's bodies for one precision and half-bandwidth."""
+
+    band_row: wp.Function
+    factor_store_row: wp.Function
+    band_solve: wp.Function
+    rowvec: type
+
+
 @functools.cache
 def make_band_funcs(real, bandwidth: int):
     """The sequential banded Cholesky of one thread (a staged solver thread per column, or lane 0
@@ -438,4 +476,4 @@ def make_band_funcs(real, bandwidth: int):
             xk, xw = sweep_row(cur, s, xw)
             x[k, w] = xk
 
-    return SimpleNamespace(band_row=band_row, factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)
+    return BandFuncs(band_row=band_row, factor_store_row=factor_store_row, band_solve=band_solve, rowvec=rowvec)

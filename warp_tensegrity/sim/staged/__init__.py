@@ -1,0 +1,1 @@
+"""The staged step family: one kernel per stage, every method; bar contact and the striker."""
