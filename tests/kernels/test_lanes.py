@@ -264,3 +264,41 @@ def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, pr
         else:  # no further from fp64 than the record kernels' (1.9e-4 of a p = 0 column's elastic energy)
             err = [np.nanmax(np.abs(x - getattr(ref, name)), axis=1) / scale for x in (a, b)]
             assert np.all(err[0] <= 1.25 * err[1]), (name, err)
+
+
+def _lanes_with(monkeypatch, cfg, params, precision, knobs, **kw):
+    """A lane run with the lane module's switches ``knobs`` ({dict name: value} for ``precision``);
+    returns (result, u, v, a, iters) at the end."""
+    from warp_tensegrity import integrate
+    from warp_tensegrity.kernels import lanes
+
+    seen = []
+
+    class Seen(integrate.Integrator):
+        def run(self, *a, **k):
+            seen.append(self)
+            return super().run(*a, **k)
+
+    with monkeypatch.context() as m:
+        for name, value in knobs.items():
+            m.setitem(getattr(lanes, name), precision, value)
+        m.setattr(integrate, "Integrator", Seen)
+        r = _run(cfg, params, "lanes", "cpu", precision, **kw)
+    d = seen[0].data
+    return r, d.u.numpy(), d.v.numpy(), d.a.numpy(), d.iters.numpy()
+
+
+def test_lanes_keep_the_accelerations_in_memory_bit_for_bit(monkeypatch):
+    """Issue 33 item 2: with the accelerations in memory between the forces and the next half kick
+    (LANE_A_MEM: not in registers through the factor and Newton), the same bits everywhere, the
+    state a failing column leaves (its u, v and the a of its last good step) included."""
+    cfg = ColumnConfig(n_prisms=2)
+    params = {**DIVERGING, "cable_EA": np.asarray(DIVERGING["cable_EA"]) * cfg.cable_EA}
+    kw = {"t_end": 0.1, "dt": 1e-3, "output_interval": 0.1, "allow_unstable_dt": True}
+    on = _lanes_with(monkeypatch, cfg, params, "fp64", {"LANE_A_MEM": True}, **kw)
+    off = _lanes_with(monkeypatch, cfg, params, "fp64", {"LANE_A_MEM": False}, **kw)
+    assert np.count_nonzero(on[0].status) == 2 and np.any(on[3] != 0)
+    np.testing.assert_array_equal(on[0].status, off[0].status)
+    np.testing.assert_array_equal(on[0].fail_step, off[0].fail_step)
+    for x, y, name in zip(on[1:], off[1:], ("u", "v", "a", "iters")):
+        np.testing.assert_array_equal(x, y, err_msg=name)

@@ -30,14 +30,17 @@ if TYPE_CHECKING:
 
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
-                     fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False):
+                     fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False,
+                     a_mem: bool = False):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
     has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
     approximate fp32 division and square root; ``smem_spill_block``: the launch's threads per block,
     with which register spills may go to shared memory instead of local memory, 0: not; ``loaded``:
     the batch has a dead load (the end preload), added to the cable forces; compiled out otherwise, so
-    an unloaded batch runs today's code). Launch
+    an unloaded batch runs today's code; ``a_mem``: the accelerations live in ``a`` (global memory)
+    from the forces to the next half kick instead of in registers through the factor, the velocity
+    projection and Newton, where only a failure store would read them). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2)
@@ -64,7 +67,28 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     node = 3 * L + k
                     u[node, w] = U[3 * j - 3 + k]
                     v[node, w] = V[3 * j - 3 + k]
-                    a[node, w] = A[3 * j - 3 + k]
+                    if wp.static(not a_mem):  # (a_mem: a holds them already)
+                        a[node, w] = A[3 * j - 3 + k]
+
+    @wp.func(inline=True)
+    def store_a(A: Nodes, a: wp.array2d(dtype=vec), lane: int, n: int, w: int):
+        """Write the lane's accelerations of column w (a_mem)."""
+        for j in range(1, wp.static(P + 1)):
+            L = wp.static(P) * lane + j
+            if L <= n:
+                for k in range(3):
+                    a[3 * L + k, w] = A[3 * j - 3 + k]
+
+    @wp.func(inline=True)
+    def load_a(a: wp.array2d(dtype=vec), lane: int, n: int, w: int):
+        """The lane's accelerations of column w (a_mem; 0 past the column)."""
+        A = Nodes()
+        for j in range(1, wp.static(P + 1)):
+            L = wp.static(P) * lane + j
+            if L <= n:
+                for k in range(3):
+                    A[3 * j - 3 + k] = a[3 * L + k, w]
+        return A
 
     @wp.func(inline=True)
     def record(U: Nodes, V: Nodes, Fx: Nodes, xyl: XY, hzl: Pv, hnd: Pv, ex: Pv, cross: vec, base_ea: vec,
@@ -204,7 +228,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         rr = wp.max(3 * j - 3 + k, 0)
                         U[rr] = u[node, wc]
                         V[rr] = v[node, wc]
-                        A[rr] = a[node, wc]
+                        if wp.static(not a_mem):
+                            A[rr] = a[node, wc]
                 if j > 0:
                     q = wp.max(j - 1, 0)
                     hzl[q] = hz[L - 1]
@@ -287,6 +312,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if init == 0:
                 Bp = Bm  # bars (and links) at the start of the step: the factor's
                 Cp = Cm
+                if wp.static(a_mem):
+                    A = load_a(a, lane, n, wc)
                 V = V + A * half
                 U = U + V * h
                 # simplified Newton onto |b| = L along M^-1 G(P)^T
@@ -336,6 +363,9 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                 Fn = Fn + Fx
             A = f.accelerations(Fn, minv)
             V = V + A * kick
+            if wp.static(a_mem):
+                if alive == 1:  # (a failed column keeps the a of its failure)
+                    store_a(A, a, lane, n, w)
         if alive == 1:
             store(U, V, A, u, v, a, lane, n, w)
         if start == 1 and lane == 0 and init == 0:
@@ -359,6 +389,9 @@ LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the 
 # for rigid bases, whose bars then reach 3.2e-7, over the fp32 tolerance of 3e-7
 LANE_FAST_MATH = {"fp32": True, "fp64": False}
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
+# the accelerations kept in global memory between the forces and the next half kick (registers
+# free through the factor and Newton; a failure store leaves them as they were)
+LANE_A_MEM = {"fp32": True, "fp64": True}
 
 
 class LaneStep:
@@ -388,7 +421,8 @@ class LaneStep:
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
                                         LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid,
                                         self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
-                                        batch.external_force is not None and bool(np.any(batch.external_force)))
+                                        batch.external_force is not None and bool(np.any(batch.external_force)),
+                                        LANE_A_MEM[prec])
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
