@@ -435,3 +435,150 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
                            accelerations=accelerations, gram=gram,
                            factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
                            finite_nodes=finite_nodes, bar_residual=bar_residual)
+
+
+def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cached kernel
+    """fp64 columns with an fp32 factor: the Gram matrix formed and factored in fp32 (half the
+    registers of the factor, fp32 arithmetic), each solve refined against fp64 residuals
+    r - A x, A x = G M^-1 G^T x formed from the fp64 bars (and links) as :func:`impulse` then
+    :func:`velocity_rows` do. ``f``, ``fr``: the fp64 pieces (``fr``: rigid bases, or None);
+    ``f32``, ``fr32``: the same in fp32. Iterative refinement with an fp32 factor gains a factor
+    ~ kappa u32 per pass (kappa: the Gram matrix's condition number, u32 = 2^-24) down to the fp64
+    solve's own error; :func:`probe` measures that factor once per launch, and
+    :func:`refinements` turns it into a count."""
+    r32 = wp.float32
+    Nodes, Rows, Lv, Pv = f.Nodes, f.Rows, f.Lv, f.Pv
+    Nodes32, Rows32, Lv32, Pv32 = f32.Nodes, f32.Rows, f32.Lv, f32.Pv
+    ops = f.ops
+    rigid = fr is not None
+    u64_u32 = real(2.0 ** -29)  # u64 / u32
+
+    @wp.func(inline=True)
+    def rows32(x: Rows):
+        y = Rows32()
+        for q in range(P):
+            for k in range(3):
+                y[q, k] = r32(x[q, k])
+        return y
+
+    @wp.func(inline=True)
+    def rows64(x: Rows32):
+        y = Rows()
+        for q in range(P):
+            for k in range(3):
+                y[q, k] = real(x[q, k])
+        return y
+
+    @wp.func(inline=True)
+    def nodes32(x: Nodes):
+        y = Nodes32()
+        for r in range(3 * P):
+            for k in range(3):
+                y[r, k] = r32(x[r, k])
+        return y
+
+    @wp.func(inline=True)
+    def lv32(x: Lv):
+        y = Lv32()
+        for j in range(P + 1):
+            y[j] = r32(x[j])
+        return y
+
+    @wp.func(inline=True)
+    def pv32(x: Pv):
+        y = Pv32()
+        for j in range(P):
+            y[j] = r32(x[j])
+        return y
+
+    @wp.func(inline=True)
+    def apply(Bm: Nodes, Cm: Nodes, beta: Rows, mu: Rows, minv: Lv, ex: Pv, rig: real, lane: int, g: int, wl: int):
+        """A [beta; mu] in fp64: the bars' rows and the links' rows (zero without rigid bases)."""
+        d = f.impulse(Bm, beta, minv, lane, g, wl)
+        rm = Rows()
+        if wp.static(rigid):
+            d = fr.link_impulse(d, Cm, mu, minv)
+            rm = fr.link_velocity_rows(Cm, d, ex, rig)
+        return f.velocity_rows(Bm, d, ex, lane, g, wl), rm
+
+    if rigid:
+        Fac32 = fr32.RFac
+
+        @wp.func(inline=True)
+        def factor(Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, n: int, lane: int, g: int, wl: int):
+            return fr32.factor(nodes32(Bm), nodes32(Cm), lv32(minv), pv32(ex), r32(rig), n, lane, g, wl)
+
+        @wp.func(inline=True)
+        def solve32(Fm: Fac32, rb: Rows, rm: Rows, lane: int, g: int, wl: int):
+            b, m = fr32.solve(Fm, rows32(rb), rows32(rm), lane, g, wl)
+            return rows64(b), rows64(m)
+    else:
+        Fac32 = f32.Fac
+
+        @wp.func(inline=True)
+        def factor(Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, n: int, lane: int, g: int, wl: int):
+            d, e, l, bnext = f32.gram(nodes32(Bm), lv32(minv), pv32(ex), n, lane, g, wl)
+            return f32.factor(d, e, l, lane, g, wl)
+
+        @wp.func(inline=True)
+        def solve32(Fm: Fac32, rb: Rows, rm: Rows, lane: int, g: int, wl: int):
+            return rows64(f32.solve(Fm, rows32(rb), lane, g, wl)), Rows()
+
+    @wp.func(inline=True)
+    def solve(Fm: Fac32, rb: Rows, rm: Rows, Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, passes: int,
+              lane: int, g: int, wl: int):
+        """(beta, mu) with A [beta; mu] = [rb; rm]: the fp32 solve, then ``passes`` refinements
+        (warp-uniform: the solves shuffle), A at the factor's bars Bm and links Cm."""
+        beta, mu = solve32(Fm, rb, rm, lane, g, wl)
+        for t in range(passes):
+            ab, am = apply(Bm, Cm, beta, mu, minv, ex, rig, lane, g, wl)
+            db, dm = solve32(Fm, rb - ab, rm - am, lane, g, wl)
+            beta = beta + db
+            mu = mu + dm
+        return beta, mu
+
+    @wp.func(inline=True)
+    def probe(Fm: Fac32, Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, alive: int, lane: int, g: int, wl: int):
+        """The relative error of one fp32 solve, max over the warp: for x of entries +-1 (signs
+        mixed along each chain and across lanes, so that A x has its large eigencomponents), the
+        solve of A x formed in fp64. It estimates kappa u32, the factor each refinement gains."""
+        xb = Rows()
+        xm = Rows()
+        for q in range(P):
+            for k in range(3):
+                s = real(1.0)
+                if ((lane * P + q) * 7 + k * 3 + (lane >> 1)) % 2 == 1:
+                    s = real(-1.0)
+                if ex[q] != real(0.0):
+                    xb[q, k] = s
+                    if wp.static(rigid):
+                        if rig != real(0.0):
+                            xm[q, k] = -s
+        ab, am = apply(Bm, Cm, xb, xm, minv, ex, rig, lane, g, wl)
+        yb, ym = solve32(Fm, ab, am, lane, g, wl)
+        err = real(0.0)
+        for q in range(P):
+            for k in range(3):
+                eb = wp.abs(yb[q, k] - xb[q, k])
+                em = wp.abs(ym[q, k] - xm[q, k])
+                if not (eb <= err):  # NaN wins
+                    err = eb
+                if not (em <= err):
+                    err = em
+        if alive == 0:  # (a frozen column's state may be anything)
+            err = real(0.0)
+        return ops.segment_max(err, 32, wl)
+
+    @wp.func(inline=True)
+    def refinements(eta: real, target: real, most: int):
+        """Passes k so that eta^(k + 1) <= target (eta: :func:`probe`'s error; target raised to the
+        fp64 solve's own error, eta u64 / u32), at most ``most`` (also where eta >= 1 or NaN)."""
+        t = wp.max(target, eta * u64_u32)
+        k = int(0)
+        e = eta
+        while not (e <= t) and k < most:
+            e = e * eta
+            k += 1
+        return k
+
+    return SimpleNamespace(factor=factor, solve=solve, probe=probe, refinements=refinements, Fac=Fac32)

@@ -20,7 +20,7 @@ from .common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_res
                      feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
                      set_failure)
 from ..policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
-from .lane_funcs import make_lane_funcs
+from .lane_funcs import make_lane_funcs, make_mixed_funcs
 from .lane_ops import make_lane_ops, warp_any
 from .lane_rigid import make_rigid_funcs
 
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
                      fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False,
-                     a_mem: bool = False):
+                     a_mem: bool = False, mixed: bool = False):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
     has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
@@ -40,12 +40,22 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     the batch has a dead load (the end preload), added to the cable forces; compiled out otherwise, so
     an unloaded batch runs today's code; ``a_mem``: the accelerations live in ``a`` (global memory)
     from the forces to the next half kick instead of in registers through the factor, the velocity
-    projection and Newton, where only a failure store would read them). Launch
+    projection and Newton, where only a failure store would read them; ``mixed``: fp64 only, the
+    factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2)
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
     RFac = fr.RFac if rigid else f.Fac
+    mixed = bool(mixed) and real == wp.float64
+    mx = None
+    if mixed:
+        ops32 = make_lane_ops(wp.float32)
+        f32 = make_lane_funcs(wp.float32, P, G, ops32, cable_force, bar_residual, cable_energy2)
+        mx = make_mixed_funcs(real, P, f, f32, fr, make_rigid_funcs(wp.float32, P, G, ops32, f32) if rigid else None)
+    FacQ = mx.Fac if mixed else f.Fac  # (a placeholder without mixed: compiled out)
+    target_v, target_n = (real(t) for t in MIXED_TARGET)
+    most_passes = int(MIXED_MOST_PASSES)
     vec = f.vec
     Nodes, XY, Lv, Rows, Pv = f.Nodes, f.XY, f.Lv, f.Rows, f.Pv
     zero = real(0.0)
@@ -263,6 +273,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         Cm = Nodes()
         if wp.static(rigid):
             Cm = fr.links(U, xyl, lane, g, wl)
+        pass_v = int(0)  # (mixed) refinement passes of the velocity projection's solve, of Newton's
+        pass_n = int(0)
         # iteration i: the factor of A(U) at the state after step i and the end of step i (velocity
         # projection), then step i + 1 up to its forces and second half kick; each piece once in code
         for i in range(n_it + 1):
@@ -270,8 +282,15 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                 break
             Fr = RFac()
             Fm = f.Fac()
+            Fq = FacQ()
             okl = int(1)
-            if wp.static(rigid):
+            if wp.static(mixed):
+                Fq, okl = mx.factor(Bm, Cm, minv, ex, rig, n, lane, g, wl)
+                if i == 0:  # the refinement passes from the launch's first factor (warp-uniform)
+                    eta = mx.probe(Fq, Bm, Cm, minv, ex, rig, alive, lane, g, wl)
+                    pass_v = mx.refinements(eta, target_v, most_passes)
+                    pass_n = mx.refinements(eta, target_n, most_passes)
+            elif wp.static(rigid):
                 Fr, okl = fr.factor(Bm, Cm, minv, ex, rig, n, lane, g, wl)
             else:
                 d, e, l, bnext = f.gram(Bm, minv, ex, n, lane, g, wl)
@@ -281,7 +300,15 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if i > 0:
                 rb = f.velocity_rows(Bm, V, ex, lane, g, wl)
                 dv = Nodes()
-                if wp.static(rigid):
+                if wp.static(mixed):
+                    rm = Rows()
+                    if wp.static(rigid):
+                        rm = fr.link_velocity_rows(Cm, V, ex, rig)
+                    beta, mu = mx.solve(Fq, rb, rm, Bm, Cm, minv, ex, rig, pass_v, lane, g, wl)
+                    dv = f.impulse(Bm, beta, minv, lane, g, wl)
+                    if wp.static(rigid):
+                        dv = fr.link_impulse(dv, Cm, mu, minv)
+                elif wp.static(rigid):
                     beta, mu = fr.solve(Fr, rb, fr.link_velocity_rows(Cm, V, ex, rig), lane, g, wl)
                     dv = fr.link_impulse(f.impulse(Bm, beta, minv, lane, g, wl), Cm, mu, minv)
                 else:
@@ -339,7 +366,12 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     if warp_any(going, wl) == 0:
                         break
                     dn = Nodes()
-                    if wp.static(rigid):
+                    if wp.static(mixed):
+                        beta, mu = mx.solve(Fq, r, rl, Bp, Cp, minv, ex, rig, pass_n, lane, g, wl)
+                        dn = f.impulse(Bp, beta, minv, lane, g, wl)
+                        if wp.static(rigid):
+                            dn = fr.link_impulse(dn, Cp, mu, minv)
+                    elif wp.static(rigid):
                         beta, mu = fr.solve(Fr, r, rl, lane, g, wl)
                         dn = fr.link_impulse(f.impulse(Bp, beta, minv, lane, g, wl), Cp, mu, minv)
                     else:
@@ -392,6 +424,13 @@ LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared me
 # the accelerations kept in global memory between the forces and the next half kick (registers
 # free through the factor and Newton; a failure store leaves them as they were)
 LANE_A_MEM = {"fp32": True, "fp64": True}
+# fp64 columns: an fp32 factor and fp32 solves with fp64 residuals and iterative refinement
+LANE_MIXED = {"fp32": False, "fp64": True}
+# what refinement reaches (:func:`.lane_funcs.make_mixed_funcs`): the velocity projection's solve
+# (a one-shot solve: its error goes into v), Newton's (which refines itself: each iteration forms
+# its residual in fp64, and an error eta of its solve only slows its convergence by eta)
+MIXED_TARGET = (1e-14, 1e-3)
+MIXED_MOST_PASSES = 6
 
 
 class LaneStep:
@@ -418,11 +457,11 @@ class LaneStep:
         self.rigid = batch.constraints.shape[0] == 6 * n
         self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
         prec = model.precision
-        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
-                                        LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid,
+        fast = LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid
+        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid, fast,
                                         self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
                                         batch.external_force is not None and bool(np.any(batch.external_force)),
-                                        LANE_A_MEM[prec])
+                                        LANE_A_MEM[prec], LANE_MIXED[prec])
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
