@@ -65,15 +65,29 @@ def test_lanes_match_staged_fp64(n, hand, shape, params, device):
     assert lanes.info["max_projection_iterations"] <= RunSettings().max_projection_iters
 
 
-def test_lanes_fp32_hold_the_bars(device):
-    """fp32, 64-step launches that end on every output step (100 steps per output)."""
+@pytest.mark.parametrize("params", [MIXED, RIGID], ids=["MIXED", "RIGID"])
+def test_lanes_fp32_hold_the_bars(params, device, monkeypatch):
+    """fp32, 64-step launches that end on every output step (100 steps per output). With the bar
+    check in its fast-math form (lane_funcs.bar_check; on CUDA also with the approximate division
+    and square root everywhere else, LANE_FAST_MATH and LANE_FAST_MATH_RIGID: issue 33 item 2)."""
+    from warp_tensegrity.kernels import lanes as lane_module
+
+    make = lane_module.make_lane_kernel
+    monkeypatch.setattr(lane_module, "make_lane_kernel", lambda *a: make(*a[:5], a[0] == wp.float32, *a[6:]))
     cfg = ColumnConfig(n_prisms=7, handedness="left")
     kw = {"t_end": 0.1, "dt": 5e-4, "output_interval": 0.05}
-    lanes = _run(cfg, MIXED, "lanes", device, "fp32", **kw)
-    ref = _run(cfg, MIXED, False, device, "fp64", **kw)
+    lanes = _run(cfg, params, "lanes", device, "fp32", **kw)
+    ref = _run(cfg, params, False, device, "fp64", **kw)
     assert lanes.info["output_every"] == 100 and np.all(lanes.status == 0)
     assert np.all(lanes.bar_length_error <= 3e-7), lanes.bar_length_error
     assert np.all(_rel(lanes.strain, ref.strain) < 1e-4), _rel(lanes.strain, ref.strain)
+    # the bars and ring links at the end, measured here (not through the kernel's own check)
+    batch = column_batch(cfg, params)
+    i, j = batch.constraints.T
+    X = batch.positions[None] + lanes.final_displacement
+    L0 = np.linalg.norm(batch.positions[j] - batch.positions[i], axis=-1)
+    err = np.abs(np.linalg.norm(X[:, j] - X[:, i], axis=-1) / L0 - 1) * (batch.constraint_active > 0)
+    assert np.all(err.max(axis=1) <= 4e-7), err.max(axis=1)
 
 
 def test_lanes_flag_diverging_columns_and_spare_the_rest(device):
@@ -317,3 +331,41 @@ def test_lanes_mixed_precision_is_fp64(monkeypatch):
         assert np.all(rel <= 1e-12), (name, rel)
     np.testing.assert_array_equal(on[4], off[4])  # Newton iterations per column
     assert np.all(on[0].bar_length_error <= 1e-12)
+
+
+@pytest.mark.parametrize("real", [wp.float32, wp.float64])
+def test_the_fast_math_bar_check_is_the_bar_check(real):
+    """lane_funcs.bar_check's fast-math form (no square root in r, square roots only in a factor of
+    e) against common.bar_residual: r to round-off of |b|^2, e to 1e-6 of itself wherever e is above
+    the rounding of |b| - L."""
+    from warp_tensegrity.kernels.common import bar_residual, cable_energy2, cable_force
+    from warp_tensegrity.kernels.lane_funcs import make_lane_funcs
+    from warp_tensegrity.kernels.lane_ops import make_lane_ops
+
+    plain, fast = (make_lane_funcs(real, 1, 2, make_lane_ops(real), cable_force, bar_residual, cable_energy2,
+                                   robust_check=c).bar_check for c in (False, True))
+    vec = make_lane_ops(real).vec
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def both(b: wp.array(dtype=vec), b0: wp.array(dtype=vec), out: wp.array2d(dtype=real)):
+        i = wp.tid()
+        r, e = plain(b[i], b0[i])
+        rr, ee = fast(b[i], b0[i])
+        out[i, 0] = r
+        out[i, 1] = e
+        out[i, 2] = rr
+        out[i, 3] = ee
+
+    rng = np.random.default_rng(3)
+    b0 = rng.normal(size=(4000, 3))
+    b = b0 * (1 + np.logspace(-7, -1, 4000) * rng.choice([-1, 1], 4000))[:, None]  # relative errors 1e-7 .. 0.1
+    npr = np.float32 if real == wp.float32 else np.float64
+    out = wp.zeros((4000, 4), dtype=real, device="cpu")
+    wp.launch(both, 4000, inputs=[wp.array(b.astype(npr), dtype=vec, device="cpu"),
+                                  wp.array(b0.astype(npr), dtype=vec, device="cpu"), out], device="cpu")
+    r, e, rr, ee = out.numpy().astype(np.float64).T
+    eps = np.finfo(npr).eps
+    bb = (b.astype(npr).astype(np.float64) ** 2).sum(1)
+    assert np.all(np.abs(rr - r) <= 4 * eps * bb)
+    big = e > 100 * eps
+    assert big.sum() > 2000 and np.all(np.abs(ee[big] / e[big] - 1) <= 1e-6 + 20 * eps / e[big])

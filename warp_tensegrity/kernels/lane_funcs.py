@@ -30,11 +30,13 @@ from types import SimpleNamespace
 import warp as wp
 
 
-def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_energy2):  # once per cached kernel
+def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_energy2,
+                    robust_check: bool = False):  # once per cached kernel
     """The lane pieces for scalar type ``real``, P levels per lane and G lanes per column, over the
     segment primitives ``ops`` (:func:`.lane_ops.make_lane_ops`) and the shared bodies ``cable_force``,
     ``bar_residual`` and ``cable_energy2`` (:mod:`.common`; passed in, so this module imports Warp only and the
-    import chains stay short)."""
+    import chains stay short). ``robust_check``: the bar-length check in a form that CUDA's approximate
+    square root and division (fast math) leave exact to a few ulps (:func:`bar_check`)."""
     vec = ops.vec
     NI = P - 1  # interior rows a lane eliminates itself
     LG = G.bit_length() - 1  # PCR levels
@@ -391,6 +393,19 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         return x
 
     @wp.func(inline=True)
+    def bar_check(b: vec, b0: vec):
+        """(r, e) of :func:`.common.bar_residual` for a member b of reference vector b0 [m]. With
+        ``robust_check`` r = (|b|^2 - |b0|^2)/2 needs no square root, and e = |2 r| / (L (|b| + L))
+        has its square roots only in a factor: an approximate sqrt (2 ulp) there moves e by ~1e-7 of
+        itself, where in |b| - L it would move e by ~2e-7 absolute, the fp32 tolerance."""
+        if wp.static(robust_check):
+            bb = wp.dot(b, b)
+            LL = wp.dot(b0, b0)
+            L = wp.sqrt(LL)
+            return real(0.5) * (bb - LL), wp.abs(bb - LL) / (L * (wp.sqrt(bb) + L))
+        return bar_residual(b, wp.length(b0))
+
+    @wp.func(inline=True)
     def residuals(Bm: Nodes, xy: XY, hz: Pv, ex: Pv):
         """(r, e): the Newton residuals (|b|^2 - L^2)/2 [m2] per bar, and this lane's largest
         relative bar-length error (NaN wins). L = |reference vector| (recomputed: fewer live registers)."""
@@ -398,7 +413,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         emax = zero
         for q in range(P):
             for k in range(3):
-                rr, ee = bar_residual(Bm[3 * q + k], wp.length(dref(xy, hz, q, k)))
+                rr, ee = bar_check(Bm[3 * q + k], dref(xy, hz, q, k))
                 if ex[q] == zero:
                     rr = zero
                     ee = zero
@@ -434,7 +449,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
                            cross_ends=cross_ends,
                            accelerations=accelerations, gram=gram,
                            factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
-                           finite_nodes=finite_nodes, bar_residual=bar_residual)
+                           finite_nodes=finite_nodes, bar_residual=bar_residual, bar_check=bar_check)
 
 
 def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cached kernel

@@ -44,7 +44,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
-    f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2)
+    f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2, robust_check=bool(fast_math))
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
     RFac = fr.RFac if rigid else f.Fac
     mixed = bool(mixed) and real == wp.float64
@@ -417,9 +417,11 @@ LANE_STEPS = 64  # most RATTLE steps per launch (the kernel writes the output re
 LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
 LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
 # CUDA's approximate fp32 division and square root, for the flexible-base kernel: 2.1x its rate with
-# the bars still within 2.4e-7 (H200, 16,384 columns: benchmarks/results/lanes_tuning_h200/); not
-# for rigid bases, whose bars then reach 3.2e-7, over the fp32 tolerance of 3e-7
+# the bars still within 2.4e-7 (H200, 16,384 columns: benchmarks/results/lanes_tuning_h200/). With it
+# the bar-length check takes a form that the approximations leave exact (lane_funcs.bar_check): rigid
+# bases' bars reached 3.2e-7 with fast math and the plain check, over the fp32 tolerance of 3e-7
 LANE_FAST_MATH = {"fp32": True, "fp64": False}
+LANE_FAST_MATH_RIGID = {"fp32": True, "fp64": False}  # the same for batches with rigid bases
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
 # the accelerations kept in global memory between the forces and the next half kick (registers
 # free through the factor and Newton; a failure store leaves them as they were)
@@ -457,7 +459,7 @@ class LaneStep:
         self.rigid = batch.constraints.shape[0] == 6 * n
         self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
         prec = model.precision
-        fast = LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid
+        fast = (LANE_FAST_MATH_RIGID if self.rigid else LANE_FAST_MATH)[prec] and device.is_cuda
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid, fast,
                                         self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
                                         batch.external_force is not None and bool(np.any(batch.external_force)),
