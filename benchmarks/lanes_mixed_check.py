@@ -1,7 +1,7 @@
 """The lane step's speed switches against the lane step without them, on any device (issue 33 item 2):
 ``mixed`` (fp64 columns with an fp32 factor, fp64 residuals and refinement), ``a_mem`` (the
-accelerations in memory between the forces and the next half kick), ``warm`` (Newton's warm start)
-and ``fast`` (fp32: the fast-math form of the bar-length check). Per batch: the largest relative
+accelerations in memory between the forces and the next half kick) and ``fast`` (fp32: the
+fast-math form of the bar-length check). Per batch: the largest relative
 difference of the strain record and the final state per column, Newton's iteration count per column
 (max over the run) and the bar errors; fp64 switches against the staged kernels as well.
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from . import common
 
-SWITCHES = {"mixed": "LANE_MIXED", "a_mem": "LANE_A_MEM", "warm": "LANE_WARM_START", "fast": None}
+SWITCHES = {"mixed": "LANE_MIXED", "a_mem": "LANE_A_MEM", "fast": None}
 
 
 def batches(quick: bool):
@@ -82,7 +82,7 @@ def main(argv=None):
     ap.add_argument("--out", required=True)
     ap.add_argument("--t-end", dest="t_end", type=float, default=0.2)
     ap.add_argument("--quick", action="store_true", help="the paper's 12 cases and the 7-prism batch only")
-    ap.add_argument("--switch", choices=sorted(SWITCHES), nargs="+", default=["mixed", "a_mem", "warm", "fast"])
+    ap.add_argument("--switch", choices=sorted(SWITCHES), nargs="+", default=["mixed", "a_mem", "fast"])
     a = ap.parse_args(argv)
     import warp as wp
 
