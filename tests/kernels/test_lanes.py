@@ -280,7 +280,7 @@ def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, pr
             assert np.all(err[0] <= 1.25 * err[1]), (name, err)
 
 
-def _lanes_with(monkeypatch, cfg, params, precision, knobs, **kw):
+def _lanes_with(monkeypatch, device, cfg, params, precision, knobs, **kw):
     """A lane run with the lane module's switches ``knobs`` ({dict name: value} for ``precision``);
     returns (result, u, v, a, iters) at the end."""
     from warp_tensegrity import integrate
@@ -297,20 +297,20 @@ def _lanes_with(monkeypatch, cfg, params, precision, knobs, **kw):
         for name, value in knobs.items():
             m.setitem(getattr(lanes, name), precision, value)
         m.setattr(integrate, "Integrator", Seen)
-        r = _run(cfg, params, "lanes", "cpu", precision, **kw)
+        r = _run(cfg, params, "lanes", device, precision, **kw)
     d = seen[0].data
     return r, d.u.numpy(), d.v.numpy(), d.a.numpy(), d.iters.numpy()
 
 
-def test_lanes_keep_the_accelerations_in_memory_bit_for_bit(monkeypatch):
+def test_lanes_keep_the_accelerations_in_memory_bit_for_bit(device, monkeypatch):
     """Issue 33 item 2: with the accelerations in memory between the forces and the next half kick
     (LANE_A_MEM: not in registers through the factor and Newton), the same bits everywhere, the
     state a failing column leaves (its u, v and the a of its last good step) included."""
     cfg = ColumnConfig(n_prisms=2)
     params = {**DIVERGING, "cable_EA": np.asarray(DIVERGING["cable_EA"]) * cfg.cable_EA}
     kw = {"t_end": 0.1, "dt": 1e-3, "output_interval": 0.1, "allow_unstable_dt": True}
-    on = _lanes_with(monkeypatch, cfg, params, "fp64", {"LANE_A_MEM": True}, **kw)
-    off = _lanes_with(monkeypatch, cfg, params, "fp64", {"LANE_A_MEM": False}, **kw)
+    on = _lanes_with(monkeypatch, device, cfg, params, "fp64", {"LANE_A_MEM": True}, **kw)
+    off = _lanes_with(monkeypatch, device, cfg, params, "fp64", {"LANE_A_MEM": False}, **kw)
     assert np.count_nonzero(on[0].status) == 2 and np.any(on[3] != 0)
     np.testing.assert_array_equal(on[0].status, off[0].status)
     np.testing.assert_array_equal(on[0].fail_step, off[0].fail_step)
@@ -318,14 +318,14 @@ def test_lanes_keep_the_accelerations_in_memory_bit_for_bit(monkeypatch):
         np.testing.assert_array_equal(x, y, err_msg=name)
 
 
-def test_lanes_mixed_precision_is_fp64(monkeypatch):
+def test_lanes_mixed_precision_is_fp64(device, monkeypatch):
     """Issue 33 item 2: fp64 columns with an fp32 factor and solves, fp64 residuals and iterative
     refinement (LANE_MIXED; passes from the probe's kappa u32: 2 here, for the rigid bases'
     kappa ~ 1e4) against the fp64 factor: the same to 1e-12, with the same Newton counts. (Without the
     refinement the velocities differ by ~1e-8.)"""
     cfg = ColumnConfig(n_prisms=7, handedness="RRLRLLR")
-    on = _lanes_with(monkeypatch, cfg, RIGID, "fp64", {"LANE_MIXED": True})
-    off = _lanes_with(monkeypatch, cfg, RIGID, "fp64", {"LANE_MIXED": False})
+    on = _lanes_with(monkeypatch, device, cfg, RIGID, "fp64", {"LANE_MIXED": True})
+    off = _lanes_with(monkeypatch, device, cfg, RIGID, "fp64", {"LANE_MIXED": False})
     for name in ("strain", "final_displacement", "final_velocity"):
         rel = _rel(getattr(on[0], name), getattr(off[0], name))
         assert np.all(rel <= 1e-12), (name, rel)
