@@ -321,7 +321,7 @@ def test_lanes_keep_the_accelerations_in_memory_bit_for_bit(device, monkeypatch)
 def test_lanes_mixed_precision_is_fp64(device, monkeypatch):
     """Issue 33 item 2: fp64 columns with an fp32 factor and solves, fp64 residuals and iterative
     refinement (LANE_MIXED; passes from the probe's kappa u32: 2 here, for the rigid bases'
-    kappa ~ 1e4) against the fp64 factor: the same to 1e-12, with the same Newton counts. (Without the
+    kappa ~ 1e4; flexible bases get 1) against the fp64 factor: the same to 1e-12, with the same Newton counts. (Without the
     refinement the velocities differ by ~1e-8.)"""
     cfg = ColumnConfig(n_prisms=7, handedness="RRLRLLR")
     on = _lanes_with(monkeypatch, device, cfg, RIGID, "fp64", {"LANE_MIXED": True})
