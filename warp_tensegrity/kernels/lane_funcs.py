@@ -459,7 +459,7 @@ def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cach
     :func:`velocity_rows` do. ``f``, ``fr``: the fp64 pieces (``fr``: rigid bases, or None);
     ``f32``, ``fr32``: the same in fp32. Iterative refinement with an fp32 factor gains a factor
     ~ kappa u32 per pass (kappa: the Gram matrix's condition number, u32 = 2^-24) down to the fp64
-    solve's own error; :func:`probe` measures that factor once per launch, and
+    solve's own error; :func:`probe` measures that factor once per column (at its first factor), and
     :func:`refinements` turns it into a count."""
     r32 = wp.float32
     Nodes, Rows, Lv, Pv = f.Nodes, f.Rows, f.Lv, f.Pv
@@ -541,20 +541,22 @@ def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cach
 
     @wp.func(inline=True)
     def solve(Fm: Fac32, rb: Rows, rm: Rows, Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, passes: int,
-              lane: int, g: int, wl: int):
-        """(beta, mu) with A [beta; mu] = [rb; rm]: the fp32 solve, then ``passes`` refinements
-        (warp-uniform: the solves shuffle), A at the factor's bars Bm and links Cm."""
+              own: int, lane: int, g: int, wl: int):
+        """(beta, mu) with A [beta; mu] = [rb; rm]: the fp32 solve, then the column's ``own``
+        refinements (the loop runs the warp's most, ``passes``: the solves shuffle), A at the
+        factor's bars Bm and links Cm."""
         beta, mu = solve32(Fm, rb, rm, lane, g, wl)
         for t in range(passes):
             ab, am = apply(Bm, Cm, beta, mu, minv, ex, rig, lane, g, wl)
             db, dm = solve32(Fm, rb - ab, rm - am, lane, g, wl)
-            beta = beta + db
-            mu = mu + dm
+            if t < own:
+                beta = beta + db
+                mu = mu + dm
         return beta, mu
 
     @wp.func(inline=True)
     def probe(Fm: Fac32, Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, alive: int, lane: int, g: int, wl: int):
-        """The relative error of one fp32 solve, max over the warp: for x of entries +-1 (signs
+        """The relative error of one fp32 solve, max over the column: for x of entries +-1 (signs
         mixed along each chain and across lanes, so that A x has its large eigencomponents), the
         solve of A x formed in fp64. It estimates kappa u32, the factor each refinement gains."""
         xb = Rows()
@@ -582,7 +584,7 @@ def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cach
                     err = em
         if alive == 0:  # (a frozen column's state may be anything)
             err = real(0.0)
-        return ops.segment_max(err, 32, wl)
+        return ops.segment_max(err, g, wl)
 
     @wp.func(inline=True)
     def refinements(eta: real, target: real, most: int):

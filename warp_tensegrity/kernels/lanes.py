@@ -197,6 +197,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         # Data out:
         strain: wp.array3d(dtype=real), kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real),
         below: wp.array2d(dtype=real), end: wp.array2d(dtype=real),
+        # Data in/out (mixed): refinement passes per column, velocity projection's and Newton's (-1: not yet probed)
+        passes: wp.array2d(dtype=int),
     ):
         """n_sub RATTLE steps of size h (init = 1: make v admissible and compute a(u) instead), with
         the output records of every step that is a multiple of ``every`` (:func:`record`)."""
@@ -273,8 +275,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         Cm = Nodes()
         if wp.static(rigid):
             Cm = fr.links(U, xyl, lane, g, wl)
-        pass_v = int(0)  # (mixed) refinement passes of the velocity projection's solve, of Newton's
-        pass_n = int(0)
+        pass_v = int(0)  # (mixed) refinement passes of the velocity projection's solve, of Newton's:
+        pass_n = int(0)  # the column's own, and the warp's most (the loops' counts)
+        most_v = int(0)
+        most_n = int(0)
         # iteration i: the factor of A(U) at the state after step i and the end of step i (velocity
         # projection), then step i + 1 up to its forces and second half kick; each piece once in code
         for i in range(n_it + 1):
@@ -286,10 +290,24 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             okl = int(1)
             if wp.static(mixed):
                 Fq, okl = mx.factor(Bm, Cm, minv, ex, rig, n, lane, g, wl)
-                if i == 0:  # the refinement passes from the launch's first factor (warp-uniform)
-                    eta = mx.probe(Fq, Bm, Cm, minv, ex, rig, alive, lane, g, wl)
-                    pass_v = mx.refinements(eta, target_v, most_passes)
-                    pass_n = mx.refinements(eta, target_n, most_passes)
+                if i == 0:  # the column's passes from its first factor of the run, kept in memory: its
+                    # results then depend neither on the launches' ends nor on the warp's other columns
+                    need = int(0)
+                    if alive == 1:
+                        pass_v = passes[w, 0]
+                        pass_n = passes[w, 1]
+                        if pass_v < 0:
+                            need = 1
+                    if warp_any(need, wl) == 1:
+                        eta = mx.probe(Fq, Bm, Cm, minv, ex, rig, alive, lane, g, wl)
+                        if need == 1:
+                            pass_v = mx.refinements(eta, target_v, most_passes)
+                            pass_n = mx.refinements(eta, target_n, most_passes)
+                            if lane == 0:
+                                passes[w, 0] = pass_v
+                                passes[w, 1] = pass_n
+                    most_v = int(ops.segment_max(real(pass_v), 32, wl))
+                    most_n = int(ops.segment_max(real(pass_n), 32, wl))
             elif wp.static(rigid):
                 Fr, okl = fr.factor(Bm, Cm, minv, ex, rig, n, lane, g, wl)
             else:
@@ -304,7 +322,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     rm = Rows()
                     if wp.static(rigid):
                         rm = fr.link_velocity_rows(Cm, V, ex, rig)
-                    beta, mu = mx.solve(Fq, rb, rm, Bm, Cm, minv, ex, rig, pass_v, lane, g, wl)
+                    beta, mu = mx.solve(Fq, rb, rm, Bm, Cm, minv, ex, rig, most_v, pass_v, lane, g, wl)
                     dv = f.impulse(Bm, beta, minv, lane, g, wl)
                     if wp.static(rigid):
                         dv = fr.link_impulse(dv, Cm, mu, minv)
@@ -367,7 +385,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         break
                     dn = Nodes()
                     if wp.static(mixed):
-                        beta, mu = mx.solve(Fq, r, rl, Bp, Cp, minv, ex, rig, pass_n, lane, g, wl)
+                        beta, mu = mx.solve(Fq, r, rl, Bp, Cp, minv, ex, rig, most_n, pass_n, lane, g, wl)
                         dn = f.impulse(Bp, beta, minv, lane, g, wl)
                         if wp.static(rigid):
                             dn = fr.link_impulse(dn, Cp, mu, minv)
@@ -431,7 +449,9 @@ LANE_MIXED = {"fp32": False, "fp64": True}
 # what refinement reaches (:func:`.lane_funcs.make_mixed_funcs`): the velocity projection's solve
 # (a one-shot solve: its relative error e moves v by e |dv|, so 1e-13 keeps v to ~1e-13 of fp64's),
 # Newton's (which refines itself: each iteration forms its residual in fp64, and an error eta of its
-# solve only slows its convergence by a factor ~ eta). On the CPU (benchmarks/lanes_mixed_check.py):
+# solve only slows its convergence by a factor ~ eta). Probed once per column, at its first factor of
+# the run (LaneStep.passes), so that launch ends and warp neighbours leave its bits alone. On the CPU
+# (benchmarks/lanes_mixed_check.py):
 # flexible bases (kappa ~ 3.5) 1 pass and 0, rigid bases (kappa ~ 4e4) 2 and 0
 MIXED_TARGET = (1e-13, 1e-3)
 MIXED_MOST_PASSES = 6
@@ -485,6 +505,7 @@ class LaneStep:
         self.parts = [int(x) for x in (energy_parts or (0, 0))]
         self.records = (wp.zeros((0, 0, 0), dtype=real, device=d) if strain is None else strain, kinetic, elastic,
                         none if energy_parts is None else below, none if energy_parts is None else end)
+        self.passes = wp.full((B, 2), -1, dtype=wp.int32, device=d)  # (mixed) refinement passes, probed once
 
     @property
     def description(self) -> str:
@@ -506,7 +527,8 @@ class LaneStep:
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
-            data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.parts, *self.records])
+            data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.parts, *self.records,
+            self.passes])
 
     def advance_counter(self, data, n: int):
         wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device, block_dim=1)
