@@ -3,7 +3,10 @@
 # (after staging the carry, README "Running on a GPU machine"). PART selects what one device call
 # (at most 10 min) runs:
 #   PART=check       the lane tests on CUDA (records inside against the record kernels, lanes against staged)
-#   PART=throughput  lanes column-steps/s, 50 prisms: FB fp32 at B = 1,536 and 16,384, FB fp64 and RB fp32 at 16,384
+#   PART=throughput  lanes column-steps/s, 50 prisms: FB fp32 at B = 1,536 and 16,384, FB fp64, RB fp32 and RB fp64
+#                    at 16,384 (CASES="FB fp32 1536 16384;RB fp64 16384" picks some: two calls if one runs out of time)
+#   PART=switches    new only: each of the lane step's speed switches (issue 33 item 2) off against on, in the
+#                    case it is for (LANE_A_MEM, LANE_MIXED, LANE_FAST_MATH_RIGID: sim/lanes/lanes.py); SWITCHES picks
 #   PART=phase       phase_large end to end (benchmarks/end_to_end.py) in precision PRECISION (fp64, fp32 or auto)
 #   PART=same_physics every registered Step against the staged path, fp64, to t = 1 s: the paper's 12 cases
 #                    and lanes_check's (50, 7, 100 prisms) (benchmarks/same_physics.py; exit 1 over 1e-11)
@@ -23,17 +26,31 @@ run_in() {  # run_in new|base CMD...: in this tree or in BASE, with the commit o
 }
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WARP_CACHE_PATH=${WARP_CACHE_PATH:-/tmp/warp_cache}
 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/gpu.txt"
-case "${PART:?PART=check, throughput, phase, same_physics or interface}" in
+case "${PART:?PART=check, throughput, switches, phase, same_physics or interface}" in
 check)
     python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes.py --device cuda:0 \
-        -k "records_inside or match_staged or diverging" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
+        -k "records_inside or match_staged or diverging or hold_the_bars or mixed_precision or accelerations_in_memory" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
 throughput)
+    IFS=';' read -r -a specs <<< "${CASES:-FB fp32 1536 16384;FB fp64 16384;RB fp32 16384;RB fp64 16384}"
     for v in new base; do
-        for spec in "FB fp32 1536 16384" "FB fp64 16384" "RB fp32 16384"; do
+        for spec in "${specs[@]}"; do
             set -- $spec
             run_in $v python -m benchmarks.throughput --device cuda:0 --paths lanes --bases "$1" --precisions "$2" \
                 --batches "${@:3}" --prisms 50 --prism-batch "$3" --target-s 0.3 --reps 3 \
                 --out "$OUT/throughput_lanes_${v}_$1_$2.json" 2>&1 | grep -E "column-steps|B=|error" | tail -4
+        done
+    done ;;
+switches)
+    # NAME:KEY:BASE:PRECISION: the lane module's dict NAME[KEY] set to 0 and to 1, the case run at B = 16,384
+    for sw in ${SWITCHES:-LANE_MIXED:fp64:FB:fp64 LANE_MIXED:fp64:RB:fp64 LANE_A_MEM:fp64:RB:fp64 LANE_A_MEM:fp32:FB:fp32 LANE_FAST_MATH_RIGID:fp32:RB:fp32}; do
+        IFS=: read -r name key base prec <<< "$sw"
+        for val in 0 1; do
+            python -c "import runpy, sys; from warp_tensegrity.sim.lanes import lanes
+getattr(lanes, '$name')['$key'] = bool($val)
+sys.argv = ['throughput', '--device', 'cuda:0', '--paths', 'lanes', '--bases', '$base', '--precisions', '$prec',
+            '--batches', '16384', '--prisms', '50', '--prism-batch', '16384', '--target-s', '0.3', '--reps', '3',
+            '--out', '$OUT/throughput_switch_${name}_${key}_${base}_${prec}_$val.json']
+runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "column-steps|B=|error" | tail -2 | sed "s/^/$name[$key]=$val $base $prec: /"
         done
     done ;;
 phase)

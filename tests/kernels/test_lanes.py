@@ -65,15 +65,31 @@ def test_lanes_match_staged_fp64(n, hand, shape, params, device):
     assert lanes.info["max_projection_iterations"] <= RunSettings().max_projection_iters
 
 
-def test_lanes_fp32_hold_the_bars(device):
-    """fp32, 64-step launches that end on every output step (100 steps per output)."""
+@pytest.mark.parametrize("params", [MIXED, RIGID], ids=["MIXED", "RIGID"])
+def test_lanes_fp32_hold_the_bars(params, device, monkeypatch):
+    """fp32, 64-step launches that end on every output step (100 steps per output). With the bar
+    check in its fast-math form (lane_funcs.bar_check; on CUDA also with the approximate division
+    and square root everywhere else, LANE_FAST_MATH and LANE_FAST_MATH_RIGID: issue 33 item 2)."""
+    from warp_tensegrity.sim.lanes import lanes as lane_module
+
+    make = lane_module.make_lane_kernel
+    # fast math's form of the check on the CPU too, for rigid bases (flexible: the default kernel, kept lean)
+    monkeypatch.setattr(lane_module, "make_lane_kernel",
+                        lambda *a: make(*a[:5], a[5] or (a[0] == wp.float32 and a[4]), *a[6:]))
     cfg = ColumnConfig(n_prisms=7, handedness="left")
     kw = {"t_end": 0.1, "dt": 5e-4, "output_interval": 0.05}
-    lanes = _run(cfg, MIXED, "lanes", device, "fp32", **kw)
-    ref = _run(cfg, MIXED, False, device, "fp64", **kw)
+    lanes = _run(cfg, params, "lanes", device, "fp32", **kw)
+    ref = _run(cfg, params, False, device, "fp64", **kw)
     assert lanes.info["output_every"] == 100 and np.all(lanes.status == 0)
     assert np.all(lanes.bar_length_error <= 3e-7), lanes.bar_length_error
     assert np.all(_rel(lanes.strain, ref.strain) < 1e-4), _rel(lanes.strain, ref.strain)
+    # the bars and ring links at the end, measured here (not through the kernel's own check)
+    batch = column_batch(cfg, params)
+    i, j = batch.constraints.T
+    X = batch.positions[None] + lanes.final_displacement
+    L0 = np.linalg.norm(batch.positions[j] - batch.positions[i], axis=-1)
+    err = np.abs(np.linalg.norm(X[:, j] - X[:, i], axis=-1) / L0 - 1) * (batch.constraint_active > 0)
+    assert np.all(err.max(axis=1) <= 4e-7), err.max(axis=1)
 
 
 def test_lanes_flag_diverging_columns_and_spare_the_rest(device):
@@ -264,3 +280,94 @@ def test_records_inside_the_lane_step_are_the_record_kernels(n, hand, params, pr
         else:  # no further from fp64 than the record kernels' (1.9e-4 of a p = 0 column's elastic energy)
             err = [np.nanmax(np.abs(x - getattr(ref, name)), axis=1) / scale for x in (a, b)]
             assert np.all(err[0] <= 1.25 * err[1]), (name, err)
+
+
+def _lanes_with(monkeypatch, device, cfg, params, precision, knobs, **kw):
+    """A lane run with the lane module's switches ``knobs`` ({dict name: value} for ``precision``);
+    returns (result, u, v, a, iters) at the end."""
+    from warp_tensegrity.sim import integrate
+    from warp_tensegrity.sim.lanes import lanes
+
+    seen = []
+
+    class Seen(integrate.Integrator):
+        def run(self, *a, **k):
+            seen.append(self)
+            return super().run(*a, **k)
+
+    with monkeypatch.context() as m:
+        for name, value in knobs.items():
+            m.setitem(getattr(lanes, name), precision, value)
+        m.setattr(integrate, "Integrator", Seen)
+        r = _run(cfg, params, "lanes", device, precision, **kw)
+    d = seen[0].data
+    return r, d.u.numpy(), d.v.numpy(), d.a.numpy(), d.iters.numpy()
+
+
+def test_lanes_keep_the_accelerations_in_memory_bit_for_bit(device, monkeypatch):
+    """Issue 33 item 2: with the accelerations in memory between the forces and the next half kick
+    (LANE_A_MEM: not in registers through the factor and Newton), the same bits everywhere, the
+    state a failing column leaves (its u, v and the a of its last good step) included."""
+    cfg = ColumnConfig(n_prisms=2)
+    params = {**DIVERGING, "cable_EA": np.asarray(DIVERGING["cable_EA"]) * cfg.cable_EA}
+    kw = {"t_end": 0.1, "dt": 1e-3, "output_interval": 0.1, "allow_unstable_dt": True}
+    on = _lanes_with(monkeypatch, device, cfg, params, "fp64", {"LANE_A_MEM": True}, **kw)
+    off = _lanes_with(monkeypatch, device, cfg, params, "fp64", {"LANE_A_MEM": False}, **kw)
+    assert np.count_nonzero(on[0].status) == 2 and np.any(on[3] != 0)
+    np.testing.assert_array_equal(on[0].status, off[0].status)
+    np.testing.assert_array_equal(on[0].fail_step, off[0].fail_step)
+    for x, y, name in zip(on[1:], off[1:], ("u", "v", "a", "iters")):
+        np.testing.assert_array_equal(x, y, err_msg=name)
+
+
+def test_lanes_mixed_precision_is_fp64(device, monkeypatch):
+    """Issue 33 item 2: fp64 columns with an fp32 factor and solves, fp64 residuals and iterative
+    refinement (LANE_MIXED; passes from the probe's kappa u32: 2 here, for the rigid bases'
+    kappa ~ 1e4; flexible bases get 1) against the fp64 factor: the same to 1e-12, with the same Newton counts. (Without the
+    refinement the velocities differ by ~1e-8.)"""
+    cfg = ColumnConfig(n_prisms=7, handedness="RRLRLLR")
+    on = _lanes_with(monkeypatch, device, cfg, RIGID, "fp64", {"LANE_MIXED": True})
+    off = _lanes_with(monkeypatch, device, cfg, RIGID, "fp64", {"LANE_MIXED": False})
+    for name in ("strain", "final_displacement", "final_velocity"):
+        rel = _rel(getattr(on[0], name), getattr(off[0], name))
+        assert np.all(rel <= 1e-12), (name, rel)
+    np.testing.assert_array_equal(on[4], off[4])  # Newton iterations per column
+    assert np.all(on[0].bar_length_error <= 1e-12)
+
+
+@pytest.mark.parametrize("real", [wp.float32, wp.float64])
+def test_the_fast_math_bar_check_is_the_bar_check(real):
+    """lane_funcs.bar_check's fast-math form (no square root in r, square roots only in a factor of
+    e) against common.bar_residual: r to round-off of |b|^2, e to 1e-6 of itself wherever e is above
+    the rounding of |b| - L."""
+    from warp_tensegrity.sim.common import bar_residual, cable_energy2, cable_force
+    from warp_tensegrity.sim.lanes.lane_funcs import make_lane_funcs
+    from warp_tensegrity.sim.lanes.lane_ops import make_lane_ops
+
+    plain, fast = (make_lane_funcs(real, 1, 2, make_lane_ops(real), cable_force, bar_residual, cable_energy2,
+                                   robust_check=c).bar_check for c in (False, True))
+    vec = make_lane_ops(real).vec
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def both(b: wp.array(dtype=vec), b0: wp.array(dtype=vec), out: wp.array2d(dtype=real)):
+        i = wp.tid()
+        r, e = plain(b[i], b0[i])
+        rr, ee = fast(b[i], b0[i])
+        out[i, 0] = r
+        out[i, 1] = e
+        out[i, 2] = rr
+        out[i, 3] = ee
+
+    rng = np.random.default_rng(3)
+    b0 = rng.normal(size=(4000, 3))
+    b = b0 * (1 + np.logspace(-7, -1, 4000) * rng.choice([-1, 1], 4000))[:, None]  # relative errors 1e-7 .. 0.1
+    npr = np.float32 if real == wp.float32 else np.float64
+    out = wp.zeros((4000, 4), dtype=real, device="cpu")
+    wp.launch(both, 4000, inputs=[wp.array(b.astype(npr), dtype=vec, device="cpu"),
+                                  wp.array(b0.astype(npr), dtype=vec, device="cpu"), out], device="cpu")
+    r, e, rr, ee = out.numpy().astype(np.float64).T
+    eps = np.finfo(npr).eps
+    bb = (b.astype(npr).astype(np.float64) ** 2).sum(1)
+    assert np.all(np.abs(rr - r) <= 4 * eps * bb)
+    big = e > 100 * eps
+    assert big.sum() > 2000 and np.all(np.abs(ee[big] / e[big] - 1) <= 1e-6 + 20 * eps / e[big])

@@ -30,11 +30,13 @@ from types import SimpleNamespace
 import warp as wp
 
 
-def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_energy2):  # once per cached kernel
+def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_energy2,
+                    robust_check: bool = False):  # once per cached kernel
     """The lane pieces for scalar type ``real``, P levels per lane and G lanes per column, over the
     segment primitives ``ops`` (:func:`.lane_ops.make_lane_ops`) and the shared bodies ``cable_force``,
     ``bar_residual`` and ``cable_energy2`` (:mod:`.common`; passed in, so this module imports Warp only and the
-    import chains stay short)."""
+    import chains stay short). ``robust_check``: the bar-length check in a form that CUDA's approximate
+    square root and division (fast math) leave exact to a few ulps (:func:`bar_check`)."""
     vec = ops.vec
     NI = P - 1  # interior rows a lane eliminates itself
     LG = G.bit_length() - 1  # PCR levels
@@ -391,6 +393,19 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         return x
 
     @wp.func(inline=True)
+    def bar_check(b: vec, b0: vec):
+        """(r, e) of :func:`.common.bar_residual` for a member b of reference vector b0 [m]. With
+        ``robust_check`` r = (|b|^2 - |b0|^2)/2 needs no square root, and e = |2 r| / (L (|b| + L))
+        has its square roots only in a factor: an approximate sqrt (2 ulp) there moves e by ~1e-7 of
+        itself, where in |b| - L it would move e by ~2e-7 absolute, the fp32 tolerance."""
+        if wp.static(robust_check):
+            bb = wp.dot(b, b)
+            LL = wp.dot(b0, b0)
+            L = wp.sqrt(LL)
+            return real(0.5) * (bb - LL), wp.abs(bb - LL) / (L * (wp.sqrt(bb) + L))
+        return bar_residual(b, wp.length(b0))
+
+    @wp.func(inline=True)
     def residuals(Bm: Nodes, xy: XY, hz: Pv, ex: Pv):
         """(r, e): the Newton residuals (|b|^2 - L^2)/2 [m2] per bar, and this lane's largest
         relative bar-length error (NaN wins). L = |reference vector| (recomputed: fewer live registers)."""
@@ -398,7 +413,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         emax = zero
         for q in range(P):
             for k in range(3):
-                rr, ee = bar_residual(Bm[3 * q + k], wp.length(dref(xy, hz, q, k)))
+                rr, ee = bar_check(Bm[3 * q + k], dref(xy, hz, q, k))
                 if ex[q] == zero:
                     rr = zero
                     ee = zero
@@ -434,4 +449,153 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
                            cross_ends=cross_ends,
                            accelerations=accelerations, gram=gram,
                            factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
-                           finite_nodes=finite_nodes, bar_residual=bar_residual)
+                           finite_nodes=finite_nodes, bar_residual=bar_residual, bar_check=bar_check)
+
+
+def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cached kernel
+    """fp64 columns with an fp32 factor: the Gram matrix formed and factored in fp32 (half the
+    registers of the factor, fp32 arithmetic), each solve refined against fp64 residuals
+    r - A x, A x = G M^-1 G^T x formed from the fp64 bars (and links) as :func:`impulse` then
+    :func:`velocity_rows` do. ``f``, ``fr``: the fp64 pieces (``fr``: rigid bases, or None);
+    ``f32``, ``fr32``: the same in fp32. Iterative refinement with an fp32 factor gains a factor
+    ~ kappa u32 per pass (kappa: the Gram matrix's condition number, u32 = 2^-24) down to the fp64
+    solve's own error; :func:`probe` measures that factor once per column (at its first factor), and
+    :func:`refinements` turns it into a count."""
+    r32 = wp.float32
+    Nodes, Rows, Lv, Pv = f.Nodes, f.Rows, f.Lv, f.Pv
+    Nodes32, Rows32, Lv32, Pv32 = f32.Nodes, f32.Rows, f32.Lv, f32.Pv
+    ops = f.ops
+    rigid = fr is not None
+    u64_u32 = real(2.0 ** -29)  # u64 / u32
+
+    @wp.func(inline=True)
+    def rows32(x: Rows):
+        y = Rows32()
+        for q in range(P):
+            for k in range(3):
+                y[q, k] = r32(x[q, k])
+        return y
+
+    @wp.func(inline=True)
+    def rows64(x: Rows32):
+        y = Rows()
+        for q in range(P):
+            for k in range(3):
+                y[q, k] = real(x[q, k])
+        return y
+
+    @wp.func(inline=True)
+    def nodes32(x: Nodes):
+        y = Nodes32()
+        for r in range(3 * P):
+            for k in range(3):
+                y[r, k] = r32(x[r, k])
+        return y
+
+    @wp.func(inline=True)
+    def lv32(x: Lv):
+        y = Lv32()
+        for j in range(P + 1):
+            y[j] = r32(x[j])
+        return y
+
+    @wp.func(inline=True)
+    def pv32(x: Pv):
+        y = Pv32()
+        for j in range(P):
+            y[j] = r32(x[j])
+        return y
+
+    @wp.func(inline=True)
+    def apply(Bm: Nodes, Cm: Nodes, beta: Rows, mu: Rows, minv: Lv, ex: Pv, rig: real, lane: int, g: int, wl: int):
+        """A [beta; mu] in fp64: the bars' rows and the links' rows (zero without rigid bases)."""
+        d = f.impulse(Bm, beta, minv, lane, g, wl)
+        rm = Rows()
+        if wp.static(rigid):
+            d = fr.link_impulse(d, Cm, mu, minv)
+            rm = fr.link_velocity_rows(Cm, d, ex, rig)
+        return f.velocity_rows(Bm, d, ex, lane, g, wl), rm
+
+    if rigid:
+        Fac32 = fr32.RFac
+
+        @wp.func(inline=True)
+        def factor(Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, n: int, lane: int, g: int, wl: int):
+            return fr32.factor(nodes32(Bm), nodes32(Cm), lv32(minv), pv32(ex), r32(rig), n, lane, g, wl)
+
+        @wp.func(inline=True)
+        def solve32(Fm: Fac32, rb: Rows, rm: Rows, lane: int, g: int, wl: int):
+            b, m = fr32.solve(Fm, rows32(rb), rows32(rm), lane, g, wl)
+            return rows64(b), rows64(m)
+    else:
+        Fac32 = f32.Fac
+
+        @wp.func(inline=True)
+        def factor(Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, n: int, lane: int, g: int, wl: int):
+            d, e, l, bnext = f32.gram(nodes32(Bm), lv32(minv), pv32(ex), n, lane, g, wl)
+            return f32.factor(d, e, l, lane, g, wl)
+
+        @wp.func(inline=True)
+        def solve32(Fm: Fac32, rb: Rows, rm: Rows, lane: int, g: int, wl: int):
+            return rows64(f32.solve(Fm, rows32(rb), lane, g, wl)), Rows()
+
+    @wp.func(inline=True)
+    def solve(Fm: Fac32, rb: Rows, rm: Rows, Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, passes: int,
+              own: int, lane: int, g: int, wl: int):
+        """(beta, mu) with A [beta; mu] = [rb; rm]: the fp32 solve, then the column's ``own``
+        refinements (the loop runs the warp's most, ``passes``: the solves shuffle), A at the
+        factor's bars Bm and links Cm."""
+        beta, mu = solve32(Fm, rb, rm, lane, g, wl)
+        for t in range(passes):
+            ab, am = apply(Bm, Cm, beta, mu, minv, ex, rig, lane, g, wl)
+            db, dm = solve32(Fm, rb - ab, rm - am, lane, g, wl)
+            if t < own:
+                beta = beta + db
+                mu = mu + dm
+        return beta, mu
+
+    @wp.func(inline=True)
+    def probe(Fm: Fac32, Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, alive: int, lane: int, g: int, wl: int):
+        """The relative error of one fp32 solve, max over the column: for x of entries +-1 (signs
+        mixed along each chain and across lanes, so that A x has its large eigencomponents), the
+        solve of A x formed in fp64. It estimates kappa u32, the factor each refinement gains."""
+        xb = Rows()
+        xm = Rows()
+        for q in range(P):
+            for k in range(3):
+                s = real(1.0)
+                if ((lane * P + q) * 7 + k * 3 + (lane >> 1)) % 2 == 1:
+                    s = real(-1.0)
+                if ex[q] != real(0.0):
+                    xb[q, k] = s
+                    if wp.static(rigid):
+                        if rig != real(0.0):
+                            xm[q, k] = -s
+        ab, am = apply(Bm, Cm, xb, xm, minv, ex, rig, lane, g, wl)
+        yb, ym = solve32(Fm, ab, am, lane, g, wl)
+        err = real(0.0)
+        for q in range(P):
+            for k in range(3):
+                eb = wp.abs(yb[q, k] - xb[q, k])
+                em = wp.abs(ym[q, k] - xm[q, k])
+                if not (eb <= err):  # NaN wins
+                    err = eb
+                if not (em <= err):
+                    err = em
+        if alive == 0:  # (a frozen column's state may be anything)
+            err = real(0.0)
+        return ops.segment_max(err, g, wl)
+
+    @wp.func(inline=True)
+    def refinements(eta: real, target: real, most: int):
+        """Passes k so that eta^(k + 1) <= target (eta: :func:`probe`'s error; target raised to the
+        fp64 solve's own error, eta u64 / u32), at most ``most`` (also where eta >= 1 or NaN)."""
+        t = wp.max(target, eta * u64_u32)
+        k = int(0)
+        e = eta
+        while not (e <= t) and k < most:
+            e = e * eta
+            k += 1
+        return k
+
+    return SimpleNamespace(factor=factor, solve=solve, probe=probe, refinements=refinements, Fac=Fac32)

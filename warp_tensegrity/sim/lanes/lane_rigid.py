@@ -102,7 +102,7 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
         emax = bar_e
         for q in range(P):
             for k in range(3):
-                rr, ee = f.bar_residual(Cm[3 * q + k], wp.length(link_ref(xy, q, k)))
+                rr, ee = f.bar_check(Cm[3 * q + k], link_ref(xy, q, k))
                 if ex[q] == zero or rig == zero:
                     rr = zero
                     ee = zero

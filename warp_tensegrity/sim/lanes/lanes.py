@@ -20,7 +20,7 @@ from ..common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_re
                      feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
                      set_failure)
 from ...policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
-from .lane_funcs import make_lane_funcs
+from .lane_funcs import make_lane_funcs, make_mixed_funcs
 from .lane_ops import make_lane_ops, warp_any
 from .lane_rigid import make_rigid_funcs
 
@@ -30,19 +30,32 @@ if TYPE_CHECKING:
 
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
-                     fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False):
+                     fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False,
+                     a_mem: bool = False, mixed: bool = False):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
     has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
     approximate fp32 division and square root; ``smem_spill_block``: the launch's threads per block,
     with which register spills may go to shared memory instead of local memory, 0: not; ``loaded``:
     the batch has a dead load (the end preload), added to the cable forces; compiled out otherwise, so
-    an unloaded batch runs today's code). Launch
+    an unloaded batch runs today's code; ``a_mem``: the accelerations live in ``a`` (global memory)
+    from the forces to the next half kick instead of in registers through the factor, the velocity
+    projection and Newton, where only a failure store would read them; ``mixed``: fp64 only, the
+    factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     ops = make_lane_ops(real)
-    f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2)
+    f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2, robust_check=bool(fast_math))
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
     RFac = fr.RFac if rigid else f.Fac
+    mixed = bool(mixed) and real == wp.float64
+    mx = None
+    if mixed:
+        ops32 = make_lane_ops(wp.float32)
+        f32 = make_lane_funcs(wp.float32, P, G, ops32, cable_force, bar_residual, cable_energy2)
+        mx = make_mixed_funcs(real, P, f, f32, fr, make_rigid_funcs(wp.float32, P, G, ops32, f32) if rigid else None)
+    FacQ = mx.Fac if mixed else f.Fac  # (a placeholder without mixed: compiled out)
+    target_v, target_n = (real(t) for t in MIXED_TARGET)
+    most_passes = int(MIXED_MOST_PASSES)
     vec = f.vec
     Nodes, XY, Lv, Rows, Pv = f.Nodes, f.XY, f.Lv, f.Rows, f.Pv
     zero = real(0.0)
@@ -64,7 +77,28 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     node = 3 * L + k
                     u[node, w] = U[3 * j - 3 + k]
                     v[node, w] = V[3 * j - 3 + k]
-                    a[node, w] = A[3 * j - 3 + k]
+                    if wp.static(not a_mem):  # (a_mem: a holds them already)
+                        a[node, w] = A[3 * j - 3 + k]
+
+    @wp.func(inline=True)
+    def store_a(A: Nodes, a: wp.array2d(dtype=vec), lane: int, n: int, w: int):
+        """Write the lane's accelerations of column w (a_mem)."""
+        for j in range(1, wp.static(P + 1)):
+            L = wp.static(P) * lane + j
+            if L <= n:
+                for k in range(3):
+                    a[3 * L + k, w] = A[3 * j - 3 + k]
+
+    @wp.func(inline=True)
+    def load_a(a: wp.array2d(dtype=vec), lane: int, n: int, w: int):
+        """The lane's accelerations of column w (a_mem; 0 past the column)."""
+        A = Nodes()
+        for j in range(1, wp.static(P + 1)):
+            L = wp.static(P) * lane + j
+            if L <= n:
+                for k in range(3):
+                    A[3 * j - 3 + k] = a[3 * L + k, w]
+        return A
 
     @wp.func(inline=True)
     def record(U: Nodes, V: Nodes, Fx: Nodes, xyl: XY, hzl: Pv, hnd: Pv, ex: Pv, cross: vec, base_ea: vec,
@@ -163,6 +197,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         # Data out:
         strain: wp.array3d(dtype=real), kinetic: wp.array2d(dtype=real), elastic: wp.array2d(dtype=real),
         below: wp.array2d(dtype=real), end: wp.array2d(dtype=real),
+        # Data in/out (mixed): refinement passes per column, velocity projection's and Newton's (-1: not yet probed)
+        passes: wp.array2d(dtype=int),
     ):
         """n_sub RATTLE steps of size h (init = 1: make v admissible and compute a(u) instead), with
         the output records of every step that is a multiple of ``every`` (:func:`record`)."""
@@ -204,7 +240,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         rr = wp.max(3 * j - 3 + k, 0)
                         U[rr] = u[node, wc]
                         V[rr] = v[node, wc]
-                        A[rr] = a[node, wc]
+                        if wp.static(not a_mem):
+                            A[rr] = a[node, wc]
                 if j > 0:
                     q = wp.max(j - 1, 0)
                     hzl[q] = hz[L - 1]
@@ -238,6 +275,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         Cm = Nodes()
         if wp.static(rigid):
             Cm = fr.links(U, xyl, lane, g, wl)
+        pass_v = int(0)  # (mixed) refinement passes of the velocity projection's solve, of Newton's:
+        pass_n = int(0)  # the column's own, and the warp's most (the loops' counts)
+        most_v = int(0)
+        most_n = int(0)
         # iteration i: the factor of A(U) at the state after step i and the end of step i (velocity
         # projection), then step i + 1 up to its forces and second half kick; each piece once in code
         for i in range(n_it + 1):
@@ -245,8 +286,29 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                 break
             Fr = RFac()
             Fm = f.Fac()
+            Fq = FacQ()
             okl = int(1)
-            if wp.static(rigid):
+            if wp.static(mixed):
+                Fq, okl = mx.factor(Bm, Cm, minv, ex, rig, n, lane, g, wl)
+                if i == 0:  # the column's passes from its first factor of the run, kept in memory: its
+                    # results then depend neither on the launches' ends nor on the warp's other columns
+                    need = int(0)
+                    if alive == 1:
+                        pass_v = passes[w, 0]
+                        pass_n = passes[w, 1]
+                        if pass_v < 0:
+                            need = 1
+                    if warp_any(need, wl) == 1:
+                        eta = mx.probe(Fq, Bm, Cm, minv, ex, rig, alive, lane, g, wl)
+                        if need == 1:
+                            pass_v = mx.refinements(eta, target_v, most_passes)
+                            pass_n = mx.refinements(eta, target_n, most_passes)
+                            if lane == 0:
+                                passes[w, 0] = pass_v
+                                passes[w, 1] = pass_n
+                    most_v = int(ops.segment_max(real(pass_v), 32, wl))
+                    most_n = int(ops.segment_max(real(pass_n), 32, wl))
+            elif wp.static(rigid):
                 Fr, okl = fr.factor(Bm, Cm, minv, ex, rig, n, lane, g, wl)
             else:
                 d, e, l, bnext = f.gram(Bm, minv, ex, n, lane, g, wl)
@@ -256,7 +318,15 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if i > 0:
                 rb = f.velocity_rows(Bm, V, ex, lane, g, wl)
                 dv = Nodes()
-                if wp.static(rigid):
+                if wp.static(mixed):
+                    rm = Rows()
+                    if wp.static(rigid):
+                        rm = fr.link_velocity_rows(Cm, V, ex, rig)
+                    beta, mu = mx.solve(Fq, rb, rm, Bm, Cm, minv, ex, rig, most_v, pass_v, lane, g, wl)
+                    dv = f.impulse(Bm, beta, minv, lane, g, wl)
+                    if wp.static(rigid):
+                        dv = fr.link_impulse(dv, Cm, mu, minv)
+                elif wp.static(rigid):
                     beta, mu = fr.solve(Fr, rb, fr.link_velocity_rows(Cm, V, ex, rig), lane, g, wl)
                     dv = fr.link_impulse(f.impulse(Bm, beta, minv, lane, g, wl), Cm, mu, minv)
                 else:
@@ -287,6 +357,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if init == 0:
                 Bp = Bm  # bars (and links) at the start of the step: the factor's
                 Cp = Cm
+                if wp.static(a_mem):
+                    A = load_a(a, lane, n, wc)
                 V = V + A * half
                 U = U + V * h
                 # simplified Newton onto |b| = L along M^-1 G(P)^T
@@ -312,7 +384,12 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     if warp_any(going, wl) == 0:
                         break
                     dn = Nodes()
-                    if wp.static(rigid):
+                    if wp.static(mixed):
+                        beta, mu = mx.solve(Fq, r, rl, Bp, Cp, minv, ex, rig, most_n, pass_n, lane, g, wl)
+                        dn = f.impulse(Bp, beta, minv, lane, g, wl)
+                        if wp.static(rigid):
+                            dn = fr.link_impulse(dn, Cp, mu, minv)
+                    elif wp.static(rigid):
                         beta, mu = fr.solve(Fr, r, rl, lane, g, wl)
                         dn = fr.link_impulse(f.impulse(Bp, beta, minv, lane, g, wl), Cp, mu, minv)
                     else:
@@ -336,6 +413,9 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                 Fn = Fn + Fx
             A = f.accelerations(Fn, minv)
             V = V + A * kick
+            if wp.static(a_mem):
+                if alive == 1:  # (a failed column keeps the a of its failure)
+                    store_a(A, a, lane, n, w)
         if alive == 1:
             store(U, V, A, u, v, a, lane, n, w)
         if start == 1 and lane == 0 and init == 0:
@@ -355,10 +435,26 @@ LANE_STEPS = 64  # most RATTLE steps per launch (the kernel writes the output re
 LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
 LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
 # CUDA's approximate fp32 division and square root, for the flexible-base kernel: 2.1x its rate with
-# the bars still within 2.4e-7 (H200, 16,384 columns: benchmarks/results/lanes_tuning_h200/); not
-# for rigid bases, whose bars then reach 3.2e-7, over the fp32 tolerance of 3e-7
+# the bars still within 2.4e-7 (H200, 16,384 columns: benchmarks/results/lanes_tuning_h200/). With it
+# the bar-length check takes a form that the approximations leave exact (lane_funcs.bar_check): rigid
+# bases' bars reached 3.2e-7 with fast math and the plain check, over the fp32 tolerance of 3e-7
 LANE_FAST_MATH = {"fp32": True, "fp64": False}
+LANE_FAST_MATH_RIGID = {"fp32": True, "fp64": False}  # the same for batches with rigid bases
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
+# the accelerations kept in global memory between the forces and the next half kick (registers
+# free through the factor and Newton; a failure store leaves them as they were)
+LANE_A_MEM = {"fp32": True, "fp64": True}
+# fp64 columns: an fp32 factor and fp32 solves with fp64 residuals and iterative refinement
+LANE_MIXED = {"fp32": False, "fp64": True}
+# what refinement reaches (:func:`.lane_funcs.make_mixed_funcs`): the velocity projection's solve
+# (a one-shot solve: its relative error e moves v by e |dv|, so 1e-13 keeps v to ~1e-13 of fp64's),
+# Newton's (which refines itself: each iteration forms its residual in fp64, and an error eta of its
+# solve only slows its convergence by a factor ~ eta). Probed once per column, at its first factor of
+# the run (LaneStep.passes), so that launch ends and warp neighbours leave its bits alone. On the CPU
+# (benchmarks/lanes_mixed_check.py):
+# flexible bases (kappa ~ 3.5) 1 pass and 0, rigid bases (kappa ~ 4e4) 2 and 0
+MIXED_TARGET = (1e-13, 1e-3)
+MIXED_MOST_PASSES = 6
 
 
 class LaneStep:
@@ -385,10 +481,11 @@ class LaneStep:
         self.rigid = batch.constraints.shape[0] == 6 * n
         self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
         prec = model.precision
-        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
-                                        LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid,
+        fast = (LANE_FAST_MATH_RIGID if self.rigid else LANE_FAST_MATH)[prec] and device.is_cuda
+        self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid, fast,
                                         self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
-                                        batch.external_force is not None and bool(np.any(batch.external_force)))
+                                        batch.external_force is not None and bool(np.any(batch.external_force)),
+                                        LANE_A_MEM[prec], LANE_MIXED[prec])
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
@@ -408,6 +505,7 @@ class LaneStep:
         self.parts = [int(x) for x in (energy_parts or (0, 0))]
         self.records = (wp.zeros((0, 0, 0), dtype=real, device=d) if strain is None else strain, kinetic, elastic,
                         none if energy_parts is None else below, none if energy_parts is None else end)
+        self.passes = wp.full((B, 2), -1, dtype=wp.int32, device=d)  # (mixed) refinement passes, probed once
 
     @property
     def description(self) -> str:
@@ -429,7 +527,8 @@ class LaneStep:
             r(settings.tolerance), int(settings.max_projection_iters), r(settings.failure_bar_error), r(dt),
             int(n_sub), int(init), data.step,
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
-            data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.parts, *self.records])
+            data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.parts, *self.records,
+            self.passes])
 
     def advance_counter(self, data, n: int):
         wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device, block_dim=1)
