@@ -33,7 +33,7 @@ LAYERS = [
      "overrides", "sweep.errors"},
     # scene: networks, columns, batches (NumPy)
     {"scene.network", "scene.impact", "scene.sparse", "scene.columns", "scene.batch", "scene.coupling",
-     "scene.base_modes", "scene.contact", "scene.striker", "scene.preload", "scene"},
+     "scene.base_modes", "scene.blas", "scene.contact", "scene.striker", "scene.preload", "scene"},
     # policy: the run decided once, and its price
     {"policy", "policy.accuracy", "policy.cost", "policy.lane_fit", "policy.paths", "policy.decide", "policy.groups"},
     # sim: the device model, kernels, the Integrator

@@ -18,6 +18,7 @@ from ..arguments import expect, expect_params
 from ..options import COLUMN_PARAMETERS, PROFILED, ColumnParameters, Profile, check_column_param, fmt, profile_length
 from . import columns as col
 from . import sparse
+from .blas import single_blas_thread
 from .contact import prism_pairs
 from .network import Network, NetworkError
 from .striker import attach_striker
@@ -240,6 +241,7 @@ def _graded_unit_impact(config: col.ColumnConfig, rigid: bool, mass_shape: bytes
     return v
 
 
+@single_blas_thread
 def column_batch(config: col.ColumnConfig, params: dict) -> NetworkBatch:
     """Vectorised batch of T3 columns: one topology, per-column prestrain, v0, base rigidity, EA, mass.
 
