@@ -5,6 +5,9 @@
 #   PART=check       the lane tests on CUDA (records inside against the record kernels, lanes against staged)
 #   PART=throughput  lanes column-steps/s, 50 prisms: FB fp32 at B = 1,536 and 16,384, FB fp64 and RB fp32 at 16,384
 #   PART=phase       phase_large end to end (benchmarks/end_to_end.py) in precision PRECISION (fp64, fp32 or auto)
+#   PART=e2e         issue 33 must-show 3: end to end (benchmarks/end_to_end.py, every stage and "other"),
+#                    REPEAT runs each (default 2), of phase_large at its defaults (fp64), phase_large with
+#                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -21,7 +24,7 @@ run_in() {  # run_in new|base CMD...: in this tree or in BASE, with the commit o
 }
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WARP_CACHE_PATH=${WARP_CACHE_PATH:-/tmp/warp_cache}
 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/gpu.txt"
-case "${PART:?PART=check, throughput, phase or interface}" in
+case "${PART:?PART=check, throughput, phase, e2e or interface}" in
 check)
     python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes.py --device cuda:0 \
         -k "records_inside or match_staged or diverging" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
@@ -40,6 +43,15 @@ phase)
     for v in new base; do
         run_in $v python -m benchmarks.end_to_end "$OUT/phase_large_$P.toml" --device cuda:0 \
             --out "$OUT/end_to_end_phase_large_${P}_$v.json" 2>&1 | tail -3
+    done ;;
+e2e)
+    sed "s/^precision = .*/precision = \"auto\"/" sweeps/phase_large.toml > "$OUT/phase_large_auto.toml"
+    for v in ${VERSIONS:-new}; do
+        for spec in "$HERE/sweeps/phase_large.toml" "$OUT/phase_large_auto.toml" "$HERE/sweeps/paper_2017.toml"; do
+            name=$(basename "$spec" .toml)
+            run_in $v python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" \
+                --out "$OUT/end_to_end_${name}_$v.json" 2>&1 | grep -E "wall|error" | tail -4
+        done
     done ;;
 interface)
     python -m benchmarks.end_to_end sweeps/interface.toml --device cuda:0 --keep "$OUT" \

@@ -28,16 +28,19 @@ def one_blas_thread():
     global _users, _limiter
     with _lock:
         if _users == 0:
-            from threadpoolctl import threadpool_limits  # scans the loaded libraries: ~1 ms
-
-            _limiter = threadpool_limits(limits=1, user_api="blas")
+            try:
+                from threadpoolctl import threadpool_limits  # scans the loaded libraries: ~1 ms
+            except ImportError:  # a dependency, but an environment put together by hand may lack it: only slower
+                _limiter = None
+            else:
+                _limiter = threadpool_limits(limits=1, user_api="blas")
         _users += 1
     try:
         yield
     finally:
         with _lock:
             _users -= 1
-            if _users == 0:
+            if _users == 0 and _limiter is not None:
                 _limiter.restore_original_limits()
                 _limiter = None
 
