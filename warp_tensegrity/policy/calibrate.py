@@ -49,7 +49,7 @@ PROBE_WARM_STEPS = 60
 PROBE_SAMPLES = 4000
 """Outputs of the synthetic record whose measurement the probe times (at most)."""
 CPU_PROBE_COLUMNS = 4
-CACHE_VERSION = 4
+CACHE_VERSION = 5
 BUILD_PROBE_COLUMNS = 8
 """Columns of the probe's build-cost measurement (at most)."""
 WARM_LOAD_SECONDS = 0.05
@@ -132,6 +132,7 @@ def _key(config, params: dict, run: RunPlan, shard: int) -> tuple[str, dict]:
         "device": device_label(run.device), "method": run.method, "precision": run.precision, "path": str(run.path.value),
         "shard": int(shard), "scene": repr(config), "dt": repr(run.dt), "output_every": run.output_every,
         "prisms_simulated": run.prisms_simulated, "probe_columns": len(cols), "measure": s.measure,
+        "compress_energy": bool(s.compress_energy),
         "params": {k: np.asarray(v, dtype=np.float64)[cols].tolist() for k, v in sorted(params.items())},
         "code": code_version(), "version": CACHE_VERSION,
     }
@@ -180,16 +181,19 @@ def _array_bytes(obj, B: int) -> tuple[int, int]:
     return per, fixed
 
 
-def _io_rates(tmp: Path) -> dict:
-    """netCDF write and read seconds per byte (and per file) on this host, from a few-MB file."""
+def _io_rates(tmp: Path, compress_energy: bool = False) -> dict:
+    """netCDF write and read seconds per byte (and per file) on this host, from a few-MB file of
+    energy histories stored as a sweep stores them (float32 round-off-like data, zlib only with
+    ``compress_energy``: compression sets the rate, ~4x slower)."""
     import xarray as xr  # xarray (and pandas) load with a probe, not with the package
 
     from .. import io as D  # imports xarray: not at package import
 
     rng = np.random.default_rng(0)
     out = {}
-    for n in (1, 400):  # a small and a ~8 MB file: fixed cost and rate
-        ds = xr.Dataset({"strain": (("case", "time", "prism"), rng.standard_normal((n, 50, 50)))})
+    for n in (1, 400):  # a small and a ~4 MB file: fixed cost and rate
+        ds = xr.Dataset({"kinetic_energy": (("case", "time"), rng.standard_normal((n, 2500)).astype(np.float32))},
+                        attrs={"compress_energy": int(compress_energy)})
         p = tmp / f"io{n}.nc"
         t0 = time.perf_counter()
         D.write_netcdf(ds, p)
@@ -337,7 +341,7 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
             big.numpy()
             t_copy = (time.perf_counter() - t0) / big.size / 8
     with tempfile.TemporaryDirectory() as tmp:
-        io = _io_rates(Path(tmp))
+        io = _io_rates(Path(tmp), bool(run.settings.compress_energy))
     share = others_busy(busy)
     return {
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "is_cuda": bool(device.is_cuda),
@@ -376,7 +380,8 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
     states = [reference_state_count({k: v[a:b] for k, v in plan.params.items()}) for a, b in todo]
     rec = (bool(spec.run["record_strain"]), bool(spec.run["record_energy"]))
     out = predict(cal, plan.run, [b - a for a, b in todo], *rec, shard_states=states,
-                  planned=(plan.n_columns, reference_state_count(plan.params)))
+                  planned=(plan.n_columns, reference_state_count(plan.params)),
+                  energy_precision=spec.run["energy_precision"])
     twins = bool(spec.run.get("error_estimate"))
     if len(plan.groups) > 1 or twins:
         # each group steps its share of every shard at its own dt, priced by its own probe, and its twin

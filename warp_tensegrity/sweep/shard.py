@@ -45,7 +45,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
         result = run_groups(plan, start, stop, device, progress, twins=twins)
         result, errors = result if twins else (result, {})
         meas = measure_columns(result, spec.scene.height)
-        meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratios.result()))
+        meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratios))
     meas.update(errors)
     attrs = {
         "Conventions": D.CONVENTIONS,

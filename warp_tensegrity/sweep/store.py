@@ -130,7 +130,7 @@ class SweepStore:
             todo = [b - a for i, (a, b) in enumerate(plan.shards) if str(i) not in done]
             r = plan.spec.run
             need = disk_bytes(plan.run, todo, plan.n_columns, plan.n_shards, bool(r["record_strain"]),
-                              bool(r["record_energy"]))
+                              bool(r["record_energy"]), r["energy_precision"])
         except (AttributeError, KeyError, TypeError):  # a plan without its run decided: no figure
             return f"{fmt_bytes(free)} is free on {where}"
         return (f"the rest of the run needs up to {fmt_bytes(need['total'])} (store {fmt_bytes(need['store'])} + "
