@@ -64,6 +64,8 @@ def _stub(orig, k: int, spent: dict):
                 w, ph = rng.uniform(5, 50, (B, 1)), rng.uniform(0, 6, (B, 1))
                 pad = np.abs(a0[:, :1]) * (1.2 + np.sin(w * tt[t0:] + ph)) * (1 + 1e-9 * rng.standard_normal((B, n_out - t0)))
                 setattr(r, name, np.concatenate([a0, pad], axis=1))
+        if r.strain is not None:  # (B, T, P): the last record held
+            r.strain = np.concatenate([r.strain, np.repeat(r.strain[:, -1:], n_out - t0, axis=1)], axis=1)
         r.time = tt
         if r.info.get("output_step") is not None:
             r.info["output_step"] = plan.output_steps
