@@ -559,8 +559,8 @@ class RunSettings:
     float64 (to study energy conservation from the histories)."""
     compress_energy: Annotated[bool, Opt("bool")] = False
     """Sweeps: zlib-compress the energy histories in the netCDF export. Off by default: their low
-    bits are round-off, so compression saves ~20-30 % of their bytes (measured on phase_large's
-    size) for ~3x the export time."""
+    bits are round-off, so compression saves 19 % (float64) to 28 % (float32) of their bytes for
+    3-4x the export time (docs/sweeps.md, measured at phase_large's size)."""
     device: Annotated[str | None, Opt("str", pattern=r"cpu|cuda|cuda:\d+", optional=True, special=(("auto", None),),
                                       rule_text='"cpu", "cuda", "cuda:N"', default_text='"auto"')] = None
     """Warp device ('cpu', 'cuda:0'); None ('auto'): the GPU if there is one, else the CPU."""
