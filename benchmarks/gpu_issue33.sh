@@ -44,7 +44,8 @@ phase)
         run_in $v python -m benchmarks.end_to_end "$OUT/phase_large_$P.toml" --device cuda:0 \
             --out "$OUT/end_to_end_phase_large_${P}_$v.json" 2>&1 | tail -3
     done ;;
-e2e)
+e2e)  # threadpoolctl (gpu_carry.sh carries it) sets the host's small solves to one BLAS thread: say if it is there
+    python -c "import threadpoolctl; print('threadpoolctl', threadpoolctl.__version__)" 2>&1 | tail -1 | tee -a "$OUT/gpu.txt"
     sed "s/^precision = .*/precision = \"auto\"/" sweeps/phase_large.toml > "$OUT/phase_large_auto.toml"
     for v in ${VERSIONS:-new}; do
         for spec in "$HERE/sweeps/phase_large.toml" "$OUT/phase_large_auto.toml" "$HERE/sweeps/paper_2017.toml"; do
