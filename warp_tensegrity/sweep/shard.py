@@ -38,10 +38,12 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
     twins = bool(spec.run["error_estimate"])
-    # the base-mode analysis reads the parameters only: on the host, while the device steps (its
-    # eigensolves release the GIL; ~2-4 s for phase_large's 96 pairs, in no stage before issue 33)
+    # the base-mode analysis reads the parameters only: on a GPU, on the host while the device steps
+    # (the stepping waits on CUDA without the GIL; ~2 s for phase_large's 96 pairs, in no stage
+    # before issue 33). Not on the CPU device, whose kernels hold the GIL: the thread would only
+    # contend with them (measured 9-25 s against 1.9 s inline on the loaded 2-core host).
     with ThreadPoolExecutor(1, thread_name_prefix="warp_tensegrity-base-modes") as pool:
-        ratios = pool.submit(base_mode_ratios, spec.scene, params, stop - start)
+        ratios = pool.submit(base_mode_ratios, spec.scene, params, stop - start) if plan.run.on_gpu else None
         result = run_groups(plan, start, stop, device, progress, twins=twins)
         result, errors = result if twins else (result, {})
         meas = measure_columns(result, spec.scene.height)
