@@ -411,6 +411,8 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
                         st["stepping"] += part["stepping"]
                         st["measurement"] += part["measurement"]
                         out["twin_stepping_s"] += part["stepping"] if is_twin else 0.0
+                        # a twin builds its columns and its Integrator again (the shards' build priced the first)
+                        st["build"] += (part["build"] - cal_g.get("batch_first", 0.0)) if is_twin else 0.0
         out["seconds"] = float(sum(st.values()))
     return out | {"probe": cal}
 
