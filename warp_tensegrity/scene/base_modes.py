@@ -48,7 +48,6 @@ from functools import lru_cache
 import numpy as np
 
 from ..types import BETA_LIMIT_FLAGS
-from .blas import single_blas_thread
 from .columns import build_column, column_topology
 from .impact import kinematic_lock_strain
 
@@ -214,7 +213,6 @@ def rb_band_top(config, prestrain: float) -> float:
     return _omegas(cfg, float(prestrain), 1.0)[1]
 
 
-@single_blas_thread
 def base_mode_ratio(config, prestrain: float, base_rigidity: float) -> float:
     """omega_base_min / omega_RB [1]: inf at beta = 1."""
     if base_rigidity >= 1.0:
@@ -222,7 +220,6 @@ def base_mode_ratio(config, prestrain: float, base_rigidity: float) -> float:
     return lowest_base_mode(config, prestrain, base_rigidity) / rb_band_top(config, prestrain)
 
 
-@single_blas_thread
 def base_mode_ratios(config, params: dict, n_columns: int) -> np.ndarray:
     """(n_columns,) :func:`base_mode_ratio` of every column from its ``prestrain`` and ``base_rigidity``
     (arrays or scalars; defaults 0), NaN at beta = 1; a prestrain profile takes the smaller ratio of

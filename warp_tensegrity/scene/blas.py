@@ -4,10 +4,11 @@ The scene build and the base-mode analysis solve many small problems (300 x 300 
 450 x 150 least squares). OpenBLAS splits each over all its threads by default, which costs more
 than it gains at that size, and collapses when two threads call it at once or the cores are
 shared: phase_large's base-mode analysis took 1.9 s with one thread and 55.7 s with two on a loaded
-2-core host (issue 33). One thread also makes the last bits independent of the host's core count
-(with some OpenBLAS kernel sets, SkylakeX here, an eigensolve's last bits change with the threads;
-the reference outputs, made with Haswell's kernels and two threads, are bit-identical under one).
-threadpoolctl is the maintained way to set it at run time; the limit is process-wide, so it is
+2-core host (issue 33). The column build (:func:`~warp_tensegrity.scene.batch.column_batch`) always
+takes it: its outputs are bit-identical under one thread (the reference outputs, made with two). An
+eigensolve's last bits can follow the thread count (base_mode_ratio of paper_2017 by one ulp), so
+the base-mode analysis takes it only where it runs beside the stepping, on a GPU
+(:mod:`warp_tensegrity.sweep.shard`); inline it keeps the host's default. threadpoolctl is the maintained way to set it at run time; the limit is process-wide, so it is
 taken once by the first caller and given back by the last (a sweep's base-mode thread and its main
 thread overlap).
 """

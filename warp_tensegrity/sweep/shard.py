@@ -10,6 +10,7 @@ import numpy as np
 
 from .. import io as D
 from ..scene.base_modes import base_mode_ratios, beta_limit_measures
+from ..scene.blas import single_blas_thread
 from ..engine import simulate_batch
 from ..measure.errors import FLAG as ERROR_FLAG
 from ..measure.errors import VERIFY_MARGIN, error_estimates, largest_share, with_perturbation
@@ -43,7 +44,10 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     # before issue 33). Not on the CPU device, whose kernels hold the GIL: the thread would only
     # contend with them (measured 9-25 s against 1.9 s inline on the loaded 2-core host).
     with ThreadPoolExecutor(1, thread_name_prefix="warp_tensegrity-base-modes") as pool:
-        ratios = pool.submit(base_mode_ratios, spec.scene, params, stop - start) if plan.run.on_gpu else None
+        # on one BLAS thread there: two threads calling a multi-threaded OpenBLAS at once collapse (scene.blas);
+        # the last bits of an eigensolve may follow the thread count (the CPU's inline run keeps the default)
+        ratios = (pool.submit(single_blas_thread(base_mode_ratios), spec.scene, params, stop - start)
+                  if plan.run.on_gpu else None)
         result = run_groups(plan, start, stop, device, progress, twins=twins)
         result, errors = result if twins else (result, {})
         meas = measure_columns(result, spec.scene.height)
