@@ -11,8 +11,17 @@ process creation to the closed output file. Stages are read off the engine
 (``BatchResult.info['stages']``: build, compile, stepping, measurement, transfer) and from thin
 timing wrappers around the sweep's own functions (planning -> build, shard dataset and netCDF
 write -> write, shard checks and the combine -> finalise); imports are everything before the
-CLI is entered (interpreter start, warp_tensegrity, Warp, xarray, ``wp.init``). Seconds not in any
-stage are reported as ``other_s``. Peak host RSS is the run process's ``ru_maxrss``.
+CLI is entered (interpreter start, warp_tensegrity, Warp, xarray, ``wp.init``). The rest of the run
+is timed too: the pricing of the plan (``estimate_plan``, the budget check) -> build; the store's
+layout (template dataset, store initialise) -> write; the per-case measures and error estimates
+(the base-mode flag, the twins' estimates) -> measurement; merging the groups' results ->
+transfer; the run's closing report (``_log_nan_summary``, which reads the output) -> finalise.
+Seconds not in any stage are reported as ``other_s``. Peak host RSS is the run process's ``ru_maxrss``.
+
+``--stub-outputs K`` (a machine that cannot step the run, e.g. ``phase_large`` on the CPU): every
+engine call steps only K outputs of its plan and its records are then padded to the run's outputs
+(energies a smooth synthetic trace, times and steps the plan's), so everything around the step --
+build, measures, the store, the export -- runs at the run's real size; stepping is K outputs' worth.
 
 Writes a JSON list of records (one per run) with keys ``spec``, ``device_name``, ``git_commit``,
 ``wall_s``, ``stages_s``, ``estimate_s``, ``peak_rss_bytes`` and some context.
@@ -27,6 +36,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -34,7 +44,39 @@ REPO = Path(__file__).resolve().parents[1]
 STAGES = ("import", "build", "compile", "stepping", "measurement", "transfer", "write", "finalise")
 
 
-def _child(spec: str, device: str, out: str, record: str) -> None:
+def _stub(orig, k: int, spent: dict):
+    """simulate_batch stepping only ``k`` outputs of its plan, its records padded to the plan's outputs."""
+    import dataclasses
+
+    import numpy as np
+
+    def sim(*a, plan=None, **kw):
+        short = dataclasses.replace(plan, n_steps=min(plan.n_steps, k * plan.output_every))
+        r = orig(*a, plan=short, **kw)
+        t_pad = time.perf_counter()
+        n_out, t0 = plan.n_out, r.time.size
+        rng = np.random.default_rng(t0)
+        tt = plan.output_times
+        for name in ("kinetic_energy", "elastic_energy", "station_energy", "end_energy"):
+            a0 = getattr(r, name)
+            if a0 is not None:  # smooth, with round-off-like low bits, scaled as the short record
+                B = a0.shape[0]
+                w, ph = rng.uniform(5, 50, (B, 1)), rng.uniform(0, 6, (B, 1))
+                pad = np.abs(a0[:, :1]) * (1.2 + np.sin(w * tt[t0:] + ph)) * (1 + 1e-9 * rng.standard_normal((B, n_out - t0)))
+                setattr(r, name, np.concatenate([a0, pad], axis=1))
+        if r.strain is not None:  # (B, T, P): the last record held
+            r.strain = np.concatenate([r.strain, np.repeat(r.strain[:, -1:], n_out - t0, axis=1)], axis=1)
+        r.time = tt
+        if r.info.get("output_step") is not None:
+            r.info["output_step"] = plan.output_steps
+        r.n_steps = plan.n_steps
+        spent["s"] += time.perf_counter() - t_pad
+        return r
+
+    return sim
+
+
+def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None:
     """Run one spec through cli.main and write its stage record (the run process)."""
     from warp_tensegrity.runtime import process_age
 
@@ -46,7 +88,7 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
     from warp_tensegrity.sim import integrate  # noqa: F401 - the modules a run imports
     from warp_tensegrity import io as D
     from warp_tensegrity.measure import device as _measure_device  # noqa: F401
-    from warp_tensegrity.sweep import plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
+    from warp_tensegrity.sweep import budget, plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
 
     wp.init()
     wp.get_device(device)
@@ -55,28 +97,35 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
     info = {"shards": 0}
     phase = {"finalise": False}
 
+    depth = threading.local()  # a timed call inside another counts once, in the outer one's stage
+
     def timed(owner, name, stage, fn=None):
         orig = getattr(owner, name)
 
         def wrapper(*a, **k):
+            outer = getattr(depth, "n", 0) == 0
+            depth.n = getattr(depth, "n", 0) + 1
             t0 = time.perf_counter()
             try:
                 return (fn or orig)(*a, **k)
             finally:
                 dt = time.perf_counter() - t0
+                depth.n -= 1
                 s = stage() if callable(stage) else stage
-                if s:
+                if s and outer:
                     st[s] += dt
 
         setattr(owner, name, wrapper)
         return orig
 
-    orig_sim = sweep_shard.simulate_batch
+    stubbed = {"s": 0.0}  # the stub's synthetic padding: no stage of a real run, left out of the wall
+    orig_sim = sweep_shard.simulate_batch if not stub else _stub(sweep_shard.simulate_batch, stub, stubbed)
 
     def sim(*a, **k):
-        t0 = time.perf_counter()
+        t0, stub0 = time.perf_counter(), stubbed["s"]
         r = orig_sim(*a, **k)
         total = time.perf_counter() - t0
+        total -= stubbed["s"] - stub0
         es = r.info.get("stages", {})
         for key in ("build", "compile", "stepping", "measurement", "transfer"):
             st[key] += float(es.get(key, 0.0))
@@ -91,6 +140,14 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
 
     sweep_shard.simulate_batch = sim
     timed(sweep_plan, "plan_sweep", "build")
+    timed(cli, "estimate_plan", "build")  # the run's pricing (the probe cached by the dry run)
+    timed(budget, "check_run", "build")
+    timed(sweep_run, "template_dataset", "write")  # the store's layout
+    timed(sweep_store.SweepStore, "initialise", "write")
+    timed(sweep_shard, "beta_limit_measures", "measurement")  # waits for the base-mode analysis, if it still runs
+    timed(sweep_shard, "error_estimates", "measurement")
+    timed(sweep_shard, "merge_results", "transfer")
+    timed(cli, "_log_nan_summary", "finalise")  # the closing report reads the output
     timed(sweep_shard, "measure_columns", "measurement")
     timed(D, "shard_dataset", "write")
     timed(D, "write_netcdf", lambda: None if phase["finalise"] else "write")
@@ -110,7 +167,7 @@ def _child(spec: str, device: str, out: str, record: str) -> None:
 
     sweep_run.export_netcdf = export
     rc = cli.main(["run", spec, "-o", out, "--device", device, "--overwrite", "--no-progress"])
-    wall = time.perf_counter() - t_ref
+    wall = time.perf_counter() - t_ref - stubbed["s"]
     if rc != 0:
         raise SystemExit(f"run of {spec} failed with exit code {rc}")
     import resource
@@ -140,10 +197,12 @@ def main(argv=None) -> int:
     p.add_argument("--repeat", type=int, default=1, help="runs per spec (each a record)")
     p.add_argument("--append", action="store_true", help="keep the records already in the output file")
     p.add_argument("--keep", default=None, help="copy each spec's output netCDF into this folder")
+    p.add_argument("--stub-outputs", type=int, default=0, metavar="K",
+                   help="step only K outputs per engine call, records padded to the run's (see above)")
     p.add_argument("--child", nargs=3, metavar=("SPEC", "OUT_NC", "RECORD"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.child:
-        _child(a.child[0], a.device, a.child[1], a.child[2])
+        _child(a.child[0], a.device, a.child[1], a.child[2], a.stub_outputs)
         return 0
     sys.path.insert(0, str(REPO))
     sys.path.insert(0, str(REPO / "benchmarks"))
@@ -166,7 +225,7 @@ def main(argv=None) -> int:
             for r in range(a.repeat):
                 rec_path = Path(tmp) / "record.json"
                 cmd = [sys.executable, str(Path(__file__).resolve()), "--device", a.device, "--child", spec, out,
-                       str(rec_path)]
+                       str(rec_path), "--stub-outputs", str(a.stub_outputs)]
                 load0 = os.getloadavg()[0]
                 subprocess.run(cmd, check=True, env=env)
                 rec = json.loads(rec_path.read_text())
@@ -189,6 +248,7 @@ def main(argv=None) -> int:
                     "shards": rec["shards"],
                     "n_steps": rec.get("n_steps"),
                     "repeat": r,
+                    **({"stub_outputs": a.stub_outputs} if a.stub_outputs else {}),
                     "load_avg_1min": [load0, os.getloadavg()[0]],
                     "probe_load_avg_1min": est["probe"].get("load_avg"),
                     "kernel_cache": "warm (the estimate's probe compiled what the run loads)",

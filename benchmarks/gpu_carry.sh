@@ -16,7 +16,8 @@ cd "$root"
 WHEELS=(netCDF4==1.7.5.1.post1 cftime==1.6.6.1 pydantic==2.14.4 pydantic-core==2.50.5 annotated-types==0.8.0
         typing-inspection==0.4.5 typing_extensions==4.16.0 zarr==3.1.6 numcodecs==0.16.6 donfig==0.8.1.post1
         google-crc32c==1.9.0 dask==2026.8.0 distributed==2026.8.0 partd==1.4.2 locket==1.0.0 filelock==4.3.1
-        platformdirs==4.14.8 tomli-w==1.2.0 tqdm==4.70.1 psutil==7.2.2)
+        platformdirs==4.14.8 tomli-w==1.2.0 tqdm==4.70.1 psutil==7.2.2
+        threadpoolctl==3.8.0)
 bash ../shared/gpu/prepare-carry.sh "${WHEELS[@]}"
 
 # what travels with every call: tracked files and untracked files git does not ignore

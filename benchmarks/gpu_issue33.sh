@@ -11,6 +11,9 @@
 #   PART=same_physics every registered Step against the staged path, fp64, to t = 1 s: the paper's 12 cases
 #                    and lanes_check's (50, 7, 100 prisms) (benchmarks/same_physics.py; exit 1 over 1e-11)
 #   PART=ncu         Nsight Compute of the lane kernel in the four cases (benchmarks/gpu_lanes_ncu.sh)
+#   PART=e2e         issue 33 must-show 3: end to end (benchmarks/end_to_end.py, every stage and "other"),
+#                    REPEAT runs each (default 2), of phase_large at its defaults (fp64), phase_large with
+#                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -27,7 +30,7 @@ run_in() {  # run_in new|base CMD...: in this tree or in BASE, with the commit o
 }
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WARP_CACHE_PATH=${WARP_CACHE_PATH:-/tmp/warp_cache}
 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/gpu.txt"
-case "${PART:?PART=check, throughput, switches, phase, same_physics, ncu or interface}" in
+case "${PART:?PART=check, throughput, switches, phase, e2e, same_physics, ncu or interface}" in
 check)
     python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes.py --device cuda:0 \
         -k "records_inside or match_staged or diverging or hold_the_bars or mixed_precision or accelerations_in_memory" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
@@ -65,6 +68,16 @@ same_physics)
     python -m benchmarks.same_physics --device cuda:0 --out "$OUT/same_physics_h200.json" 2>&1 | tail -3 ;;
 ncu)  # Nsight Compute of the lane kernel, the four cases (NCU_CONFIGS), for benchmarks/lanes_bound.py
     bash benchmarks/gpu_lanes_ncu.sh "$OUT" new ;;
+e2e)  # threadpoolctl (gpu_carry.sh carries it) sets the host's small solves to one BLAS thread: say if it is there
+    python -c "import threadpoolctl; print('threadpoolctl', threadpoolctl.__version__)" 2>&1 | tail -1 | tee -a "$OUT/gpu.txt"
+    sed "s/^precision = .*/precision = \"auto\"/" sweeps/phase_large.toml > "$OUT/phase_large_auto.toml"
+    for v in ${VERSIONS:-new}; do
+        for spec in "$HERE/sweeps/phase_large.toml" "$OUT/phase_large_auto.toml" "$HERE/sweeps/paper_2017.toml"; do
+            name=$(basename "$spec" .toml)
+            run_in $v python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" \
+                --out "$OUT/end_to_end_${name}_$v.json" 2>&1 | grep -E "wall|error" | tail -4
+        done
+    done ;;
 interface)
     python -m benchmarks.end_to_end sweeps/interface.toml --device cuda:0 --keep "$OUT" \
         --out "$OUT/end_to_end_interface.json" 2>&1 | tail -3

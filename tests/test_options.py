@@ -96,7 +96,8 @@ def test_lens_docs_table_is_generated_from_the_options():
 def test_defaults_unchanged():
     """The defaults every earlier result was made with (fp64 CPU outputs stay bit-identical)."""
     want = dict(t_end=1.0, dt="auto", method="rattle", precision="auto", output_interval=None,
-                record_strain=True, record_energy=True, device=None, shard_size=256, dt_safety=None,
+                record_strain=True, record_energy=True, energy_precision="auto", compress_energy=False,
+                device=None, shard_size=None, dt_safety=None,
                 allow_unstable_dt=False, projection_tol=None, max_projection_iters=25, failure_bar_error=1e-3,
                 steps_per_graph=50, fused="auto", accuracy=None, truncate=True, groups=True, error_estimate=True, measure="device",
                 energy_station=None, energy_end_prisms=5)

@@ -391,13 +391,13 @@ def _log_nan_summary(path) -> int:
     from .io import open_sweep  # imports xarray: not at `--help`
     from .measure.feasibility import dataset_summary as feasibility_summary
 
-    ds = open_sweep(path)
-    failed = all_failed(ds, long_wave_speeds)
-    if failed:  # one line, in place of the per-kind ones
-        log.error("error: %s", failed)
-        return EXIT_ALL_FAILED
-    for line in dataset_summary(ds) + feasibility_summary(ds):
-        log.info("%s", line)
+    with open_sweep(path, load=False) as ds:  # reads the per-case flags it looks at, not the records
+        failed = all_failed(ds, long_wave_speeds)
+        if failed:  # one line, in place of the per-kind ones
+            log.error("error: %s", failed)
+            return EXIT_ALL_FAILED
+        for line in dataset_summary(ds) + feasibility_summary(ds):
+            log.info("%s", line)
     return EXIT_OK
 
 

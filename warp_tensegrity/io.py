@@ -202,6 +202,20 @@ FEASIBILITY_VARS = {"feasibility_flag": np.int8, "feasibility_time": np.float64,
 
 _COMPRESS = {"zlib": True, "complevel": 1, "shuffle": True}
 
+ENERGY_RECORDS = ("kinetic_energy", "elastic_energy", "station_energy", "end_energy")
+"""The energy histories (case, t) a dataset stores; their storage is ``run.energy_precision`` and
+``run.compress_energy`` (:func:`energy_dtypes`, :func:`_encoding`)."""
+
+
+def energy_dtypes(energy_precision: str = "fp64") -> dict:
+    """{energy history: numpy dtype it is stored in} for ``run.energy_precision`` ('auto': float32
+    but the elastic energy, which carries the prestress energy; see options.RunSettings)."""
+    if energy_precision == "fp64":
+        return dict.fromkeys(ENERGY_RECORDS, np.float64)
+    if energy_precision == "fp32":
+        return dict.fromkeys(ENERGY_RECORDS, np.float32)
+    return {**dict.fromkeys(ENERGY_RECORDS, np.float32), "elastic_energy": np.float64}
+
 
 def _attr(v):
     """netCDF-storable attribute value."""
@@ -239,6 +253,8 @@ def spec_attrs(layout: Layout) -> dict:
         "t_end": r["t_end"],
         "record_strain": r["record_strain"],
         "record_energy": r["record_energy"],
+        "energy_precision": r.get("energy_precision", "fp64"),
+        "compress_energy": r.get("compress_energy", True),
         "energy_station": station_prism(layout.scene.n_prisms, r.get("energy_station")),
         "energy_end_prisms": end_prisms(layout.scene.n_prisms, r.get("energy_end_prisms", 5)),
     }
@@ -338,11 +354,12 @@ def profile_coords(name: str, values: np.ndarray, per_case: bool | None = None) 
 
 
 def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
-                  record_energy: bool = True, record_strain: bool | None = None) -> xr.Dataset:
+                  record_energy: bool = True, record_strain: bool | None = None,
+                  energy_precision: str = "fp64") -> xr.Dataset:
     """Case-stacked dataset of a BatchResult: measurements (if given), per-column status and
-    errors, energy histories (``record_energy``) and the strain history (``record_strain``;
-    None: whenever the result has one). The one builder behind the CLI's files and
-    :meth:`BatchResult.to_xarray`."""
+    errors, energy histories (``record_energy``, stored as ``energy_precision`` says:
+    :func:`energy_dtypes`) and the strain history (``record_strain``; None: whenever the result
+    has one). The one builder behind the CLI's files and :meth:`BatchResult.to_xarray`."""
     C = ("case",)
     dv = {}
     if measurements is not None:
@@ -383,11 +400,10 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
         dv["striker_velocity"] = (("case", TIME), np.asarray(striker["velocity"], dtype=np.float64))
         dv["striker_force"] = (("case", TIME), np.asarray(striker["force"], dtype=np.float64))
     if record_energy:
-        dv["kinetic_energy"] = (("case", TIME), np.asarray(result.kinetic_energy, dtype=np.float64))
-        dv["elastic_energy"] = (("case", TIME), np.asarray(result.elastic_energy, dtype=np.float64))
-        for k in ("station_energy", "end_energy"):  # the energy-parts record, where the run has one
+        dtype = energy_dtypes(energy_precision)
+        for k in ENERGY_RECORDS:  # the energy-parts record (station, end) where the run has one
             if getattr(result, k, None) is not None:
-                dv[k] = (("case", TIME), np.asarray(getattr(result, k), dtype=np.float64))
+                dv[k] = (("case", TIME), np.asarray(getattr(result, k), dtype=dtype[k]))
     if record_strain is None:
         record_strain = result.strain is not None
     if record_strain:
@@ -401,6 +417,10 @@ def batch_dataset(result, measurements: dict | None, coords: dict, attrs: dict,
     for k in ERROR_ESTIMATED:  # CF: a measure names its error estimate and the estimate's flag
         if f"{k}_error" in data_vars and k in data_vars:
             data_vars[k].attrs["ancillary_variables"] = f"{k}_error error_flag"
+    for k in ENERGY_RECORDS:
+        if k in data_vars and data_vars[k].dtype == np.float32:
+            data_vars[k].attrs["comment"] = ("computed in float64, stored as float32 (relative round-off 6e-8; "
+                                             "run.energy_precision); every measure was taken before")
     ds = xr.Dataset(data_vars, coords=coords)
     ds.attrs = {k: _attr(v) for k, v in attrs.items()}
     return ds
@@ -468,7 +488,8 @@ def shard_dataset(
         raise ValueError(f"batch has {result.n_columns} columns, shard {start}:{stop} needs {n}")
     coords = _coords(layout, params, start, stop, result.time, layout.scene.n_prisms, result.info.get("output_step"))
     return batch_dataset(result, measurements, coords, attrs, record_energy=layout.run["record_energy"],
-                         record_strain=layout.run["record_strain"])
+                         record_strain=layout.run["record_strain"],
+                         energy_precision=layout.run.get("energy_precision", "fp64"))
 
 
 def _joined(values) -> str:
@@ -535,9 +556,12 @@ def _coordinate_encoding(ds: xr.Dataset) -> dict:
 
 
 def _encoding(ds: xr.Dataset) -> dict:
+    """Compression of the records: zlib, but the energy histories only where the dataset's
+    ``compress_energy`` attribute (a sweep's run.compress_energy; absent: 1) asks for it."""
     enc = {}
+    energy = bool(int(ds.attrs.get("compress_energy", 1)))
     for k, v in ds.data_vars.items():
-        if v.ndim >= 2 and v.size > 1024:
+        if v.ndim >= 2 and v.size > 1024 and (energy or k not in ENERGY_RECORDS):
             enc[k] = dict(_COMPRESS)
     enc.update(_coordinate_encoding(ds))
     return enc

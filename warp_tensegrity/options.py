@@ -548,11 +548,28 @@ class RunSettings:
     (sweeps compute it either way: the measurements need it)."""
     record_energy: Annotated[bool, Opt("bool")] = True
     """Store the kinetic and elastic energy histories in a sweep's dataset."""
+    energy_precision: Annotated[str, Opt("choice", choices=("auto", "fp32", "fp64"))] = "auto"
+    """Sweeps: the floating point a dataset stores its energy histories in (``kinetic_energy``,
+    ``elastic_energy``, ``station_energy``, ``end_energy``; they are computed in fp64 either way, and
+    every measure is taken before they are stored). 'auto': float32 for the kinetic, station and
+    end energies, whose values start from 0 (a relative round-off of 6e-8 of each value, far below
+    the run's accuracy target, 1e-3 by default), float64 for the elastic energy, which carries the
+    prestress energy (up to ~1,400x the impact energy in phase_large: float32 would resolve its
+    change only to ~1e-4 of the impact energy); 'fp32' all float32 (half the bytes); 'fp64' all
+    float64 (to study energy conservation from the histories)."""
+    compress_energy: Annotated[bool, Opt("bool")] = False
+    """Sweeps: zlib-compress the energy histories in the netCDF export. Off by default: their low
+    bits are round-off, so compression saves 19 % (float64) to 28 % (float32) of their bytes for
+    3-4x the export time (docs/sweeps.md, measured at phase_large's size)."""
     device: Annotated[str | None, Opt("str", pattern=r"cpu|cuda|cuda:\d+", optional=True, special=(("auto", None),),
                                       rule_text='"cpu", "cuda", "cuda:N"', default_text='"auto"')] = None
     """Warp device ('cpu', 'cuda:0'); None ('auto'): the GPU if there is one, else the CPU."""
-    shard_size: Annotated[int, Opt("int", "1", ge=1)] = 256
-    """Columns per shard of a sweep (one engine batch, one chunk of the run's Zarr store); not part of the fingerprint."""
+    shard_size: Annotated[int | None, Opt("int", "1", ge=1, optional=True, special=(("auto", None),),
+                                          default_text='"auto"')] = None
+    """Columns per shard of a sweep (one engine batch, one chunk of the run's Zarr store); not part of
+    the fingerprint. None ('auto'): on a GPU the columns its resident warps of the lane step hold
+    (one warp per column: SM count x the warps an SM holds at the lane step's registers;
+    :func:`warp_tensegrity.policy.decide.default_shard_size`), 256 on the CPU."""
     dt_safety: Annotated[float | None, Opt("real", "1", ge=1e-6, le=0.5, optional=True, default_text="from the default accuracy",
                                            why="strong impacts lower the stability limit to ~0.45 of the prediction")] = None
     """Fraction of the predicted stability limit used when dt = 'auto'; None (not given, and no

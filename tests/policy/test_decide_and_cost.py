@@ -262,3 +262,18 @@ def test_a_resume_is_priced_for_the_shards_left(tmp_path, cache, capsys, monkeyp
     Manifest(path, content).save()
     left = stepping(["resume", str(out), "--device", "cpu", "--dry-run"])
     assert left == pytest.approx(full / 3, rel=1e-2), (left, full)
+
+
+def test_default_shard_size_fills_the_device_and_a_given_one_wins(monkeypatch):
+    """shard_size 'auto': one lane-step warp per column for every warp slot of the GPU (SM count x 8 at
+    255 registers a thread: 1,056 on an H200), 256 on the CPU; the spec's or --shard-size's wins."""
+    from types import SimpleNamespace
+
+    text = "[scene]\nn_prisms = 3\n[sweep]\ngrid = { v0 = [0.001, 0.002, 0.003] }\n[run]\nt_end = 0.01\n"
+    monkeypatch.setattr(D, "resolve_device", lambda device=None: SimpleNamespace(is_cuda=True, sm_count=132))
+    assert D.default_shard_size("cuda:0") == 1056
+    assert sweep.plan_sweep(load_spec(text), estimate=False).shard_size == 1056
+    assert sweep.plan_sweep(load_spec(text + "shard_size = 2\n"), estimate=False).shards == [(0, 2), (2, 3)]
+    assert sweep.plan_sweep(load_spec(text), shard_size=1, estimate=False).n_shards == 3
+    monkeypatch.setattr(D, "resolve_device", lambda device=None: SimpleNamespace(is_cuda=False, sm_count=0))
+    assert sweep.plan_sweep(load_spec(text), estimate=False).shard_size == D.CPU_SHARD_SIZE == 256

@@ -444,7 +444,7 @@ def test_corrupt_truncated_chunks_and_manifest_are_detected_and_recomputed(tmp_p
     import zarr
 
     g = zarr.open_group(str(store.zarr), mode="r+")
-    g["kinetic_energy"][6:8] = g["kinetic_energy"][6:8] * (1 + 1e-15) + 1e-300
+    g["elastic_energy"][6:8] = g["elastic_energy"][6:8] * (1 + 1e-15) + 1e-300  # float64 (kinetic: float32)
     mtime0 = next((store.zarr / "strain" / "c" / "0").rglob("*")).stat().st_mtime_ns
     st = sweep.sweep_status(out)
     assert [i for i, _ in st["shards_corrupt"]] == [1, 2] and st["cases_remaining"] == 5, st

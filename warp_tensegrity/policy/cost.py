@@ -73,10 +73,18 @@ def fmt_seconds(s: float) -> str:
     return f"{s}s"
 
 
-def output_bytes_per_column(n_out: int, n_prisms: int, record_strain: bool, record_energy: bool = True) -> int:
-    """Bytes (float64) one column leaves in the output: measures and final state scalars, prism
-    heights, energy histories (kinetic, elastic and the two energy parts) and the strain record when kept."""
-    return 8 * (MEASURE_VALUES + n_prisms + (4 * n_out if record_energy else 0) + (n_out * n_prisms if record_strain else 0))
+ENERGY_BYTES = {"fp64": 32, "fp32": 16, "auto": 20}
+"""Bytes per output of the four energy histories as run.energy_precision stores them ('auto':
+float32 but the elastic energy; :func:`warp_tensegrity.io.energy_dtypes`)."""
+
+
+def output_bytes_per_column(n_out: int, n_prisms: int, record_strain: bool, record_energy: bool = True,
+                            energy_precision: str = "fp64") -> int:
+    """Bytes one column leaves in the output: measures and final state scalars, prism heights (float64),
+    energy histories (kinetic, elastic and the two energy parts, as ``energy_precision`` stores them)
+    and the strain record when kept (float64)."""
+    energy = ENERGY_BYTES[energy_precision] * n_out if record_energy else 0
+    return 8 * (MEASURE_VALUES + n_prisms + (n_out * n_prisms if record_strain else 0)) + energy
 
 
 BLOCK = 4096
@@ -108,12 +116,12 @@ def netcdf_bytes(data_bytes: int, n_chunks: int = 1) -> int:
 
 
 def disk_bytes(run, shard_sizes: list[int], n_columns: int, n_shards: int, record_strain: bool,
-               record_energy: bool = True) -> dict:
+               record_energy: bool = True, energy_precision: str = "fp64") -> dict:
     """Bytes of disk a sweep needs at most, its data uncompressed: ``store`` for the Zarr store's
     shards of ``shard_sizes`` columns (their data, files and directories, and their manifest
     records) and ``netcdf`` for the export of all ``n_columns`` columns in ``n_shards`` shards; both
     are on disk when the export ends (``--no-keep-store`` removes the store only after it)."""
-    col = output_bytes_per_column(run.n_out, run.prisms, record_strain, record_energy) + COLUMN_EXTRA_BYTES
+    col = output_bytes_per_column(run.n_out, run.prisms, record_strain, record_energy, energy_precision) + COLUMN_EXTRA_BYTES
     time = 16 * run.n_out  # the output times and steps, in each file
     store = (col * sum(shard_sizes) + time
              + BLOCK * (STORE_BLOCKS_PER_SHARD * len(shard_sizes) + STORE_BLOCKS_FIXED)
@@ -197,27 +205,39 @@ def _device_total(device: str) -> int:
     return int(resolve_device(device).total_memory)
 
 
+STORE_SETUP_WRITES = 100.0
+"""The store's layout before the first shard (template dataset, Zarr metadata of ~40 variables), in
+small-file writes of the probe (io_write_fixed): 1.2 s against 12 ms measured on the 2-core host."""
+STORE_WRITE_FACTOR = 8.0
+"""A shard's write into the store (its dataset, a sha256 per variable, Zarr, fsync) over the probe's
+netCDF write rate per byte: 6.5-9.4 measured at phase_large's size (155 MB) on the 2-core host."""
+EXPORT_FACTOR = 10.0
+"""The netCDF export (the store read back, the file written and fsync'd) over the probe's write
+rate per byte: 8.2-13.8 measured at phase_large's size on the 2-core host."""
+
 HOST_STAGES = ("import", "build", "compile", "transfer", "write", "finalise")
 """Stages bound by the host CPU wherever the step runs (on the CPU device: every stage)."""
 
 
 def predict(cal: dict, run, shard_sizes: list[int], record_strain: bool, record_energy: bool = True,
-            shard_states: list[int] | None = None, planned: tuple[int, int] | None = None) -> dict:
+            shard_states: list[int] | None = None, planned: tuple[int, int] | None = None,
+            energy_precision: str = "fp64") -> dict:
     """Stage seconds and memory of ``run`` over shards of ``shard_sizes`` columns, from a probe ``cal``
     (:func:`~warp_tensegrity.policy.calibrate.probe`). ``shard_states``: distinct reference states
     of each shard (default: as many as columns); ``planned``: (columns, states) whose bound the plan
-    built (a sweep's; None: none beyond the shards)."""
+    built (a sweep's; None: none beyond the shards). Write and finalise are priced on the bytes
+    stored (``energy_precision``), at the probe's rates for data stored as the run stores it."""
     P, n_out, n_steps = run.prisms, run.n_out, run.n_steps
     st = dict.fromkeys(("import", "build", "compile", "stepping", "measurement", "transfer", "write", "finalise"), 0.0)
     st["import"] = cal["import"]
     st["compile"] = cal["compile"]
     scale_T = n_out / max(cal["measure_samples"], 1)
-    out_total = 0
+    out_total = held = 0
     def build(columns, states):
         return cal["batch_fixed"] + cal["batch_per_column"] * columns + cal.get("batch_per_state", 0.0) * states
 
     st["build"] = cal.get("batch_first", 0.0) + (build(*planned) if planned else 0.0)  # the scene's first build
-    out_col = output_bytes_per_column(n_out, P, record_strain, record_energy)
+    out_col = output_bytes_per_column(n_out, P, record_strain, record_energy, energy_precision)
     for b, states in zip(shard_sizes, shard_states or shard_sizes):
         st["build"] += build(b, states) + cal["integrator_build"]
         if cal["is_cuda"]:
@@ -229,18 +249,20 @@ def predict(cal: dict, run, shard_sizes: list[int], record_strain: bool, record_
             st["measurement"] += cal["measure_seconds"] * scale_T * b / cal["probe_columns"]
         st["transfer"] += cal["transfer_per_byte"] * b * (output_bytes_per_column(n_out, P, record_strain) + 8 * 18 * (P + 1))
         out_total += b * out_col
-        st["write"] += cal["io_write_fixed"] + cal["io_write_per_byte"] * b * out_col
-        # each shard is read back once to check it, and once more when combined
-        st["finalise"] += 2 * (cal["io_read_fixed"] + cal["io_read_per_byte"] * b * out_col)
-    st["finalise"] += cal["io_write_fixed"] + cal["io_write_per_byte"] * out_total
+        held += b * output_bytes_per_column(n_out, P, record_strain, record_energy)  # float64 on the host
+        st["write"] += cal["io_write_fixed"] + STORE_WRITE_FACTOR * cal["io_write_per_byte"] * b * out_col
+    st["write"] += STORE_SETUP_WRITES * cal["io_write_fixed"]
+    # the export reads every shard back from the store and writes the netCDF file
+    st["finalise"] += cal["io_write_fixed"] + EXPORT_FACTOR * cal["io_write_per_byte"] * out_total
     bmax = max(shard_sizes) if shard_sizes else 0
     dev_bytes = cal["device_bytes_fixed"] + bmax * (cal["device_bytes_per_column"] + cal["strain_bytes_per_sample"] * n_out
                                                     + 8 * (12 * P + 3 * n_out + 12))
     # imports and kernels, the shards in flight, and the combine (every shard + the result)
     host_col = host_bytes_per_column(run, record_strain, record_energy)
-    host_peak = cal["base_rss"] + bmax * host_col + 2 * out_total
+    host_peak = cal["base_rss"] + bmax * host_col + 2 * held
     n_cols = planned[0] if planned else sum(shard_sizes)
-    disk = disk_bytes(run, shard_sizes, n_cols, -(-n_cols // max(bmax, 1)), record_strain, record_energy)
+    disk = disk_bytes(run, shard_sizes, n_cols, -(-n_cols // max(bmax, 1)), record_strain, record_energy,
+                      energy_precision)
     return {"stages_s": st, "seconds": float(sum(st.values())), "device_bytes_per_shard": int(dev_bytes),
             "host_bytes_per_shard": int(bmax * host_col), "host_bytes_per_column": int(host_col),
             "device_bytes_per_column": int(dev_bytes - cal["device_bytes_fixed"]) // max(bmax, 1),

@@ -45,6 +45,27 @@ ESTIMATE_CHUNK_BYTES = 4_000_000
 does not grow with the sweep's size."""
 
 
+REGISTERS_PER_SM = 65536
+"""32-bit registers of one streaming multiprocessor (every CUDA architecture from Kepler to Blackwell)."""
+LANE_REGISTERS = 255
+"""Registers per thread of the lane step: the compiler's cap, which its FB fp64 and RB kernels reach
+(issue 33's profiles), so 8 warps per SM: 1,056 on an H200's 132 SMs."""
+CPU_SHARD_SIZE = 256
+"""Default shard size on the CPU, whose backend steps the columns one after another: a shard only
+bounds the host memory and the work lost to a crash."""
+
+
+def default_shard_size(device: str | None = None) -> int:
+    """Columns per shard when the spec gives none (run.shard_size = 'auto'): on a GPU one warp per
+    column for every warp slot its SMs hold at the lane step's registers (SM count x
+    REGISTERS_PER_SM // (32 x LANE_REGISTERS)), so one launch fills the device; CPU_SHARD_SIZE on
+    the CPU."""
+    d = resolve_device(device)
+    if not d.is_cuda:
+        return CPU_SHARD_SIZE
+    return max(1, int(d.sm_count) * (REGISTERS_PER_SM // (32 * LANE_REGISTERS)))
+
+
 @dataclass(frozen=True)
 class RunPlan:
     """What a run of T3 columns (or of a prepared batch) will do, decided once (:func:`decide`)."""

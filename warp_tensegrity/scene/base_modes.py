@@ -51,8 +51,8 @@ from ..types import BETA_LIMIT_FLAGS
 from .columns import build_column, column_topology
 from .impact import kinematic_lock_strain
 
-__all__ = ["BAND_FACTOR", "BETA_LIMIT_FLAGS", "LOCK_FRACTION", "MAX_EXACT_PRISMS", "base_mode_ratio", "beta_limit_measures",
-           "lowest_base_mode", "modes", "rb_band_top"]
+__all__ = ["BAND_FACTOR", "BETA_LIMIT_FLAGS", "LOCK_FRACTION", "MAX_EXACT_PRISMS", "base_mode_ratio", "base_mode_ratios",
+           "beta_limit_measures", "lowest_base_mode", "modes", "rb_band_top"]
 
 BAND_FACTOR = 2.0
 """Scale separation the regular limit needs: lowest base mode >= BAND_FACTOR x RB band top."""
@@ -220,23 +220,38 @@ def base_mode_ratio(config, prestrain: float, base_rigidity: float) -> float:
     return lowest_base_mode(config, prestrain, base_rigidity) / rb_band_top(config, prestrain)
 
 
-def beta_limit_measures(config, params: dict, n_columns: int, max_compression) -> dict[str, np.ndarray]:
-    """Per column: ``base_mode_ratio`` (float64, NaN at beta = 1, where there are no base modes)
-    and ``beta_limit_flag`` (int8, :data:`BETA_LIMIT_FLAGS`) from the columns' ``prestrain`` and
-    ``base_rigidity`` (arrays or scalars; defaults 0) and their ``max_compression`` (NaN: the
-    flag assumes the lock was reached). Modes are computed once per distinct pair."""
+def base_mode_ratios(config, params: dict, n_columns: int) -> np.ndarray:
+    """(n_columns,) :func:`base_mode_ratio` of every column from its ``prestrain`` and ``base_rigidity``
+    (arrays or scalars; defaults 0), NaN at beta = 1; a prestrain profile takes the smaller ratio of
+    its two extremes (the flag errs toward caution). Modes are computed once per distinct pair. It
+    reads the parameters only, so a sweep computes it while its shard steps (:mod:`warp_tensegrity.sweep.shard`)."""
     p = np.asarray(params.get("prestrain", 0.0), dtype=np.float64)
     b = np.broadcast_to(np.asarray(params.get("base_rigidity", 0.0), dtype=np.float64), (n_columns,))
-    qmax = np.broadcast_to(np.asarray(max_compression, dtype=np.float64), (n_columns,))
-    lock = -kinematic_lock_strain(config.radius, config.height, config.twist)
     ratio = np.full(n_columns, np.nan)
-    # a prestrain profile: the smaller ratio of its two extremes (the flag errs toward caution)
     ends = (p.min(axis=1), p.max(axis=1)) if p.ndim == 2 else (np.broadcast_to(p, (n_columns,)),)
     for p in ends:
         r = np.full(n_columns, np.nan)
         for pi, bi in {(float(x), float(y)) for x, y in zip(p, b) if y < 1.0}:
             r[(p == pi) & (b == bi)] = base_mode_ratio(config, pi, bi)
         ratio = r if p is ends[0] else np.fmin(ratio, r)
+    return ratio
+
+
+def beta_limit_measures(config, params: dict, n_columns: int, max_compression,
+                        ratio: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Per column: ``base_mode_ratio`` (float64, NaN at beta = 1, where there are no base modes)
+    and ``beta_limit_flag`` (int8, :data:`BETA_LIMIT_FLAGS`) from the columns' ``prestrain`` and
+    ``base_rigidity`` (arrays or scalars; defaults 0) and their ``max_compression`` (NaN: the
+    flag assumes the lock was reached). ``ratio``: :func:`base_mode_ratios` of these columns,
+    computed already, or a future of them (a sweep's, computed while its shard steps); None:
+    computed here."""
+    b = np.broadcast_to(np.asarray(params.get("base_rigidity", 0.0), dtype=np.float64), (n_columns,))
+    qmax = np.broadcast_to(np.asarray(max_compression, dtype=np.float64), (n_columns,))
+    lock = -kinematic_lock_strain(config.radius, config.height, config.twist)
+    if ratio is None:
+        ratio = base_mode_ratios(config, params, n_columns)
+    elif hasattr(ratio, "result"):  # a concurrent.futures.Future: wait for it here
+        ratio = ratio.result()
     driven = ~(qmax < LOCK_FRACTION * lock)  # NaN counts as driven
     flag = np.where(b >= 1.0, BETA_LIMIT_FLAGS.index("rigid_bases"),
                     np.where((ratio < BAND_FACTOR) & driven, BETA_LIMIT_FLAGS.index("slow_convergence_possible"),

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..policy.cost import fmt_bytes, fmt_seconds, host_bytes_per_column
-from ..policy.decide import RunPlan
+from ..policy.decide import RunPlan, default_shard_size
 from ..policy.groups import RunGroup, decide_groups
 from ..provenance import code_version
 from .budget import check_plan
@@ -100,11 +100,12 @@ def plan_sweep(
     explicit dt above the stability limit is refused (SpecError naming the limit), dt = "auto" is
     resolved once for the whole sweep. ``memory_limit`` (bytes or '64MB') lowers the shard size so
     the shards alive on the host fit (:func:`~warp_tensegrity.sweep.store.limit_shard_size`)."""
-    size = int(shard_size or spec.run["shard_size"])
+    dev = device if device is not None else spec.run["device"]
+    size = shard_size or spec.run["shard_size"]  # given, else from the device ('auto')
+    size = int(size) if size is not None else default_shard_size(None if dev in (None, "auto") else dev)
     if size < 1:
         raise SpecError(f"shard_size = {size!r} must be a positive integer")
     check_plan(spec)  # refuse, with the figures, a sweep whose planning would not fit in memory
-    dev = device if device is not None else spec.run["device"]
     plan = SweepPlan(
         spec=spec,
         out=Path(out).absolute() if out is not None else None,

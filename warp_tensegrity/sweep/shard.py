@@ -4,11 +4,13 @@ Dask worker also write it into its region of the sweep's store (:mod:`.store`)."
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from .. import io as D
-from ..scene.base_modes import beta_limit_measures
+from ..scene.base_modes import base_mode_ratios, beta_limit_measures
+from ..scene.blas import single_blas_thread
 from ..engine import simulate_batch
 from ..measure.errors import FLAG as ERROR_FLAG
 from ..measure.errors import VERIFY_MARGIN, error_estimates, largest_share, with_perturbation
@@ -37,10 +39,19 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
     twins = bool(spec.run["error_estimate"])
-    result = run_groups(plan, start, stop, device, progress, twins=twins)
-    result, errors = result if twins else (result, {})
-    meas = measure_columns(result, spec.scene.height)
-    meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"]))
+    # the base-mode analysis reads the parameters only: on a GPU, on the host while the device steps
+    # (the stepping waits on CUDA without the GIL; ~2 s for phase_large's 96 pairs, in no stage
+    # before issue 33). Not on the CPU device, whose kernels hold the GIL: the thread would only
+    # contend with them (measured 9-25 s against 1.9 s inline on the loaded 2-core host).
+    with ThreadPoolExecutor(1, thread_name_prefix="warp_tensegrity-base-modes") as pool:
+        # on one BLAS thread there: two threads calling a multi-threaded OpenBLAS at once collapse (scene.blas);
+        # the last bits of an eigensolve may follow the thread count (the CPU's inline run keeps the default)
+        ratios = (pool.submit(single_blas_thread(base_mode_ratios), spec.scene, params, stop - start)
+                  if plan.run.on_gpu else None)
+        result = run_groups(plan, start, stop, device, progress, twins=twins)
+        result, errors = result if twins else (result, {})
+        meas = measure_columns(result, spec.scene.height)
+        meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratios))
     meas.update(errors)
     attrs = {
         "Conventions": D.CONVENTIONS,

@@ -181,8 +181,14 @@ class SweepSpec:
         )
 
     def shards(self, shard_size: int | None = None) -> list[tuple[int, int]]:
-        """Contiguous blocks of columns: [(start, stop), ...]."""
-        size = int(shard_size or self.run["shard_size"])
+        """Contiguous blocks of columns: [(start, stop), ...] (the spec's shard_size if none is given;
+        'auto' is the device's: :func:`warp_tensegrity.policy.decide.default_shard_size`)."""
+        size = shard_size or self.run["shard_size"]
+        if size is None:
+            from ..policy.decide import default_shard_size  # initialises Warp: only for 'auto'
+
+            size = default_shard_size(self.run["device"] if self.run["device"] not in (None, "auto") else None)
+        size = int(size)
         n = self.n_columns
         return [(s, min(s + size, n)) for s in range(0, n, size)]
 

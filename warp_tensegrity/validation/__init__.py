@@ -23,27 +23,33 @@ shows that an engine with a constant 5 % off fails some check.
 
 from __future__ import annotations
 
-from .checks import (Check, CheckGroup, check_bessel, check_dispersion, check_fb_modal, check_preload, check_soliton,
-                     check_striker)
-from .diatomic import check_diatomic
-from .interface import check_interface
+import importlib
 
 __all__ = ["CHECKS", "Check", "CheckGroup", "run_validation", "report"]
 
-CHECKS = {"bessel": check_bessel, "soliton": check_soliton, "dispersion": check_dispersion, "fb_modal": check_fb_modal,
-          "interface": check_interface, "diatomic": check_diatomic,
-          "striker": check_striker, "preload": check_preload}
-"""Every check group by name, in gallery order."""
+_CHECKS = {"bessel": "checks", "soliton": "checks", "dispersion": "checks", "fb_modal": "checks",
+           "interface": "interface", "diatomic": "diatomic", "striker": "checks", "preload": "checks"}
+"""Every check group by name, in gallery order, and the module of its ``check_<name>``: loaded on
+first use (the checks import SciPy; `warp-tensegrity run` imports this package and needs none)."""
+
+
+def __getattr__(name):
+    if name == "CHECKS":  # {name: check function}, every check group in gallery order
+        return {n: getattr(importlib.import_module(f".{m}", __name__), f"check_{n}") for n, m in _CHECKS.items()}
+    if name in ("Check", "CheckGroup"):
+        return getattr(importlib.import_module(".checks", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def run_validation(names=None, device: str = "cpu") -> list[CheckGroup]:
     """Run the check groups ``names`` (default: all of :data:`CHECKS`) on ``device``. Their figures:
     :func:`warp_tensegrity.validation.figures.write_figures`."""
-    names = list(CHECKS) if names is None else list(names)
-    unknown = [n for n in names if n not in CHECKS]
+    checks = __getattr__("CHECKS")
+    names = list(checks) if names is None else list(names)
+    unknown = [n for n in names if n not in checks]
     if unknown:
-        raise ValueError(f"unknown validation checks {unknown}: choose among {', '.join(CHECKS)}")
-    return [CHECKS[n](device=device) for n in names]
+        raise ValueError(f"unknown validation checks {unknown}: choose among {', '.join(checks)}")
+    return [checks[n](device=device) for n in names]
 
 
 def report(groups) -> str:
