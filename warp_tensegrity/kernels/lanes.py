@@ -19,9 +19,9 @@ import warp as wp
 from .common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
                      feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
                      set_failure)
-from ..policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
+from ..policy.lane_fit import WARP, lane_map, lane_support
 from .lane_funcs import make_lane_funcs
-from .lane_ops import make_lane_ops, warp_any
+from .lane_ops import make_block_ops, make_lane_ops, warp_any
 from .lane_rigid import make_rigid_funcs
 
 if TYPE_CHECKING:
@@ -39,7 +39,9 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     the batch has a dead load (the end preload), added to the cable forces; compiled out otherwise, so
     an unloaded batch runs today's code). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
-    ops = make_lane_ops(real)
+    blockwide = G > WARP  # k warps per column, one block of G threads each (lane_ops.make_block_ops)
+    ops = make_block_ops(real, G) if blockwide else make_lane_ops(real)
+    vote = ops.any if blockwide else warp_any
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2)
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
     RFac = fr.RFac if rigid else f.Fac
@@ -170,14 +172,14 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         g = wp.static(G)
         w = tid // g
         lane = tid - w * g
-        wl = tid % 32
+        wl = tid % wp.static(max(G, WARP))  # the lane's index in its warp (k warps: in its block)
         n = hz.shape[0]
         wc = wp.min(w, n_columns - 1)  # a safe column index for the padding threads' reads
         alive = int(0)
         if w < n_columns:
             if status[w] == STATUS_OK:
                 alive = 1
-        if warp_any(alive, wl) == 0:
+        if vote(alive, wl) == 0:
             return
         start = alive
         wE = wc % cab_EA.shape[1]
@@ -241,7 +243,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         # iteration i: the factor of A(U) at the state after step i and the end of step i (velocity
         # projection), then step i + 1 up to its forces and second half kick; each piece once in code
         for i in range(n_it + 1):
-            if warp_any(alive, wl) == 0:
+            if vote(alive, wl) == 0:
                 break
             Fr = RFac()
             Fm = f.Fac()
@@ -309,7 +311,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                             going = 0
                         elif it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
                             going = 0  # stalled at round-off just above tol
-                    if warp_any(going, wl) == 0:
+                    if vote(going, wl) == 0:
                         break
                     dn = Nodes()
                     if wp.static(rigid):
@@ -379,11 +381,11 @@ class LaneStep:
         self.model = model
         self.device = device
         n = batch.level_nodes.shape[0] - 1
-        self.P, self.G = lane_shape(n, MAX_LEVELS_PER_LANE)
+        self.rigid = batch.constraints.shape[0] == 6 * n
+        self.P, self.G = lane_map(n, self.rigid)
         real = wp.float64 if model.precision == "fp64" else wp.float32
         npr = np.float64 if real == wp.float64 else np.float32
-        self.rigid = batch.constraints.shape[0] == 6 * n
-        self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
+        self.block_dim = self.G if self.G > WARP else LANE_BLOCK_DIM if device.is_cuda else WARP
         prec = model.precision
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid,
                                         LANE_FAST_MATH[prec] and device.is_cuda and not self.rigid,
@@ -399,7 +401,7 @@ class LaneStep:
         self.rest = wp.array(np.ascontiguousarray(model.cab_L.numpy().T), dtype=real, device=d)
         self.hand = wp.array(np.where(top == 2, 1, 0).astype(np.int32), dtype=wp.int32, device=d)
         self.real = real
-        self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
+        self.block_dim = self.G if self.G > WARP else LANE_BLOCK_DIM if device.is_cuda else WARP
         self.steps_per_launch = LANE_STEPS
         B = model.n_columns
         self.threads = -(-B * self.G // WARP) * WARP
@@ -412,6 +414,10 @@ class LaneStep:
     @property
     def description(self) -> str:
         per = WARP // self.G
+        if self.G > WARP:
+            return (f"lanes ({self.G // WARP} warps per column, one block: {self.P} levels per lane, {self.G} lanes "
+                    "per column" + ("; ring links folded into 3 x 3 bar blocks" if self.rigid else "")
+                    + "; chains by PCR through shared memory)")
         return (f"lanes (one warp per column: {self.P} levels per lane, {self.G} lanes per column"
                 + (f", {per} columns per warp" if per > 1 else "")
                 + ("; ring links folded into 3 x 3 bar blocks" if self.rigid else "") + "; chains by PCR over shuffles)")
