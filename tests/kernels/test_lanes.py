@@ -101,12 +101,14 @@ SCENES = [  # (config, params, simulated prisms, words of the refusal or None)
     (ColumnConfig(n_prisms=1, bar_mass=0.01), {}, None, "massive bars"),
     (ColumnConfig(n_prisms=1), {"base_rigidity": [1.0]}, None, None),
     (ColumnConfig(n_prisms=64, impact_admissibility="end_twist"), {"base_rigidity": [1.0]}, None, None),
-    (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [0.0, 1.0]}, None,
-     "rigid bases with 65 prisms"),
+    (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [0.0, 1.0]}, None, None),
+    (ColumnConfig(n_prisms=1025, impact_admissibility="end_twist"), {"base_rigidity": [0.0, 1.0]}, None,
+     "rigid bases with 1025 prisms"),
     (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [1.0]}, 64, None),
     # long columns (their impact velocity is not what is checked: the cheaper 'end_twist' one)
     (ColumnConfig(n_prisms=128, impact_admissibility="end_twist"), {"base_rigidity": [0.3]}, None, None),
-    (ColumnConfig(n_prisms=129, impact_admissibility="end_twist"), {}, None, "levels per lane"),
+    (ColumnConfig(n_prisms=129, impact_admissibility="end_twist"), {}, None, None),  # 2 warps a column
+    (ColumnConfig(n_prisms=2049, impact_admissibility="end_twist"), {}, None, "levels per lane"),
     (ColumnConfig(n_prisms=129, handedness="alternating", impact_admissibility="end_twist"), {}, 100, None),
 ]  # the last: truncated to the 100 prisms at the impacted end
 
