@@ -178,10 +178,10 @@ def test_estimate_plan_and_run_name_the_same_path(device):
     assert est.path == Path.LANES and est.lane_refusal is None
     auto = decide(cfg, params, dataclasses.replace(s, fused="auto"))
     assert auto.path == choose_path(RunSettings(), auto.on_gpu, 2, auto.bandwidth, None)
-    long = ColumnConfig(n_prisms=65, impact_admissibility="end_twist")
-    with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
+    long = ColumnConfig(n_prisms=1025, impact_admissibility="end_twist")
+    with pytest.raises(SettingsError, match="rigid bases with 1025 prisms"):
         decide(long, {"base_rigidity": [0.0, 1.0]}, s)
-    with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
+    with pytest.raises(SettingsError, match="rigid bases with 1025 prisms"):
         simulate_batch(long, {"base_rigidity": [0.0, 1.0]}, s)
     # a sweep: the plan names the path, and its shards take it (decided once for all columns)
     spec = parse_spec('[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01, 0.02] }\n[run]\nt_end = 0.01\n'
@@ -197,8 +197,8 @@ def test_estimate_plan_and_run_name_the_same_path(device):
 
 def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
     """The dry run on a GPU (a stand-in device: CI has none) names the lane step for a sweep with
-    flexible, elastic or rigid bases up to 64 prisms, and the measured table's path for a rigid-base
-    sweep of longer columns (decided per sweep)."""
+    flexible, elastic or rigid bases up to 1,024 prisms (past 64 on k warps per column), and the
+    measured table's path for a rigid-base sweep of longer columns (decided per sweep)."""
     from types import SimpleNamespace
 
     from warp_tensegrity.policy import decide as policy_decide
@@ -208,11 +208,11 @@ def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
     text = '[scene]\nn_prisms = %d\nimpact_admissibility = "end_twist"\n' \
            '[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
            '[run]\nt_end = 0.01\nprecision = "fp32"\ntruncate = false\n'
-    for n, beta in ((4, "0.5"), (4, "1.0"), (64, "1.0")):
+    for n, beta in ((4, "0.5"), (4, "1.0"), (64, "1.0"), (65, "1.0")):
         plan = plan_sweep(parse_spec(text % (n, beta)), shard_size=2)
         assert plan.run.lane_refusal is None and plan.run.path == Path.LANES, (n, beta)
-    plan = plan_sweep(parse_spec(text % (65, "1.0")), shard_size=2)
-    assert "rigid bases with 65" in plan.run.lane_refusal and plan.run.path == Path.FUSED_SERIAL
+    plan = plan_sweep(parse_spec(text % (1025, "1.0")), shard_size=2)
+    assert "rigid bases with 1025" in plan.run.lane_refusal and plan.run.path == Path.FUSED_SERIAL
 
 
 DIVERGING = {"prestrain": [0.002] * 4, "v0": [0.05] * 4, "base_rigidity": [0.0, 0.0, 0.5, 0.0],

@@ -143,6 +143,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         strain[slot, m, w] = (h - (h0[m] + static_dz[m, w % static_dz.shape[1]])) / h
 
     spill = {"enable_cuda_smem_spilling": True, "launch_bounds": smem_spill_block} if smem_spill_block else {}
+    if blockwide:  # a block of G threads per column: the compiler fits their registers in one SM (G = 512: 128 each)
+        spill.setdefault("launch_bounds", G)
 
     @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers,
                module_options={"fast_math": bool(fast_math)}, **spill)
