@@ -173,10 +173,14 @@ def make_lane_ops(real):
 #
 # A column longer than a warp holds (:func:`warp_tensegrity.policy.lane_fit.lane_map`) runs as one
 # block of G threads: lane = thread index in the block (``wl``, 0 .. G-1), and each primitive above
-# becomes an exchange through a shared-memory buffer between two barriers (``__syncthreads`` on
-# CUDA, ``WP_TILE_SYNC`` between the CPU block's fibers), so the lane code of :mod:`.lane_funcs`
-# and :mod:`.lane_rigid` runs unchanged over k warps. The vote is ``__syncthreads_or``. The step's
-# control flow is block-uniform (these votes), so every thread reaches every barrier.
+# becomes an exchange through a shared-memory buffer and one barrier (``__syncthreads`` on CUDA,
+# ``WP_TILE_SYNC`` between the CPU block's fibers), so the lane code of :mod:`.lane_funcs` and
+# :mod:`.lane_rigid` runs unchanged over k warps. Two buffers alternate, so one barrier per exchange
+# suffices: a lane writes buffer p only after the barrier of the next exchange, which every lane
+# reaches after its reads of buffer p. The parity p is each lane's own entry of ``wt_bpar`` (the
+# lanes agree: they make the same calls); the vote (``__syncthreads_or``, itself a barrier) resets
+# it, and the kernel votes before its first exchange (shared memory starts undefined). The step's control flow is block-uniform
+# (these votes), so every thread reaches every barrier.
 # Hand-written: Warp's tile primitives reduce whole tiles, not a shift by d lanes of a register value.
 
 _STORE = "#if defined(__CUDA_ARCH__)\n    __shared__\n#else\n    static\n#endif\n"
@@ -186,14 +190,18 @@ by :func:`make_block_ops`). One size for every G, so each native function has on
 
 
 def _block_exchange_snippet(ctype: str, name: str) -> str:
-    """The vec3 of lane ``src`` of the block (own value where src lies outside 0 .. g-1)."""
+    """The vec3 of lane ``src`` of the block (own value where src lies outside 0 .. g-1); g < 0:
+    reset the lane's parity (no exchange, no barrier)."""
     return f"""
-{_STORE}    {ctype} {name}[{BLOCK_LANES}][3];
-    {name}[wl][0] = v.c[0]; {name}[wl][1] = v.c[1]; {name}[wl][2] = v.c[2];
+{_STORE}    {ctype} {name}[2][{BLOCK_LANES}][3];
+{_STORE}    unsigned char wt_bpar[{BLOCK_LANES}];
+    if (g < 0) {{ wt_bpar[wl] = 0; return v; }}
+    const int p = wt_bpar[wl];
+    wt_bpar[wl] = (unsigned char)(p ^ 1);
+    {name}[p][wl][0] = v.c[0]; {name}[p][wl][1] = v.c[1]; {name}[p][wl][2] = v.c[2];
     WP_TILE_SYNC();
     wp::vec_t<3, {ctype}> r = v;
-    if (src >= 0 && src < g) r = wp::vec_t<3, {ctype}>({name}[src][0], {name}[src][1], {name}[src][2]);
-    WP_TILE_SYNC();
+    if (src >= 0 && src < g) r = wp::vec_t<3, {ctype}>({name}[p][src][0], {name}[p][src][1], {name}[p][src][2]);
     return r;
 """
 
@@ -235,6 +243,8 @@ def make_block_ops(real, G: int):
 
     @wp.func
     def vote(p: int, wl: int) -> int:
+        """1 if ``p`` is non-zero on any lane of the block; the exchanges' parity back to 0."""
+        exchange3(vec(), 0, -1, wl)
         return block_any(p, wp.static(G), wl)
 
     @wp.func
