@@ -1,5 +1,6 @@
-"""Which T3 columns the warp-per-column step (k warps for long columns) (:mod:`warp_tensegrity.kernels.lanes`) takes, in
-NumPy alone, so the policy decides without loading Warp: the lane map's shape (:func:`lane_shape`),
+"""Which T3 columns the warp-per-column step (:mod:`warp_tensegrity.kernels.lanes`) takes, in
+NumPy alone, so the policy decides without loading Warp: the lane map's shape (:func:`lane_shape`
+on one warp, :func:`lane_map` also k warps per column for long columns),
 a built batch (:func:`lane_support`) and a scene before any batch is built (:func:`lane_refusal`);
 the two agree on column batches (tests/kernels/test_lanes.py)."""
 
