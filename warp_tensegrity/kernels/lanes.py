@@ -5,8 +5,10 @@ there too), its lane arrays and its launches; which batches it takes is
 
 It takes T3 columns (column_batch's layout) with lumped masses: flexible or elastic bases up to
 :data:`~warp_tensegrity.policy.lane_fit.MAX_LEVELS_PER_LANE` levels per lane (128 prisms), and batches with rigid-base columns
-(ring links as constraints, :mod:`.lane_rigid`) up to 2 levels per lane (64 prisms). Massive bars
-and other networks run the other paths; :func:`~warp_tensegrity.policy.lane_fit.lane_support` says why.
+(ring links as constraints, :mod:`.lane_rigid`) up to 2 levels per lane (64 prisms). Longer columns
+run the same kernel on k warps per column, one block of G = 32 k threads each, its primitives through
+shared memory (:func:`.lane_ops.make_block_ops`; :func:`~warp_tensegrity.policy.lane_fit.lane_map`).
+Massive bars and other networks run the other paths; :func:`~warp_tensegrity.policy.lane_fit.lane_support` says why.
 """
 
 import functools
