@@ -8,7 +8,8 @@
 #   PART=long        issue 33 item 3: the fallback table at 128, 300, 500 and 1,000 prisms, B = 4,096: lanes (k warps
 #                    per column past a warp), block (fused, fused-serial) and staged, new only; BASES (FB RB) and
 #                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
-#                    the long-column lane tests on CUDA (tests/kernels/test_lanes_long.py) first
+#                    the long-column lane tests on CUDA (tests/kernels/test_lanes_long.py) first (TESTS=0: not);
+#                    BASE_DIR is not used (give .)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -46,8 +47,10 @@ phase)
             --out "$OUT/end_to_end_phase_large_${P}_$v.json" 2>&1 | tail -3
     done ;;
 long)
-    python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes_long.py --device cuda:0 2>&1 | tail -4 \
-        | tee "$OUT/pytest_lanes_long_cuda.log"
+    if [ "${TESTS:-1}" = 1 ]; then
+        python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes_long.py --device cuda:0 2>&1 | tail -4 \
+            | tee "$OUT/pytest_lanes_long_cuda.log"
+    fi
     for b in ${BASES:-FB RB}; do
         for p in ${PRECISIONS:-fp32 fp64}; do
             run_in new python -m benchmarks.throughput --device cuda:0 --bases "$b" --precisions "$p" --batches \
