@@ -14,6 +14,11 @@
 #   PART=e2e         issue 33 must-show 3: end to end (benchmarks/end_to_end.py, every stage and "other"),
 #                    REPEAT runs each (default 2), of phase_large at its defaults (fp64), phase_large with
 #                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only)
+#   PART=long        issue 33 item 3: the fallback table at 128, 300, 500 and 1,000 prisms, B = 4,096: lanes (k warps
+#                    per column past a warp), block (fused, fused-serial) and staged, new only; BASES (FB RB) and
+#                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
+#                    the long-column lane tests on CUDA (tests/kernels/test_lanes_long.py) first (TESTS=0: not);
+#                    BASE_DIR is not used (give .)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -30,7 +35,7 @@ run_in() {  # run_in new|base CMD...: in this tree or in BASE, with the commit o
 }
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WARP_CACHE_PATH=${WARP_CACHE_PATH:-/tmp/warp_cache}
 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/gpu.txt"
-case "${PART:?PART=check, throughput, switches, phase, e2e, same_physics, ncu or interface}" in
+case "${PART:?PART=check, throughput, switches, phase, e2e, long, same_physics, ncu or interface}" in
 check)
     python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes.py --device cuda:0 \
         -k "records_inside or match_staged or diverging or hold_the_bars or mixed_precision or accelerations_in_memory" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
@@ -76,6 +81,19 @@ e2e)  # threadpoolctl (gpu_carry.sh carries it) sets the host's small solves to 
             name=$(basename "$spec" .toml)
             run_in $v python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" \
                 --out "$OUT/end_to_end_${name}_$v.json" 2>&1 | grep -E "wall|error" | tail -4
+        done
+    done ;;
+long)
+    if [ "${TESTS:-1}" = 1 ]; then
+        python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes_long.py --device cuda:0 2>&1 | tail -4 \
+            | tee "$OUT/pytest_lanes_long_cuda.log"
+    fi
+    for b in ${BASES:-FB RB}; do
+        for p in ${PRECISIONS:-fp32 fp64}; do
+            run_in new python -m benchmarks.throughput --device cuda:0 --bases "$b" --precisions "$p" --batches \
+                --prisms 128 300 500 1000 --prism-batch 4096 --paths lanes fused fused-serial staged \
+                --prism-paths lanes fused fused-serial staged --target-s 0.3 --reps 3 --budget-s 420 \
+                --out "$OUT/throughput_long_${b}_$p.json" 2>&1 | grep -E "col-steps|ERROR|skip" | tail -16
         done
     done ;;
 interface)

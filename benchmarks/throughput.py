@@ -159,7 +159,7 @@ def run(args) -> dict:
         common.write_json(out, doc)
 
     # 1. against batch size, 50 prisms
-    for base in args.bases:
+    for base in args.bases if plan["batches"] else ():
         tb = time.perf_counter()
         small = common.build_base_batch(50, BASES[base], min(common.BASE_COLUMNS, max(plan["batches"])))
         _log(f"[batch sweep] 50 prisms {base}: base batch built in {time.perf_counter() - tb:.2f} s")
@@ -233,7 +233,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="fewer points, shorter timings")
     ap.add_argument("--precisions", nargs="+", default=["fp32", "fp64"], choices=["fp32", "fp64"])
     ap.add_argument("--bases", nargs="+", default=["FB", "RB"], choices=["FB", "RB"])
-    ap.add_argument("--batches", type=int, nargs="+", default=None, help="batch sizes at 50 prisms")
+    ap.add_argument("--batches", type=int, nargs="*", default=None,
+                    help="batch sizes at 50 prisms (none given: no batch sweep, the prism sweep only)")
     ap.add_argument("--prisms", type=int, nargs="+", default=None, help="prisms per column for the second sweep")
     ap.add_argument("--prism-batch", dest="prism_batch", type=int, default=None, help="B of the prism sweep")
     ap.add_argument("--target-s", dest="target_s", type=float, default=None, help="timed seconds per point")
@@ -243,7 +244,8 @@ def main(argv=None):
     ap.add_argument("--paths", nargs="+", default=["fused", "staged"], choices=["lanes", "fused", "fused-serial", "staged"],
                     help="step implementations: fused (block per column; its solve by block cyclic reduction), "
                          "fused-serial (the same, lane 0's serial banded Cholesky) and/or staged (kernel per stage)")
-    ap.add_argument("--prism-paths", dest="prism_paths", nargs="+", default=["fused"], choices=["lanes", "fused", "staged"],
+    ap.add_argument("--prism-paths", dest="prism_paths", nargs="+", default=["fused"],
+                    choices=["lanes", "fused", "fused-serial", "staged"],
                     help="paths measured in the prism sweep")
     ap.add_argument("--max-steps", dest="max_steps", type=int, default=200_000)
     ap.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",

@@ -593,8 +593,9 @@ class RunSettings:
     fused: Annotated[bool | Literal["auto", "lanes"], Opt("bool", special=(("auto", "auto"), ("lanes", "lanes")))] = "auto"
     """RATTLE as one fused kernel with several steps per launch; False: one kernel per stage (the only
     path of the other methods). 'auto' and True on a GPU: the lane step (one warp per column,
-    :mod:`warp_tensegrity.sim.lanes.lanes`) wherever it takes the columns (massless bars, up to 128 prisms
-    simulated, 64 with rigid bases; :func:`~warp_tensegrity.engine.choose_path`).
+    :mod:`warp_tensegrity.sim.lanes.lanes`) wherever it takes the columns (massless bars, up to 2,048 prisms
+    simulated, 1,024 with rigid bases; past 128 (64) prisms k warps per column;
+    :func:`~warp_tensegrity.engine.choose_path`).
     Otherwise 'auto': for RATTLE on a GPU the fastest measured of the fused step (a thread block per
     column, :mod:`warp_tensegrity.sim.block.kernels`; constraint solve by block cyclic reduction or
     serially on lane 0) and the staged kernels for the band, precision and batch; the fused step

@@ -117,12 +117,14 @@ SCENES = [  # (config, params, simulated prisms, words of the refusal or None)
     (ColumnConfig(n_prisms=1, bar_mass=0.01), {}, None, "massive bars"),
     (ColumnConfig(n_prisms=1), {"base_rigidity": [1.0]}, None, None),
     (ColumnConfig(n_prisms=64, impact_admissibility="end_twist"), {"base_rigidity": [1.0]}, None, None),
-    (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [0.0, 1.0]}, None,
-     "rigid bases with 65 prisms"),
+    (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [0.0, 1.0]}, None, None),
+    (ColumnConfig(n_prisms=1025, impact_admissibility="end_twist"), {"base_rigidity": [0.0, 1.0]}, None,
+     "rigid bases with 1025 prisms"),
     (ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), {"base_rigidity": [1.0]}, 64, None),
     # long columns (their impact velocity is not what is checked: the cheaper 'end_twist' one)
     (ColumnConfig(n_prisms=128, impact_admissibility="end_twist"), {"base_rigidity": [0.3]}, None, None),
-    (ColumnConfig(n_prisms=129, impact_admissibility="end_twist"), {}, None, "levels per lane"),
+    (ColumnConfig(n_prisms=129, impact_admissibility="end_twist"), {}, None, None),  # 2 warps a column
+    (ColumnConfig(n_prisms=2049, impact_admissibility="end_twist"), {}, None, "levels per lane"),
     (ColumnConfig(n_prisms=129, handedness="alternating", impact_admissibility="end_twist"), {}, 100, None),
 ]  # the last: truncated to the 100 prisms at the impacted end
 
@@ -192,10 +194,10 @@ def test_estimate_plan_and_run_name_the_same_path(device):
     assert est.path == Path.LANES and est.lane_refusal is None
     auto = decide(cfg, params, dataclasses.replace(s, fused="auto"))
     assert auto.path == choose_path(RunSettings(), auto.on_gpu, 2, auto.bandwidth, None)
-    long = ColumnConfig(n_prisms=65, impact_admissibility="end_twist")
-    with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
+    long = ColumnConfig(n_prisms=1025, impact_admissibility="end_twist")
+    with pytest.raises(SettingsError, match="rigid bases with 1025 prisms"):
         decide(long, {"base_rigidity": [0.0, 1.0]}, s)
-    with pytest.raises(SettingsError, match="rigid bases with 65 prisms"):
+    with pytest.raises(SettingsError, match="rigid bases with 1025 prisms"):
         simulate_batch(long, {"base_rigidity": [0.0, 1.0]}, s)
     # a sweep: the plan names the path, and its shards take it (decided once for all columns)
     spec = parse_spec('[scene]\nn_prisms = 4\n[sweep]\ngrid = { v0 = [0.01, 0.02] }\n[run]\nt_end = 0.01\n'
@@ -211,8 +213,8 @@ def test_estimate_plan_and_run_name_the_same_path(device):
 
 def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
     """The dry run on a GPU (a stand-in device: CI has none) names the lane step for a sweep with
-    flexible, elastic or rigid bases up to 64 prisms, and the measured table's path for a rigid-base
-    sweep of longer columns (decided per sweep)."""
+    flexible, elastic or rigid bases up to 1,024 prisms (past 64 on k warps per column), and the
+    measured table's path for a rigid-base sweep of longer columns (decided per sweep)."""
     from types import SimpleNamespace
 
     from warp_tensegrity.policy import decide as policy_decide
@@ -222,11 +224,11 @@ def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
     text = '[scene]\nn_prisms = %d\nimpact_admissibility = "end_twist"\n' \
            '[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
            '[run]\nt_end = 0.01\nprecision = "fp32"\ntruncate = false\n'
-    for n, beta in ((4, "0.5"), (4, "1.0"), (64, "1.0")):
+    for n, beta in ((4, "0.5"), (4, "1.0"), (64, "1.0"), (65, "1.0")):
         plan = plan_sweep(parse_spec(text % (n, beta)), shard_size=2)
         assert plan.run.lane_refusal is None and plan.run.path == Path.LANES, (n, beta)
-    plan = plan_sweep(parse_spec(text % (65, "1.0")), shard_size=2)
-    assert "rigid bases with 65" in plan.run.lane_refusal and plan.run.path == Path.FUSED_SERIAL
+    plan = plan_sweep(parse_spec(text % (1025, "1.0")), shard_size=2)
+    assert "rigid bases with 1025" in plan.run.lane_refusal and plan.run.path == Path.FUSED_SERIAL
 
 
 DIVERGING = {"prestrain": [0.002] * 4, "v0": [0.05] * 4, "base_rigidity": [0.0, 0.0, 0.5, 0.0],

@@ -268,8 +268,8 @@ def test_lane_parallel_step_with_massive_bars(lanes):
 
 def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
     """decide (the dry run's run plan) reports the path the policy picks on a GPU: the lane step for
-    columns it takes (flexible, elastic or rigid bases up to 64 prisms) at any width; RB columns
-    longer than that (the lane step refuses them) the measured table's RB rows: fused-serial at
+    columns it takes (flexible, elastic or rigid bases up to 1,024 prisms, past 64 on k warps per
+    column) at any width; RB columns longer than that (the lane step refuses them) the measured table's RB rows: fused-serial at
     4,096 and 1,024 columns, staged at 65,536 (a stand-in device: CI has no GPU). The width is the
     plan's shard width (``n_columns``), so no 65,536-column batch is built."""
     from types import SimpleNamespace
@@ -287,7 +287,8 @@ def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
     s = RunSettings(t_end=0.01, precision="fp32", truncate=False)
     assert path(cfg, [1.0, 1.0], 4096) == "lanes"
     assert path(cfg, [0.0, 0.0], 65536) == path(cfg, [0.0, 0.0], 1024) == "lanes"
-    long = ColumnConfig(n_prisms=65, impact_admissibility="end_twist")
+    assert path(ColumnConfig(n_prisms=65, impact_admissibility="end_twist"), [1.0, 1.0], 4096) == "lanes"
+    long = ColumnConfig(n_prisms=1025, impact_admissibility="end_twist")
     assert path(long, [1.0, 1.0], 4096) == "fused-serial"
     one_rb = [0.0, 0.0, 1.0]  # a rigid-base column anywhere in the sweep keeps the lane step from long columns
     assert path(cfg, one_rb, 65536) == "lanes"

@@ -1,5 +1,6 @@
-"""Which T3 columns the one-warp-per-column step (:mod:`warp_tensegrity.sim.lanes.lanes`) takes, in
-NumPy alone, so the policy decides without loading Warp: the lane map's shape (:func:`lane_shape`),
+"""Which T3 columns the warp-per-column step (:mod:`warp_tensegrity.sim.lanes.lanes`) takes, in
+NumPy alone, so the policy decides without loading Warp: the lane map's shape (:func:`lane_shape`
+on one warp, :func:`lane_map` also k warps per column for long columns),
 a built batch (:func:`lane_support`) and a scene before any batch is built (:func:`lane_refusal`);
 the two agree on column batches (tests/kernels/test_lanes.py)."""
 
@@ -31,7 +32,37 @@ def lane_shape(n_prisms: int, max_levels: int = 4) -> tuple[int, int] | None:
 MAX_LEVELS_PER_LANE = 4
 """Most levels (prisms) a lane holds in registers: 128 prisms a warp."""
 MAX_RIGID_LEVELS_PER_LANE = 2
-"""Most levels per lane once a column has rigid base links (their 3 x 3 blocks): 64 prisms."""
+"""Most levels per lane once a column has rigid base links (their 3 x 3 blocks): 64 prisms a warp."""
+MAX_COLUMN_LANES = 512
+"""Most lanes (CUDA threads) of a column longer than a warp holds: one block of 32 k threads per
+column, k <= 16. 512 threads fill an SM's 65,536 registers at 128 each (the rigid-base kernel then
+spills more); 1,024 would leave 64. Flexible bases up to 2,048 prisms, rigid up to 1,024."""
+
+
+def lane_map(n_prisms: int, rigid: bool = False) -> tuple[int, int] | None:
+    """(P levels per lane, G lanes per column) of the lane step for a column of ``n_prisms``
+    (``rigid``: rigid base links, at most :data:`MAX_RIGID_LEVELS_PER_LANE` levels per lane): one
+    warp's :func:`lane_shape` where it fits, else k warps per column (G = 32 k, a power of two): the
+    fewest lanes at the most levels, then the fewest levels that fill them. None above
+    :data:`MAX_COLUMN_LANES` lanes."""
+    most = MAX_RIGID_LEVELS_PER_LANE if rigid else MAX_LEVELS_PER_LANE
+    one = lane_shape(n_prisms, most)
+    if one is not None:
+        return one
+    n = int(n_prisms)
+    G = WARP
+    while G * most < n:
+        G *= 2
+    if G > MAX_COLUMN_LANES:
+        return None
+    return -(-n // G), G
+
+
+def _too_long(n: int, rigid: bool) -> str:
+    most = MAX_RIGID_LEVELS_PER_LANE if rigid else MAX_LEVELS_PER_LANE
+    return (f"{'rigid bases with ' if rigid else ''}{n} prisms need more than {most} levels per lane of "
+            f"{MAX_COLUMN_LANES} lanes (a block of {MAX_COLUMN_LANES // WARP} warps holds "
+            f"{most * MAX_COLUMN_LANES} prisms)")
 
 
 def _column_members(n: int, hand: np.ndarray):
@@ -60,8 +91,8 @@ def lane_support(batch) -> str | None:
     n = ln.shape[0] - 1
     if n < 1 or not np.array_equal(ln, np.arange(3 * (n + 1)).reshape(n + 1, 3)):
         return "the column's nodes are not numbered level by level"
-    if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
-        return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a 32-lane warp"
+    if lane_map(n) is None:
+        return _too_long(n, False)
     if batch.positions.shape[0] != 3 * (n + 1):
         return "nodes other than the column's"
     if np.any(batch.constraint_mass != 0):
@@ -87,9 +118,8 @@ def lane_support(batch) -> str | None:
         links = base[3:].reshape(n, 3, 2)
         if not np.array_equal(batch.constraints, np.concatenate([bars.reshape(n, 3, 2), links], axis=1).reshape(-1, 2)):
             return "a constraint layout other than column_batch's"
-        if n > WARP * MAX_RIGID_LEVELS_PER_LANE:
-            return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
-                    "prisms (2 levels per lane)")
+        if lane_map(n, True) is None:
+            return _too_long(n, True)
         a = active.reshape(active.shape[0], n, 6)
         if np.any(a[:, :, :3] != 1):
             return "inactive bars"
@@ -115,18 +145,17 @@ def lane_refusal(config, params: dict, n_prisms: int | None = None) -> str | Non
     """Why the lane step would not take T3 columns of scene ``config`` with the per-column ``params``
     when ``n_prisms`` of their prisms are simulated (default: all); None if it takes them. The
     scene-level form of :func:`lane_support`: massless bars, at most ``MAX_LEVELS_PER_LANE`` levels
-    per lane of a 32-lane warp, and at most ``MAX_RIGID_LEVELS_PER_LANE`` once a column has rigid
-    bases (base_rigidity = 1)."""
+    per lane of :data:`MAX_COLUMN_LANES` lanes, and at most ``MAX_RIGID_LEVELS_PER_LANE`` once a column has rigid
+    bases (base_rigidity = 1) (:func:`lane_map`)."""
     n = config.n_prisms if n_prisms is None else int(n_prisms)
     rigid = np.any(np.asarray(params.get("base_rigidity", ColumnParameters.base_rigidity), dtype=np.float64) >= Base.RIGID)
-    if rigid and n > WARP * MAX_RIGID_LEVELS_PER_LANE:
-        return (f"rigid bases with {n} prisms: the lane step takes them up to {WARP * MAX_RIGID_LEVELS_PER_LANE} "
-                "prisms (2 levels per lane)")
+    if rigid and lane_map(n, True) is None:
+        return _too_long(n, True)
     if config.bar_mass > 0:
         return "massive bars (consistent bar inertia couples node pairs)"
     if np.ndim(params.get("cable_EA", 0.0)) == 2:
         # the lane step holds one cross-cable and one base-member EA per column (sim/lanes/lanes.py)
         return "a cable_EA profile along the column (the lane step takes one EA per column)"
-    if lane_shape(n, MAX_LEVELS_PER_LANE) is None:
-        return f"{n} prisms need more than {MAX_LEVELS_PER_LANE} levels per lane of a {WARP}-lane warp"
+    if lane_map(n) is None:
+        return _too_long(n, False)
     return None

@@ -167,3 +167,117 @@ def make_lane_ops(real):
 
     return SimpleNamespace(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max,
                            segment_sum3=segment_sum3, vec=vec)
+
+
+# --- k warps per column (issue 33 item 3): the same primitives over a CUDA block of G = 32 k lanes ---
+#
+# A column longer than a warp holds (:func:`warp_tensegrity.policy.lane_fit.lane_map`) runs as one
+# block of G threads: lane = thread index in the block (``wl``, 0 .. G-1), and each primitive above
+# becomes an exchange through a shared-memory buffer and one barrier (``__syncthreads`` on CUDA,
+# ``WP_TILE_SYNC`` between the CPU block's fibers), so the lane code of :mod:`.lane_funcs` and
+# :mod:`.lane_rigid` runs unchanged over k warps. Two buffers alternate, so one barrier per exchange
+# suffices: a lane writes buffer p only after the barrier of the next exchange, which every lane
+# reaches after its reads of buffer p. The parity p is each lane's own entry of ``wt_bpar`` (the
+# lanes agree: they make the same calls); the vote (``__syncthreads_or``, itself a barrier) resets
+# it, and the kernel votes before its first exchange (shared memory starts undefined). The step's control flow is block-uniform
+# (these votes), so every thread reaches every barrier.
+# Hand-written: Warp's tile primitives reduce whole tiles, not a shift by d lanes of a register value.
+
+_STORE = "#if defined(__CUDA_ARCH__)\n    __shared__\n#else\n    static\n#endif\n"
+BLOCK_LANES = 512
+"""Size of the shared buffers: the most lanes of a block (policy.lane_fit.MAX_COLUMN_LANES, checked
+by :func:`make_block_ops`). One size for every G, so each native function has one text per precision."""
+
+
+def _block_exchange_snippet(ctype: str, name: str) -> str:
+    """The vec3 of lane ``src`` of the block (own value where src lies outside 0 .. g-1); g < 0:
+    reset the lane's parity (no exchange, no barrier)."""
+    return f"""
+{_STORE}    {ctype} {name}[2][{BLOCK_LANES}][3];
+{_STORE}    unsigned char wt_bpar[{BLOCK_LANES}];
+    if (g < 0) {{ wt_bpar[wl] = 0; return v; }}
+    const int p = wt_bpar[wl];
+    wt_bpar[wl] = (unsigned char)(p ^ 1);
+    {name}[p][wl][0] = v.c[0]; {name}[p][wl][1] = v.c[1]; {name}[p][wl][2] = v.c[2];
+    WP_TILE_SYNC();
+    wp::vec_t<3, {ctype}> r = v;
+    if (src >= 0 && src < g) r = wp::vec_t<3, {ctype}>({name}[p][src][0], {name}[p][src][1], {name}[p][src][2]);
+    return r;
+"""
+
+
+_BLOCK_ANY = f"""
+#if defined(__CUDA_ARCH__)
+    return __syncthreads_or(p) != 0 ? 1 : 0;
+#else
+    static int wt_bvote[{BLOCK_LANES}];
+    wt_bvote[wl] = p;
+    WP_TILE_SYNC();
+    int r = 0;
+    for (int t = 0; t < g; ++t) r |= (wt_bvote[t] != 0);
+    WP_TILE_SYNC();
+    return r;
+#endif
+"""
+
+
+@wp.func_native(_BLOCK_ANY)
+def block_any(p: int, g: int, wl: int) -> int:
+    """1 if ``p`` is non-zero on any of the block's g lanes (every lane gets the same answer)."""
+    ...
+
+
+@functools.cache
+def make_block_ops(real, G: int):
+    """:func:`make_lane_ops`' primitives, and the vote ``any``, over a block of G lanes (G = 32 k,
+    one column per block); ``g`` must be G and ``wl`` the thread's index in the block."""
+    if not (32 < G <= BLOCK_LANES and G & (G - 1) == 0):
+        raise ValueError(f"a block of G = {G} lanes: needs a power of two from 64 to {BLOCK_LANES}")
+    ctype = "double" if real == wp.float64 else "float"
+    vec = wp.types.vector(3, real)
+
+    @wp.func_native(_block_exchange_snippet(ctype, f"wt_bx{'64' if ctype == 'double' else '32'}"))
+    def exchange3(v: vec, src: int, g: int, wl: int) -> vec:
+        """The value of lane ``src`` (own value where src is outside 0 .. g-1)."""
+        ...
+
+    @wp.func
+    def vote(p: int, wl: int) -> int:
+        """1 if ``p`` is non-zero on any lane of the block; the exchanges' parity back to 0."""
+        exchange3(vec(), 0, -1, wl)
+        return block_any(p, wp.static(G), wl)
+
+    @wp.func
+    def shfl_up3(v: vec, d: int, g: int, wl: int) -> vec:
+        """The value of lane wl - d (own value where wl < d)."""
+        return exchange3(v, wl - d, g, wl)
+
+    @wp.func
+    def shfl_down3(v: vec, d: int, g: int, wl: int) -> vec:
+        """The value of lane wl + d (own value where wl + d >= g)."""
+        return exchange3(v, wl + d, g, wl)
+
+    @wp.func
+    def segment_sum3(v: vec, g: int, wl: int) -> vec:
+        """Sum over the block's g lanes by a butterfly (:func:`make_lane_ops`' order)."""
+        r = v
+        m = int(1)
+        while m < g:
+            r = r + exchange3(r, wl ^ m, g, wl)
+            m = m * 2
+        return r
+
+    @wp.func
+    def segment_max(v: real, g: int, wl: int) -> real:
+        """Max over the block's g lanes (NaN wins)."""
+        r = v
+        m = int(1)
+        while m < g:
+            y = exchange3(vec(r, r, r), wl ^ m, g, wl)[0]
+            if wp.isnan(y) or y > r:
+                r = y
+            m = m * 2
+        return r
+
+    return SimpleNamespace(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max,
+                           segment_sum3=segment_sum3, vec=vec, any=vote)

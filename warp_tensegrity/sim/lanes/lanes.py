@@ -5,8 +5,10 @@ there too), its lane arrays and its launches; which batches it takes is
 
 It takes T3 columns (column_batch's layout) with lumped masses: flexible or elastic bases up to
 :data:`~warp_tensegrity.policy.lane_fit.MAX_LEVELS_PER_LANE` levels per lane (128 prisms), and batches with rigid-base columns
-(ring links as constraints, :mod:`.lane_rigid`) up to 2 levels per lane (64 prisms). Massive bars
-and other networks run the other paths; :func:`~warp_tensegrity.policy.lane_fit.lane_support` says why.
+(ring links as constraints, :mod:`.lane_rigid`) up to 2 levels per lane (64 prisms). Longer columns
+run the same kernel on k warps per column, one block of G = 32 k threads each, its primitives through
+shared memory (:func:`.lane_ops.make_block_ops`; :func:`~warp_tensegrity.policy.lane_fit.lane_map`).
+Massive bars and other networks run the other paths; :func:`~warp_tensegrity.policy.lane_fit.lane_support` says why.
 """
 
 import functools
@@ -19,9 +21,9 @@ import warp as wp
 from ..common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
                      feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
                      set_failure)
-from ...policy.lane_fit import MAX_LEVELS_PER_LANE, WARP, lane_shape, lane_support
+from ...policy.lane_fit import WARP, lane_map, lane_support
 from .lane_funcs import make_lane_funcs, make_mixed_funcs
-from .lane_ops import make_lane_ops, warp_any
+from .lane_ops import make_block_ops, make_lane_ops, warp_any
 from .lane_rigid import make_rigid_funcs
 
 if TYPE_CHECKING:
@@ -43,11 +45,14 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     projection and Newton, where only a failure store would read them; ``mixed``: fp64 only, the
     factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
-    ops = make_lane_ops(real)
+    blockwide = G > WARP  # k warps per column, one block of G threads each (lane_ops.make_block_ops)
+    ops = make_block_ops(real, G) if blockwide else make_lane_ops(real)
+    vote = ops.any if blockwide else warp_any
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2, robust_check=bool(fast_math))
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
     RFac = fr.RFac if rigid else f.Fac
-    mixed = bool(mixed) and real == wp.float64
+    # mixed precision on one warp per column only: the k-warp exchanges keep one parity per precision
+    mixed = bool(mixed) and real == wp.float64 and not blockwide
     mx = None
     if mixed:
         ops32 = make_lane_ops(wp.float32)
@@ -175,6 +180,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         strain[slot, m, w] = (h - (h0[m] + static_dz[m, w % static_dz.shape[1]])) / h
 
     spill = {"enable_cuda_smem_spilling": True, "launch_bounds": smem_spill_block} if smem_spill_block else {}
+    if blockwide:  # a block of G threads per column: the compiler fits their registers in one SM (G = 512: 128 each)
+        spill.setdefault("launch_bounds", G)
 
     @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers,
                module_options={"fast_math": bool(fast_math)}, **spill)
@@ -206,14 +213,14 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         g = wp.static(G)
         w = tid // g
         lane = tid - w * g
-        wl = tid % 32
+        wl = tid % wp.static(max(G, WARP))  # the lane's index in its warp (k warps: in its block)
         n = hz.shape[0]
         wc = wp.min(w, n_columns - 1)  # a safe column index for the padding threads' reads
         alive = int(0)
         if w < n_columns:
             if status[w] == STATUS_OK:
                 alive = 1
-        if warp_any(alive, wl) == 0:
+        if vote(alive, wl) == 0:
             return
         start = alive
         wE = wc % cab_EA.shape[1]
@@ -282,7 +289,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
         # iteration i: the factor of A(U) at the state after step i and the end of step i (velocity
         # projection), then step i + 1 up to its forces and second half kick; each piece once in code
         for i in range(n_it + 1):
-            if warp_any(alive, wl) == 0:
+            if vote(alive, wl) == 0:
                 break
             Fr = RFac()
             Fm = f.Fac()
@@ -298,7 +305,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                         pass_n = passes[w, 1]
                         if pass_v < 0:
                             need = 1
-                    if warp_any(need, wl) == 1:
+                    if vote(need, wl) == 1:
                         eta = mx.probe(Fq, Bm, Cm, minv, ex, rig, alive, lane, g, wl)
                         if need == 1:
                             pass_v = mx.refinements(eta, target_v, most_passes)
@@ -381,7 +388,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                             going = 0
                         elif it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
                             going = 0  # stalled at round-off just above tol
-                    if warp_any(going, wl) == 0:
+                    if vote(going, wl) == 0:
                         break
                     dn = Nodes()
                     if wp.static(mixed):
@@ -475,11 +482,11 @@ class LaneStep:
         self.model = model
         self.device = device
         n = batch.level_nodes.shape[0] - 1
-        self.P, self.G = lane_shape(n, MAX_LEVELS_PER_LANE)
+        self.rigid = batch.constraints.shape[0] == 6 * n
+        self.P, self.G = lane_map(n, self.rigid)
         real = wp.float64 if model.precision == "fp64" else wp.float32
         npr = np.float64 if real == wp.float64 else np.float32
-        self.rigid = batch.constraints.shape[0] == 6 * n
-        self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
+        self.block_dim = self.G if self.G > WARP else LANE_BLOCK_DIM if device.is_cuda else WARP
         prec = model.precision
         fast = (LANE_FAST_MATH_RIGID if self.rigid else LANE_FAST_MATH)[prec] and device.is_cuda
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid, fast,
@@ -496,7 +503,7 @@ class LaneStep:
         self.rest = wp.array(np.ascontiguousarray(model.cab_L.numpy().T), dtype=real, device=d)
         self.hand = wp.array(np.where(top == 2, 1, 0).astype(np.int32), dtype=wp.int32, device=d)
         self.real = real
-        self.block_dim = LANE_BLOCK_DIM if device.is_cuda else WARP
+        self.block_dim = self.G if self.G > WARP else LANE_BLOCK_DIM if device.is_cuda else WARP
         self.steps_per_launch = LANE_STEPS
         B = model.n_columns
         self.threads = -(-B * self.G // WARP) * WARP
@@ -510,6 +517,10 @@ class LaneStep:
     @property
     def description(self) -> str:
         per = WARP // self.G
+        if self.G > WARP:
+            return (f"lanes ({self.G // WARP} warps per column, one block: {self.P} levels per lane, {self.G} lanes "
+                    "per column" + ("; ring links folded into 3 x 3 bar blocks" if self.rigid else "")
+                    + "; chains by PCR through shared memory)")
         return (f"lanes (one warp per column: {self.P} levels per lane, {self.G} lanes per column"
                 + (f", {per} columns per warp" if per > 1 else "")
                 + ("; ring links folded into 3 x 3 bar blocks" if self.rigid else "") + "; chains by PCR over shuffles)")

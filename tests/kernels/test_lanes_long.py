@@ -1,0 +1,93 @@
+"""Long columns on the lane step (k warps per column, one block of 32 k lanes joined through shared
+memory: kernels/lane_ops.make_block_ops; on the CPU a block of 32 k fibers) against the staged
+kernels at 300 (rigid and elastic bases) and 1,000 prisms (flexible and elastic), fp64; and the
+map that sends a column to one warp, k warps or nowhere (policy/lane_fit.lane_map).
+
+Every node starts moving (a smooth velocity field along the whole column, made admissible by the
+initial projection of both paths), so each warp boundary carries the solve and the forces from the
+first step: a few steps check every join. Two kernels are compiled (CI budget: issue 33)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from warp_tensegrity import ColumnConfig, RunSettings
+from warp_tensegrity.engine import run_batch
+from warp_tensegrity.policy.lane_fit import MAX_COLUMN_LANES, lane_map, lane_support
+from warp_tensegrity.scene.batch import column_batch
+
+STEPS = 12
+DT = 5e-4
+
+
+def _batch(n, base_rigidity, ea_scale=1.0):
+    cfg = ColumnConfig(n_prisms=n, handedness="alternating", impact_admissibility="end_twist")
+    b = column_batch(cfg, {"prestrain": [0.002, 0.0], "v0": [0.1, 0.05], "base_rigidity": base_rigidity})
+    z = b.positions[:, 2]
+    rng = np.random.default_rng(n)
+    k = rng.uniform(1.0, 4.0, size=(b.n_columns, 1, 3))
+    phase = rng.uniform(0.0, 2 * np.pi, size=(b.n_columns, 1, 3))
+    v = b.velocity + 0.05 * np.sin(2 * np.pi * k * z[None, :, None] / z.max() + phase)
+    v[:, :3] = 0.0  # the clamped level 0
+    return dataclasses.replace(b, velocity=v, cable_EA=b.cable_EA * ea_scale)
+
+
+def _run(batch, fused, device):
+    s = RunSettings(precision="fp64", device=device, truncate=False, fused=fused, t_end=STEPS * DT, dt=DT,
+                    output_interval=STEPS * DT / 2)
+    return run_batch(batch, s)
+
+
+def _rel(a, b):
+    axis = tuple(range(1, a.ndim))
+    return np.abs(a - b).max(axis=axis) / np.abs(b).max(axis=axis)
+
+
+# 300 prisms with rigid and elastic bases: 2 levels per lane, 256 lanes (8 warps), the ring links
+# folded into 3 x 3 blocks; 1,000 prisms flexible and elastic: 4 levels per lane, 256 lanes
+CASES = [(300, [1.0, 0.5], (2, 256)), (1000, [0.0, 0.5], (4, 256))]
+
+
+@pytest.fixture(scope="module")
+def staged_runs(device):
+    return {n: _run(_batch(n, br), False, device) for n, br, _ in CASES}
+
+
+@pytest.mark.parametrize("n, base_rigidity, shape", CASES)
+def test_long_columns_match_staged_fp64(n, base_rigidity, shape, staged_runs, device):
+    b = _batch(n, base_rigidity)
+    assert lane_support(b) is None
+    assert lane_map(n, rigid=1.0 in base_rigidity) == shape
+    lanes, staged = _run(b, "lanes", device), staged_runs[n]
+    P, G = shape
+    assert lanes.info["step_path"].startswith(f"lanes ({G // 32} warps per column, one block: {P} levels per lane")
+    assert np.all(lanes.status == 0) and np.all(staged.status == 0)
+    # every level moves: the joins of all warps are exercised
+    assert np.all(np.abs(staged.final_velocity).reshape(2, n + 1, 9)[:, 1:].max(axis=2) > 1e-3)
+    for name in ("strain", "final_displacement", "final_velocity"):
+        rel = _rel(getattr(lanes, name), getattr(staged, name))
+        assert np.all(rel <= 1e-11), (name, rel)
+    assert np.all(lanes.bar_length_error <= 1e-12), lanes.bar_length_error
+
+
+def test_a_perturbed_constant_fails_the_comparison(staged_runs, device):
+    """The comparison above sees a 5 % stiffer cable set (the same kernel, compiled already)."""
+    n, br, _ = CASES[1]
+    lanes = _run(_batch(n, br, ea_scale=1.05), "lanes", device)
+    assert np.all(_rel(lanes.final_displacement, staged_runs[n].final_displacement) > 1e-6)
+
+
+def test_lane_map_one_warp_k_warps_or_none():
+    assert lane_map(100) == (4, 32) and lane_map(64, rigid=True) == (2, 32)  # one warp, as before
+    assert lane_map(129) == (3, 64) and lane_map(65, rigid=True) == (2, 64)
+    assert lane_map(300) == (3, 128) and lane_map(500) == (4, 128) and lane_map(1000) == (4, 256)
+    assert lane_map(1000, rigid=True) == (2, 512) and lane_map(1024, rigid=True) == (2, 512)
+    assert lane_map(4 * MAX_COLUMN_LANES) == (4, MAX_COLUMN_LANES)
+    assert lane_map(4 * MAX_COLUMN_LANES + 1) is None and lane_map(1025, rigid=True) is None
+    for n in (1, 31, 33, 127, 128, 129, 300, 999, 1000, 2048):
+        for rigid in (False, True):
+            m = lane_map(n, rigid)
+            if m is not None:
+                P, G = m
+                assert P * G >= n and P * (G // 2) < n or G == 32, (n, rigid, m)  # no spare half
