@@ -449,8 +449,10 @@ LANE_FAST_MATH = {"fp32": True, "fp64": False}
 LANE_FAST_MATH_RIGID = {"fp32": True, "fp64": False}  # the same for batches with rigid bases
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
 # the accelerations kept in global memory between the forces and the next half kick (registers
-# free through the factor and Newton; a failure store leaves them as they were)
-LANE_A_MEM = {"fp32": True, "fp64": True}
+# free through the factor and Newton; a failure store leaves them as they were). Off: on an H200
+# (B = 16,384) it cost FB fp32 45 % (1.78e8 -> 9.8e7), FB fp64 12 %, RB fp32 6 %: the loads after
+# Newton stall 8 resident warps per SM (benchmarks/results/issue33_h200/switches)
+LANE_A_MEM = {"fp32": False, "fp64": False}
 # fp64 columns: an fp32 factor and fp32 solves with fp64 residuals and iterative refinement
 LANE_MIXED = {"fp32": False, "fp64": True}
 # what refinement reaches (:func:`.lane_funcs.make_mixed_funcs`): the velocity projection's solve
