@@ -243,15 +243,12 @@ def beta_limit_measures(config, params: dict, n_columns: int, max_compression,
     and ``beta_limit_flag`` (int8, :data:`BETA_LIMIT_FLAGS`) from the columns' ``prestrain`` and
     ``base_rigidity`` (arrays or scalars; defaults 0) and their ``max_compression`` (NaN: the
     flag assumes the lock was reached). ``ratio``: :func:`base_mode_ratios` of these columns,
-    computed already, or a future of them (a sweep's, computed while its shard steps); None:
-    computed here."""
+    computed already; None: computed here."""
     b = np.broadcast_to(np.asarray(params.get("base_rigidity", 0.0), dtype=np.float64), (n_columns,))
     qmax = np.broadcast_to(np.asarray(max_compression, dtype=np.float64), (n_columns,))
     lock = -kinematic_lock_strain(config.radius, config.height, config.twist)
     if ratio is None:
         ratio = base_mode_ratios(config, params, n_columns)
-    elif hasattr(ratio, "result"):  # a concurrent.futures.Future: wait for it here
-        ratio = ratio.result()
     driven = ~(qmax < LOCK_FRACTION * lock)  # NaN counts as driven
     flag = np.where(b >= 1.0, BETA_LIMIT_FLAGS.index("rigid_bases"),
                     np.where((ratio < BAND_FACTOR) & driven, BETA_LIMIT_FLAGS.index("slow_convergence_possible"),

@@ -7,10 +7,9 @@ shared: phase_large's base-mode analysis took 1.9 s with one thread and 55.7 s w
 2-core host (issue 33). The column build (:func:`~warp_tensegrity.scene.batch.column_batch`) always
 takes it: its outputs are bit-identical under one thread (the reference outputs, made with two). An
 eigensolve's last bits can follow the thread count (base_mode_ratio of paper_2017 by one ulp), so
-the base-mode analysis takes it only where it runs beside the stepping, on a GPU
-(:mod:`warp_tensegrity.sweep.shard`); inline it keeps the host's default. threadpoolctl is the maintained way to set it at run time; the limit is process-wide, so it is
-taken once by the first caller and given back by the last (a sweep's base-mode thread and its main
-thread overlap).
+the base-mode analysis takes it only on a GPU run (:mod:`warp_tensegrity.sweep.shard`); on the CPU
+device it keeps the host's default. threadpoolctl is the maintained way to set it at run time; the limit is process-wide, so it is
+taken once by the first caller and given back by the last (callers may nest).
 """
 
 from __future__ import annotations

@@ -4,7 +4,6 @@ Dask worker also write it into its region of the sweep's store (:mod:`.store`)."
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -39,19 +38,17 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
     twins = bool(spec.run["error_estimate"])
-    # the base-mode analysis reads the parameters only: on a GPU, on the host while the device steps
-    # (the stepping waits on CUDA without the GIL; ~2 s for phase_large's 96 pairs, in no stage
-    # before issue 33). Not on the CPU device, whose kernels hold the GIL: the thread would only
-    # contend with them (measured 9-25 s against 1.9 s inline on the loaded 2-core host).
-    with ThreadPoolExecutor(1, thread_name_prefix="warp_tensegrity-base-modes") as pool:
-        # on one BLAS thread there: two threads calling a multi-threaded OpenBLAS at once collapse (scene.blas);
-        # the last bits of an eigensolve may follow the thread count (the CPU's inline run keeps the default)
-        ratios = (pool.submit(single_blas_thread(base_mode_ratios), spec.scene, params, stop - start)
-                  if plan.run.on_gpu else None)
-        result = run_groups(plan, start, stop, device, progress, twins=twins)
-        result, errors = result if twins else (result, {})
-        meas = measure_columns(result, spec.scene.height)
-        meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratios))
+    result = run_groups(plan, start, stop, device, progress, twins=twins)
+    result, errors = result if twins else (result, {})
+    meas = measure_columns(result, spec.scene.height)
+    # the base-mode analysis, inline after the stepping. On a GPU on one BLAS thread (scene.blas: a
+    # multi-threaded OpenBLAS on these small solves is slower, ~2 s for phase_large's 96 pairs on one);
+    # the CPU keeps the default threads (the last bits of an eigensolve follow the thread count, and the
+    # reference outputs were made so). Not in a thread beside the stepping: on an H200 that left 26 s
+    # of phase_large's run waiting on it (benchmarks/results/issue33_h200, first call).
+    ratios = (single_blas_thread(base_mode_ratios)(spec.scene, params, stop - start)
+              if plan.run.on_gpu else None)
+    meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratios))
     meas.update(errors)
     attrs = {
         "Conventions": D.CONVENTIONS,
