@@ -1,7 +1,7 @@
 """The one-warp-per-column RATTLE step: the kernel (its pieces in :mod:`.lane_funcs`, the lane map
 there too), its lane arrays and its launches; which batches it takes is
-:mod:`warp_tensegrity.policy.lane_fit` (NumPy only). The Integrator drives
-:class:`LaneStep` like the fused step (same ``launch`` / ``advance_counter`` / ``load``).
+:mod:`warp_tensegrity.policy.lane_fit` (NumPy only). The Integrator drives it through
+:class:`.step.LanesStep`, the Step interface (the step counter is the interface's one kernel).
 
 It takes T3 columns (column_batch's layout) with lumped masses: flexible or elastic bases up to
 :data:`~warp_tensegrity.policy.lane_fit.MAX_LEVELS_PER_LANE` levels per lane (128 prisms), and batches with rigid-base columns
@@ -430,11 +430,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if worst > bar_err[w]:
                 bar_err[w] = worst
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def advance_counter_by(step: wp.array(dtype=int), n: int):
-        step[0] = step[0] + n
-
-    return SimpleNamespace(lane_steps=lane_steps, advance_counter_by=advance_counter_by, vec=vec, vec2=vec2,
+    return SimpleNamespace(lane_steps=lane_steps, vec=vec, vec2=vec2,
                            real=real, P=P, G=G)
 
 
@@ -529,7 +525,6 @@ class LaneStep:
 
     def load(self):
         self.kernels.lane_steps.module.load(self.device, self.block_dim)
-        self.kernels.advance_counter_by.module.load(self.device, 1)
 
     def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
         m, r = self.model, self.real
@@ -542,6 +537,3 @@ class LaneStep:
             data.u, data.v, data.a, data.bar_err, data.iters, data.status, data.fail_step,
             data.twist, data.twist_max, data.twist_min, data.height_min, data.left_slot, *self.parts, *self.records,
             self.passes])
-
-    def advance_counter(self, data, n: int):
-        wp.launch(self.kernels.advance_counter_by, dim=1, inputs=[data.step, int(n)], device=self.device, block_dim=1)

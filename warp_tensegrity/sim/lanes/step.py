@@ -13,8 +13,7 @@ from .lanes import LaneStep
 
 @register
 class LanesStep(LaneStep, Step):
-    """:class:`.lanes.LaneStep` as a Step (its kernel file is left as it is; the counter is the
-    Step's one kernel)."""
+    """:class:`.lanes.LaneStep` as a Step (the counter is the Step's one kernel)."""
 
     path = Path.LANES
 
@@ -35,13 +34,9 @@ class LanesStep(LaneStep, Step):
         return cls(integ.model, batch, integ.device, integ.every, integ.strain, integ.kinetic, integ.elastic,
                    integ.energy_parts, integ.energy_below, integ.energy_end)
 
-    def load(self):
-        LaneStep.load(self)  # whatever the kernel file loads (its own counter kernel too, unused: one small compile)
-
     def initialize(self, data, settings, dt: float):
         LaneStep.launch(self, data, settings, dt, 0, init=1)
 
     def launch(self, data, settings, dt: float, n_sub: int, init: int = 0):
         LaneStep.launch(self, data, settings, dt, n_sub, init)
 
-    advance_counter = Step.advance_counter
