@@ -45,15 +45,12 @@ STAGES = ("import", "build", "compile", "stepping", "measurement", "transfer", "
 
 
 def _stub(orig, k: int, spent: dict):
-    """simulate_batch stepping only ``k`` outputs of its plan, its records padded to the plan's outputs."""
+    """engine.run_batches stepping only ``k`` outputs of each plan, the records padded to the plan's outputs."""
     import dataclasses
 
     import numpy as np
 
-    def sim(*a, plan=None, **kw):
-        short = dataclasses.replace(plan, n_steps=min(plan.n_steps, k * plan.output_every))
-        r = orig(*a, plan=short, **kw)
-        t_pad = time.perf_counter()
+    def pad(r, plan):
         n_out, t0 = plan.n_out, r.time.size
         rng = np.random.default_rng(t0)
         tt = plan.output_times
@@ -70,10 +67,18 @@ def _stub(orig, k: int, spent: dict):
         if r.info.get("output_step") is not None:
             r.info["output_step"] = plan.output_steps
         r.n_steps = plan.n_steps
-        spent["s"] += time.perf_counter() - t_pad
-        return r
 
-    return sim
+    def run(runs, *a, **kw):
+        short = [(c, p, dataclasses.replace(plan, n_steps=min(plan.n_steps, k * plan.output_every)))
+                 for c, p, plan in runs]
+        results, stages = orig(short, *a, **kw)
+        t_pad = time.perf_counter()
+        for r, (_, _, plan) in zip(results, runs):
+            pad(r, plan)
+        spent["s"] += time.perf_counter() - t_pad
+        return results, stages
+
+    return run
 
 
 def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None:
@@ -119,26 +124,26 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None
         return orig
 
     stubbed = {"s": 0.0}  # the stub's synthetic padding: no stage of a real run, left out of the wall
-    orig_sim = sweep_shard.simulate_batch if not stub else _stub(sweep_shard.simulate_batch, stub, stubbed)
+    orig_runs = sweep_shard.run_batches if not stub else _stub(sweep_shard.run_batches, stub, stubbed)
 
-    def sim(*a, **k):
+    def runs(*a, **k):  # a shard's runs (its groups and twins, at once on a GPU): the engine's stages
         t0, stub0 = time.perf_counter(), stubbed["s"]
-        r = orig_sim(*a, **k)
+        results, es = orig_runs(*a, **k)
         total = time.perf_counter() - t0
         total -= stubbed["s"] - stub0
-        es = r.info.get("stages", {})
-        for key in ("build", "compile", "stepping", "measurement", "transfer"):
+        keys = ("build", "compile", "stepping", "measurement", "transfer")
+        for key in keys:
             st[key] += float(es.get(key, 0.0))
         # host-side preparation around the engine's own stages (batch assembly, padding)
-        st["build"] += max(0.0, total - sum(float(es.get(key, 0.0)) for key in
-                                            ("build", "compile", "stepping", "measurement", "transfer")))
-        info["shards"] += 1
-        info["n_steps"] = int(r.n_steps)
-        info["device"] = r.device
-        info["device_name"] = r.device_name
-        return r
+        st["build"] += max(0.0, total - sum(float(es.get(key, 0.0)) for key in keys))
+        info["shards"] += len(results)
+        for r in results:
+            info["n_steps"] = max(info.get("n_steps", 0), int(r.n_steps))
+            info["device"] = r.device
+            info["device_name"] = r.device_name
+        return results, es
 
-    sweep_shard.simulate_batch = sim
+    sweep_shard.run_batches = runs
     timed(sweep_plan, "plan_sweep", "build")
     timed(cli, "estimate_plan", "build")  # the run's pricing (the probe cached by the dry run)
     timed(budget, "check_run", "build")

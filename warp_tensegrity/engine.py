@@ -20,7 +20,7 @@ from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch,
 from .policy.paths import lane_emulation
 from .arguments import expect, expect_callable
 from .result import BatchResult
-from .runtime import init_warp, resolve_device
+from .runtime import drive, init_warp, resolve_device
 from .scene.base_modes import beta_limit_measures
 from .scene.batch import (NetworkBatch, column_batch, column_params, far_end_params, reference_elastic_energy,
                           reference_states)
@@ -60,6 +60,13 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     n_prisms, cut) to measure the record on the device (settings.measure = 'device'); with the
     energy measures (:mod:`~warp_tensegrity.measure.energy`) of T3 columns also ``station`` and
     ``end_prisms``."""
+    return drive(run_batch_steps(batch, settings, progress, pulse, plan))
+
+
+def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, progress=None,
+                    pulse: dict | None = None, plan: RunPlan | None = None):
+    """:func:`run_batch` as a generator that yields while it steps and returns the BatchResult, so
+    that several runs can step at once (:func:`run_batches`)."""
     expect("run_batch", "batch", batch, NetworkBatch), expect("run_batch", "plan", plan, RunPlan, optional=True)
     expect_callable("run_batch", "progress", progress), expect("run_batch", "pulse", pulse, dict, optional=True)
     if plan is None:
@@ -80,7 +87,7 @@ def run_batch(batch: NetworkBatch, settings: RunSettings | None = None, progress
     with lane_emulation(path, device):  # the CPU runs the lane step as fibers
         integ = Integrator(batch, replace(settings, record_strain=record), dt, every, n_out, path=path,
                            energy_parts=parts)
-        wall, t_compile = integ.run(n_steps, progress)
+        wall, t_compile = yield from integ.run_steps(n_steps, progress)
     stages = {"build": integ.build_time, "compile": t_compile, "stepping": wall}
     measure_here = pulse is not None and integ.strain is not None and settings.measure == "device"
     if measure_here:
@@ -193,6 +200,13 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     decided already, for more columns than these (a sweep decides once for all its shards);
     ``settings`` and ``prisms_simulated`` are then the plan's.
     """
+    return drive(simulate_batch_steps(config, params, settings, progress, prisms_simulated, plan=plan))
+
+
+def simulate_batch_steps(config: ColumnConfig, params: dict, settings: RunSettings | None = None, progress=None,
+                         prisms_simulated: int | None = None, *, plan: RunPlan | None = None):
+    """:func:`simulate_batch` as a generator that yields while it steps and returns the BatchResult
+    (:func:`run_batches` steps several at once)."""
     if plan is None:
         expect("simulate_batch", "settings", settings, RunSettings)
         plan = decide(config, params, settings, prisms_simulated=prisms_simulated)
@@ -207,7 +221,7 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     pulse = {"prism_height": config.height, "n_prisms": n, "cut": n - n_sim,
              "station": station_prism(n, plan.settings.energy_station),
              "end_prisms": end_prisms(n, plan.settings.energy_end_prisms)}
-    result = run_batch(batch, progress=progress, pulse=pulse, plan=plan)
+    result = yield from run_batch_steps(batch, progress=progress, pulse=pulse, plan=plan)
     result.params = dict(params)  # profiles of the whole column, not of the part simulated
     result.info["stages"]["build"] += t_build
     if n_sim < n:
@@ -222,6 +236,33 @@ def simulate_batch(config: ColumnConfig, params: dict, settings: RunSettings | N
     # the per-case flag of the limit beta -> 1, evaluated when a dataset is built (it needs max_compression)
     result.info["beta_limit"] = partial(beta_limit_measures, config, column_params(config, params), result.n_columns)
     return result
+
+
+def run_batches(runs: list[tuple[ColumnConfig, dict, RunPlan]], device=None,
+                progress: list | None = None, interleave: bool | None = None) -> tuple[list[BatchResult], dict]:
+    """Simulate several batches of T3 columns, each ``(config, params, plan)`` as
+    :func:`simulate_batch` takes them, all on ``device`` (default: the first plan's). On a GPU they
+    step at once, each on its own CUDA stream (:func:`~warp_tensegrity.sim.integrate.run_together`):
+    a sweep's groups and their twins are each too narrow to fill it. Each batch's numbers are those
+    it gets alone. ``progress``: one callback per run, or None; ``interleave``: as
+    :func:`~warp_tensegrity.sim.integrate.run_together` takes it. Returns the results in order and
+    the stage seconds of the whole set (build, compile, measurement and transfer as the runs report
+    them; stepping: the rest of the set's wall time, the host feeding and waiting on the device)."""
+    init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
+    from .sim.integrate import run_together  # imports Warp: not at package import
+
+    progress = progress or [None] * len(runs)
+    device = resolve_device(device if device is not None else runs[0][2].device)
+    t0 = time.perf_counter()
+    results = run_together([simulate_batch_steps(c, p, progress=cb, plan=rp.with_device(device))
+                            for (c, p, rp), cb in zip(runs, progress)], device, interleave)
+    wall = time.perf_counter() - t0
+    stages = dict.fromkeys(("build", "compile", "stepping", "measurement", "transfer"), 0.0)
+    for r in results:
+        for k in ("build", "compile", "measurement", "transfer"):
+            stages[k] += float(r.info["stages"].get(k, 0.0))
+    stages["stepping"] = max(wall - sum(stages.values()), 0.0)
+    return results, stages
 
 
 def _pad_to_full_column(result: BatchResult, config, sim_config, params, n: int, n_sim: int):

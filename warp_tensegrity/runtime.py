@@ -6,7 +6,8 @@ warning: Could not find or load the NVIDIA CUDA driver ...") is printed by the n
 straight to file descriptor 2 and has no switch. So :func:`init_warp` runs ``wp.init()`` with fd 2
 pointed at a temporary file (hand-written: no library offers this for a native library's stderr),
 drops the known driver lines, hands any other line to :mod:`logging` as a warning, and logs one
-line that the CPU will be used. :func:`warp_facts` gives the device facts every output records.
+line that the CPU will be used. :func:`warp_facts` gives the device facts every output records;
+:func:`drive` runs a stepping generator (a run that yields between its launches) to its end.
 
 Warp's kernel cache (``WARP_CACHE_PATH``, else ``~/.cache/warp``) is created by ``wp.init()``; where
 it cannot be (a read-only ``HOME``), a command that compiles kernels stops with one line
@@ -179,3 +180,14 @@ def _driver_text(drv) -> str:
     if isinstance(drv, tuple):
         return ".".join(str(int(x)) for x in drv[:2])
     return f"{int(drv) // 1000}.{(int(drv) % 1000) // 10}"
+
+
+def drive(gen):
+    """Run a generator that yields while it steps (:meth:`warp_tensegrity.sim.integrate.Integrator.run_steps`,
+    :func:`warp_tensegrity.engine.simulate_batch_steps`) to its end and return its value."""
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value
+

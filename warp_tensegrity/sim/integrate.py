@@ -20,7 +20,7 @@ from .model import REAL, Data, Model, build_model, make_data
 from .staged.kernels import make_kernels
 from .staged.step import Launcher, StagedStep  # noqa: F401 (registers the staged Step)
 from .step import STEPS, Step
-from ..runtime import resolve_device
+from ..runtime import drive, resolve_device
 from ..options import RunSettings, SettingsError
 from ..types import Path, Precision
 
@@ -184,30 +184,72 @@ class Integrator:
         """Initialize, then advance ``n_steps`` in chunks (on CUDA ~20 per run, whole graphs each),
         calling ``progress(done, n_steps, n_failed)`` at most twice a second. Returns the seconds
         spent stepping and initializing (kernel loads included)."""
+        return drive(self.run_steps(n_steps, progress))
+
+    def run_steps(self, n_steps: int, progress=None):
+        """:meth:`run` as a generator that yields after every chunk it has launched, so that a driver
+        can interleave several runs, each on its own CUDA stream (:func:`run_together`); it returns
+        (stepping seconds, initialize seconds). Every wait is on this run's stream only."""
         with wp.ScopedDevice(self.device):
             t_compile = time.perf_counter()
             self.initialize()
-            wp.synchronize_device(self.device)
+            self.synchronize()
             t_compile = time.perf_counter() - t_compile
-            t0 = last = time.perf_counter()
-            done = 0
-            # advance in chunks (on CUDA ~20 per run, whole graphs each); report at most twice a second
-            chunk = int(self.settings.steps_per_graph)
-            if self.device.is_cuda:
-                chunk *= max(1, n_steps // (chunk * 20))
-            while done < n_steps:
-                n = min(chunk, n_steps - done)
+        t0 = last = time.perf_counter()
+        done = 0
+        # advance in chunks (on CUDA ~20 per run, whole graphs each); report at most twice a second
+        chunk = int(self.settings.steps_per_graph)
+        if self.device.is_cuda:
+            chunk *= max(1, n_steps // (chunk * 20))
+        while done < n_steps:
+            n = min(chunk, n_steps - done)
+            with wp.ScopedDevice(self.device):
                 self.advance(n)
                 done += n
                 if progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
-                    wp.synchronize_device(self.device)
+                    self.synchronize()
                     progress(done, n_steps, self.n_failed())
                     last = time.perf_counter()
+            if done < n_steps:
+                yield
+        with wp.ScopedDevice(self.device):
+            self.synchronize()
+        return time.perf_counter() - t0, t_compile
+
+    def synchronize(self):
+        """Wait for this run's work: its device's current stream (the run's own when interleaved)."""
+        if self.device.is_cuda:
+            wp.synchronize_stream(wp.get_stream(self.device))
+        else:
             wp.synchronize_device(self.device)
-            wall = time.perf_counter() - t0
-        return wall, t_compile
 
     # ------------------------------------------------------------------ results
     def n_failed(self) -> int:
         return int(np.count_nonzero(self.data.status.numpy()))
 
+
+def run_together(gens: list, device, interleave: bool | None = None) -> list:
+    """Drive several runs to their ends and return their values in order. On a CUDA device each run
+    gets its own stream and they are resumed in turn, one chunk each, so that runs too narrow to fill
+    the GPU (a sweep's groups of like stiffness and their error-estimate twins) step at once; the
+    columns are independent, so each run's numbers are those it has alone. Elsewhere one after
+    another, as :func:`drive` would. ``interleave``: resume in turn (True; on the CPU without
+    streams, for tests: not the lane step, whose CPU emulation is a process-wide setting) or one
+    after another (False); None: on CUDA only."""
+    device = resolve_device(device)
+    if interleave is None:
+        interleave = device.is_cuda
+    if not interleave or len(gens) < 2:
+        return [drive(g) for g in gens]
+    streams = [wp.Stream(device) if device.is_cuda else None for _ in gens]
+    out: list = [None] * len(gens)
+    live = list(range(len(gens)))
+    while live:
+        for i in list(live):
+            with wp.ScopedStream(streams[i], sync_enter=False):  # None (the CPU): no stream to set
+                try:
+                    next(gens[i])
+                except StopIteration as stop:
+                    out[i] = stop.value
+                    live.remove(i)
+    return out

@@ -10,7 +10,7 @@ import numpy as np
 from .. import io as D
 from ..scene.base_modes import base_mode_ratios, beta_limit_measures
 from ..scene.blas import single_blas_thread
-from ..engine import simulate_batch
+from ..engine import run_batches, simulate_batch
 from ..measure.errors import FLAG as ERROR_FLAG
 from ..measure.errors import VERIFY_MARGIN, error_estimates, largest_share, with_perturbation
 from ..measure.feasibility import feasible_record
@@ -100,22 +100,33 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
     jobs = [(gi, cols) for gi in range(len(plan.groups)) if (cols := np.flatnonzero(group == gi)).size]
     total = float(sum(cols.size * (plan.groups[gi].plan.n_steps + (plan.groups[gi].twin.n_steps
                                    if twins and plan.groups[gi].twin is not None else 0)) for gi, cols in jobs))
-    state = {"done": 0.0, "failed": 0, "wall": 0.0}
+    state = {"done": 0.0, "failed": 0, "wall": 0.0, "stages": {}}
 
-    def run(cols, rp):
-        if rp is None:
-            return None
-        cb = None
-        if progress is not None:
-            w, d0, f0 = cols.size * rp.n_steps, state["done"], state["failed"]
+    def run(runs):
+        """Run each (cols, plan) (None: no run), on a GPU all at once (engine.run_batches: each group
+        and twin alone is too narrow to fill it); progress sees their column-steps summed."""
+        todo = [i for i, (_, rp) in enumerate(runs) if rp is not None]
+        now = {i: (0.0, 0) for i in todo}  # each run's column-steps done and columns failed so far
 
+        def callback(i, w):
             def cb(steps_done, n_steps, n_failed):
-                progress(min(d0 + w * steps_done / max(n_steps, 1), total), total, f0 + n_failed)
-        params = {k: np.ascontiguousarray(v[start:stop][cols]) for k, v in plan.params.items()}
-        r = simulate_batch(plan.spec.scene, params, progress=cb, plan=rp.with_device(device))
-        state["done"] += cols.size * rp.n_steps
-        state["wall"] += r.wall_time
-        return r
+                now[i] = (w * steps_done / max(n_steps, 1), n_failed)
+                progress(min(state["done"] + sum(d for d, _ in now.values()), total),
+                         total, state["failed"] + sum(f for _, f in now.values()))
+            return cb
+
+        cbs = [callback(i, runs[i][0].size * runs[i][1].n_steps) if progress is not None else None for i in todo]
+        batches = [(plan.spec.scene, {k: np.ascontiguousarray(v[start:stop][runs[i][0]]) for k, v in plan.params.items()},
+                    runs[i][1]) for i in todo]
+        results, stages = run_batches(batches, device, cbs) if todo else ([], {})
+        state["done"] += sum(runs[i][0].size * runs[i][1].n_steps for i in todo)
+        state["wall"] += stages.get("stepping", 0.0)
+        for k, v in stages.items():
+            state["stages"][k] = state["stages"].get(k, 0.0) + v
+        out = [None] * len(runs)
+        for i, r in zip(todo, results):
+            out[i] = r
+        return out
 
     def estimate(r, rp, twin_r, twin):
         height = plan.spec.scene.height
@@ -123,34 +134,53 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
         return meas, error_estimates(meas, None if twin_r is None else measure_columns(twin_r, height),
                                      1.0 if twin is None else twin_ratio(rp, twin), rp.precision, rp.accuracy)
 
+    # every group and its twin at once (on a GPU; one after another elsewhere)
+    firsts = run([(cols, plan.groups[gi].plan) for gi, cols in jobs]
+                 + [(cols, plan.groups[gi].twin if twins else None) for gi, cols in jobs])
+    done_runs, twin_runs = firsts[:len(jobs)], firsts[len(jobs):]
     results, errors = [], {}
-    for gi, cols in jobs:
-        g = plan.groups[gi]
-        r = run(cols, g.plan)
+    redos = []  # (job index, columns of the group to rerun, meas, err)
+    for k, (gi, cols) in enumerate(jobs):
+        g, r = plan.groups[gi], done_runs[k]
         if twins:
-            meas, err = estimate(r, g.plan, run(cols, g.twin), g.twin)
+            meas, err = estimate(r, g.plan, twin_runs[k], g.twin)
             bad = np.isin(err["error_flag"], VERIFY_FAILS)
             if g.fallback is not None:  # auto's fp32: verified with a margin (errors.VERIFY_MARGIN)
                 bad |= largest_share(meas, err) > VERIFY_MARGIN * (g.plan.accuracy or DEFAULT_ACCURACY)
             if r.feasibility is not None:  # a case outside the model's feasible set is flagged, not rerun
                 bad &= np.asarray(r.feasibility["feasibility_flag"]) == 0
             redo = np.flatnonzero(bad) if g.fallback is not None else []
-            if len(redo):  # fp32 not verified: fp64, with its own twin and estimate
-                rb = run(cols[redo], g.fallback)
-                meas_b, err_b = estimate(rb, g.fallback, run(cols[redo], g.fallback_twin), g.fallback_twin)
-                # fp32 and fp64 at one dt differ by round-off only: what that moves, the estimate covers
-                err_b = with_perturbation(err_b, meas_b, {k: np.asarray(v)[redo] for k, v in meas.items()},
-                                          g.fallback.accuracy or DEFAULT_ACCURACY)
-                overwrite_columns(r, redo, rb)
-                for k, v in err_b.items():
-                    err[k][redo] = v
-            for k, v in err.items():
-                errors.setdefault(k, np.empty((n,) + v.shape[1:], dtype=v.dtype))[cols] = v
-        state["failed"] += int(np.count_nonzero(r.status))
-        results.append((gi, cols, r))
+            if len(redo):
+                redos.append((k, redo, meas, err))
+            else:
+                _keep_errors(errors, err, cols, n)
+    if redos:  # fp32 not verified: fp64, with its own twin and estimate, every group's at once
+        backs = run([(jobs[k][1][redo], plan.groups[jobs[k][0]].fallback) for k, redo, _, _ in redos]
+                    + [(jobs[k][1][redo], plan.groups[jobs[k][0]].fallback_twin) for k, redo, _, _ in redos])
+        for j, (k, redo, meas, err) in enumerate(redos):
+            gi, cols = jobs[k]
+            g, r, rb, rbt = plan.groups[gi], done_runs[k], backs[j], backs[len(redos) + j]
+            meas_b, err_b = estimate(rb, g.fallback, rbt, g.fallback_twin)
+            # fp32 and fp64 at one dt differ by round-off only: what that moves, the estimate covers
+            err_b = with_perturbation(err_b, meas_b, {key: np.asarray(v)[redo] for key, v in meas.items()},
+                                      g.fallback.accuracy or DEFAULT_ACCURACY)
+            overwrite_columns(r, redo, rb)
+            for key, v in err_b.items():
+                err[key][redo] = v
+            _keep_errors(errors, err, cols, n)
+    for k, (gi, cols) in enumerate(jobs):
+        state["failed"] += int(np.count_nonzero(done_runs[k].status))
+        results.append((gi, cols, done_runs[k]))
     merged = merge_results([(c, r) for _, c, r in results], n, [gi for gi, _, _ in results])
     merged.wall_time = state["wall"]  # every run's stepping: the groups', their twins' and fp64 reruns'
+    merged.info["stages"] = state["stages"]  # the runs' stages, stepping as the wall of runs stepped at once
     return (merged, errors) if twins else merged
+
+
+def _keep_errors(errors: dict, err: dict, cols, n: int) -> None:
+    """Put one group's error estimates (its columns ``cols``) into the shard's arrays of ``n``."""
+    for k, v in err.items():
+        errors.setdefault(k, np.empty((n,) + v.shape[1:], dtype=v.dtype))[cols] = v
 
 
 def template_dataset(plan: SweepPlan):
