@@ -19,6 +19,7 @@
 #                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
 #                    the long-column lane tests on CUDA (tests/kernels/test_lanes_long.py) first (TESTS=0: not);
 #                    BASE_DIR is not used (give .)
+#   PART=pytest      the tests PYTESTS (paths) on CUDA (--device cuda:0)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -35,7 +36,7 @@ run_in() {  # run_in new|base CMD...: in this tree or in BASE, with the commit o
 }
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg WARP_CACHE_PATH=${WARP_CACHE_PATH:-/tmp/warp_cache}
 nvidia-smi --query-gpu=name,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/gpu.txt"
-case "${PART:?PART=check, throughput, switches, phase, e2e, long, same_physics, ncu or interface}" in
+case "${PART:?PART=check, throughput, switches, phase, e2e, long, same_physics, ncu, pytest or interface}" in
 check)
     python -m pytest -q -p no:cacheprovider tests/kernels/test_lanes.py --device cuda:0 \
         -k "records_inside or match_staged or diverging or hold_the_bars or mixed_precision or accelerations_in_memory" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
@@ -96,6 +97,8 @@ long)
                 --out "$OUT/throughput_long_${b}_$p.json" 2>&1 | grep -E "col-steps|ERROR|skip" | tail -16
         done
     done ;;
+pytest)
+    python -m pytest -q -p no:cacheprovider ${PYTESTS:?} --device cuda:0 2>&1 | tail -6 | tee "$OUT/pytest_cuda.log" ;;
 interface)
     python -m benchmarks.end_to_end sweeps/interface.toml --device cuda:0 --keep "$OUT" \
         --out "$OUT/end_to_end_interface.json" 2>&1 | tail -3

@@ -40,7 +40,7 @@ from ..runtime import resolve_device, startup_seconds
 from ..scene.batch import ColumnParams, column_batch, column_params, far_end_params, has_profiles, reference_states
 from ..types import Path as StepPath
 from .cost import predict
-from .decide import RunPlan, check_batch_arguments, decide, far_end
+from .decide import RunPlan, check_batch_arguments, decide, default_shard_size, far_end
 from .paths import lane_emulation
 
 PROBE_STEPS = 300
@@ -399,22 +399,40 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
         st = out["stages_s"]
         st["stepping"] = st["measurement"] = 0.0
         out["twin_stepping_s"] = 0.0
+        runs = [[] for _ in todo]  # per shard: (seconds alone, columns) of each run (group or twin)
         for gi, g in enumerate(plan.groups):
-            sizes = [n for n in (int(np.count_nonzero(group[a:b] == gi)) for a, b in todo) if n]
-            if sizes:
+            sizes = [int(np.count_nonzero(group[a:b] == gi)) for a, b in todo]
+            if any(sizes):
                 params = {k: v[g.columns] for k, v in plan.params.items()}
                 cal_g = cal if g.plan is plan.run else probe(spec.scene, params, g.plan, min(width, g.n_columns),
                                                              use_cache=not recalibrate)
                 for run, is_twin in ((g.plan, False), (g.twin if twins else None, True)):
                     if run is not None:
-                        part = predict(cal_g, run, sizes, *rec)["stages_s"]
-                        st["stepping"] += part["stepping"]
-                        st["measurement"] += part["measurement"]
-                        out["twin_stepping_s"] += part["stepping"] if is_twin else 0.0
-                        # a twin builds its columns and its Integrator again (the shards' build priced the first)
-                        st["build"] += (part["build"] - cal_g.get("batch_first", 0.0)) if is_twin else 0.0
+                        for si, size in enumerate(sizes):
+                            if size:
+                                part = predict(cal_g, run, [size], *rec)["stages_s"]
+                                runs[si].append((part["stepping"], size))
+                                st["measurement"] += part["measurement"]
+                                out["twin_stepping_s"] += part["stepping"] if is_twin else 0.0
+                                # a twin builds its columns and its Integrator again (the shards' build priced the first)
+                                st["build"] += (part["build"] - cal_g.get("batch_first", 0.0)) if is_twin else 0.0
+        # a shard's runs step at once on a GPU (engine.run_batches), one after another elsewhere
+        capacity = default_shard_size(plan.device) if cal["is_cuda"] else None
+        alone = sum(t for shard in runs for t, _ in shard)
+        st["stepping"] = sum(together_seconds(shard, capacity) for shard in runs)
+        out["twin_stepping_s"] *= st["stepping"] / alone if alone > 0 else 0.0
         out["seconds"] = float(sum(st.values()))
     return out | {"probe": cal}
+
+
+def together_seconds(runs: list[tuple[float, int]], capacity: int | None) -> float:
+    """Seconds to step runs of (seconds alone, columns) at once on a GPU that holds ``capacity``
+    columns resident (None: one after another, the sum). Each run keeps its own pace, so no less
+    than the longest; the device's column slots are shared, so no less than the slot-seconds
+    (seconds x columns held, at most ``capacity``) over ``capacity``: the larger of the two bounds."""
+    if capacity is None or len(runs) < 2:
+        return float(sum(t for t, _ in runs))
+    return float(max(max(t for t, _ in runs), sum(t * min(b, capacity) for t, b in runs) / capacity))
 
 
 def estimate_batch(config, params: dict, settings, recalibrate: bool = False) -> dict:
