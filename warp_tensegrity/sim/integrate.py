@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gc
 import time
+from collections import deque
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -201,19 +202,37 @@ class Integrator:
         chunk = int(self.settings.steps_per_graph)
         if self.device.is_cuda:
             chunk *= max(1, n_steps // (chunk * 20))
+        # on CUDA the progress never waits for the work just launched: each chunk is followed by an
+        # event and a copy of the status into pinned memory, and a report waits only for the chunk
+        # before it, so a stream (of several stepping at once) always has a chunk queued
+        watch = progress is not None and self.device.is_cuda
+        in_flight: deque = deque()
+        status = wp.empty(self.data.status.shape, dtype=self.data.status.dtype, device="cpu", pinned=True) if watch else None
+        reported = 0
         while done < n_steps:
             n = min(chunk, n_steps - done)
             with wp.ScopedDevice(self.device):
                 self.advance(n)
                 done += n
-                if progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
+                if watch:
+                    wp.copy(status, self.data.status)
+                    in_flight.append((wp.record_event(), done))
+                    while len(in_flight) > 1:
+                        event, finished = in_flight.popleft()
+                        wp.synchronize_event(event)
+                        if time.perf_counter() - last > 0.5:
+                            progress(finished, n_steps, int(np.count_nonzero(status.numpy())))
+                            reported, last = finished, time.perf_counter()
+                elif progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
                     self.synchronize()
                     progress(done, n_steps, self.n_failed())
-                    last = time.perf_counter()
+                    reported, last = done, time.perf_counter()
             if done < n_steps:
                 yield
         with wp.ScopedDevice(self.device):
             self.synchronize()
+            if progress is not None and reported < n_steps:
+                progress(n_steps, n_steps, self.n_failed())
         return time.perf_counter() - t0, t_compile
 
     def synchronize(self):
