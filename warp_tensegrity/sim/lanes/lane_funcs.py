@@ -128,10 +128,8 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         """Bar vectors [m] of the lane's prisms at displacement U: row 3 q + k = node (q+1, k) - (q, k)."""
         X = extend(U, U, lane, g, wl)
         Bm = Nodes()
-        for q in range(P):
-            for k in range(3):
-                r0 = 3 * q + k
-                Bm[r0] = dref(xy, hz, q, k) + X[r0 + 3] - X[r0]
+        for r in range(wp.static(3 * P)):  # unrolled: q = r // 3 and k = r % 3 are constants
+            Bm[r] = dref(xy, hz, r // 3, r % 3) + X[r + 3] - X[r]
         return Bm
 
     @wp.func(inline=True)
