@@ -18,7 +18,7 @@ import numpy as np
 import warp as wp
 
 from ..common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
-                     feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
+                     feasibility_record, member_excess2, newton_stop, output_slot, prism_twist_of, projection_status,
                      set_failure)
 from ...policy.lane_fit import WARP, lane_map, lane_support
 from .lane_funcs import make_lane_funcs, make_mixed_funcs
@@ -395,10 +395,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     if going == 1:
                         prev = err
                         err = es
-                        if err <= tol or it >= max_iter:
-                            going = 0
-                        elif it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                            going = 0  # stalled at round-off just above tol
+                        if newton_stop(err, prev, tol, it, max_iter):
+                            going = 0  # converged, out of iterations or stalled at round-off
                     if vote(going, wl) == 0:
                         break
                     dn = Nodes()
