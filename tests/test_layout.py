@@ -214,6 +214,16 @@ def test_no_arrow_back_up_into_sim():
     assert not up, f"sim imports a higher layer: {up}"
 
 
+def test_sim_kernel_sets_are_named():
+    """Kernels and their pieces are reachable by name (issue 33): the sim/ factories return
+    NamedTuple sets, no ``SimpleNamespace`` (whose fields neither IDEs nor grep can list)."""
+    used = [f"{p.relative_to(ROOT)}:{n.lineno}" for p in (ROOT / PKG / SIM).rglob("*.py")
+            for n in ast.walk(ast.parse(p.read_text()))
+            if isinstance(n, ast.Name | ast.Attribute) and getattr(n, "id", getattr(n, "attr", None)) == "SimpleNamespace"
+            or isinstance(n, ast.ImportFrom) and any(a.name == "SimpleNamespace" for a in n.names)]
+    assert not used, used
+
+
 def test_import_chains_are_short():
     chain = longest_chain(import_graph())
     assert len(chain) <= MAX_CHAIN, f"{len(chain)} modules: " + " -> ".join(c or PKG for c in chain)

@@ -15,7 +15,7 @@ from warp_tensegrity.sim import fields_gen, model
 from warp_tensegrity.sim.integrate import Integrator
 from warp_tensegrity.sim.block import kernels as fused
 from warp_tensegrity.sim.staged.kernels import make_kernels
-from warp_tensegrity.sim.staged.solver import make_solver_kernels
+from warp_tensegrity.sim.staged.solver import make_gram_struct, make_solver_kernels
 from warp_tensegrity.scene.batch import column_batch
 from warp_tensegrity.types import ARGUMENT_GROUPS, DATA_FIELDS, MODEL_FIELDS, SCRATCH_FIELDS, Field, Path, group_fields
 
@@ -68,14 +68,18 @@ def test_docstring_model_data_and_struct_agree_with_the_schema():
 
 
 def test_kernel_model_arguments_are_their_group():
-    """Each hand-written kernel lists its group's fields first, by name, in the declared order."""
+    """Each hand-written kernel lists its groups' fields first, by name, in the declared order (the
+    group "gram" as one struct argument of its name, the struct's fields the group's)."""
     k, ks = make_kernels(wp.float64), make_solver_kernels(wp.float64, 3)
-    for kernel, group in ((k.gather_accel, "gather"), (ks.project_positions, "positions"),
-                          (ks.factor_project, "velocities"),
-                          (ks.factor_only, "factor"), (k.record_energy, "energy"), (k.record_strain, "strain"),
-                          (k.record_feasibility, "feasibility"), (k.record_pairs, "pairs")):
-        names = [f.name for f in group_fields(group)]
+    for kernel, groups in ((k.gather_accel, ["gather"]), (ks.project_positions, ["positions"]),
+                           (ks.factor_project, ["gram", "velocities"]),
+                           (ks.factor_only, ["gram"]), (k.record_energy, ["energy"]), (k.record_strain, ["strain"]),
+                           (k.record_feasibility, ["feasibility"]), (k.record_pairs, ["pairs"])):
+        names = [n for g in groups for n in ([g] if g == "gram" else [f.name for f in group_fields(g)])]
         assert [a.label for a in kernel.adj.args[: len(names)]] == names, kernel.key
+    gram = make_gram_struct(wp.float64).vars
+    assert list(gram) == [f.name for f in group_fields("gram")]
+    assert all(gram[f.name].type.ndim == f.ndim for f in group_fields("gram"))
 
 
 @pytest.fixture

@@ -211,8 +211,9 @@ class Field(NamedTuple):
 ARGUMENT_GROUPS = {
     "fused": "the fused step's struct ``ColumnModel`` (:mod:`warp_tensegrity.sim.block.kernels`)",
     "positions": "``project_positions``",
-    "velocities": "``factor_project`` (velocities and the index-1 accelerations)",
-    "factor": "``factor_only``",
+    "gram": "the staged solver's struct ``GramModel`` of the Gram matrix's arrays "
+            "(:mod:`warp_tensegrity.sim.staged.solver`): ``factor_only``'s one, ``factor_project``'s first",
+    "velocities": "``factor_project`` after ``GramModel`` (velocities and the index-1 accelerations)",
     "gather": "``gather_accel``",
     "energy": "``record_energy``",
     "strain": "``record_strain``",
@@ -220,14 +221,14 @@ ARGUMENT_GROUPS = {
     "pairs": "``record_pairs``",
 }
 """Model arguments of each launch: the :data:`MODEL_FIELDS` naming the group, in their order (a
-hand-written kernel lists them first, under ``# Model:``)."""
+hand-written kernel lists them first, under ``# Model:``; a struct group is one argument of its name)."""
 
-_BAR = ("fused", "positions", "velocities", "factor")
-_CPL = ("fused", "velocities", "factor")
+_BAR = ("fused", "positions", "gram")
+_CPL = ("fused", "gram")
 _NCON = ("fused", "positions", "velocities")
 _CAB = ("fused", "gather", "energy")
 _NODE = ("fused", "gather")
-_MINV = ("fused", "gather", "positions", "velocities", "factor")
+_MINV = ("fused", "gather", "positions", "gram")
 
 MODEL_FIELDS = (
     Field("con_i", "int32", "(nc,)", "--", "first node of the rigid member", _BAR),

@@ -25,9 +25,52 @@ Same RATTLE, Newton and failure semantics as :mod:`.fused` and the staged kernel
 law and the bar residual are the shared bodies of :mod:`.common`.
 """
 
-from types import SimpleNamespace
+from collections.abc import Callable
+from typing import NamedTuple
 
 import warp as wp
+
+
+class LaneFuncs(NamedTuple):
+    """The lane pieces of one precision and lane map, by name (:func:`make_lane_funcs`)."""
+
+    Nodes: type
+    Ext: type
+    XY: type
+    Lv: type
+    Rows: type
+    Fac: type
+    Pv: type
+    vec: type
+    ops: tuple
+    """The segment primitives (:class:`.lane_ops.LaneOps`)."""
+    bars: wp.Function
+    extend: wp.Function
+    impulse: wp.Function
+    forces: wp.Function
+    energies: wp.Function
+    base_ends: wp.Function
+    cross_ends: wp.Function
+    accelerations: wp.Function
+    gram: wp.Function
+    factor: wp.Function
+    solve: wp.Function
+    residuals: wp.Function
+    velocity_rows: wp.Function
+    finite_nodes: wp.Function
+    bar_check: wp.Function
+    member_residuals: Callable
+    """``member_residuals(ref, off)``: the residuals' body for other members (the rigid bases' links)."""
+
+
+class MixedFuncs(NamedTuple):
+    """The fp32-factor pieces of fp64 columns, by name (:func:`make_mixed_funcs`)."""
+
+    factor: wp.Function
+    solve: wp.Function
+    probe: wp.Function
+    refinements: wp.Function
+    Fac: type
 
 
 def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_energy2,
@@ -85,10 +128,8 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         """Bar vectors [m] of the lane's prisms at displacement U: row 3 q + k = node (q+1, k) - (q, k)."""
         X = extend(U, U, lane, g, wl)
         Bm = Nodes()
-        for q in range(P):
-            for k in range(3):
-                r0 = 3 * q + k
-                Bm[r0] = dref(xy, hz, q, k) + X[r0 + 3] - X[r0]
+        for r in range(wp.static(3 * P)):  # unrolled: q = r // 3 and k = r % 3 are constants
+            Bm[r] = dref(xy, hz, r // 3, r % 3) + X[r + 3] - X[r]
         return Bm
 
     @wp.func(inline=True)
@@ -405,22 +446,37 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
             return real(0.5) * (bb - LL), wp.abs(bb - LL) / (L * (wp.sqrt(bb) + L))
         return bar_residual(b, wp.length(b0))
 
+    def member_residuals(ref, off):
+        """The Newton residuals of the lane's members, one body for the bars (:func:`residuals`) and
+        the rigid bases' ring links (:func:`.lane_rigid.make_rigid_funcs`): ``rows(M, xy, hz, ex, rig,
+        e0)`` = (r, e), r[q, k] = (|m|^2 - L^2)/2 [m2] of member row 3 q + k of M against its reference
+        vector ``ref(xy, hz, q, k)`` (L = its length, recomputed: fewer live registers), zero where
+        ``off(ex[q], rig)``; e the largest relative length error, from e0 on (NaN wins)."""
+
+        @wp.func(inline=True)
+        def rows(Mm: Nodes, xy: XY, hz: Pv, ex: Pv, rig: real, e0: real):
+            r = Rows()
+            emax = e0
+            for q in range(P):
+                for k in range(3):
+                    rr, ee = bar_check(Mm[3 * q + k], ref(xy, hz, q, k))
+                    if off(ex[q], rig):
+                        rr = zero
+                        ee = zero
+                    r[q, k] = rr
+                    if wp.isnan(ee) or ee > emax:
+                        emax = ee
+            return r, emax
+
+        return rows
+
     @wp.func(inline=True)
-    def residuals(Bm: Nodes, xy: XY, hz: Pv, ex: Pv):
-        """(r, e): the Newton residuals (|b|^2 - L^2)/2 [m2] per bar, and this lane's largest
-        relative bar-length error (NaN wins). L = |reference vector| (recomputed: fewer live registers)."""
-        r = Rows()
-        emax = zero
-        for q in range(P):
-            for k in range(3):
-                rr, ee = bar_check(Bm[3 * q + k], dref(xy, hz, q, k))
-                if ex[q] == zero:
-                    rr = zero
-                    ee = zero
-                r[q, k] = rr
-                if wp.isnan(ee) or ee > emax:
-                    emax = ee
-        return r, emax
+    def bar_off(ex: real, rig: real):
+        """A bar's row is off where its prism is padding (ex = 0)."""
+        return ex == zero
+
+    residuals = member_residuals(dref, bar_off)
+    """(r, e) of the bars: ``residuals(Bm, xy, hz, ex, rig, zero)`` (rig unused)."""
 
     @wp.func(inline=True)
     def velocity_rows(Bm: Nodes, V: Nodes, ex: Pv, lane: int, g: int, wl: int):
@@ -444,12 +500,11 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
                     ok = 0
         return ok
 
-    return SimpleNamespace(Nodes=Nodes, Ext=Ext, XY=XY, Lv=Lv, Rows=Rows, Fac=Fac, Pv=Pv, vec=vec, ops=ops,
-                           bars=bars, extend=extend, impulse=impulse, forces=forces, energies=energies, base_ends=base_ends,
-                           cross_ends=cross_ends,
-                           accelerations=accelerations, gram=gram,
-                           factor=factor, solve=solve, residuals=residuals, velocity_rows=velocity_rows,
-                           finite_nodes=finite_nodes, bar_residual=bar_residual, bar_check=bar_check)
+    return LaneFuncs(Nodes=Nodes, Ext=Ext, XY=XY, Lv=Lv, Rows=Rows, Fac=Fac, Pv=Pv, vec=vec, ops=ops, bars=bars,
+                     extend=extend, impulse=impulse, forces=forces, energies=energies, base_ends=base_ends,
+                     cross_ends=cross_ends, accelerations=accelerations, gram=gram, factor=factor, solve=solve,
+                     residuals=residuals, velocity_rows=velocity_rows, finite_nodes=finite_nodes, bar_check=bar_check,
+                     member_residuals=member_residuals)
 
 
 def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cached kernel
@@ -468,44 +523,8 @@ def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cach
     rigid = fr is not None
     u64_u32 = real(2.0 ** -29)  # u64 / u32
 
-    @wp.func(inline=True)
-    def rows32(x: Rows):
-        y = Rows32()
-        for q in range(P):
-            for k in range(3):
-                y[q, k] = r32(x[q, k])
-        return y
-
-    @wp.func(inline=True)
-    def rows64(x: Rows32):
-        y = Rows()
-        for q in range(P):
-            for k in range(3):
-                y[q, k] = real(x[q, k])
-        return y
-
-    @wp.func(inline=True)
-    def nodes32(x: Nodes):
-        y = Nodes32()
-        for r in range(3 * P):
-            for k in range(3):
-                y[r, k] = r32(x[r, k])
-        return y
-
-    @wp.func(inline=True)
-    def lv32(x: Lv):
-        y = Lv32()
-        for j in range(P + 1):
-            y[j] = r32(x[j])
-        return y
-
-    @wp.func(inline=True)
-    def pv32(x: Pv):
-        y = Pv32()
-        for j in range(P):
-            y[j] = r32(x[j])
-        return y
-
+    # from one precision to the other through the vector and matrix types' converting constructors,
+    # Rows32(x), Rows(x), ...: each element cast, as r32(x[q, k]) is
     @wp.func(inline=True)
     def apply(Bm: Nodes, Cm: Nodes, beta: Rows, mu: Rows, minv: Lv, ex: Pv, rig: real, lane: int, g: int, wl: int):
         """A [beta; mu] in fp64: the bars' rows and the links' rows (zero without rigid bases)."""
@@ -521,23 +540,23 @@ def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cach
 
         @wp.func(inline=True)
         def factor(Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, n: int, lane: int, g: int, wl: int):
-            return fr32.factor(nodes32(Bm), nodes32(Cm), lv32(minv), pv32(ex), r32(rig), n, lane, g, wl)
+            return fr32.factor(Nodes32(Bm), Nodes32(Cm), Lv32(minv), Pv32(ex), r32(rig), n, lane, g, wl)
 
         @wp.func(inline=True)
         def solve32(Fm: Fac32, rb: Rows, rm: Rows, lane: int, g: int, wl: int):
-            b, m = fr32.solve(Fm, rows32(rb), rows32(rm), lane, g, wl)
-            return rows64(b), rows64(m)
+            b, m = fr32.solve(Fm, Rows32(rb), Rows32(rm), lane, g, wl)
+            return Rows(b), Rows(m)
     else:
         Fac32 = f32.Fac
 
         @wp.func(inline=True)
         def factor(Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, n: int, lane: int, g: int, wl: int):
-            d, e, l, bnext = f32.gram(nodes32(Bm), lv32(minv), pv32(ex), n, lane, g, wl)
+            d, e, l, bnext = f32.gram(Nodes32(Bm), Lv32(minv), Pv32(ex), n, lane, g, wl)
             return f32.factor(d, e, l, lane, g, wl)
 
         @wp.func(inline=True)
         def solve32(Fm: Fac32, rb: Rows, rm: Rows, lane: int, g: int, wl: int):
-            return rows64(f32.solve(Fm, rows32(rb), lane, g, wl)), Rows()
+            return Rows(f32.solve(Fm, Rows32(rb), lane, g, wl)), Rows()
 
     @wp.func(inline=True)
     def solve(Fm: Fac32, rb: Rows, rm: Rows, Bm: Nodes, Cm: Nodes, minv: Lv, ex: Pv, rig: real, passes: int,
@@ -598,4 +617,4 @@ def make_mixed_funcs(real, P: int, f, f32, fr=None, fr32=None):  # once per cach
             k += 1
         return k
 
-    return SimpleNamespace(factor=factor, solve=solve, probe=probe, refinements=refinements, Fac=Fac32)
+    return MixedFuncs(factor=factor, solve=solve, probe=probe, refinements=refinements, Fac=Fac32)

@@ -12,7 +12,7 @@ enough. The same kernel text runs on both, so CI checks the lane logic.
 """
 
 import functools
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
@@ -137,6 +137,18 @@ def warp_any(p: int, wl: int) -> int:
     ...
 
 
+class LaneOps(NamedTuple):
+    """The segment primitives of one precision, by name (:func:`make_lane_ops`, :func:`make_block_ops`)."""
+
+    shfl_up3: wp.Function
+    shfl_down3: wp.Function
+    segment_max: wp.Function
+    segment_sum3: wp.Function
+    any: wp.Function
+    """The vote over the warp (:func:`warp_any`) or the block, ``any(p, wl)``."""
+    vec: type
+
+
 @functools.cache
 def make_lane_ops(real):
     """Shuffles of vec3 over the segment and the segment max, for scalar type ``real``."""
@@ -165,8 +177,8 @@ def make_lane_ops(real):
         """Sum over the segment's g lanes (a butterfly: the same on every lane of the segment)."""
         ...
 
-    return SimpleNamespace(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max,
-                           segment_sum3=segment_sum3, vec=vec)
+    return LaneOps(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max, segment_sum3=segment_sum3,
+                   any=warp_any, vec=vec)
 
 
 # --- k warps per column (issue 33 item 3): the same primitives over a CUDA block of G = 32 k lanes ---
@@ -279,5 +291,5 @@ def make_block_ops(real, G: int):
             m = m * 2
         return r
 
-    return SimpleNamespace(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max,
-                           segment_sum3=segment_sum3, vec=vec, any=vote)
+    return LaneOps(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max, segment_sum3=segment_sum3,
+                   any=vote, vec=vec)

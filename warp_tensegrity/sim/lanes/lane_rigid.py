@@ -18,12 +18,23 @@ Up to 2 levels per lane (64 prisms). The factor (about 200 reals a lane) lives i
 compiler keeps in local memory, read back by each solve. Imports Warp only.
 """
 
-from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
 from ...policy.lane_fit import MAX_RIGID_LEVELS_PER_LANE
 
+
+class RigidFuncs(NamedTuple):
+    """The rigid bases' link pieces, by name (:func:`make_rigid_funcs`)."""
+
+    links: wp.Function
+    link_residuals: wp.Function
+    link_velocity_rows: wp.Function
+    link_impulse: wp.Function
+    factor: wp.Function
+    solve: wp.Function
+    RFac: type
 
 
 def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
@@ -90,26 +101,19 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
         return Cm
 
     @wp.func(inline=True)
-    def link_ref(xy: XY, q: int, k: int):
+    def link_ref(xy: XY, hz: Pv, q: int, k: int):
+        """Reference vector [m] of link k of the lane's level q + 1 (hz unused: the bars' signature)."""
         r0 = 3 * q + 3 + k
         r1 = 3 * q + 3 + (k + 1) % 3
         return vec(xy[r1, 0] - xy[r0, 0], xy[r1, 1] - xy[r0, 1], zero)
 
     @wp.func(inline=True)
-    def link_residuals(Cm: Nodes, xy: XY, ex: Pv, rig: real, bar_e: real):
-        """The links' Newton residuals (P, 3) and the lane's largest relative error, bars' included."""
-        r = Rows()
-        emax = bar_e
-        for q in range(P):
-            for k in range(3):
-                rr, ee = f.bar_check(Cm[3 * q + k], link_ref(xy, q, k))
-                if ex[q] == zero or rig == zero:
-                    rr = zero
-                    ee = zero
-                r[q, k] = rr
-                if wp.isnan(ee) or ee > emax:
-                    emax = ee
-        return r, emax
+    def link_off(ex: real, rig: real):
+        """A link's row is off at a padding level (ex = 0) and in a column without rigid bases."""
+        return ex == zero or rig == zero
+
+    link_residuals = f.member_residuals(link_ref, link_off)
+    """(r, e) of the links, e from the bars' on: ``link_residuals(Cm, xy, hz, ex, rig, e_bars)``."""
 
     @wp.func(inline=True)
     def link_velocity_rows(Cm: Nodes, V: Nodes, ex: Pv, rig: real):
@@ -285,5 +289,5 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
             mu[q] = get(Fm, B_W + q) @ (rm[q] - get(Fm, B_KB + q) @ beta[q] - get(Fm, B_KA + q) @ above)
         return beta, mu
 
-    return SimpleNamespace(links=links, link_residuals=link_residuals, link_velocity_rows=link_velocity_rows,
-                           link_impulse=link_impulse, factor=factor, solve=solve, RFac=RFac)
+    return RigidFuncs(links=links, link_residuals=link_residuals, link_velocity_rows=link_velocity_rows,
+                      link_impulse=link_impulse, factor=factor, solve=solve, RFac=RFac)

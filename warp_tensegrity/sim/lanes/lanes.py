@@ -12,23 +12,34 @@ Massive bars and other networks run the other paths; :func:`~warp_tensegrity.pol
 """
 
 import functools
-from types import SimpleNamespace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import warp as wp
 
 from ..common import (PI, STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, bar_residual, cable_energy2, cable_force,
-                     feasibility_record, member_excess2, output_slot, prism_twist_of, projection_status,
+                     feasibility_record, member_excess2, newton_stop, output_slot, prism_twist_of, projection_status,
                      set_failure)
 from ...policy.lane_fit import WARP, lane_map, lane_support
 from .lane_funcs import make_lane_funcs, make_mixed_funcs
-from .lane_ops import make_block_ops, make_lane_ops, warp_any
+from .lane_ops import make_block_ops, make_lane_ops
 from .lane_rigid import make_rigid_funcs
 
 if TYPE_CHECKING:
     from ..model import Model
     from ...scene.batch import NetworkBatch
+
+
+class LaneKernels(NamedTuple):
+    """The lane step's kernel and its types, by name (:func:`make_lane_kernel`)."""
+
+    real: type
+    P: int
+    G: int
+    vec: type
+    vec2: type
+    lane_steps: wp.Kernel
+
 
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
@@ -47,7 +58,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     blockwide = G > WARP  # k warps per column, one block of G threads each (lane_ops.make_block_ops)
     ops = make_block_ops(real, G) if blockwide else make_lane_ops(real)
-    vote = ops.any if blockwide else warp_any
+    vote = ops.any
     f = make_lane_funcs(real, P, G, ops, cable_force, bar_residual, cable_energy2, robust_check=bool(fast_math))
     fr = make_rigid_funcs(real, P, G, ops, f) if rigid else None
     RFac = fr.RFac if rigid else f.Fac
@@ -375,19 +386,17 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                 going = alive
                 while True:
                     Bm = f.bars(U, xyl, hzl, lane, g, wl)
-                    r, el = f.residuals(Bm, xyl, hzl, ex)
+                    r, el = f.residuals(Bm, xyl, hzl, ex, rig, zero)
                     rl = Rows()
                     if wp.static(rigid):
                         Cm = fr.links(U, xyl, lane, g, wl)
-                        rl, el = fr.link_residuals(Cm, xyl, ex, rig, el)
+                        rl, el = fr.link_residuals(Cm, xyl, hzl, ex, rig, el)
                     es = ops.segment_max(el, g, wl)
                     if going == 1:
                         prev = err
                         err = es
-                        if err <= tol or it >= max_iter:
-                            going = 0
-                        elif it > 0 and err > real(0.5) * prev and err < real(10.0) * tol:
-                            going = 0  # stalled at round-off just above tol
+                        if newton_stop(err, prev, tol, it, max_iter):
+                            going = 0  # converged, out of iterations or stalled at round-off
                     if vote(going, wl) == 0:
                         break
                     dn = Nodes()
@@ -430,8 +439,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
             if worst > bar_err[w]:
                 bar_err[w] = worst
 
-    return SimpleNamespace(lane_steps=lane_steps, vec=vec, vec2=vec2,
-                           real=real, P=P, G=G)
+    return LaneKernels(real=real, P=P, G=G, vec=vec, vec2=vec2, lane_steps=lane_steps)
 
 
 LANE_STEPS = 64  # most RATTLE steps per launch (the kernel writes the output records of the steps it spans)

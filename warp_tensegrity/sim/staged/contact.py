@@ -43,7 +43,7 @@ from ... import types
 from ...scene.contact import contact_arrays
 from ...scene.coupling import mass_entries
 from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_row, force_columns, \
-    make_band_funcs, member_vec, newton_stop, node_force, set_failure
+    make_band_funcs, member_vec, newton_stop, node_force, projection_status, set_failure
 
 wp.set_module_options({"enable_backward": False})
 
@@ -614,10 +614,9 @@ def make_contact_kernels(real, bandwidth: int):
         st.contact_impacts[w] = st.contact_impacts[w] + impacts
         if st.contact_first[w] < 0:
             st.contact_first[w] = step[0] + 1
-        if not wp.isfinite(err):
-            set_failure(status, fail_step, w, STATUS_NONFINITE, step[0] + 1)
-        elif err > fail_tol:
-            set_failure(status, fail_step, w, STATUS_CONSTRAINT, step[0] + 1)
+        code = projection_status(err, fail_tol)
+        if code != STATUS_OK:
+            set_failure(status, fail_step, w, code, step[0] + 1)
         if errb > bar_err[w]:
             bar_err[w] = errb
 

@@ -23,7 +23,7 @@ from ...types import ARGUMENT_GROUPS, Method, Path, RKStage, group_fields
 from ..step import Step, register
 from .contact import ContactStep
 from .kernels import make_kernels
-from .solver import make_solver_kernels
+from .solver import make_gram_struct, make_solver_kernels
 from .striker import ITERATIONS as STRIKER_ITERATIONS, StrikerStep
 
 if TYPE_CHECKING:
@@ -43,12 +43,17 @@ COLUMN_BAR_WINDOW = None
 
 
 class Launcher:
-    """Launches of staged kernels on one device: the Model arrays of a launch's argument group first
-    (:data:`warp_tensegrity.types.ARGUMENT_GROUPS`), small blocks for the per-column kernels."""
+    """Launches of staged kernels on one device: the Model arrays of a launch's argument groups first
+    (:data:`warp_tensegrity.types.ARGUMENT_GROUPS`; "gram" as its struct), small blocks for the
+    per-column kernels."""
 
     def __init__(self, model, device, real, settings):
         self.device, self.real = device, real
         self.args = {g: [getattr(model, f.name) for f in group_fields(g)] for g in ARGUMENT_GROUPS}
+        gram = make_gram_struct(real)()
+        for f in group_fields("gram"):
+            setattr(gram, f.name, getattr(model, f.name))
+        self.args["gram"] = [gram]
         self.projection = [real(settings.tolerance), int(settings.max_projection_iters), real(settings.failure_bar_error)]
         self.column_kernels: set[str] = set()
         """Keys of the one-thread-per-column kernels (their block size: :meth:`block_dim`)."""
@@ -63,9 +68,10 @@ class Launcher:
     def load(self, kernel):
         kernel.module.load(self.device, self.block_dim(kernel))
 
-    def launch(self, kernel, dim, inputs, model: str | None = None):
-        """``model``: the argument group whose Model arrays lead the inputs."""
-        inputs = (self.args[model] + inputs) if model else inputs
+    def launch(self, kernel, dim, inputs, model: str | tuple[str, ...] | None = None):
+        """``model``: the argument group (or groups, in order) whose Model arrays lead the inputs."""
+        for group in reversed((model,) if isinstance(model, str) else model or ()):
+            inputs = self.args[group] + inputs
         wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, block_dim=self.block_dim(kernel))
 
 
@@ -142,7 +148,7 @@ class StagedStep(Step):
         self.L.launch(self.k.kick_drift, (m.n_nodes, m.n_columns),
                       [d.status, d.a, self.real(kick), self.real(drift), d.u, d.v, d.u_prev])
 
-    def _solve(self, kernel, group: str, inputs):
+    def _solve(self, kernel, group: str | tuple[str, ...], inputs):
         """A per-column constraint-solver launch (none without constraints)."""
         if self.model.n_constraints:
             self.L.launch(kernel, self.model.n_columns, inputs, model=group)
@@ -156,8 +162,8 @@ class StagedStep(Step):
         """Factor A(u), then project the velocities ``out`` (``rates`` 0) or the accelerations ``out``
         at velocities v (1: the index-1 right-hand side)."""
         d = self.data
-        self._solve(self.ks.factor_project, "velocities", [u, v, d.step, rates, d.band, out, d.lam, d.imp, d.status,
-                                                           d.fail_step])
+        self._solve(self.ks.factor_project, ("gram", "velocities"), [u, v, d.step, rates, d.band, out, d.lam, d.imp,
+                                                                     d.status, d.fail_step])
 
     def factor_project_velocities(self, u, v):
         self.factor_project(u, v, 0, v)
@@ -167,7 +173,7 @@ class StagedStep(Step):
 
     def factor(self, u):
         d = self.data
-        self._solve(self.ks.factor_only, "factor", [u, d.step, d.band, d.status, d.fail_step])
+        self._solve(self.ks.factor_only, "gram", [u, d.step, d.band, d.status, d.fail_step])
 
     # ------------------------------------------------------------------ methods
     def rattle(self, h):
