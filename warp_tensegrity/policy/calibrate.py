@@ -421,6 +421,12 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
         alone = sum(t for shard in runs for t, _ in shard)
         st["stepping"] = sum(together_seconds(shard, capacity) for shard in runs)
         out["twin_stepping_s"] *= st["stepping"] / alone if alone > 0 else 0.0
+        if capacity is not None:  # the device holds a shard's runs at once: each its arrays, twins a second copy
+            per_col = out["device_bytes_per_column"]
+            n_runs = max(len(shard) for shard in runs)
+            out["device_bytes_per_column"] = per_col * (2 if twins else 1)
+            out["device_bytes_per_shard"] = int(cal["device_bytes_fixed"] * n_runs
+                                                + per_col * max(sum(b for _, b in shard) for shard in runs))
         out["seconds"] = float(sum(st.values()))
     return out | {"probe": cal}
 
