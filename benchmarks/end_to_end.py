@@ -149,7 +149,6 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None
     timed(budget, "check_run", "build")
     timed(sweep_run, "template_dataset", "write")  # the store's layout
     timed(sweep_store.SweepStore, "initialise", "write")
-    timed(sweep_shard, "base_mode_ratios", "measurement")  # the base-mode analysis (on a GPU host, after the stepping)
     timed(sweep_shard, "beta_limit_measures", "measurement")  # waits for the base-mode analysis, if it still runs
     timed(sweep_shard, "error_estimates", "measurement")
     timed(sweep_shard, "merge_results", "transfer")

@@ -8,6 +8,7 @@ Warp is imported when a batch runs, not with this module (the package imports it
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import replace
 from functools import partial
@@ -238,29 +239,57 @@ def simulate_batch_steps(config: ColumnConfig, params: dict, settings: RunSettin
     return result
 
 
+class HostWork:
+    """Host-side work that steps with the runs of :func:`run_batches`: a generator that yields between
+    pieces (each under ``context``, e.g. :func:`~warp_tensegrity.scene.blas.one_blas_thread`) and
+    returns ``value``; its seconds count as the ``stage`` it names."""
+
+    def __init__(self, gen, stage: str = "measurement", context=None):
+        self.gen, self.stage, self.context, self.value, self.seconds = gen, stage, context, None, 0.0
+
+    def steps(self):
+        while True:
+            t0 = time.perf_counter()
+            try:
+                with self.context() if self.context is not None else contextlib.nullcontext():
+                    next(self.gen)
+            except StopIteration as stop:
+                self.value = stop.value
+                self.seconds += time.perf_counter() - t0
+                return
+            self.seconds += time.perf_counter() - t0
+            yield
+
+
 def run_batches(runs: list[tuple[ColumnConfig, dict, RunPlan]], device=None,
-                progress: list | None = None, interleave: bool | None = None) -> tuple[list[BatchResult], dict]:
+                progress: list | None = None, interleave: bool | None = None,
+                host: list[HostWork] = ()) -> tuple[list[BatchResult], dict]:
     """Simulate several batches of T3 columns, each ``(config, params, plan)`` as
     :func:`simulate_batch` takes them, all on ``device`` (default: the first plan's). On a GPU they
     step at once, each on its own CUDA stream (:func:`~warp_tensegrity.sim.integrate.run_together`):
     a sweep's groups and their twins are each too narrow to fill it. Each batch's numbers are those
     it gets alone. ``progress``: one callback per run, or None; ``interleave``: as
-    :func:`~warp_tensegrity.sim.integrate.run_together` takes it. Returns the results in order and
-    the stage seconds of the whole set (build, compile, measurement and transfer as the runs report
-    them; stepping: the rest of the set's wall time, the host feeding and waiting on the device)."""
+    :func:`~warp_tensegrity.sim.integrate.run_together` takes it; ``host``: host work resumed in
+    turn with the runs (after them, off a GPU), each its ``value`` when done. Returns the results in
+    order and the stage seconds of the whole set (build, compile, measurement and transfer as the
+    runs report them, the host work's in its stage; stepping: the rest of the set's wall time, the
+    host feeding and waiting on the device)."""
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .sim.integrate import run_together  # imports Warp: not at package import
 
     progress = progress or [None] * len(runs)
-    device = resolve_device(device if device is not None else runs[0][2].device)
+    device = resolve_device(device if device is not None or not runs else runs[0][2].device)
     t0 = time.perf_counter()
     results = run_together([simulate_batch_steps(c, p, progress=cb, plan=rp.with_device(device))
-                            for (c, p, rp), cb in zip(runs, progress)], device, interleave)
+                            for (c, p, rp), cb in zip(runs, progress)] + [h.steps() for h in host],
+                           device, interleave)[:len(runs)]
     wall = time.perf_counter() - t0
     stages = dict.fromkeys(("build", "compile", "stepping", "measurement", "transfer"), 0.0)
     for r in results:
         for k in ("build", "compile", "measurement", "transfer"):
             stages[k] += float(r.info["stages"].get(k, 0.0))
+    for h in host:
+        stages[h.stage] = stages.get(h.stage, 0.0) + h.seconds
     stages["stepping"] = max(wall - sum(stages.values()), 0.0)
     return results, stages
 

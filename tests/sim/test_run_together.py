@@ -4,6 +4,8 @@ interleaved without streams), give every run exactly the numbers it gets alone."
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from warp_tensegrity import ColumnConfig, RunSettings, simulate_batch
@@ -56,3 +58,28 @@ def test_interleaved_generators_resume_in_turn_and_return_in_order(device):
     assert run_together([gen("a", 2), gen("b", 1)], "cpu", interleave=False) == ["a", "b"]
     assert order == [("a", 0), ("a", 1), ("b", 0)]
     assert drive(gen("d", 2)) == "d"
+
+
+def test_host_work_steps_with_the_runs_and_counts_in_its_stage(device):
+    """The base-mode analysis of a GPU sweep steps with the runs (sweep.shard): one distinct pair per
+    turn, the same ratios as computed alone, its seconds in 'measurement'."""
+    from warp_tensegrity.engine import HostWork
+    from warp_tensegrity.scene.base_modes import base_mode_ratios, base_mode_ratios_steps
+
+    params = {"prestrain": np.array([0.0, 0.002, 0.002, 0.004]), "base_rigidity": np.array([0.0, 0.5, 0.5, 1.0])}
+    turns = []
+    gen = base_mode_ratios_steps(CONFIG, params, 4)
+
+    def counted():
+        turns.append(len(turns))
+        return contextlib.nullcontext()
+
+    work = HostWork(gen, "measurement", counted)
+    plans = _plans(device)
+    _, stages = run_batches([(CONFIG, p, rp) for (p, _, _), rp in zip(RUNS, plans)], device, interleave=True,
+                            host=[work])
+    alone = base_mode_ratios(CONFIG, params, 4)
+    np.testing.assert_array_equal(work.value, alone)
+    assert np.isnan(alone[3]) and np.all(np.isfinite(alone[:3]))  # rigid bases have no base modes
+    assert len(turns) == 3  # two distinct flexible pairs: a turn each, and the one that returns
+    assert stages["measurement"] >= work.seconds > 0

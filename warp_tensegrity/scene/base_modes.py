@@ -47,6 +47,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..runtime import drive
 from ..types import BETA_LIMIT_FLAGS
 from .columns import build_column, column_topology
 from .impact import kinematic_lock_strain
@@ -224,7 +225,14 @@ def base_mode_ratios(config, params: dict, n_columns: int) -> np.ndarray:
     """(n_columns,) :func:`base_mode_ratio` of every column from its ``prestrain`` and ``base_rigidity``
     (arrays or scalars; defaults 0), NaN at beta = 1; a prestrain profile takes the smaller ratio of
     its two extremes (the flag errs toward caution). Modes are computed once per distinct pair. It
-    reads the parameters only, so a sweep computes it while its shard steps (:mod:`warp_tensegrity.sweep.shard`)."""
+    reads the parameters only, so a sweep on a GPU computes it while its shard steps
+    (:func:`base_mode_ratios_steps`, :mod:`warp_tensegrity.sweep.shard`)."""
+    return drive(base_mode_ratios_steps(config, params, n_columns))
+
+
+def base_mode_ratios_steps(config, params: dict, n_columns: int):
+    """:func:`base_mode_ratios` as a generator that yields after each distinct pair and returns the
+    ratios: a driver interleaves it with the stepping (:func:`warp_tensegrity.engine.run_batches`)."""
     p = np.asarray(params.get("prestrain", 0.0), dtype=np.float64)
     b = np.broadcast_to(np.asarray(params.get("base_rigidity", 0.0), dtype=np.float64), (n_columns,))
     ratio = np.full(n_columns, np.nan)
@@ -233,6 +241,7 @@ def base_mode_ratios(config, params: dict, n_columns: int) -> np.ndarray:
         r = np.full(n_columns, np.nan)
         for pi, bi in {(float(x), float(y)) for x, y in zip(p, b) if y < 1.0}:
             r[(p == pi) & (b == bi)] = base_mode_ratio(config, pi, bi)
+            yield
         ratio = r if p is ends[0] else np.fmin(ratio, r)
     return ratio
 

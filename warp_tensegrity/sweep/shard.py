@@ -8,9 +8,9 @@ import time
 import numpy as np
 
 from .. import io as D
-from ..scene.base_modes import base_mode_ratios, beta_limit_measures
-from ..scene.blas import single_blas_thread
-from ..engine import run_batches, simulate_batch
+from ..scene.base_modes import base_mode_ratios_steps, beta_limit_measures
+from ..scene.blas import one_blas_thread
+from ..engine import HostWork, run_batches
 from ..measure.errors import FLAG as ERROR_FLAG
 from ..measure.errors import VERIFY_MARGIN, error_estimates, largest_share, with_perturbation
 from ..measure.feasibility import feasible_record
@@ -38,17 +38,19 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
     twins = bool(spec.run["error_estimate"])
-    result = run_groups(plan, start, stop, device, progress, twins=twins)
+    # the base-mode analysis (~2 s for phase_large's 96 pairs). On a GPU it steps with the runs, one
+    # pair per turn of the host between their launches (not a thread: beside the stepping one left 26 s
+    # of phase_large waiting on an H200, benchmarks/results/issue33_h200), on one BLAS thread
+    # (scene.blas: a multi-threaded OpenBLAS is slower on these small solves). The CPU computes it
+    # after the stepping with the default threads (an eigensolve's last bits follow the thread count,
+    # and the reference outputs were made so).
+    modes = (HostWork(base_mode_ratios_steps(spec.scene, params, stop - start), "measurement", one_blas_thread)
+             if plan.run.on_gpu else None)
+    result = run_groups(plan, start, stop, device, progress, twins=twins, host=[modes] if modes else [])
     result, errors = result if twins else (result, {})
     meas = measure_columns(result, spec.scene.height)
-    # the base-mode analysis, inline after the stepping. On a GPU on one BLAS thread (scene.blas: a
-    # multi-threaded OpenBLAS on these small solves is slower, ~2 s for phase_large's 96 pairs on one);
-    # the CPU keeps the default threads (the last bits of an eigensolve follow the thread count, and the
-    # reference outputs were made so). Not in a thread beside the stepping: on an H200 that left 26 s
-    # of phase_large's run waiting on it (benchmarks/results/issue33_h200, first call).
-    ratios = (single_blas_thread(base_mode_ratios)(spec.scene, params, stop - start)
-              if plan.run.on_gpu else None)
-    meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratios))
+    meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"],
+                                    None if modes is None else modes.value))
     meas.update(errors)
     attrs = {
         "Conventions": D.CONVENTIONS,
@@ -86,7 +88,7 @@ VERIFY_FAILS = (ERROR_FLAG["over_target"], ERROR_FLAG["twin_undefined"])
 
 
 def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None, progress=None,
-               twins: bool = False):
+               twins: bool = False, host: list[HostWork] = ()):
     """Columns ``start:stop`` of the sweep run group by group, each with its group's plan (decided once
     for the sweep, :attr:`SweepPlan.groups`), merged back in column order (one BatchResult).
 
@@ -94,7 +96,8 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
     fp32 (precision 'auto', :attr:`RunGroup.fallback`) reruns in fp64 the columns whose error_flag
     is over_target or twin_undefined (and that stay in the feasible set). Then returns (result, errors): every measure's error estimate
     and ``error_flag`` (:func:`warp_tensegrity.measure.errors.error_estimates`), in column order.
-    ``progress(done, total, n_failed)`` sees the shard's column-steps (twins included) as one run."""
+    ``progress(done, total, n_failed)`` sees the shard's column-steps (twins included) as one run.
+    ``host``: host work stepped with the groups (:func:`warp_tensegrity.engine.run_batches`)."""
     group = plan.column_group[start:stop]
     n = stop - start
     jobs = [(gi, cols) for gi in range(len(plan.groups)) if (cols := np.flatnonzero(group == gi)).size]
@@ -102,7 +105,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
                                    if twins and plan.groups[gi].twin is not None else 0)) for gi, cols in jobs))
     state = {"done": 0.0, "failed": 0, "wall": 0.0, "stages": {}}
 
-    def run(runs):
+    def run(runs, host=()):
         """Run each (cols, plan) (None: no run), on a GPU all at once (engine.run_batches: each group
         and twin alone is too narrow to fill it); progress sees their column-steps summed."""
         todo = [i for i, (_, rp) in enumerate(runs) if rp is not None]
@@ -118,7 +121,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
         cbs = [callback(i, runs[i][0].size * runs[i][1].n_steps) if progress is not None else None for i in todo]
         batches = [(plan.spec.scene, {k: np.ascontiguousarray(v[start:stop][runs[i][0]]) for k, v in plan.params.items()},
                     runs[i][1]) for i in todo]
-        results, stages = run_batches(batches, device, cbs) if todo else ([], {})
+        results, stages = run_batches(batches, device, cbs, host=host) if todo or host else ([], {})
         state["done"] += sum(runs[i][0].size * runs[i][1].n_steps for i in todo)
         state["wall"] += stages.get("stepping", 0.0)
         for k, v in stages.items():
@@ -136,7 +139,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
 
     # every group and its twin at once (on a GPU; one after another elsewhere)
     firsts = run([(cols, plan.groups[gi].plan) for gi, cols in jobs]
-                 + [(cols, plan.groups[gi].twin if twins else None) for gi, cols in jobs])
+                 + [(cols, plan.groups[gi].twin if twins else None) for gi, cols in jobs], host)
     done_runs, twin_runs = firsts[:len(jobs)], firsts[len(jobs):]
     results, errors = [], {}
     redos = []  # (job index, columns of the group to rerun, meas, err)
