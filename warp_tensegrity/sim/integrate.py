@@ -28,6 +28,9 @@ from ..types import Path, Precision
 if TYPE_CHECKING:
     from ..scene.batch import NetworkBatch
 
+IN_FLIGHT_CHUNKS = 4
+"""Chunks (each ~1/20 of a CUDA run) a run keeps queued while reported on: the others' turns of the
+host (their builds, their reports) never leave its stream idle."""
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph when launches end on outputs
 
 
@@ -203,8 +206,8 @@ class Integrator:
         if self.device.is_cuda:
             chunk *= max(1, n_steps // (chunk * 20))
         # on CUDA the progress never waits for the work just launched: each chunk is followed by an
-        # event and a copy of the status into pinned memory, and a report waits only for the chunk
-        # before it, so a stream (of several stepping at once) always has a chunk queued
+        # event and a copy of the status into pinned memory, and a report waits only for the oldest
+        # of IN_FLIGHT_CHUNKS, so a stream (of several stepping at once) always has chunks queued
         watch = progress is not None and self.device.is_cuda
         in_flight: deque = deque()
         status = wp.empty(self.data.status.shape, dtype=self.data.status.dtype, device="cpu", pinned=True) if watch else None
@@ -217,7 +220,9 @@ class Integrator:
                 if watch:
                     wp.copy(status, self.data.status)
                     in_flight.append((wp.record_event(), done))
-                    while len(in_flight) > 1:
+                    if len(in_flight) < IN_FLIGHT_CHUNKS and done < n_steps:
+                        continue  # fill the queue before the host turns to another run (its build, say)
+                    while len(in_flight) > IN_FLIGHT_CHUNKS - 1:
                         event, finished = in_flight.popleft()
                         wp.synchronize_event(event)
                         if time.perf_counter() - last > 0.5:
