@@ -19,6 +19,8 @@
 #                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
 #                    the long-column lane tests on CUDA (tests/kernels/test_lanes_long.py) first (TESTS=0: not);
 #                    BASE_DIR is not used (give .)
+#   PART=levels      new only: FB lanes at PRISMS (default "500 1000", B = 4,096) with each of LEVELS ("2 3 4")
+#                    levels per lane on k warps (policy.lane_fit.MAX_BLOCK_LEVELS_PER_LANE)
 #   PART=pytest      the tests PYTESTS (paths) on CUDA (--device cuda:0)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
@@ -95,6 +97,21 @@ long)
                 --prisms 128 300 500 1000 --prism-batch 4096 --paths lanes fused fused-serial staged \
                 --prism-paths lanes fused fused-serial staged --target-s 0.3 --reps 3 --budget-s 420 \
                 --out "$OUT/throughput_long_${b}_$p.json" 2>&1 | grep -E "col-steps|ERROR|skip" | tail -16
+        done
+    done ;;
+levels)  # new only: FB lanes at PRISMS (500 1000) with each of LEVELS (2 3 4) levels per lane on k warps
+    for lv in ${LEVELS:-2 3 4}; do
+        for prec in ${PRECISIONS:-fp32}; do
+            python -c "
+import runpy, sys
+import warp_tensegrity.policy.lane_fit as lf
+lf.MAX_BLOCK_LEVELS_PER_LANE = $lv
+print('lane map', {n: lf.lane_map(n) for n in [${PRISMS_LIST:-500, 1000}]})
+sys.argv = ['throughput', '--device', 'cuda:0', '--bases', 'FB', '--precisions', '$prec', '--batches',
+            '--prisms', *'${PRISMS:-500 1000}'.split(), '--prism-batch', '4096', '--paths', 'lanes',
+            '--prism-paths', 'lanes', '--target-s', '0.3', '--reps', '3', '--budget-s', '200',
+            '--out', '$OUT/throughput_levels_${lv}_$prec.json']
+runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/levels $lv $prec: /"
         done
     done ;;
 pytest)

@@ -33,6 +33,9 @@ MAX_LEVELS_PER_LANE = 4
 """Most levels (prisms) a lane holds in registers: 128 prisms a warp."""
 MAX_RIGID_LEVELS_PER_LANE = 2
 """Most levels per lane once a column has rigid base links (their 3 x 3 blocks): 64 prisms a warp."""
+MAX_BLOCK_LEVELS_PER_LANE = 4
+"""Most levels per lane of a flexible-base column on k warps (:func:`lane_map`): fewer levels, more
+lanes (benchmarks/gpu_issue33.sh PART=levels measures the choice at 500 and 1,000 prisms)."""
 MAX_COLUMN_LANES = 512
 """Most lanes (CUDA threads) of a column longer than a warp holds: one block of 32 k threads per
 column, k <= 16. 512 threads fill an SM's 65,536 registers at 128 each (the rigid-base kernel then
@@ -50,6 +53,7 @@ def lane_map(n_prisms: int, rigid: bool = False) -> tuple[int, int] | None:
     if one is not None:
         return one
     n = int(n_prisms)
+    most = MAX_RIGID_LEVELS_PER_LANE if rigid else MAX_BLOCK_LEVELS_PER_LANE
     G = WARP
     while G * most < n:
         G *= 2
