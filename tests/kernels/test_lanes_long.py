@@ -81,7 +81,8 @@ def test_a_perturbed_constant_fails_the_comparison(staged_runs, device):
 def test_lane_map_one_warp_k_warps_or_none():
     assert lane_map(100) == (4, 32) and lane_map(64, rigid=True) == (2, 32)  # one warp, as before
     assert lane_map(129) == (3, 64) and lane_map(65, rigid=True) == (2, 64)
-    assert lane_map(300) == (3, 128) and lane_map(500) == (4, 128) and lane_map(1000) == (4, 256)
+    assert lane_map(300) == (3, 128) and lane_map(1000) == (4, 256)
+    assert lane_map(500) == (2, 256) and lane_map(200) == (2, 128)  # 4 levels on <= 128 lanes spill: twice the lanes
     assert lane_map(1000, rigid=True) == (2, 512) and lane_map(1024, rigid=True) == (2, 512)
     assert lane_map(4 * MAX_COLUMN_LANES) == (4, MAX_COLUMN_LANES)
     assert lane_map(4 * MAX_COLUMN_LANES + 1) is None and lane_map(1025, rigid=True) is None

@@ -34,8 +34,13 @@ MAX_LEVELS_PER_LANE = 4
 MAX_RIGID_LEVELS_PER_LANE = 2
 """Most levels per lane once a column has rigid base links (their 3 x 3 blocks): 64 prisms a warp."""
 MAX_BLOCK_LEVELS_PER_LANE = 4
-"""Most levels per lane of a flexible-base column on k warps (:func:`lane_map`): fewer levels, more
-lanes (benchmarks/gpu_issue33.sh PART=levels measures the choice at 500 and 1,000 prisms)."""
+"""Most levels per lane of a flexible-base column on k warps (:func:`lane_map`; benchmarks/gpu_issue33.sh
+PART=levels measures other values)."""
+WIDE_BLOCK_LANES = 256
+"""A flexible-base block that would hold the most levels per lane doubles its lanes up to this many
+(8 warps). On an H200, FB fp32, B = 4,096 (benchmarks/results/issue33_h200_third, call 3): 500
+prisms on 256 lanes of 2 levels step 8.55e6 column-steps/s, against 4.10e6 on 128 lanes of 4. At
+1,000 prisms, 512 lanes of 2 levels (128 registers a thread) lose to 256 of 4 (1.41e6 against 1.66e6)."""
 MAX_COLUMN_LANES = 512
 """Most lanes (CUDA threads) of a column longer than a warp holds: one block of 32 k threads per
 column, k <= 16. 512 threads fill an SM's 65,536 registers at 128 each (the rigid-base kernel then
@@ -46,7 +51,8 @@ def lane_map(n_prisms: int, rigid: bool = False) -> tuple[int, int] | None:
     """(P levels per lane, G lanes per column) of the lane step for a column of ``n_prisms``
     (``rigid``: rigid base links, at most :data:`MAX_RIGID_LEVELS_PER_LANE` levels per lane): one
     warp's :func:`lane_shape` where it fits, else k warps per column (G = 32 k, a power of two): the
-    fewest lanes at the most levels, then the fewest levels that fill them. None above
+    fewest lanes at the most levels, then the fewest levels that fill them; a flexible-base block at
+    the most levels doubles its lanes up to :data:`WIDE_BLOCK_LANES`. None above
     :data:`MAX_COLUMN_LANES` lanes."""
     most = MAX_RIGID_LEVELS_PER_LANE if rigid else MAX_LEVELS_PER_LANE
     one = lane_shape(n_prisms, most)
@@ -59,6 +65,8 @@ def lane_map(n_prisms: int, rigid: bool = False) -> tuple[int, int] | None:
         G *= 2
     if G > MAX_COLUMN_LANES:
         return None
+    if not rigid and -(-n // G) == most and 2 * G <= WIDE_BLOCK_LANES:
+        G *= 2  # the registers of 4 levels spill: twice the lanes at half the levels
     return -(-n // G), G
 
 
