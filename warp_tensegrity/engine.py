@@ -255,9 +255,9 @@ class HostWork:
                     next(self.gen)
             except StopIteration as stop:
                 self.value = stop.value
-                self.seconds += time.perf_counter() - t0
                 return
-            self.seconds += time.perf_counter() - t0
+            finally:
+                self.seconds += time.perf_counter() - t0
             yield
 
 

@@ -103,7 +103,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
     jobs = [(gi, cols) for gi in range(len(plan.groups)) if (cols := np.flatnonzero(group == gi)).size]
     total = float(sum(cols.size * (plan.groups[gi].plan.n_steps + (plan.groups[gi].twin.n_steps
                                    if twins and plan.groups[gi].twin is not None else 0)) for gi, cols in jobs))
-    state = {"done": 0.0, "failed": 0, "wall": 0.0, "stages": {}}
+    state = {"done": 0.0, "failed": 0, "stages": {}}
 
     def run(runs, host=()):
         """Run each (cols, plan) (None: no run), on a GPU all at once (engine.run_batches: each group
@@ -123,7 +123,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
                     runs[i][1]) for i in todo]
         results, stages = run_batches(batches, device, cbs, host=host) if todo or host else ([], {})
         state["done"] += sum(runs[i][0].size * runs[i][1].n_steps for i in todo)
-        state["wall"] += stages.get("stepping", 0.0)
+        state["failed"] += sum(int(np.count_nonzero(r.status)) for r in results)
         for k, v in stages.items():
             state["stages"][k] = state["stages"].get(k, 0.0) + v
         out = [None] * len(runs)
@@ -141,7 +141,7 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
     firsts = run([(cols, plan.groups[gi].plan) for gi, cols in jobs]
                  + [(cols, plan.groups[gi].twin if twins else None) for gi, cols in jobs], host)
     done_runs, twin_runs = firsts[:len(jobs)], firsts[len(jobs):]
-    results, errors = [], {}
+    errors = {}
     redos = []  # (job index, columns of the group to rerun, meas, err)
     for k, (gi, cols) in enumerate(jobs):
         g, r = plan.groups[gi], done_runs[k]
@@ -171,11 +171,8 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
             for key, v in err_b.items():
                 err[key][redo] = v
             _keep_errors(errors, err, cols, n)
-    for k, (gi, cols) in enumerate(jobs):
-        state["failed"] += int(np.count_nonzero(done_runs[k].status))
-        results.append((gi, cols, done_runs[k]))
-    merged = merge_results([(c, r) for _, c, r in results], n, [gi for gi, _, _ in results])
-    merged.wall_time = state["wall"]  # every run's stepping: the groups', their twins' and fp64 reruns'
+    merged = merge_results([(cols, r) for (_, cols), r in zip(jobs, done_runs)], n, [gi for gi, _ in jobs])
+    merged.wall_time = state["stages"].get("stepping", 0.0)  # every run's: the groups', twins' and fp64 reruns'
     merged.info["stages"] = state["stages"]  # the runs' stages, stepping as the wall of runs stepped at once
     return (merged, errors) if twins else merged
 
