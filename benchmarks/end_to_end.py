@@ -23,6 +23,11 @@ engine call steps only K outputs of its plan and its records are then padded to 
 (energies a smooth synthetic trace, times and steps the plan's), so everything around the step --
 build, measures, the store, the export -- runs at the run's real size; stepping is K outputs' worth.
 
+``--trace`` (CUDA): every chunk a run launches (``Integrator.advance``) and every run's initialisation
+is bracketed by timing events on its stream, and the host's seconds around it are kept: the record
+gets ``trace``, per run its chunks' device intervals and host launch seconds, and the union of the
+device's busy intervals (how far the runs of a shard overlap, and where the device waits on the host).
+
 Writes a JSON list of records (one per run) with keys ``spec``, ``device_name``, ``git_commit``,
 ``wall_s``, ``stages_s``, ``estimate_s``, ``peak_rss_bytes`` and some context.
 """
@@ -81,7 +86,71 @@ def _stub(orig, k: int, spent: dict):
     return run
 
 
-def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None:
+def _trace_runs():
+    """Patch Integrator.advance and .initialize to bracket each call with timing events (``--trace``);
+    returns a function that makes the record's ``trace`` once the run has ended."""
+    import warp as wp
+
+    from warp_tensegrity.sim import integrate
+
+    calls, t_host0 = [], time.perf_counter()
+
+    def bracket(name):
+        orig = getattr(integrate.Integrator, name)
+
+        def wrapped(self, *a, **k):
+            if not self.device.is_cuda:
+                return orig(self, *a, **k)
+            e0 = wp.Event(self.device, enable_timing=True)
+            wp.record_event(e0)
+            h0 = time.perf_counter()
+            out = orig(self, *a, **k)
+            h1 = time.perf_counter()
+            e1 = wp.Event(self.device, enable_timing=True)
+            wp.record_event(e1)
+            calls.append((id(self), name, a[0] if a else 0, self.model.n_columns, h0 - t_host0, h1 - h0, e0, e1))
+            return out
+
+        setattr(integrate.Integrator, name, wrapped)
+
+    bracket("advance")
+    bracket("initialize")
+
+    def report():
+        if not calls:
+            return None
+        wp.synchronize()
+        ref = calls[0][6]
+        runs = {}
+        spans = []
+        for rid, name, n, B, h0, dh, e0, e1 in calls:
+            a, b = wp.get_event_elapsed_time(ref, e0) / 1e3, wp.get_event_elapsed_time(ref, e1) / 1e3
+            r = runs.setdefault(rid, {"columns": B, "steps": 0, "chunks": 0, "host_s": 0.0, "first_s": a, "last_s": b,
+                                      "device_s": 0.0, "host_first_s": h0})
+            r["steps"] += int(n) if name == "advance" else 0
+            r["chunks"] += 1
+            r["host_s"] += dh
+            r["first_s"], r["last_s"] = min(r["first_s"], a), max(r["last_s"], b)
+            r["device_s"] += b - a
+            spans.append((a, b))
+        spans.sort()
+        busy, cur = 0.0, None
+        for a, b in spans:
+            if cur is None or a > cur[1]:
+                busy += 0.0 if cur is None else cur[1] - cur[0]
+                cur = [a, b]
+            else:
+                cur[1] = max(cur[1], b)
+        busy += cur[1] - cur[0]
+        span = max(b for _, b in spans) - min(a for a, _ in spans)
+        return {"runs": list(runs.values()), "device_busy_s": busy, "device_span_s": span,
+                "note": "seconds from the first traced event; a run's device_s sums its chunks' event intervals "
+                        "(queued chunks overlap in it); busy: the union of all chunks' intervals"}
+
+    return report
+
+
+def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: bool = False) -> None:
     """Run one spec through cli.main and write its stage record (the run process)."""
     from warp_tensegrity.runtime import process_age
 
@@ -93,7 +162,7 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None
     from warp_tensegrity.sim import integrate  # noqa: F401 - the modules a run imports
     from warp_tensegrity import io as D
     from warp_tensegrity.measure import device as _measure_device  # noqa: F401
-    from warp_tensegrity.sweep import budget, plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
+    from warp_tensegrity.sweep import beside, budget, plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
 
     wp.init()
     wp.get_device(device)
@@ -144,12 +213,26 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None
         return results, es
 
     sweep_shard.run_batches = runs
+    traced = _trace_runs() if trace else None
+    syncs = {"calls": 0, "seconds": 0.0}  # every fsync of the run (its files' durability), on any thread
+    real_fsync = os.fsync
+
+    def fsync(fd):
+        t0 = time.perf_counter()
+        try:
+            return real_fsync(fd)
+        finally:
+            syncs["calls"] += 1
+            syncs["seconds"] += time.perf_counter() - t0
+
+    os.fsync = fsync
     timed(sweep_plan, "plan_sweep", "build")
     timed(cli, "estimate_plan", "build")  # the run's pricing (the probe cached by the dry run)
     timed(budget, "check_run", "build")
     timed(sweep_run, "template_dataset", "write")  # the store's layout
     timed(sweep_store.SweepStore, "initialise", "write")
-    timed(sweep_shard, "beta_limit_measures", "measurement")  # waits for the base-mode analysis, if it still runs
+    timed(sweep_shard, "beta_limit_measures", "measurement")
+    timed(beside, "result", "measurement")  # waits for the base-mode analysis beside, if it still runs
     timed(sweep_shard, "error_estimates", "measurement")
     timed(sweep_shard, "merge_results", "transfer")
     timed(cli, "_log_nan_summary", "finalise")  # the closing report reads the output
@@ -178,7 +261,9 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0) -> None
     import resource
 
     rec = {"wall_s": wall, "stages_s": st, "other_s": wall - sum(st.values()),
-           "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, **info}
+           "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, "fsync": syncs, **info}
+    if traced is not None:
+        rec["trace"] = traced()
     Path(record).write_text(json.dumps(rec))
 
 
@@ -204,10 +289,11 @@ def main(argv=None) -> int:
     p.add_argument("--keep", default=None, help="copy each spec's output netCDF into this folder")
     p.add_argument("--stub-outputs", type=int, default=0, metavar="K",
                    help="step only K outputs per engine call, records padded to the run's (see above)")
+    p.add_argument("--trace", action="store_true", help="bracket every chunk with CUDA timing events (see above)")
     p.add_argument("--child", nargs=3, metavar=("SPEC", "OUT_NC", "RECORD"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.child:
-        _child(a.child[0], a.device, a.child[1], a.child[2], a.stub_outputs)
+        _child(a.child[0], a.device, a.child[1], a.child[2], a.stub_outputs, a.trace)
         return 0
     sys.path.insert(0, str(REPO))
     sys.path.insert(0, str(REPO / "benchmarks"))
@@ -230,7 +316,7 @@ def main(argv=None) -> int:
             for r in range(a.repeat):
                 rec_path = Path(tmp) / "record.json"
                 cmd = [sys.executable, str(Path(__file__).resolve()), "--device", a.device, "--child", spec, out,
-                       str(rec_path), "--stub-outputs", str(a.stub_outputs)]
+                       str(rec_path), "--stub-outputs", str(a.stub_outputs)] + (["--trace"] if a.trace else [])
                 load0 = os.getloadavg()[0]
                 subprocess.run(cmd, check=True, env=env)
                 rec = json.loads(rec_path.read_text())
@@ -250,10 +336,12 @@ def main(argv=None) -> int:
                     "estimate_device_bytes_per_shard": est["device_bytes_per_shard"],
                     "estimate_host_peak_bytes": est["host_peak_bytes"],
                     "peak_rss_bytes": rec["peak_rss_bytes"],
+                    "fsync": rec.get("fsync"),
                     "shards": rec["shards"],
                     "n_steps": rec.get("n_steps"),
                     "repeat": r,
                     **({"stub_outputs": a.stub_outputs} if a.stub_outputs else {}),
+                    **({"trace": rec["trace"]} if rec.get("trace") else {}),
                     "load_avg_1min": [load0, os.getloadavg()[0]],
                     "probe_load_avg_1min": est["probe"].get("load_avg"),
                     "kernel_cache": "warm (the estimate's probe compiled what the run loads)",

@@ -4,7 +4,8 @@
 # (at most 10 min) runs:
 #   PART=check       the lane tests on CUDA (records inside against the record kernels, lanes against staged)
 #   PART=throughput  lanes column-steps/s, 50 prisms: FB fp32 at B = 1,536 and 16,384, FB fp64, RB fp32 and RB fp64
-#                    at 16,384 (CASES="FB fp32 1536 16384;RB fp64 16384" picks some: two calls if one runs out of time)
+#                    at 16,384 (CASES="FB fp32 1536 16384;RB fp64 16384" picks some: two calls if one runs out of time;
+#                    VERSIONS="new" leaves the baseline out, e.g. for a saturation curve "FB fp64 256 512 1024 16384")
 #   PART=switches    new only: each of the lane step's speed switches (issue 33 item 2) off against on, in the
 #                    case it is for (LANE_A_MEM, LANE_MIXED, LANE_FAST_MATH_RIGID: sim/lanes/lanes.py); SWITCHES picks
 #   PART=phase       phase_large end to end (benchmarks/end_to_end.py) in precision PRECISION (fp64, fp32 or auto)
@@ -13,7 +14,9 @@
 #   PART=ncu         Nsight Compute of the lane kernel in the four cases (benchmarks/gpu_lanes_ncu.sh)
 #   PART=e2e         issue 33 must-show 3: end to end (benchmarks/end_to_end.py, every stage and "other"),
 #                    REPEAT runs each (default 2), of phase_large at its defaults (fp64), phase_large with
-#                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only)
+#                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only);
+#                    TRACE=1: the new code's runs with --trace (each chunk's device interval, end_to_end.py);
+#                    SPECS="phase_large paper_2017" picks some (default all three)
 #   PART=long        issue 33 item 3: the fallback table at 128, 300, 500 and 1,000 prisms, B = 4,096: lanes (k warps
 #                    per column past a warp), block (fused, fused-serial) and staged, new only; BASES (FB RB) and
 #                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
@@ -44,7 +47,7 @@ check)
         -k "records_inside or match_staged or diverging or hold_the_bars or mixed_precision or accelerations_in_memory" 2>&1 | tail -4 | tee "$OUT/pytest_lanes_cuda.log" ;;
 throughput)
     IFS=';' read -r -a specs <<< "${CASES:-FB fp32 1536 16384;FB fp64 16384;RB fp32 16384;RB fp64 16384}"
-    for v in new base; do
+    for v in ${VERSIONS:-new base}; do
         for spec in "${specs[@]}"; do
             set -- $spec
             run_in $v python -m benchmarks.throughput --device cuda:0 --paths lanes --bases "$1" --precisions "$2" \
@@ -82,7 +85,9 @@ e2e)  # threadpoolctl (gpu_carry.sh carries it) sets the host's small solves to 
     for v in ${VERSIONS:-new}; do
         for spec in "$HERE/sweeps/phase_large.toml" "$OUT/phase_large_auto.toml" "$HERE/sweeps/paper_2017.toml"; do
             name=$(basename "$spec" .toml)
-            run_in $v python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" \
+            case " ${SPECS:-phase_large phase_large_auto paper_2017} " in *" $name "*) ;; *) continue ;; esac
+            trace=(); [ "${TRACE:-0}" = 1 ] && [ "$v" = new ] && trace=(--trace)
+            run_in $v python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" "${trace[@]}" \
                 --out "$OUT/end_to_end_${name}_$v.json" 2>&1 | grep -E "wall|error" | tail -4
         done
     done ;;

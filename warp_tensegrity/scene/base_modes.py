@@ -49,11 +49,12 @@ import numpy as np
 
 from ..runtime import drive
 from ..types import BETA_LIMIT_FLAGS
+from .blas import one_blas_thread
 from .columns import build_column, column_topology
 from .impact import kinematic_lock_strain
 
 __all__ = ["BAND_FACTOR", "BETA_LIMIT_FLAGS", "LOCK_FRACTION", "MAX_EXACT_PRISMS", "base_mode_ratio", "base_mode_ratios",
-           "beta_limit_measures", "lowest_base_mode", "modes", "rb_band_top"]
+           "base_mode_ratios_one_thread", "beta_limit_measures", "lowest_base_mode", "modes", "rb_band_top"]
 
 BAND_FACTOR = 2.0
 """Scale separation the regular limit needs: lowest base mode >= BAND_FACTOR x RB band top."""
@@ -228,6 +229,13 @@ def base_mode_ratios(config, params: dict, n_columns: int) -> np.ndarray:
     reads the parameters only, so a sweep on a GPU computes it while its shard steps
     (:func:`base_mode_ratios_steps`, :mod:`warp_tensegrity.sweep.shard`)."""
     return drive(base_mode_ratios_steps(config, params, n_columns))
+
+
+def base_mode_ratios_one_thread(config, params: dict, n_columns: int) -> np.ndarray:
+    """:func:`base_mode_ratios` on one BLAS thread (:mod:`.blas`), as a GPU sweep computes them: in a
+    process beside the stepping (:mod:`warp_tensegrity.sweep.beside`), or in turns with it."""
+    with one_blas_thread():
+        return base_mode_ratios(config, params, n_columns)
 
 
 def base_mode_ratios_steps(config, params: dict, n_columns: int):

@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from .. import io as D
-from ..scene.base_modes import base_mode_ratios_steps, beta_limit_measures
+from ..scene.base_modes import base_mode_ratios_one_thread, base_mode_ratios_steps, beta_limit_measures
 from ..scene.blas import one_blas_thread
 from ..engine import HostWork, run_batches
 from ..measure.errors import FLAG as ERROR_FLAG
@@ -20,6 +20,7 @@ from ..policy.groups import twin_ratio
 from ..provenance import provenance_attrs
 from ..result import merge_results, overwrite_columns
 from ..runtime import warp_facts
+from . import beside
 from .plan import SweepPlan, decide_sweep
 from .store import SweepStore, time_coord
 
@@ -38,19 +39,22 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     start, stop = plan.shards[index]
     params = {k: np.ascontiguousarray(v[start:stop]) for k, v in plan.params.items()}
     twins = bool(spec.run["error_estimate"])
-    # the base-mode analysis (~2 s for phase_large's 96 pairs). On a GPU it steps with the runs, one
-    # pair per turn of the host between their launches (not a thread: beside the stepping one left 26 s
-    # of phase_large waiting on an H200, benchmarks/results/issue33_h200), on one BLAS thread
-    # (scene.blas: a multi-threaded OpenBLAS is slower on these small solves). The CPU computes it
-    # after the stepping with the default threads (an eigensolve's last bits follow the thread count,
-    # and the reference outputs were made so).
-    modes = (HostWork(base_mode_ratios_steps(spec.scene, params, stop - start), "measurement", one_blas_thread)
-             if plan.run.on_gpu else None)
-    result = run_groups(plan, start, stop, device, progress, twins=twins, host=[modes] if modes else [])
+    # the base-mode analysis (~3 s for phase_large's 96 pairs) on one BLAS thread (scene.blas: a
+    # multi-threaded OpenBLAS is slower on these small solves). On a GPU it runs while the shard steps,
+    # in a process beside this one (sweep.beside: a thread or turns in the host loop stall the
+    # launches), or, where none can be started, one pair per turn of the host between the launches.
+    # The CPU computes it after the stepping with the default threads (an eigensolve's last bits
+    # follow the thread count, and the reference outputs were made so; beside a CPU run it would
+    # share the cores with the stepping).
+    modes = beside.submit(base_mode_ratios_one_thread, spec.scene, params, stop - start) if modes_beside(plan) else None
+    turns = (HostWork(base_mode_ratios_steps(spec.scene, params, stop - start), "measurement", one_blas_thread)
+             if plan.run.on_gpu and modes is None else None)
+    result = run_groups(plan, start, stop, device, progress, twins=twins, host=[turns] if turns else [])
     result, errors = result if twins else (result, {})
     meas = measure_columns(result, spec.scene.height)
-    meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"],
-                                    None if modes is None else modes.value))
+    ratio = (beside.result(modes, lambda: base_mode_ratios_one_thread(spec.scene, params, stop - start))
+             if modes is not None else None if turns is None else turns.value)
+    meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratio))
     meas.update(errors)
     attrs = {
         "Conventions": D.CONVENTIONS,
@@ -74,6 +78,11 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     if spec.run["output_interval"] is not None:
         attrs["output_interval"] = float(spec.run["output_interval"])
     return D.shard_dataset(spec.layout(), plan.params, start, stop, result, meas, attrs)
+
+
+def modes_beside(plan: SweepPlan) -> bool:
+    """Whether a shard's base-mode analysis runs in the process beside (:mod:`.beside`): on a GPU."""
+    return bool(plan.run.on_gpu)
 
 
 def run_groups_attr(plan: SweepPlan) -> str:
@@ -207,7 +216,9 @@ def template_dataset(plan: SweepPlan):
                                   "contact_residual": z(1)}
     with np.errstate(all="ignore"):
         meas = measure_columns(result, spec.scene.height)
-    meas.update(beta_limit_measures(spec.scene, {k: v[:1] for k, v in plan.params.items()}, 1, meas["max_compression"]))
+    # the flag's layout only: no modes solved (a ratio of NaN, as at beta = 1)
+    meas.update(beta_limit_measures(spec.scene, {k: v[:1] for k, v in plan.params.items()}, 1, meas["max_compression"],
+                                    ratio=np.full(1, np.nan)))
     if spec.run["error_estimate"]:
         meas.update(error_estimates(meas, meas, 1.0))
     return D.shard_dataset(spec.layout(), plan.params, 0, 1, result, meas, {})

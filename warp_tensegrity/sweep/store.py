@@ -28,6 +28,7 @@ import shutil
 import sys
 import threading
 import time as _time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,8 @@ from .manifest import (
 
 IN_FLIGHT = 2
 """Shards alive on the host at once in a serial run: one stepping, one being written."""
+FSYNC_THREADS = 16
+"""Chunk files of a shard synced at once (:meth:`SweepStore._fsync_chunks`)."""
 
 # ---------------------------------------------------------------------- layout
 def time_coord(ds: xr.Dataset) -> np.ndarray:
@@ -262,20 +265,30 @@ class SweepStore:
                 "attrs": attrs}
 
     def _fsync_chunks(self, names, index: int) -> None:
-        """fsync the chunk files of shard ``index`` (chunk key c/<index>/... in Zarr v3, or <index>.* in v2)."""
+        """fsync the chunk files of shard ``index`` (chunk key c/<index>/... in Zarr v3, or <index>.* in v2),
+        files before their directories. A shard has a chunk file or two per variable (~60 for
+        paper_2017): they are synced FSYNC_THREADS at a time (fsync releases the GIL, and a journalled
+        file system commits concurrent syncs together), where one after another each waits its own
+        commit."""
+        files, dirs = [], []
         for k in names:
             vdir = self.zarr / k
             roots = [vdir / "c" / str(index)] + list(vdir.glob(f"{index}.*")) + [vdir / str(index)]
             for r in roots:
                 if r.is_file():
-                    _fsync_path(r)
+                    files.append(r)
                 elif r.is_dir():
-                    for p in r.rglob("*"):
-                        if p.is_file():
-                            _fsync_path(p)
-                    _fsync_path(r)
+                    files.extend(p for p in r.rglob("*") if p.is_file())
+                    dirs.extend(sorted((p for p in r.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)))
+                    dirs.append(r)
             if (vdir / "c").is_dir():
-                _fsync_path(vdir / "c")
+                dirs.append(vdir / "c")
+        for batch in (files, dirs):  # a directory's entry after its files' data
+            if len(batch) > 1:
+                with ThreadPoolExecutor(min(FSYNC_THREADS, len(batch)), thread_name_prefix="fsync") as pool:
+                    list(pool.map(_fsync_path, batch))  # list(): an error is raised here
+            elif batch:
+                _fsync_path(batch[0])
 
     # ------------------------------------------------------------------ reading
     def dataset(self, plan_or_spec, tpl: xr.Dataset, partial: bool = False) -> xr.Dataset:
