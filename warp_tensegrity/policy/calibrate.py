@@ -426,7 +426,8 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
         # a shard's runs step at once on a GPU (engine.run_batches), one after another elsewhere
         capacity = default_shard_size(plan.device) if cal["is_cuda"] else None
         alone = sum(t for shard in runs for t, _ in shard)
-        st["stepping"] = sum(together_seconds(shard, capacity) for shard in runs)
+        saturation = None if capacity is None else max(1, int(SATURATION_SHARE * capacity))
+        st["stepping"] = sum(together_seconds(shard, saturation) for shard in runs)
         out["twin_stepping_s"] *= st["stepping"] / alone if alone > 0 else 0.0
         if capacity is not None:  # the device holds a shard's runs at once: each its arrays, twins a second copy
             per_col = out["device_bytes_per_column"]
@@ -438,11 +439,21 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
     return out | {"probe": cal}
 
 
+SATURATION_SHARE = 0.5
+"""The share of the resident capacity (:func:`~.decide.default_shard_size`) at which the lane step
+fills a GPU: on an H200 (capacity 1,056) 512 columns of 50 prisms step at 80 % (FB fp64) and 82 % (RB
+fp64) of their rate at 16,384, 256 at 45 % and 62 %, 1,056 at 95 % and 93 %
+(benchmarks/results/issue33_h200_fourth/call3_*/throughput_lanes_new_*_fp64.json). Runs stepped at once
+share that, not the resident capacity: priced against 1,056 slots phase_large's runs came to 4.9 s
+against 8.4-8.8 s measured."""
+
+
 def together_seconds(runs: list[tuple[float, int]], capacity: int | None) -> float:
-    """Seconds to step runs of (seconds alone, columns) at once on a GPU that holds ``capacity``
-    columns resident (None: one after another, the sum). Each run keeps its own pace, so no less
-    than the longest; the device's column slots are shared, so no less than the slot-seconds
-    (seconds x columns held, at most ``capacity``) over ``capacity``: the larger of the two bounds."""
+    """Seconds to step runs of (seconds alone, columns) at once on a GPU that ``capacity`` columns fill
+    (None: one after another, the sum; :data:`SATURATION_SHARE` of the resident capacity). Each run
+    keeps its own pace, so no less than the longest; the device is shared, so no less than the
+    slot-seconds (seconds x columns, at most ``capacity`` each) over ``capacity``: the larger of the
+    two bounds."""
     if capacity is None or len(runs) < 2:
         return float(sum(t for t, _ in runs))
     return float(max(max(t for t, _ in runs), sum(t * min(b, capacity) for t, b in runs) / capacity))
