@@ -53,7 +53,7 @@ LAYERS = [
     # a run's datasets, its execution and its calibration
     {"io", "result", "engine", "policy.calibrate"},
     # applications: sweeps, the lens, the validation gallery, figures, the public facade
-    {"sweep.manifest", "sweep.budget", "sweep.progress", "sweep.parse", "sweep.spec", "sweep.store", "sweep.status",
+    {"sweep.manifest", "sweep.budget", "sweep.progress", "sweep.parse", "sweep.spec", "sweep.store", "sweep.status", "sweep.beside",
      "sweep.plan", "sweep.shard", "sweep.dask", "sweep.run", "sweep", "lens.host", "lens.design", "lens.spec",
      "lens.io", "lens.run", "lens.estimate", "lens", "lens.command", "validation.constrained", "validation.closed_forms",
      "validation.reference_column", "validation.twist_chain",

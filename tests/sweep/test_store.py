@@ -200,9 +200,9 @@ def test_stepping_of_the_next_shard_overlaps_the_write(tmp_path, monkeypatch):
     overlapped = []
     real_compute, real_write = sweep_run.compute_shard, zstore.SweepStore.write_shard
 
-    def compute(plan, index, device=None, progress=None):
+    def compute(plan, index, device=None, progress=None, **kw):
         started.setdefault(index, threading.Event()).set()
-        return real_compute(plan, index, device=device, progress=progress)
+        return real_compute(plan, index, device=device, progress=progress, **kw)
 
     def write_shard(self, plan, index, ds, time):
         if index + 1 < plan.n_shards:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import xarray as xr
 
+from ..engine import HostWork
 from ..outputs import check_output_file
 from ..types import ShardState
 from .dask import run_shards_dask
@@ -59,6 +60,7 @@ def execute(
     if plan.run is None:
         decide_sweep(plan)
     store = SweepStore(plan.out)
+    layout = None  # the store's layout, when it steps with the first shard (HostWork)
     if plan.memory_limit:
         import zarr
 
@@ -84,8 +86,13 @@ def execute(
                     return plan.out
                 if store.exists():
                     _log(f"{store.dir}: {why}; recomputing every shard", stream)
-            manifest = store.initialise(plan, tpl)
             states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
+            if layout_with_first_shard(plan, serial=not (dask_workers or scheduler or client is not None)):
+                # on a GPU the store is laid out while the first shard steps: one turn of the host (~1 s
+                # on an H200's host) between the launches, with several chunks of every run queued
+                layout = HostWork(_once(store.initialise, plan, tpl), "write")
+            else:
+                manifest = store.initialise(plan, tpl)
         else:
             _restore_spec_copy(store, plan, stream)
             states = shard_states(store, plan)
@@ -135,7 +142,9 @@ def execute(
                         with lk:
                             bar.update(tally["cols"] + _n * frac, tally["failed"] + n_failed)
 
-                    ds = compute_shard(plan, i, progress=cb)
+                    ds = compute_shard(plan, i, progress=cb, host=[layout] if layout is not None else [])
+                    if layout is not None:
+                        manifest, layout = layout.value, None
                     writer.submit(i, ds)
                     del ds
             finally:
@@ -148,6 +157,18 @@ def execute(
         if not keep_store:
             store.remove()
     return plan.out
+
+
+def layout_with_first_shard(plan: SweepPlan, serial: bool) -> bool:
+    """Whether a fresh run lays out its store while its first shard steps: a run here (not on Dask
+    workers, whose client writes the layout before any task) on a GPU."""
+    return bool(serial and plan.run.on_gpu and plan.n_shards)
+
+
+def _once(fn, *args):
+    """A generator that calls ``fn(*args)`` at its first turn and returns its value (a HostWork's one piece)."""
+    return fn(*args)
+    yield  # noqa: unreachable: makes this a generator
 
 
 def check_output(out: Path, *, resume: bool = False, overwrite: bool = False) -> None:

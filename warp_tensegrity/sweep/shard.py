@@ -31,8 +31,10 @@ def _num(x):
     return "none" if x is None else float(x)
 
 
-def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None):
-    """Run shard ``index`` and return its case-stacked dataset (not written)."""
+def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None, host: list[HostWork] = ()):
+    """Run shard ``index`` and return its case-stacked dataset (not written). ``host``: host work
+    stepped with its runs (:func:`warp_tensegrity.engine.run_batches`; on a GPU, in turns between
+    their launches: the run's store laid out while the first shard steps, :mod:`.run`)."""
     if plan.run is None:
         decide_sweep(plan)
     spec = plan.spec
@@ -49,7 +51,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     modes = beside.submit(base_mode_ratios_one_thread, spec.scene, params, stop - start) if modes_beside(plan) else None
     turns = (HostWork(base_mode_ratios_steps(spec.scene, params, stop - start), "measurement", one_blas_thread)
              if plan.run.on_gpu and modes is None else None)
-    result = run_groups(plan, start, stop, device, progress, twins=twins, host=[turns] if turns else [])
+    result = run_groups(plan, start, stop, device, progress, twins=twins, host=[*host, *([turns] if turns else [])])
     result, errors = result if twins else (result, {})
     meas = measure_columns(result, spec.scene.height)
     ratio = (beside.result(modes, lambda: base_mode_ratios_one_thread(spec.scene, params, stop - start))
