@@ -280,15 +280,9 @@ def run_batches(runs: list[tuple[ColumnConfig, dict, RunPlan]], device=None,
     progress = progress or [None] * len(runs)
     device = resolve_device(device if device is not None or not runs else runs[0][2].device)
     t0 = time.perf_counter()
-    # the run of most steps first (its steps are the set's critical path: on an H200 phase_large's 110,000
-    # steps of 512 columns took 9.4 s beside the others against 3.1 s alone), then the rest by steps, so
-    # the others' builds happen while it steps; each run's numbers are its own whatever the order
-    order = sorted(range(len(runs)), key=lambda i: (-runs[i][2].n_steps, i))
-    done = run_together([simulate_batch_steps(runs[i][0], runs[i][1], progress=progress[i], plan=runs[i][2].with_device(device))
-                         for i in order] + [h.steps() for h in host], device, interleave)
-    results = [None] * len(runs)
-    for k, i in enumerate(order):
-        results[i] = done[k]
+    results = run_together([simulate_batch_steps(c, p, progress=cb, plan=rp.with_device(device))
+                            for (c, p, rp), cb in zip(runs, progress)] + [h.steps() for h in host],
+                           device, interleave)[:len(runs)]
     wall = time.perf_counter() - t0
     stages = dict.fromkeys(("build", "compile", "stepping", "measurement", "transfer"), 0.0)
     for r in results:

@@ -255,8 +255,8 @@ class Integrator:
 def run_together(gens: list, device, interleave: bool | None = None) -> list:
     """Drive several runs to their ends and return their values in order. On a CUDA device each run
     gets its own stream and they are resumed in turn, one chunk each, so that runs too narrow to fill
-    the GPU (a sweep's groups of like stiffness and their error-estimate twins) step at once, the first
-    on a high-priority stream; the columns are independent, so each run's numbers are those it has alone. Elsewhere one after
+    the GPU (a sweep's groups of like stiffness and their error-estimate twins) step at once; the
+    columns are independent, so each run's numbers are those it has alone. Elsewhere one after
     another, as :func:`drive` would. ``interleave``: resume in turn (True; on the CPU without
     streams, for tests: not the lane step, whose CPU emulation is a process-wide setting) or one
     after another (False); None: on CUDA only."""
@@ -265,9 +265,7 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
         interleave = device.is_cuda
     if not interleave or len(gens) < 2:
         return [drive(g) for g in gens]
-    # the first run on a high-priority stream: the device gives its pending blocks the first free slots
-    # (engine.run_batches puts first the run of most steps, the set's critical path)
-    streams = [wp.Stream(device, priority=-1 if i == 0 else 0) if device.is_cuda else None for i in range(len(gens))]
+    streams = [wp.Stream(device) if device.is_cuda else None for _ in gens]
     out: list = [None] * len(gens)
     live = list(range(len(gens)))
     while live:
