@@ -1,6 +1,6 @@
-"""A fresh run on a GPU lays out its store while the first shard steps (sweep.run.layout_with_first_shard:
-one turn of the host between the launches). Forced here on the CPU, where the runs step first and the
-layout follows: the output is the one a run that lays out first writes, bit for bit, and a layout
+"""A fresh run on a GPU builds its template and lays out its store while the first shard steps
+(sweep.run.layout_with_first_shard: one turn of the host between the launches). Forced here on the
+CPU, where the runs step first and the layout follows: the output is the one a run that lays out first writes, bit for bit, and a layout
 that fails (a full disk) fails the run with the store's own error and no shard recorded done."""
 
 from __future__ import annotations
@@ -51,6 +51,16 @@ def test_the_layout_with_the_first_shard_writes_the_same_output(tmp_path, monkey
     for k in a.data_vars:
         if np.issubdtype(a[k].dtype, np.number):
             assert a[k].values.tobytes() == b[k].values.tobytes(), k
+
+
+def test_the_store_is_checked_against_the_plans_times_before_the_template_is_built(tmp_path):
+    """The deferred run checks its shards against the plan's output times, bit for bit the template's."""
+    from warp_tensegrity.sweep.store import time_coord
+
+    for text in (SPEC, SPEC.replace("output_interval = 0.01", "output_interval = 0.007")):
+        plan = sweep.plan_sweep(sweep.load_spec(text), tmp_path / "t.nc", device="cpu")
+        got = time_coord(sweep_shard.template_dataset(plan))
+        assert got.dtype == plan.run.output_times.dtype and got.tobytes() == plan.run.output_times.tobytes()
 
 
 def test_a_layout_that_fails_fails_the_run_with_nothing_done(tmp_path, monkeypatch):

@@ -60,16 +60,18 @@ def execute(
     if plan.run is None:
         decide_sweep(plan)
     store = SweepStore(plan.out)
-    layout = None  # the store's layout, when it steps with the first shard (HostWork)
+    layout = None  # the template and the store's layout, when they step with the first shard (HostWork)
     if plan.memory_limit:
         import zarr
 
         # Zarr's codec threads each keep a malloc arena (~2 MB apiece measured): one is enough when
         # memory is tight. Global, and fixed once Zarr first writes in this process.
         zarr.config.set({"threading.max_workers": 1})
+    # a fresh run on a GPU builds its template and lays out its store while the first shard steps
+    deferred = not resume and layout_with_first_shard(plan, serial=not (dask_workers or scheduler or client is not None))
     with SweepLock(plan.out):
-        tpl = template_dataset(plan)
-        time = time_coord(tpl)
+        tpl = None if deferred else template_dataset(plan)
+        time = plan.run.output_times if deferred else time_coord(tpl)  # the template's time coordinate
         check_output(plan.out, resume=resume, overwrite=overwrite)  # under the lock: what is there now
         if not resume and (store.exists() or plan.out.exists()):
             store.remove()  # check_output let it through: overwrite
@@ -87,10 +89,10 @@ def execute(
                 if store.exists():
                     _log(f"{store.dir}: {why}; recomputing every shard", stream)
             states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
-            if layout_with_first_shard(plan, serial=not (dask_workers or scheduler or client is not None)):
-                # on a GPU the store is laid out while the first shard steps: one turn of the host (~1 s
-                # on an H200's host) between the launches, with several chunks of every run queued
-                layout = HostWork(_once(store.initialise, plan, tpl), "write")
+            if deferred:
+                # one turn of the host (~1.5 s on an H200's host) between the first shard's launches, with
+                # several chunks of every run queued: the template, then the store laid out from it
+                layout = HostWork(_once(_lay_out, store, plan), "write")
             else:
                 manifest = store.initialise(plan, tpl)
         else:
@@ -144,7 +146,7 @@ def execute(
 
                     ds = compute_shard(plan, i, progress=cb, host=[layout] if layout is not None else [])
                     if layout is not None:
-                        manifest, layout = layout.value, None
+                        (tpl, manifest), layout = layout.value, None
                     writer.submit(i, ds)
                     del ds
             finally:
@@ -160,9 +162,15 @@ def execute(
 
 
 def layout_with_first_shard(plan: SweepPlan, serial: bool) -> bool:
-    """Whether a fresh run lays out its store while its first shard steps: a run here (not on Dask
-    workers, whose client writes the layout before any task) on a GPU."""
+    """Whether a fresh run builds its template and lays out its store while its first shard steps: a
+    run here (not on Dask workers, whose client writes the layout before any task) on a GPU."""
     return bool(serial and plan.run.on_gpu and plan.n_shards)
+
+
+def _lay_out(store: SweepStore, plan: SweepPlan):
+    """(template, manifest): a fresh store laid out from the plan's template dataset."""
+    tpl = template_dataset(plan)
+    return tpl, store.initialise(plan, tpl)
 
 
 def _once(fn, *args):
