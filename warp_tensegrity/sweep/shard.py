@@ -34,7 +34,7 @@ def _num(x):
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None, host: list[HostWork] = ()):
     """Run shard ``index`` and return its case-stacked dataset (not written). ``host``: host work
     stepped with its runs (:func:`warp_tensegrity.engine.run_batches`; on a GPU, in turns between
-    their launches: the run's store laid out while the first shard steps, :mod:`.run`)."""
+    their launches: the run's template and store layout while the first shard steps, :mod:`.run`)."""
     if plan.run is None:
         decide_sweep(plan)
     spec = plan.spec
@@ -54,8 +54,11 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     result = run_groups(plan, start, stop, device, progress, twins=twins, host=[*host, *([turns] if turns else [])])
     result, errors = result if twins else (result, {})
     meas = measure_columns(result, spec.scene.height)
-    ratio = (beside.result(modes, lambda: base_mode_ratios_one_thread(spec.scene, params, stop - start))
-             if modes is not None else None if turns is None else turns.value)
+    ratio = None  # the CPU's: computed in beta_limit_measures, after the stepping
+    if modes is not None:
+        ratio = beside.result(modes, lambda: base_mode_ratios_one_thread(spec.scene, params, stop - start))
+    elif turns is not None:
+        ratio = turns.value
     meas.update(beta_limit_measures(spec.scene, params, stop - start, meas["max_compression"], ratio))
     meas.update(errors)
     attrs = {
