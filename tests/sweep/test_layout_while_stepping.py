@@ -1,7 +1,8 @@
 """A fresh run on a GPU builds its template and lays out its store while the first shard steps
 (sweep.run.layout_with_first_shard: two turns of the host between the launches). Forced here on the
-CPU, where the runs step first and the layout follows: the output is the one a run that lays out first writes, bit for bit, and a layout
-that fails (a full disk) fails the run with the store's own error and no shard recorded done."""
+CPU, where the runs step first and the layout follows: the output is the one a run that lays out
+first writes, bit for bit, and a layout that fails (a full disk) fails the run with the store's own
+error and no shard recorded done."""
 
 from __future__ import annotations
 

@@ -50,7 +50,7 @@ def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progre
     # share the cores with the stepping).
     modes = beside.submit(base_mode_ratios_one_thread, spec.scene, params, stop - start) if modes_beside(plan) else None
     turns = (HostWork(base_mode_ratios_steps(spec.scene, params, stop - start), "measurement", one_blas_thread)
-             if plan.run.on_gpu and modes is None else None)
+             if modes_beside(plan) and modes is None else None)
     result = run_groups(plan, start, stop, device, progress, twins=twins, host=[*host, *([turns] if turns else [])])
     result, errors = result if twins else (result, {})
     meas = measure_columns(result, spec.scene.height)
