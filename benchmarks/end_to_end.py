@@ -150,8 +150,10 @@ def _trace_runs():
     return report
 
 
-def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: bool = False) -> None:
-    """Run one spec through cli.main and write its stage record (the run process)."""
+def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: bool = False,
+           profile: str | None = None) -> None:
+    """Run one spec through cli.main and write its stage record (the run process); with ``profile``, the
+    run's main thread under cProfile (pstats dump at that path, its top functions beside it as .txt)."""
     from warp_tensegrity.runtime import process_age
 
     t_ref = time.perf_counter() - process_age()  # process creation on the perf_counter clock
@@ -255,7 +257,24 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
             phase["finalise"] = False
 
     sweep_run.export_netcdf = export
+    prof = None
+    if profile:
+        import cProfile
+
+        prof = cProfile.Profile()
+        prof.enable()
     rc = cli.main(["run", spec, "-o", out, "--device", device, "--overwrite", "--no-progress"])
+    if prof is not None:
+        prof.disable()
+        import io as _io
+        import pstats
+
+        prof.dump_stats(profile)
+        buf = _io.StringIO()
+        stats = pstats.Stats(prof, stream=buf)
+        stats.sort_stats("cumulative").print_stats(120)
+        stats.sort_stats("tottime").print_stats(60)
+        Path(profile).with_suffix(".txt").write_text(buf.getvalue())
     wall = time.perf_counter() - t_ref - stubbed["s"]
     if rc != 0:
         raise SystemExit(f"run of {spec} failed with exit code {rc}")
@@ -291,10 +310,12 @@ def main(argv=None) -> int:
     p.add_argument("--stub-outputs", type=int, default=0, metavar="K",
                    help="step only K outputs per engine call, records padded to the run's (see above)")
     p.add_argument("--trace", action="store_true", help="bracket every chunk with CUDA timing events (see above)")
+    p.add_argument("--profile", default=None, metavar="DIR",
+                   help="each run's main thread under cProfile: DIR/<spec>_<run>.prof and .txt (adds overhead)")
     p.add_argument("--child", nargs=3, metavar=("SPEC", "OUT_NC", "RECORD"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.child:
-        _child(a.child[0], a.device, a.child[1], a.child[2], a.stub_outputs, a.trace)
+        _child(a.child[0], a.device, a.child[1], a.child[2], a.stub_outputs, a.trace, a.profile)
         return 0
     sys.path.insert(0, str(REPO))
     sys.path.insert(0, str(REPO / "benchmarks"))
@@ -318,6 +339,9 @@ def main(argv=None) -> int:
                 rec_path = Path(tmp) / "record.json"
                 cmd = [sys.executable, str(Path(__file__).resolve()), "--device", a.device, "--child", spec, out,
                        str(rec_path), "--stub-outputs", str(a.stub_outputs)] + (["--trace"] if a.trace else [])
+                if a.profile:
+                    Path(a.profile).mkdir(parents=True, exist_ok=True)
+                    cmd += ["--profile", str(Path(a.profile).resolve() / f"{Path(spec).stem}_{r}.prof")]
                 load0 = os.getloadavg()[0]
                 subprocess.run(cmd, check=True, env=env)
                 rec = json.loads(rec_path.read_text())

@@ -16,7 +16,8 @@
 #                    REPEAT runs each (default 2), of phase_large at its defaults (fp64), phase_large with
 #                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only);
 #                    TRACE=1: the new code's runs with --trace (each chunk's device interval, end_to_end.py);
-#                    SPECS="phase_large paper_2017" picks some (default all three)
+#                    SPECS="phase_large paper_2017" picks some (default all three); PROFILE=1: the new code's
+#                    runs under cProfile (end_to_end.py --profile, in $OUT/profile)
 #   PART=long        issue 33 item 3: the fallback table at 128, 300, 500 and 1,000 prisms, B = 4,096: lanes (k warps
 #                    per column past a warp), block (fused, fused-serial) and staged, new only; BASES (FB RB) and
 #                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
@@ -87,6 +88,7 @@ e2e)  # threadpoolctl (gpu_carry.sh carries it) sets the host's small solves to 
             name=$(basename "$spec" .toml)
             case " ${SPECS:-phase_large phase_large_auto paper_2017} " in *" $name "*) ;; *) continue ;; esac
             trace=(); [ "${TRACE:-0}" = 1 ] && [ "$v" = new ] && trace=(--trace)
+            [ "${PROFILE:-0}" = 1 ] && [ "$v" = new ] && trace+=(--profile "$OUT/profile")
             run_in $v python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" "${trace[@]}" \
                 --out "$OUT/end_to_end_${name}_$v.json" 2>&1 | grep -E "wall|error" | tail -4
         done
