@@ -184,10 +184,23 @@ def _driver_text(drv) -> str:
 
 def drive(gen):
     """Run a generator that yields while it steps (:meth:`warp_tensegrity.sim.integrate.Integrator.run_steps`,
-    :func:`warp_tensegrity.engine.simulate_batch_steps`) to its end and return its value."""
+    :func:`warp_tensegrity.engine.simulate_batch_steps`) to its end and return its value. A value it
+    yields is None (resume it at once) or a CUDA event it waits for (resumed once that is complete)."""
     while True:
         try:
-            next(gen)
+            got = next(gen)
         except StopIteration as stop:
             return stop.value
+        if got is not None:
+            import warp as wp  # only a CUDA run yields an event
+
+            wp.synchronize_event(got)
+
+
+def cuda_memory(device) -> tuple[int, int]:
+    """(free, total) bytes of a Warp CUDA device. Its primary context is made first: without one the
+    driver makes and destroys a temporary context for each query (0.16 s each on the H200's host,
+    seven of them in phase_large's plan); the run makes that context anyway."""
+    device.context  # noqa: B018 - the property retains the device's primary context
+    return int(device.free_memory), int(device.total_memory)
 

@@ -219,8 +219,8 @@ def test_plan_names_the_lane_step_on_a_gpu(monkeypatch):
 
     from warp_tensegrity.policy import decide as policy_decide
 
-    monkeypatch.setattr(policy_decide, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0",
-                                                                                total_memory=80e9))
+    monkeypatch.setattr(policy_decide, "resolve_device", lambda name: SimpleNamespace(
+        is_cuda=True, alias="cuda:0", total_memory=80e9, free_memory=80e9, context=None))
     text = '[scene]\nn_prisms = %d\nimpact_admissibility = "end_twist"\n' \
            '[sweep]\ngrid = { v0 = [0.01, 0.02], base_rigidity = [0.0, %s] }\n' \
            '[run]\nt_end = 0.01\nprecision = "fp32"\ntruncate = false\n'

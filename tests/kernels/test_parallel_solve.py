@@ -277,8 +277,8 @@ def test_dry_run_names_the_fused_serial_path_on_a_gpu(monkeypatch):
     from warp_tensegrity.policy import decide as policy_decide
     from warp_tensegrity.policy.decide import decide
 
-    monkeypatch.setattr(policy_decide, "resolve_device", lambda name: SimpleNamespace(is_cuda=True, alias="cuda:0",
-                                                                                total_memory=80e9))
+    monkeypatch.setattr(policy_decide, "resolve_device", lambda name: SimpleNamespace(
+        is_cuda=True, alias="cuda:0", total_memory=80e9, free_memory=80e9, context=None))
 
     def path(cfg, betas, width):  # the run plan the dry run prints, for shards of ``width`` columns
         return str(decide(cfg, {"base_rigidity": np.asarray(betas, float)}, s, n_columns=width).path.value)

@@ -83,3 +83,64 @@ def test_host_work_steps_with_the_runs_and_counts_in_its_stage(device):
     assert np.isnan(alone[3]) and np.all(np.isfinite(alone[:3]))  # rigid bases have no base modes
     assert len(turns) == 3  # two distinct flexible pairs: a turn each, and the one that returns
     assert stages["measurement"] >= work.seconds > 0
+
+
+class _Event:
+    """A stand-in for a CUDA event: complete after ``polls`` queries (or once waited on)."""
+
+    def __init__(self, name, polls):
+        self.name, self.polls, self.waited = name, polls, False
+
+    @property
+    def is_complete(self):
+        self.polls -= 1
+        return self.waited or self.polls < 0
+
+
+def test_a_run_waiting_on_its_event_is_resumed_once_it_is_complete(monkeypatch):
+    """A CUDA run queues its chunks and then yields the event it waits for: the driver resumes the
+    others (and the host work) meanwhile, resumes it only once the event is complete, and polls (a
+    short sleep) only when every live run waits and no host work is left."""
+    from warp_tensegrity.sim import integrate
+
+    sleeps = []
+    monkeypatch.setattr(integrate.time, "sleep", lambda s: sleeps.append(s))
+    order = []
+
+    def run(name, polls):
+        order.append((name, "queued"))
+        ev = _Event(name, polls)
+        yield ev
+        assert ev.is_complete, f"{name} resumed before its event was complete"
+        order.append((name, "done"))
+        return name
+
+    def host(n):
+        for k in range(n):
+            order.append(("host", k))
+            yield None
+        return "host"
+
+    assert run_together([run("a", 2), run("b", 20), host(3)], "cpu", interleave=True) == ["a", "b", "host"]
+    assert order[:3] == [("a", "queued"), ("b", "queued"), ("host", 0)]
+    # a completes after its polls while the host work steps; the driver sleeps only once b alone waits
+    assert order.index(("a", "done")) < order.index(("b", "done"))
+    assert order.index(("host", 2)) < order.index(("b", "done"))
+    assert sleeps and all(s == integrate.IDLE_POLL_S for s in sleeps)
+    assert len(sleeps) < 20  # b: 20 polls in all, some of them in the turns of a and the host work
+
+
+def test_drive_waits_on_the_events_a_run_yields(monkeypatch):
+    from warp_tensegrity import runtime
+
+    import warp as wp
+
+    waited = []
+    monkeypatch.setattr(wp, "synchronize_event", lambda ev: waited.append(ev.name))
+
+    def run():
+        yield None
+        yield _Event("end", 10)
+        return "ok"
+
+    assert runtime.drive(run()) == "ok" and waited == ["end"]

@@ -200,9 +200,9 @@ def size_problems(run, host_bytes: int | None = None, device_bytes: int | None =
 
 def _device_total(device: str) -> int:
     """Total memory of a CUDA device [bytes] (Warp is initialised: the run was decided on it)."""
-    from ..runtime import resolve_device  # initialises Warp
+    from ..runtime import cuda_memory, resolve_device  # initialises Warp
 
-    return int(resolve_device(device).total_memory)
+    return cuda_memory(resolve_device(device))[1]
 
 
 STORE_SETUP_WRITES = 100.0

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..arguments import expect, expect_callable, expect_count, expect_params
 from ..options import RunSettings, SettingsError
-from ..runtime import resolve_device
+from ..runtime import cuda_memory, resolve_device
 from ..scene.batch import NetworkBatch, column_batch, column_params, far_end_params, has_profiles, omega_max_bound
 from ..scene.columns import ColumnConfig
 from ..scene.contact import contact_strain
@@ -286,7 +286,7 @@ def _finish(settings, acc: dict, omega: float, topology: NetworkBatch, lanes: st
         run = replace(run, reasons=run.reasons + ("precision fp64: 'auto' without a twin run to verify fp32 case by case",))
     # every size that follows from the plan, checked before anything of the run's size is built
     # (its output times included): a run no shard size can fit is refused here, with its figures
-    found = size_problems(run, device_bytes=int(device.total_memory) if device.is_cuda else None)
+    found = size_problems(run, device_bytes=cuda_memory(device)[1] if device.is_cuda else None)
     if found:
         raise SettingsError("the run cannot be done: " + "; ".join(found))
     return run

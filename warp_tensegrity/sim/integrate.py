@@ -29,9 +29,9 @@ from ..types import Path, Precision
 if TYPE_CHECKING:
     from ..scene.batch import NetworkBatch
 
-IN_FLIGHT_CHUNKS = 4
-"""Chunks (each ~1/20 of a CUDA run) a run keeps queued while reported on: the others' turns of the
-host (their builds, their reports) never leave its stream idle."""
+IDLE_POLL_S = 1e-3
+"""Seconds between polls of the runs' events when every run stepping at once waits on the device
+(the sleep leaves the GIL to the store's writer thread)."""
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph when launches end on outputs
 
 
@@ -206,27 +206,30 @@ class Integrator:
         return drive(self.run_steps(n_steps, progress))
 
     def run_steps(self, n_steps: int, progress=None):
-        """:meth:`run` as a generator that yields after every chunk it has launched, so that a driver
-        can interleave several runs, each on its own CUDA stream (:func:`run_together`); it returns
-        (stepping seconds, initialize seconds). Every wait is on this run's stream only."""
+        """:meth:`run` as a generator that yields while it steps, so that a driver can interleave several
+        runs, each on its own CUDA stream (:func:`run_together`); it returns (stepping seconds,
+        initialize seconds). On the CPU it yields None after each chunk. On CUDA it queues all its chunks
+        in its first turn, so that the runs beside it build, and the host work between their turns runs,
+        while the device steps; it then yields the CUDA event it waits for (a chunk's end, for the
+        progress, else the run's end), and the driver resumes it once that is complete."""
+        cuda = self.device.is_cuda
         with wp.ScopedDevice(self.device):
             t_compile = time.perf_counter()
             self.initialize()
-            self.synchronize()
+            if not cuda:  # on CUDA the first chunk waits for it in stream order: no host wait
+                self.synchronize()
             t_compile = time.perf_counter() - t_compile
         t0 = last = time.perf_counter()
-        done = 0
+        done = reported = 0
         # advance in chunks (on CUDA ~20 per run, whole graphs each); report at most twice a second
         chunk = int(self.settings.steps_per_graph)
-        if self.device.is_cuda:
+        if cuda:
             chunk *= max(1, n_steps // (chunk * 20))
-        # on CUDA the progress never waits for the work just launched: each chunk is followed by an
-        # event and a copy of the status into pinned memory, and a report waits only for the oldest
-        # of IN_FLIGHT_CHUNKS, so a stream (of several stepping at once) always has chunks queued
-        watch = progress is not None and self.device.is_cuda
-        in_flight: deque = deque()
+        # on CUDA each chunk is followed by a copy of the status into pinned memory and an event: the
+        # progress reads the copy once the event is complete, never waiting for the work just launched
+        watch = progress is not None and cuda
+        queued: deque = deque()
         status = wp.empty(self.data.status.shape, dtype=self.data.status.dtype, device="cpu", pinned=True) if watch else None
-        reported = 0
         while done < n_steps:
             n = min(chunk, n_steps - done)
             with wp.ScopedDevice(self.device):
@@ -234,21 +237,24 @@ class Integrator:
                 done += n
                 if watch:
                     wp.copy(status, self.data.status)
-                    in_flight.append((wp.record_event(), done))
-                    if len(in_flight) < IN_FLIGHT_CHUNKS and done < n_steps:
-                        continue  # fill the queue before the host turns to another run (its build, say)
-                    while len(in_flight) > IN_FLIGHT_CHUNKS - 1:
-                        event, finished = in_flight.popleft()
-                        wp.synchronize_event(event)
-                        if time.perf_counter() - last > 0.5:
-                            progress(finished, n_steps, int(np.count_nonzero(status.numpy())))
-                            reported, last = finished, time.perf_counter()
-                elif progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
+                    queued.append((wp.record_event(), done))
+                elif progress is not None and not cuda and (time.perf_counter() - last > 0.5 or done == n_steps):
                     self.synchronize()
                     progress(done, n_steps, self.n_failed())
                     reported, last = done, time.perf_counter()
-            if done < n_steps:
-                yield
+            if not cuda and done < n_steps:
+                yield None
+        if cuda:
+            with wp.ScopedDevice(self.device):
+                end = wp.record_event()
+            while queued:
+                event, finished = queued.popleft()
+                yield event
+                if time.perf_counter() - last > 0.5 and queued:
+                    # the copy may be a later chunk's by now: a count of failures no older than this chunk's
+                    progress(finished, n_steps, int(np.count_nonzero(status.numpy())))
+                    reported, last = finished, time.perf_counter()
+            yield end
         with wp.ScopedDevice(self.device):
             self.synchronize()
             if progress is not None and reported < n_steps:
@@ -269,12 +275,13 @@ class Integrator:
 
 def run_together(gens: list, device, interleave: bool | None = None) -> list:
     """Drive several runs to their ends and return their values in order. On a CUDA device each run
-    gets its own stream and they are resumed in turn, one chunk each, so that runs too narrow to fill
-    the GPU (a sweep's groups of like stiffness and their error-estimate twins) step at once; the
-    columns are independent, so each run's numbers are those it has alone. Elsewhere one after
-    another, as :func:`drive` would. ``interleave``: resume in turn (True; on the CPU without
-    streams, for tests: not the lane step, whose CPU emulation is a process-wide setting) or one
-    after another (False); None: on CUDA only."""
+    gets its own stream and they are resumed in turn, so that runs too narrow to fill the GPU (a
+    sweep's groups of like stiffness and their error-estimate twins) step at once; the columns are
+    independent, so each run's numbers are those it has alone. A run that yields a CUDA event is
+    resumed once that is complete; when every live run waits on one (no host work is left), the
+    driver polls them every :data:`IDLE_POLL_S`. Elsewhere one after another, as :func:`drive` would. ``interleave``:
+    resume in turn (True; on the CPU without streams, for tests: not the lane step, whose CPU
+    emulation is a process-wide setting) or one after another (False); None: on CUDA only."""
     device = resolve_device(device)
     if interleave is None:
         interleave = device.is_cuda
@@ -283,12 +290,23 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
     streams = [wp.Stream(device) if device.is_cuda else None for _ in gens]
     out: list = [None] * len(gens)
     live = list(range(len(gens)))
+    waits: dict = {}  # run -> the event it waits for
     while live:
-        for i in list(live):
+        ready = [i for i in live if i not in waits or waits[i].is_complete]
+        if not ready:  # every live run waits on the device: poll, so whichever ends first goes on first
+            time.sleep(IDLE_POLL_S)
+            continue
+        for i in ready:
             with wp.ScopedStream(streams[i], sync_enter=False):  # None (the CPU): no stream to set
                 try:
-                    next(gens[i])
+                    got = next(gens[i])
                 except StopIteration as stop:
                     out[i] = stop.value
                     live.remove(i)
+                    waits.pop(i, None)
+                    continue
+            if got is None:
+                waits.pop(i, None)
+            else:
+                waits[i] = got
     return out

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from ..atomic import free_bytes
 from ..policy.cost import DEFAULT_TIME_LIMIT, fmt_bytes, fmt_seconds, size_problems
+from ..runtime import cuda_memory
 from .errors import SweepError
 
 PLAN_BYTES_PER_LEVEL = 720
@@ -58,9 +59,8 @@ def device_memory(device: str | None) -> tuple[str, int]:
 
         name = device if device not in (None, "auto") else ("cuda:0" if wp.get_cuda_device_count() else "cpu")
         if name != "cpu":
-            dev = wp.get_device(name)
-            free = getattr(dev, "free_memory", None) or dev.total_memory
-            return name, int(free)
+            free, total = cuda_memory(wp.get_device(name))
+            return name, free or total
     return "cpu", host_memory_available()
 
 
