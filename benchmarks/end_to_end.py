@@ -151,7 +151,7 @@ def _trace_runs():
 
 
 def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: bool = False,
-           profile: str | None = None, preload: bool = True) -> None:
+           profile: str | None = None) -> None:
     """Run one spec through cli.main and write its stage record (the run process); with ``profile``, the
     run's main thread under cProfile (pstats dump at that path, its top functions beside it as .txt)."""
     from warp_tensegrity.runtime import process_age
@@ -257,8 +257,6 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
             phase["finalise"] = False
 
     sweep_run.export_netcdf = export
-    if not preload:  # the output's libraries imported where first needed, not beside the run's start
-        cli.preload = lambda *a, **k: None
     prof = None
     if profile:
         import cProfile
@@ -314,13 +312,10 @@ def main(argv=None) -> int:
     p.add_argument("--trace", action="store_true", help="bracket every chunk with CUDA timing events (see above)")
     p.add_argument("--profile", default=None, metavar="DIR",
                    help="each run's main thread under cProfile: DIR/<spec>_<run>.prof and .txt (adds overhead)")
-    p.add_argument("--no-preload", action="store_true",
-                   help="the run without runtime.preload (the output's libraries imported where first needed)")
     p.add_argument("--child", nargs=3, metavar=("SPEC", "OUT_NC", "RECORD"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.child:
-        _child(a.child[0], a.device, a.child[1], a.child[2], a.stub_outputs, a.trace, a.profile,
-               not a.no_preload)
+        _child(a.child[0], a.device, a.child[1], a.child[2], a.stub_outputs, a.trace, a.profile)
         return 0
     sys.path.insert(0, str(REPO))
     sys.path.insert(0, str(REPO / "benchmarks"))
@@ -343,8 +338,7 @@ def main(argv=None) -> int:
             for r in range(a.repeat):
                 rec_path = Path(tmp) / "record.json"
                 cmd = [sys.executable, str(Path(__file__).resolve()), "--device", a.device, "--child", spec, out,
-                       str(rec_path), "--stub-outputs", str(a.stub_outputs)] + (["--trace"] if a.trace else []) \
-                    + (["--no-preload"] if a.no_preload else [])
+                       str(rec_path), "--stub-outputs", str(a.stub_outputs)] + (["--trace"] if a.trace else [])
                 if a.profile:
                     Path(a.profile).mkdir(parents=True, exist_ok=True)
                     cmd += ["--profile", str(Path(a.profile).resolve() / f"{Path(spec).stem}_{r}.prof")]

@@ -17,8 +17,7 @@
 #                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only);
 #                    TRACE=1: the new code's runs with --trace (each chunk's device interval, end_to_end.py);
 #                    SPECS="phase_large paper_2017" picks some (default all three); PROFILE=1: the new code's
-#                    runs under cProfile (end_to_end.py --profile, in $OUT/profile); PRELOAD_AB=1: the new code
-#                    also with --no-preload (the output's libraries imported where first needed)
+#                    runs under cProfile (end_to_end.py --profile, in $OUT/profile)
 #   PART=long        issue 33 item 3: the fallback table at 128, 300, 500 and 1,000 prisms, B = 4,096: lanes (k warps
 #                    per column past a warp), block (fused, fused-serial) and staged, new only; BASES (FB RB) and
 #                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
@@ -92,10 +91,6 @@ e2e)  # threadpoolctl (gpu_carry.sh carries it) sets the host's small solves to 
             [ "${PROFILE:-0}" = 1 ] && [ "$v" = new ] && trace+=(--profile "$OUT/profile")
             run_in $v python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" "${trace[@]}" \
                 --out "$OUT/end_to_end_${name}_$v.json" 2>&1 | grep -E "wall|error" | tail -4
-            if [ "${PRELOAD_AB:-0}" = 1 ] && [ "$v" = new ]; then
-                run_in new python -m benchmarks.end_to_end "$spec" --device cuda:0 --repeat "${REPEAT:-2}" --no-preload \
-                    --out "$OUT/end_to_end_${name}_new_nopreload.json" 2>&1 | grep -E "wall|error" | tail -4 | sed "s/^/no preload: /"
-            fi
         done
     done ;;
 long)

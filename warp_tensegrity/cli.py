@@ -39,7 +39,7 @@ from .plot import KINDS, PlotError
 from .policy.calibrate import estimate_plan
 from .policy.cost import DEFAULT_TIME_LIMIT
 from .provenance import version_text
-from .runtime import WarpSetupError, init_warp, preload, warp_facts
+from .runtime import WarpSetupError, init_warp, warp_facts
 from .scene.network import NetworkError
 from .validation import report, run_validation
 from .validation.closed_forms import long_wave_speeds
@@ -278,8 +278,6 @@ def _dispatch(args) -> int:
     if args.command == "lens":
         init_warp(verbose=bool(args.verbose))
         return run_lens_command(args)
-    if args.command in ("run", "resume") and not getattr(args, "dry_run", False):
-        preload()  # the output's libraries, imported beside Warp's start and the plan
     from .sweep import plan as sweep_plan  # the sweep package imports xarray: not at `--help`
     from .sweep import run as sweep  # imports xarray: not at `--help`
     from .sweep.errors import SweepError  # imports xarray: not at `--help`

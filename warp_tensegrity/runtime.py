@@ -18,13 +18,11 @@ it cannot be (a read-only ``HOME``), a command that compiles kernels stops with 
 from __future__ import annotations
 
 import atexit
-import importlib
 import logging
 import os
 import shutil
 import sys
 import tempfile
-import threading
 
 from .options import SettingsError
 from .outputs import oserror_text
@@ -197,28 +195,6 @@ def drive(gen):
             import warp as wp  # only a CUDA run yields an event
 
             wp.synchronize_event(got)
-
-
-OUTPUT_STACK = ("dask.array", "zarr", "netCDF4")
-"""What a sweep imports only once it writes (xarray's array checks import dask.array; the store,
-zarr; the export, netCDF4): 1-2.5 s of imports on the hosts measured."""
-
-
-def preload(modules=OUTPUT_STACK) -> threading.Thread:
-    """Import ``modules`` in a daemon thread, beside the run's start (Warp's and CUDA's initialisation,
-    the plan, the device's first steps): they leave its critical path wherever the main thread waits
-    in native code. A module whose import fails here is left to the code that imports it (and words
-    the error)."""
-    def work():
-        for name in modules:
-            try:
-                importlib.import_module(name)
-            except Exception:  # noqa: BLE001 - the importer that needs it raises it again
-                pass
-
-    t = threading.Thread(target=work, name="warp-tensegrity-preload", daemon=True)
-    t.start()
-    return t
 
 
 def cuda_memory(device) -> tuple[int, int]:
