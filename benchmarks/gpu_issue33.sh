@@ -17,7 +17,8 @@
 #                    precision auto and paper_2017; VERSIONS="new base" also runs BASE (default: new only);
 #                    TRACE=1: the new code's runs with --trace (each chunk's device interval, end_to_end.py);
 #                    SPECS="phase_large paper_2017" picks some (default all three); PROFILE=1: the new code's
-#                    runs under cProfile (end_to_end.py --profile, in $OUT/profile)
+#                    runs under cProfile (end_to_end.py --profile, in $OUT/profile); the bytecode is compiled
+#                    first (compileall over PYTHONPATH, both trees and site-packages; PYC=0: not)
 #   PART=long        issue 33 item 3: the fallback table at 128, 300, 500 and 1,000 prisms, B = 4,096: lanes (k warps
 #                    per column past a warp), block (fused, fused-serial) and staged, new only; BASES (FB RB) and
 #                    PRECISIONS (fp32 fp64) pick a part of it (one call each: FB fp32, RB fp32, then fp64), and
@@ -82,6 +83,14 @@ ncu)  # Nsight Compute of the lane kernel, the four cases (NCU_CONFIGS), for ben
     bash benchmarks/gpu_lanes_ncu.sh "$OUT" new ;;
 e2e)  # threadpoolctl (gpu_carry.sh carries it) sets the host's small solves to one BLAS thread: say if it is there
     python -c "import threadpoolctl; print('threadpoolctl', threadpoolctl.__version__)" 2>&1 | tail -1 | tee -a "$OUT/gpu.txt"
+    # the bytecode an installed environment has (a host with PYTHONDONTWRITEBYTECODE=1 compiles every module
+    # in every process otherwise); PYC=0: not
+    if [ "${PYC:-1}" = 1 ]; then
+        IFS=: read -r -a dirs <<< "$SITE"
+        python -m compileall -q -j 8 "${dirs[@]}" "$HERE/warp_tensegrity" "$BASE/warp_tensegrity" \
+            $(python -c "import site; print(' '.join(site.getsitepackages()))") > /dev/null 2>&1
+        echo "bytecode compiled (PYTHONDONTWRITEBYTECODE=${PYTHONDONTWRITEBYTECODE:-unset})" | tee -a "$OUT/gpu.txt"
+    fi
     sed "s/^precision = .*/precision = \"auto\"/" sweeps/phase_large.toml > "$OUT/phase_large_auto.toml"
     for v in ${VERSIONS:-new}; do
         for spec in "$HERE/sweeps/phase_large.toml" "$OUT/phase_large_auto.toml" "$HERE/sweeps/paper_2017.toml"; do
