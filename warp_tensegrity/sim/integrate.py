@@ -279,9 +279,10 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
     sweep's groups of like stiffness and their error-estimate twins) step at once; the columns are
     independent, so each run's numbers are those it has alone. A run that yields a CUDA event is
     resumed once that is complete; when every live run waits on one (no host work is left), the
-    driver polls them every :data:`IDLE_POLL_S`. Elsewhere one after another, as :func:`drive` would. ``interleave``:
-    resume in turn (True; on the CPU without streams, for tests: not the lane step, whose CPU
-    emulation is a process-wide setting) or one after another (False); None: on CUDA only."""
+    driver polls them every :data:`IDLE_POLL_S`. Elsewhere one after another, as :func:`drive`
+    would. ``interleave``: resume in turn (True; on the CPU without streams, for tests: not the lane
+    step, whose CPU emulation is a process-wide setting) or one after another (False); None: on
+    CUDA only."""
     device = resolve_device(device)
     if interleave is None:
         interleave = device.is_cuda
