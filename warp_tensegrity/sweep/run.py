@@ -90,8 +90,8 @@ def execute(
                     _log(f"{store.dir}: {why}; recomputing every shard", stream)
             states = [(i, ShardState.MISSING, "") for i in range(plan.n_shards)]
             if deferred:
-                # two turns of the host between the first shard's launches, with several chunks of every
-                # run queued: the template, then the store laid out from it
+                # two turns of the host while the first shard's runs step: the template, then the
+                # store laid out from it
                 layout = HostWork(_lay_out(store, plan), "write")
             else:
                 manifest = store.initialise(plan, tpl)
@@ -169,8 +169,9 @@ def layout_with_first_shard(plan: SweepPlan, serial: bool) -> bool:
 
 def _lay_out(store: SweepStore, plan: SweepPlan):
     """A fresh store laid out from the plan's template dataset, as a HostWork generator of two turns
-    (the template, then the layout: 1.7-1.9 s and 0.8 s for phase_large on an H200's host, so the
-    runs top up their queued chunks in between); returns (template, manifest)."""
+    (the template, then the layout: 1.7-1.9 s and 0.8 s for phase_large on an H200's host), taken
+    while the runs' chunks, all queued in their first turns, step; a run whose work has ended is
+    resumed between the two. Returns (template, manifest)."""
     tpl = template_dataset(plan)
     yield
     return tpl, store.initialise(plan, tpl)
