@@ -27,6 +27,10 @@
 #   PART=levels      new only: FB lanes at PRISMS (default "500 1000", B = 4,096) with each of LEVELS ("2 3 4")
 #                    levels per lane on k warps (policy.lane_fit.MAX_BLOCK_LEVELS_PER_LANE)
 #   PART=pytest      the tests PYTESTS (paths) on CUDA (--device cuda:0)
+#   PART=lanemap     new only: lane maps against the default, MAPS = BASE:PREC:PRISMS:B:ML:MB:WIDE ... (the
+#                    policy.lane_fit limits MAX_LEVELS_PER_LANE (and the rigid one, at most 2),
+#                    MAX_BLOCK_LEVELS_PER_LANE, WIDE_BLOCK_LANES; '-': as they are); every kernel compiled
+#                    first, in parallel (KEEP_CACHE=1: the kernel cache tarred into $OUT), then each measured
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -130,6 +134,47 @@ sys.argv = ['throughput', '--device', 'cuda:0', '--bases', 'FB', '--precisions',
 runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/levels $lv $prec: /"
         done
     done ;;
+lanemap)  # new only: lane maps (policy.lane_fit limits) against the defaults, compiled in parallel first
+    maps=(${MAPS:?set MAPS})
+    patch='import warp_tensegrity.policy.lane_fit as lf
+def _lim(ml, mb, wide):
+    if ml != "-": lf.MAX_LEVELS_PER_LANE = int(ml); lf.MAX_RIGID_LEVELS_PER_LANE = min(2, int(ml))
+    if mb != "-": lf.MAX_BLOCK_LEVELS_PER_LANE = int(mb)
+    if wide != "-": lf.WIDE_BLOCK_LANES = int(wide)
+'
+    declare -A seen=()
+    for m in "${maps[@]}"; do
+        IFS=: read -r base prec n b ml mb wide <<< "$m"
+        key="$base:$prec:$n:$ml:$mb:$wide"  # (one compile per kernel, whatever B)
+        [ -n "${seen[$key]:-}" ] && continue
+        seen[$key]=1
+        python -c "$patch
+_lim('$ml', '$mb', '$wide')
+import warp as wp
+wp.config.quiet = True
+from benchmarks.lanes_ptxas import kernel_for
+k, facts = kernel_for('$base', '$prec', $n)
+k.module.load(wp.get_device('cuda:0'), facts['G'] if facts['G'] > 32 else 64)
+print('compiled $m', facts)" 2>&1 | grep -E "compiled|Error" &
+    done
+    wait
+    for m in "${maps[@]}"; do
+        IFS=: read -r base prec n b ml mb wide <<< "$m"
+        python -c "$patch
+_lim('$ml', '$mb', '$wide')
+import runpy, sys
+print('lane map', lf.lane_map($n, '$base' == 'RB'))
+sys.argv = ['throughput', '--device', 'cuda:0', '--bases', '$base', '--precisions', '$prec', '--batches',
+            '--prisms', '$n', '--prism-batch', '$b', '--paths', 'lanes', '--prism-paths', 'lanes',
+            '--target-s', '0.3', '--reps', '3', '--budget-s', '200',
+            '--out', '$OUT/throughput_lanemap_${base}_${prec}_${n}_${b}_${ml}_${mb}_${wide}.json']
+runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/$m: /"
+    done
+    if [ "${KEEP_CACHE:-0}" = 1 ]; then
+        tar -czf "$OUT/kernel_cache.tgz" -C "$(dirname "$WARP_CACHE_PATH")" "$(basename "$WARP_CACHE_PATH")"
+        split -b 15M "$OUT/kernel_cache.tgz" "$OUT/kernel_cache.tgz.part" && rm "$OUT/kernel_cache.tgz"
+        ls -la "$OUT"/kernel_cache.tgz.part*
+    fi ;;
 pytest)
     python -m pytest -q -p no:cacheprovider ${PYTESTS:?} --device cuda:0 2>&1 | tail -6 | tee "$OUT/pytest_cuda.log" ;;
 interface)
