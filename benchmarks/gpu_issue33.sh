@@ -27,10 +27,8 @@
 #   PART=levels      new only: FB lanes at PRISMS (default "500 1000", B = 4,096) with each of LEVELS ("2 3 4")
 #                    levels per lane on k warps (policy.lane_fit.MAX_BLOCK_LEVELS_PER_LANE)
 #   PART=pytest      the tests PYTESTS (paths) on CUDA (--device cuda:0)
-#   PART=lanemap     new only: lane maps against the default, MAPS = BASE:PREC:PRISMS:B:ML:MB:WIDE ... (the
-#                    policy.lane_fit limits MAX_LEVELS_PER_LANE (and the rigid one, at most 2),
-#                    MAX_BLOCK_LEVELS_PER_LANE, WIDE_BLOCK_LANES; '-': as they are); every kernel compiled
-#                    first, in parallel (KEEP_CACHE=1: the kernel cache tarred into $OUT), then each measured
+#   PART=lanemap     new only: lane maps and switches (MAPS, below) against the defaults; every kernel
+#                    compiled first, in parallel (KEEP_CACHE=1: the kernel cache tarred into $OUT)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
 #                    diagram (analysis/interface.py) from the output
 # each for the code here ("new") and in BASE ("base"): the baseline commit's warp_tensegrity/, benchmarks/ and
@@ -134,40 +132,52 @@ sys.argv = ['throughput', '--device', 'cuda:0', '--bases', 'FB', '--precisions',
 runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/levels $lv $prec: /"
         done
     done ;;
-lanemap)  # new only: lane maps (policy.lane_fit limits) against the defaults, compiled in parallel first
+lanemap)  # new only: lane maps and switches against the defaults, every kernel compiled first, in parallel
     maps=(${MAPS:?set MAPS})
-    patch='import warp_tensegrity.policy.lane_fit as lf
-def _lim(ml, mb, wide):
-    if ml != "-": lf.MAX_LEVELS_PER_LANE = int(ml); lf.MAX_RIGID_LEVELS_PER_LANE = min(2, int(ml))
-    if mb != "-": lf.MAX_BLOCK_LEVELS_PER_LANE = int(mb)
-    if wide != "-": lf.WIDE_BLOCK_LANES = int(wide)
+    # MAP = BASE:PREC:PRISMS:B[:key=value...]; keys: ml (MAX_LEVELS_PER_LANE, the rigid one at most 2), mb
+    # (MAX_BLOCK_LEVELS_PER_LANE), wide (WIDE_BLOCK_LANES), r64 (RIGID_FP64_ONE_LEVEL_LANES) of
+    # policy.lane_fit; regs (the lane module's LANE_MAX_REGISTERS[PREC], 0: None), bd (LANE_BLOCK_DIM)
+    patch='import sys
+import warp_tensegrity.policy.lane_fit as lf
+from warp_tensegrity.sim.lanes import lanes as L
+def _set(prec, kv):
+    for item in filter(None, kv.split(":")):
+        k, v = item.split("=")
+        v = int(v)
+        if k == "ml": lf.MAX_LEVELS_PER_LANE = v; lf.MAX_RIGID_LEVELS_PER_LANE = min(2, v)
+        elif k == "mb": lf.MAX_BLOCK_LEVELS_PER_LANE = v
+        elif k == "wide": lf.WIDE_BLOCK_LANES = v
+        elif k == "r64": lf.RIGID_FP64_ONE_LEVEL_LANES = v
+        elif k == "regs": L.LANE_MAX_REGISTERS[prec] = v or None
+        elif k == "bd": L.LANE_BLOCK_DIM = v
+        else: sys.exit(f"unknown key {k}")
 '
     declare -A seen=()
     for m in "${maps[@]}"; do
-        IFS=: read -r base prec n b ml mb wide <<< "$m"
-        key="$base:$prec:$n:$ml:$mb:$wide"  # (one compile per kernel, whatever B)
+        IFS=: read -r base prec n b kv <<< "$m"
+        key="$base:$prec:$n:$kv"  # (one compile per kernel, whatever B)
         [ -n "${seen[$key]:-}" ] && continue
         seen[$key]=1
         python -c "$patch
-_lim('$ml', '$mb', '$wide')
+_set('$prec', '$kv')
 import warp as wp
 wp.config.quiet = True
 from benchmarks.lanes_ptxas import kernel_for
 k, facts = kernel_for('$base', '$prec', $n)
-k.module.load(wp.get_device('cuda:0'), facts['G'] if facts['G'] > 32 else 64)
+k.module.load(wp.get_device('cuda:0'), facts['G'] if facts['G'] > 32 else L.LANE_BLOCK_DIM)
 print('compiled $m', facts)" 2>&1 | grep -E "compiled|Error" &
     done
     wait
     for m in "${maps[@]}"; do
-        IFS=: read -r base prec n b ml mb wide <<< "$m"
+        IFS=: read -r base prec n b kv <<< "$m"
+        tag=$(echo "${base}_${prec}_${n}_${b}_${kv}" | tr ':=' '_-')
         python -c "$patch
-_lim('$ml', '$mb', '$wide')
-import runpy, sys
-print('lane map', lf.lane_map($n, '$base' == 'RB'))
+_set('$prec', '$kv')
+import runpy
+print('lane map', lf.lane_map($n, '$base' == 'RB', '$prec'))
 sys.argv = ['throughput', '--device', 'cuda:0', '--bases', '$base', '--precisions', '$prec', '--batches',
             '--prisms', '$n', '--prism-batch', '$b', '--paths', 'lanes', '--prism-paths', 'lanes',
-            '--target-s', '0.3', '--reps', '3', '--budget-s', '200',
-            '--out', '$OUT/throughput_lanemap_${base}_${prec}_${n}_${b}_${ml}_${mb}_${wide}.json']
+            '--target-s', '0.3', '--reps', '3', '--budget-s', '200', '--out', '$OUT/throughput_lanemap_$tag.json']
 runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/$m: /"
     done
     if [ "${KEEP_CACHE:-0}" = 1 ]; then

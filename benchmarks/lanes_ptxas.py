@@ -37,7 +37,7 @@ def kernel_for(base: str, prec: str, n_prisms: int):
     from warp_tensegrity.sim.lanes import lanes as L
 
     rigid = base == "RB"
-    P, G = lane_map(n_prisms, rigid)
+    P, G = lane_map(n_prisms, rigid, prec)
     real = wp.float64 if prec == "fp64" else wp.float32
     block = G if G > L.WARP else L.LANE_BLOCK_DIM
     fast = (L.LANE_FAST_MATH_RIGID if rigid else L.LANE_FAST_MATH)[prec]

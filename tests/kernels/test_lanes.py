@@ -12,7 +12,7 @@ import warp as wp
 from warp_tensegrity import ColumnConfig, RunSettings, SettingsError, simulate_batch
 from warp_tensegrity.sim.lanes.lanes import LANE_STEPS, LaneStep
 from warp_tensegrity.policy.decide import decide, far_end
-from warp_tensegrity.policy.lane_fit import MAX_LEVELS_PER_LANE, lane_refusal, lane_shape, lane_support
+from warp_tensegrity.policy.lane_fit import lane_map, lane_refusal, lane_support
 from warp_tensegrity.policy.paths import NOT_CHECKED, choose_path
 from warp_tensegrity.scene.batch import column_batch
 from warp_tensegrity.sweep import parse_spec
@@ -41,18 +41,21 @@ def _rel(a, b, axis=(1, 2)):
     (1, "right", (1, 1), RIGID),
     (2, "left", (1, 2), MIXED),
     (7, "RRLRLLR", (1, 8), RIGID),  # 4 columns per warp
-    (50, "alternating", (2, 32), RIGID),
+    (50, "alternating", (1, 64), RIGID),  # rigid bases in fp64: 1 level per lane on 2 warps (lane_map)
     (100, "right", (4, 32), MIXED),
 ])
 def test_lanes_match_staged_fp64(n, hand, shape, params, device):
-    assert lane_shape(n, MAX_LEVELS_PER_LANE) == shape
+    rigid = np.any(np.asarray(params["base_rigidity"]) >= 1.0)
+    assert lane_map(n, rigid, "fp64") == shape
     cfg = ColumnConfig(n_prisms=n, handedness=hand)
     before = wp.config.enable_cpu_blocks
     staged = _run(cfg, params, False, device)
     lanes = _run(cfg, params, "lanes", device)
     assert wp.config.enable_cpu_blocks == before  # the CPU emulation is on only while the lane step runs
     P, G = shape
-    assert lanes.info["step_path"].startswith(f"lanes (one warp per column: {P} levels per lane, {G} lanes per column")
+    assert lanes.info["step_path"].startswith(
+        f"lanes (one warp per column: {P} levels per lane, {G} lanes per column" if G <= 32 else
+        f"lanes ({G // 32} warps per column, one block: {P} levels per lane, {G} lanes per column")
     assert staged.info["step_path"].startswith("staged")
     assert np.all(staged.status == 0) and np.all(lanes.status == 0)
     assert np.all(np.abs(staged.strain).max(axis=(1, 2)) > 1e-3)  # every column moves

@@ -47,15 +47,30 @@ column, k <= 16. 512 threads fill an SM's 65,536 registers at 128 each (the rigi
 spills more); 1,024 would leave 64. Flexible bases up to 2,048 prisms, rigid up to 1,024."""
 
 
-def lane_map(n_prisms: int, rigid: bool = False) -> tuple[int, int] | None:
+RIGID_FP64_ONE_LEVEL_LANES = 64
+"""A rigid-base fp64 column that one warp would hold at 2 levels per lane takes 1 level on up to this
+many lanes instead (k warps, one block: pure fp64, no mixed factor). On an H200, 50 prisms, B = 16,384
+(benchmarks/results/issue33_h200_sixth): 6.27e6 column-steps/s on 64 lanes of 1 level, against 4.88e6
+on 32 lanes of 2 (the mixed kernel spills 17.6 KB of loads a thread; lanes_ptxas_sm90.json). The
+flexible-base fp64 kernel gains nothing (2.15e7 both) and the fp32 kernels lose (FB 5.9e7 against 1.71e8)."""
+
+
+def lane_map(n_prisms: int, rigid: bool = False, precision: str | None = None) -> tuple[int, int] | None:
     """(P levels per lane, G lanes per column) of the lane step for a column of ``n_prisms``
-    (``rigid``: rigid base links, at most :data:`MAX_RIGID_LEVELS_PER_LANE` levels per lane): one
+    (``rigid``: rigid base links, at most :data:`MAX_RIGID_LEVELS_PER_LANE` levels per lane;
+    ``precision``: 'fp32' or 'fp64', None: either, where the map is the same): one
     warp's :func:`lane_shape` where it fits, else k warps per column (G = 32 k, a power of two): the
     fewest lanes at the most levels, then the fewest levels that fill them; a flexible-base block at
-    the most levels doubles its lanes up to :data:`WIDE_BLOCK_LANES`. None above
+    the most levels doubles its lanes up to :data:`WIDE_BLOCK_LANES`; rigid bases in fp64 take one
+    level per lane up to :data:`RIGID_FP64_ONE_LEVEL_LANES` lanes. None above
     :data:`MAX_COLUMN_LANES` lanes."""
     most = MAX_RIGID_LEVELS_PER_LANE if rigid else MAX_LEVELS_PER_LANE
     one = lane_shape(n_prisms, most)
+    if rigid and precision == "fp64" and WARP < n_prisms <= RIGID_FP64_ONE_LEVEL_LANES:
+        G = 2 * WARP
+        while G < n_prisms:
+            G *= 2
+        return 1, G
     if one is not None:
         return one
     n = int(n_prisms)

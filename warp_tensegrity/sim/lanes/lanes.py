@@ -489,7 +489,7 @@ class LaneStep:
         self.device = device
         n = batch.level_nodes.shape[0] - 1
         self.rigid = batch.constraints.shape[0] == 6 * n
-        self.P, self.G = lane_map(n, self.rigid)
+        self.P, self.G = lane_map(n, self.rigid, model.precision)
         real = wp.float64 if model.precision == "fp64" else wp.float32
         npr = np.float64 if real == wp.float64 else np.float32
         self.block_dim = self.G if self.G > WARP else LANE_BLOCK_DIM if device.is_cuda else WARP
