@@ -84,10 +84,11 @@ def test_lane_map_one_warp_k_warps_or_none():
     assert lane_map(300) == (3, 128) and lane_map(1000) == (4, 256)
     assert lane_map(500) == (2, 256) and lane_map(200) == (2, 128)  # 4 levels on <= 128 lanes spill: twice the lanes
     assert lane_map(1000, rigid=True) == (2, 512) and lane_map(1024, rigid=True) == (2, 512)
-    # rigid bases in fp64: one level per lane on 2 warps where one warp would hold 2 (33-64 prisms)
+    # rigid bases in fp64: one level per lane from 33 prisms to RIGID_FP64_ONE_LEVEL_LANES, on k warps
     assert lane_map(32, True, "fp64") == (1, 32) and lane_map(64, True, "fp32") == (2, 32)
     assert lane_map(33, True, "fp64") == (1, 64) and lane_map(64, True, "fp64") == (1, 64)
-    assert lane_map(65, True, "fp64") == lane_map(65, True) == (2, 64) and lane_map(50, False, "fp64") == (2, 32)
+    assert lane_map(65, True, "fp64") == (1, 128) and lane_map(65, True) == (2, 64)
+    assert lane_map(129, True, "fp64") == lane_map(129, True) == (2, 128) and lane_map(50, False, "fp64") == (2, 32)
     assert lane_map(4 * MAX_COLUMN_LANES) == (4, MAX_COLUMN_LANES)
     assert lane_map(4 * MAX_COLUMN_LANES + 1) is None and lane_map(1025, rigid=True) is None
     for n in (1, 31, 33, 50, 64, 127, 128, 129, 300, 999, 1000, 2048):
