@@ -44,9 +44,9 @@ def _rel(a, b):
     return np.abs(a - b).max(axis=axis) / np.abs(b).max(axis=axis)
 
 
-# 300 prisms with rigid and elastic bases: 2 levels per lane, 256 lanes (8 warps), the ring links
-# folded into 3 x 3 blocks; 1,000 prisms flexible and elastic: 4 levels per lane, 256 lanes
-CASES = [(300, [1.0, 0.5], (2, 256)), (1000, [0.0, 0.5], (4, 256))]
+# 300 prisms with rigid and elastic bases: in fp64 1 level per lane, 512 lanes (16 warps), the ring
+# links folded into 3 x 3 blocks; 1,000 prisms flexible and elastic: 4 levels per lane, 256 lanes
+CASES = [(300, [1.0, 0.5], (1, 512)), (1000, [0.0, 0.5], (4, 256))]
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +58,7 @@ def staged_runs(device):
 def test_long_columns_match_staged_fp64(n, base_rigidity, shape, staged_runs, device):
     b = _batch(n, base_rigidity)
     assert lane_support(b) is None
-    assert lane_map(n, rigid=1.0 in base_rigidity) == shape
+    assert lane_map(n, 1.0 in base_rigidity, "fp64") == shape
     lanes, staged = _run(b, "lanes", device), staged_runs[n]
     P, G = shape
     assert lanes.info["step_path"].startswith(f"lanes ({G // 32} warps per column, one block: {P} levels per lane")
@@ -88,7 +88,8 @@ def test_lane_map_one_warp_k_warps_or_none():
     assert lane_map(32, True, "fp64") == (1, 32) and lane_map(64, True, "fp32") == (2, 32)
     assert lane_map(33, True, "fp64") == (1, 64) and lane_map(64, True, "fp64") == (1, 64)
     assert lane_map(65, True, "fp64") == (1, 128) and lane_map(65, True) == (2, 64)
-    assert lane_map(129, True, "fp64") == lane_map(129, True) == (2, 128) and lane_map(50, False, "fp64") == (2, 32)
+    assert lane_map(300, True, "fp64") == (1, 512) and lane_map(300, True) == (2, 256)
+    assert lane_map(513, True, "fp64") == lane_map(513, True) == (2, 512) and lane_map(50, False, "fp64") == (2, 32)
     assert lane_map(4 * MAX_COLUMN_LANES) == (4, MAX_COLUMN_LANES)
     assert lane_map(4 * MAX_COLUMN_LANES + 1) is None and lane_map(1025, rigid=True) is None
     for n in (1, 31, 33, 50, 64, 127, 128, 129, 300, 999, 1000, 2048):

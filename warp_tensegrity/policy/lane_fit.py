@@ -47,14 +47,15 @@ column, k <= 16. 512 threads fill an SM's 65,536 registers at 128 each (the rigi
 spills more); 1,024 would leave 64. Flexible bases up to 2,048 prisms, rigid up to 1,024."""
 
 
-RIGID_FP64_ONE_LEVEL_LANES = 128
+RIGID_FP64_ONE_LEVEL_LANES = MAX_COLUMN_LANES
 """A rigid-base fp64 column of more than 32 prisms and at most this many takes 1 level per lane on k
-warps (one block: pure fp64, no mixed factor) instead of 2 levels. On an H200, B = 16,384
-(benchmarks/results/issue33_h200_sixth), column-steps/s: 50 prisms 6.33e6 on 64 lanes of 1 level
-against 4.99e6 on one warp of 2 (the mixed kernel spills 17.6 KB of loads a thread:
-lanes_ptxas_sm90.json); 100 prisms 2.84e6 on 128 lanes against 1.91e6 on 64 lanes of 2. The
-flexible-base fp64 kernel gains nothing (2.15e7 both, 50 prisms) and the fp32 kernels lose (FB
-5.9e7 against 1.71e8)."""
+warps (one block: pure fp64, no mixed factor) instead of 2 levels; longer ones keep 2 levels on
+:data:`MAX_COLUMN_LANES` lanes. On an H200 (benchmarks/results/issue33_h200_sixth), column-steps/s,
+1 level against 2: 50 prisms 6.33e6 against 4.99e6 (B = 16,384; one warp of 2 levels runs the mixed
+kernel, which spills 17.6 KB of loads a thread: lanes_ptxas_sm90.json); 100 prisms 2.84e6 against
+1.91e6 (B = 16,384); 200 prisms 7.83e5 against 5.45e5 and 300 prisms 2.09e5 against 1.44e5 (B =
+4,096). The flexible-base fp64 kernel gains nothing (2.15e7 both, 50 prisms) and the fp32 kernels
+lose (FB 5.9e7 against 1.71e8, RB 1.94e7 against 2.93e7)."""
 
 
 def lane_map(n_prisms: int, rigid: bool = False, precision: str | None = None) -> tuple[int, int] | None:
