@@ -27,6 +27,7 @@
 #   PART=levels      new only: FB lanes at PRISMS (default "500 1000", B = 4,096) with each of LEVELS ("2 3 4")
 #                    levels per lane on k warps (policy.lane_fit.MAX_BLOCK_LEVELS_PER_LANE)
 #   PART=pytest      the tests PYTESTS (paths) on CUDA (--device cuda:0)
+#   PART=bits        the lane step's results here and in BASE compared to the bit (benchmarks/lanes_bits.py)
 #   PART=lanemap     new only: lane maps and switches (MAPS, below) against the defaults; every kernel
 #                    compiled first, in parallel (KEEP_CACHE=1: the kernel cache tarred into $OUT)
 #   PART=interface   issue 34's interface sweep (sweeps/interface.toml) end to end, new only, and its phase
@@ -132,11 +133,12 @@ sys.argv = ['throughput', '--device', 'cuda:0', '--bases', 'FB', '--precisions',
 runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/levels $lv $prec: /"
         done
     done ;;
-lanemap)  # new only: lane maps and switches against the defaults, every kernel compiled first, in parallel
+lanemap)  # lane maps and switches against the defaults (BASE_MAPS: the code in BASE too), compiled first, in parallel
     maps=(${MAPS:?set MAPS})
     # MAP = BASE:PREC:PRISMS:B[:key=value...]; keys: ml (MAX_LEVELS_PER_LANE, the rigid one at most 2), mb
     # (MAX_BLOCK_LEVELS_PER_LANE), wide (WIDE_BLOCK_LANES), r64 (RIGID_FP64_ONE_LEVEL_LANES) of
-    # policy.lane_fit; regs (the lane module's LANE_MAX_REGISTERS[PREC], 0: None), bd (LANE_BLOCK_DIM)
+    # policy.lane_fit; regs (the lane module's LANE_MAX_REGISTERS[PREC], 0: None), bd (LANE_BLOCK_DIM),
+    # minb (LANE_BLOCK_MIN[PREC])
     patch='import sys
 import warp_tensegrity.policy.lane_fit as lf
 from warp_tensegrity.sim.lanes import lanes as L
@@ -150,41 +152,55 @@ def _set(prec, kv):
         elif k == "r64": lf.RIGID_FP64_ONE_LEVEL_LANES = v
         elif k == "regs": L.LANE_MAX_REGISTERS[prec] = v or None
         elif k == "bd": L.LANE_BLOCK_DIM = v
+        elif k == "minb": L.LANE_BLOCK_MIN[prec] = v
         else: sys.exit(f"unknown key {k}")
 '
+    # BASE_MAPS: the same for the code in BASE ("base"), its kernels compiled beside the others
+    jobs=(); for m in "${maps[@]}"; do jobs+=("new:$m"); done
+    for m in ${BASE_MAPS:-}; do jobs+=("base:$m"); done
     declare -A seen=()
-    for m in "${maps[@]}"; do
+    for job in "${jobs[@]}"; do
+        v=${job%%:*}; m=${job#*:}
         IFS=: read -r base prec n b kv <<< "$m"
-        key="$base:$prec:$n:$kv"  # (one compile per kernel, whatever B)
+        key="$v:$base:$prec:$n:$kv"  # (one compile per kernel, whatever B)
         [ -n "${seen[$key]:-}" ] && continue
         seen[$key]=1
-        python -c "$patch
+        run_in "$v" python -c "$patch
 _set('$prec', '$kv')
 import warp as wp
 wp.config.quiet = True
 from benchmarks.lanes_ptxas import kernel_for
 k, facts = kernel_for('$base', '$prec', $n)
 k.module.load(wp.get_device('cuda:0'), facts['G'] if facts['G'] > 32 else L.LANE_BLOCK_DIM)
-print('compiled $m', facts)" 2>&1 | grep -E "compiled|Error" &
+print('compiled $v $m', facts)" 2>&1 | grep -E "compiled|Error" &
     done
     wait
-    for m in "${maps[@]}"; do
+    for job in "${jobs[@]}"; do
+        v=${job%%:*}; m=${job#*:}
         IFS=: read -r base prec n b kv <<< "$m"
         tag=$(echo "${base}_${prec}_${n}_${b}_${kv}" | tr ':=' '_-')
-        python -c "$patch
+        [ "$v" = base ] && tag="base_$tag"
+        run_in "$v" python -c "$patch
 _set('$prec', '$kv')
 import runpy
 print('lane map', lf.lane_map($n, '$base' == 'RB', '$prec'))
 sys.argv = ['throughput', '--device', 'cuda:0', '--bases', '$base', '--precisions', '$prec', '--batches',
             '--prisms', '$n', '--prism-batch', '$b', '--paths', 'lanes', '--prism-paths', 'lanes',
             '--target-s', '0.3', '--reps', '3', '--budget-s', '200', '--out', '$OUT/throughput_lanemap_$tag.json']
-runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/$m: /"
+runpy.run_module('benchmarks.throughput', run_name='__main__')" 2>&1 | grep -E "lane map|col-steps|ERROR|skip" | sed "s/^/$v $m: /"
     done
     if [ "${KEEP_CACHE:-0}" = 1 ]; then
         tar -czf "$OUT/kernel_cache.tgz" -C "$(dirname "$WARP_CACHE_PATH")" "$(basename "$WARP_CACHE_PATH")"
         split -b 15M "$OUT/kernel_cache.tgz" "$OUT/kernel_cache.tgz.part" && rm "$OUT/kernel_cache.tgz"
         ls -la "$OUT"/kernel_cache.tgz.part*
     fi ;;
+bits)  # the lane step's results here and in BASE to the bit (benchmarks/lanes_bits.py, its harness copied there)
+    cp "$HERE/benchmarks/lanes_bits.py" "$BASE/benchmarks/"
+    for v in new base; do
+        run_in $v python -m benchmarks.lanes_bits --device cuda:0 --out "$OUT/lanes_bits_$v.npz" 2>&1 | grep -E "lanes|Error" | cut -c1-90
+    done
+    python -m benchmarks.lanes_bits --device cuda:0 --compare "$OUT/lanes_bits_new.npz" "$OUT/lanes_bits_base.npz" \
+        --out "$OUT/lanes_bits_h200.json" 2>&1 | tail -1 ;;
 pytest)
     python -m pytest -q -p no:cacheprovider ${PYTESTS:?} --device cuda:0 2>&1 | tail -6 | tee "$OUT/pytest_cuda.log" ;;
 interface)

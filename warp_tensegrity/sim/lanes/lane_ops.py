@@ -195,6 +195,8 @@ def make_lane_ops(real):
 # (these votes), so every thread reaches every barrier.
 # Hand-written: Warp's tile primitives reduce whole tiles, not a shift by d lanes of a register value.
 
+WARP = 32
+"""Lanes of a warp (the butterfly rounds inside one need no barrier)."""
 _STORE = "#if defined(__CUDA_ARCH__)\n    __shared__\n#else\n    static\n#endif\n"
 BLOCK_LANES = 512
 """Size of the shared buffers: the most lanes of a block (policy.lane_fit.MAX_COLUMN_LANES, checked
@@ -215,6 +217,56 @@ def _block_exchange_snippet(ctype: str, name: str) -> str:
     wp::vec_t<3, {ctype}> r = v;
     if (src >= 0 && src < g) r = wp::vec_t<3, {ctype}>({name}[p][src][0], {name}[p][src][1], {name}[p][src][2]);
     return r;
+"""
+
+
+def _warp_butterfly_snippet(ctype: str, name: str, op: str) -> str:
+    """The first five rounds (partners wl ^ 1 .. wl ^ 16, inside the lane's warp) of a block butterfly,
+    ``op`` 'sum3' (r + partner, a vec3) or 'max' (the partner where it is NaN or larger; a scalar):
+    on CUDA by warp shuffles, no barrier; on the CPU through a static buffer and the block's barriers.
+    The same rounds in the same order as :func:`make_block_ops`' exchanges, so the same bits."""
+    one = _CUDA_SCALAR[ctype].format(mode="bfly", arg="m")
+    if op == "sum3":
+        cuda = f"""wp::vec_t<3, {ctype}> r = v;
+    for (int m = 1; m < 32; m <<= 1) {{
+        r = wp::vec_t<3, {ctype}>(r.c[0] + sh(r.c[0], m), r.c[1] + sh(r.c[1], m), r.c[2] + sh(r.c[2], m));
+    }}
+    return r;"""
+        cpu = f"""static {ctype} {name}[{BLOCK_LANES}][3];
+    wp::vec_t<3, {ctype}> r = v;
+    for (int m = 1; m < 32; m <<= 1) {{
+        {name}[wl][0] = r.c[0]; {name}[wl][1] = r.c[1]; {name}[wl][2] = r.c[2];
+        WP_TILE_SYNC();
+        const int src = wl ^ m;
+        r = wp::vec_t<3, {ctype}>(r.c[0] + {name}[src][0], r.c[1] + {name}[src][1], r.c[2] + {name}[src][2]);
+        WP_TILE_SYNC();
+    }}
+    return r;"""
+    else:
+        cuda = f"""{ctype} r = v;
+    for (int m = 1; m < 32; m <<= 1) {{
+        const {ctype} y = sh(r, m);
+        if (isnan(y) || y > r) r = y;
+    }}
+    return r;"""
+        cpu = f"""static {ctype} {name}[{BLOCK_LANES}];
+    {ctype} r = v;
+    for (int m = 1; m < 32; m <<= 1) {{
+        {name}[wl] = r;
+        WP_TILE_SYNC();
+        const {ctype} y = {name}[wl ^ m];
+        if (isnan(y) || y > r) r = y;
+        WP_TILE_SYNC();
+    }}
+    return r;"""
+    return f"""
+#if defined(__CUDA_ARCH__)
+    const int c = {_CLAMP["bfly"].replace("g", "32")};
+    auto sh = [&](const {ctype} v, const int m) -> {ctype} {{ {one} }};
+    {cuda}
+#else
+    {cpu}
+#endif
 """
 
 
@@ -269,11 +321,24 @@ def make_block_ops(real, G: int):
         """The value of lane wl + d (own value where wl + d >= g)."""
         return exchange3(v, wl + d, g, wl)
 
+    tag = "64" if ctype == "double" else "32"
+
+    @wp.func_native(_warp_butterfly_snippet(ctype, f"wt_bsum{tag}", "sum3"))
+    def warp_sum3(v: vec, wl: int) -> vec:
+        """The butterfly's rounds inside the warp (partners wl ^ 1 .. wl ^ 16)."""
+        ...
+
+    @wp.func_native(_warp_butterfly_snippet(ctype, f"wt_bmax{tag}", "max"))
+    def warp_max(v: real, wl: int) -> real:
+        """The max butterfly's rounds inside the warp (NaN wins)."""
+        ...
+
     @wp.func
     def segment_sum3(v: vec, g: int, wl: int) -> vec:
-        """Sum over the block's g lanes by a butterfly (:func:`make_lane_ops`' order)."""
-        r = v
-        m = int(1)
+        """Sum over the block's g lanes by a butterfly (:func:`make_lane_ops`' order): the rounds
+        inside a warp by shuffles, the others (partners 32 lanes and more away) through shared memory."""
+        r = warp_sum3(v, wl)
+        m = int(WARP)
         while m < g:
             r = r + exchange3(r, wl ^ m, g, wl)
             m = m * 2
@@ -281,9 +346,9 @@ def make_block_ops(real, G: int):
 
     @wp.func
     def segment_max(v: real, g: int, wl: int) -> real:
-        """Max over the block's g lanes (NaN wins)."""
-        r = v
-        m = int(1)
+        """Max over the block's g lanes (NaN wins), its rounds as :func:`segment_sum3`'s."""
+        r = warp_max(v, wl)
+        m = int(WARP)
         while m < g:
             y = exchange3(vec(r, r, r), wl ^ m, g, wl)[0]
             if wp.isnan(y) or y > r:

@@ -44,7 +44,7 @@ class LaneKernels(NamedTuple):
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
                      fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False,
-                     a_mem: bool = False, mixed: bool = False):
+                     a_mem: bool = False, mixed: bool = False, block_min: int = 1):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
     has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
@@ -54,7 +54,9 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     an unloaded batch runs today's code; ``a_mem``: the accelerations live in ``a`` (global memory)
     from the forces to the next half kick instead of in registers through the factor, the velocity
     projection and Newton, where only a failure store would read them; ``mixed``: fp64 only, the
-    factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`). Launch
+    factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`;
+    ``block_min``: k warps per column only, the blocks the compiler must fit on one SM at once, which
+    caps its registers at 65,536 / (G block_min)). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     blockwide = G > WARP  # k warps per column, one block of G threads each (lane_ops.make_block_ops)
     ops = make_block_ops(real, G) if blockwide else make_lane_ops(real)
@@ -192,7 +194,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
 
     spill = {"enable_cuda_smem_spilling": True, "launch_bounds": smem_spill_block} if smem_spill_block else {}
     if blockwide:  # a block of G threads per column: the compiler fits their registers in one SM (G = 512: 128 each)
-        spill.setdefault("launch_bounds", G)
+        spill.setdefault("launch_bounds", (G, int(block_min)) if block_min > 1 else G)
 
     @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers,
                module_options={"fast_math": bool(fast_math)}, **spill)
@@ -451,6 +453,7 @@ LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the 
 # bases' bars reached 3.2e-7 with fast math and the plain check, over the fp32 tolerance of 3e-7
 LANE_FAST_MATH = {"fp32": True, "fp64": False}
 LANE_FAST_MATH_RIGID = {"fp32": True, "fp64": False}  # the same for batches with rigid bases
+LANE_BLOCK_MIN = {"fp32": 1, "fp64": 1}  # k warps per column: blocks per SM the registers must allow
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
 # the accelerations kept in global memory between the forces and the next half kick (registers
 # free through the factor and Newton; a failure store leaves them as they were). Off: on an H200
@@ -498,7 +501,8 @@ class LaneStep:
         self.kernels = make_lane_kernel(real, self.P, self.G, LANE_MAX_REGISTERS[prec], self.rigid, fast,
                                         self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
                                         batch.external_force is not None and bool(np.any(batch.external_force)),
-                                        LANE_A_MEM[prec], LANE_MIXED[prec])
+                                        LANE_A_MEM[prec], LANE_MIXED[prec],
+                                        LANE_BLOCK_MIN[prec] if self.G > WARP else 1)
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
