@@ -147,6 +147,9 @@ class LaneOps(NamedTuple):
     any: wp.Function
     """The vote over the warp (:func:`warp_any`) or the block, ``any(p, wl)``."""
     vec: type
+    shfl_updown3: wp.Function | None = None
+    """k warps per column: ``(up, down)`` of a vec3 by d lanes from one exchange (one warp: None, the
+    two shuffles are separate and cost no barrier)."""
 
 
 @functools.cache
@@ -204,18 +207,24 @@ by :func:`make_block_ops`). One size for every G, so each native function has on
 
 
 def _block_exchange_snippet(ctype: str, name: str) -> str:
-    """The vec3 of lane ``src`` of the block (own value where src lies outside 0 .. g-1); g < 0:
-    reset the lane's parity (no exchange, no barrier)."""
+    """Rows 0 and 1: the vec3 of lanes ``src`` and ``src2`` of the block (own value where a source
+    lies outside 0 .. g-1), from one write and one barrier; g < 0: reset the lane's parity (no
+    exchange, no barrier)."""
+    own = " ".join(f"r.data[{i}][{k}] = v.c[{k}];" for i in range(2) for k in range(3))
+    take = "\n    ".join(f"if ({s} >= 0 && {s} < g) {{ " + " ".join(f"r.data[{i}][{k}] = {name}[p][{s}][{k}];"
+                                                            for k in range(3)) + " }"
+                          for i, s in enumerate(("src", "src2")))
     return f"""
 {_STORE}    {ctype} {name}[2][{BLOCK_LANES}][3];
 {_STORE}    unsigned char wt_bpar[{BLOCK_LANES}];
-    if (g < 0) {{ wt_bpar[wl] = 0; return v; }}
+    wp::mat_t<2, 3, {ctype}> r;
+    {own}
+    if (g < 0) {{ wt_bpar[wl] = 0; return r; }}
     const int p = wt_bpar[wl];
     wt_bpar[wl] = (unsigned char)(p ^ 1);
     {name}[p][wl][0] = v.c[0]; {name}[p][wl][1] = v.c[1]; {name}[p][wl][2] = v.c[2];
     WP_TILE_SYNC();
-    wp::vec_t<3, {ctype}> r = v;
-    if (src >= 0 && src < g) r = wp::vec_t<3, {ctype}>({name}[p][src][0], {name}[p][src][1], {name}[p][src][2]);
+    {take}
     return r;
 """
 
@@ -300,10 +309,17 @@ def make_block_ops(real, G: int):
     ctype = "double" if real == wp.float64 else "float"
     vec = wp.types.vector(3, real)
 
+    two = wp.types.matrix((2, 3), real)
+
     @wp.func_native(_block_exchange_snippet(ctype, f"wt_bx{'64' if ctype == 'double' else '32'}"))
+    def exchange2(v: vec, src: int, src2: int, g: int, wl: int) -> two:
+        """Rows: the values of lanes ``src`` and ``src2`` (own value where one is outside 0 .. g-1)."""
+        ...
+
+    @wp.func
     def exchange3(v: vec, src: int, g: int, wl: int) -> vec:
         """The value of lane ``src`` (own value where src is outside 0 .. g-1)."""
-        ...
+        return exchange2(v, src, -1, g, wl)[0]
 
     @wp.func
     def vote(p: int, wl: int) -> int:
@@ -320,6 +336,12 @@ def make_block_ops(real, G: int):
     def shfl_down3(v: vec, d: int, g: int, wl: int) -> vec:
         """The value of lane wl + d (own value where wl + d >= g)."""
         return exchange3(v, wl + d, g, wl)
+
+    @wp.func
+    def shfl_updown3(v: vec, d: int, g: int, wl: int):
+        """(:func:`shfl_up3`, :func:`shfl_down3`) of v from one exchange: one barrier, not two."""
+        r = exchange2(v, wl - d, wl + d, g, wl)
+        return r[0], r[1]
 
     tag = "64" if ctype == "double" else "32"
 
@@ -357,4 +379,4 @@ def make_block_ops(real, G: int):
         return r
 
     return LaneOps(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max, segment_sum3=segment_sum3,
-                   any=vote, vec=vec)
+                   any=vote, vec=vec, shfl_updown3=shfl_updown3)

@@ -45,6 +45,7 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
     vec = ops.vec
     mat3 = wp.types.matrix((3, 3), real)
     LG = G.bit_length() - 1
+    BLOCK = ops.shfl_updown3 is not None  # k warps per column (lane_ops.make_block_ops)
     # blocks of the factor: W (P), Kb (P), Ka (P), the first row's inverse pivot and spikes S, T
     # and the last row's couplings L, U (P = 2), PCR alpha, gamma per level, the reduced pivot's inverse
     B_W, B_KB, B_KA = 0, P, 2 * P
@@ -78,6 +79,14 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
     def down3(b: mat3, s: int, g: int, wl: int):
         return wp.matrix_from_rows(ops.shfl_down3(b[0], s, g, wl), ops.shfl_down3(b[1], s, g, wl),
                                    ops.shfl_down3(b[2], s, g, wl))
+
+    @wp.func(inline=True)
+    def updown3(b: mat3, s: int, g: int, wl: int):
+        """(:func:`up3`, :func:`down3`) from three exchanges (k warps per column: one barrier each)."""
+        u0, d0 = ops.shfl_updown3(b[0], s, g, wl)
+        u1, d1 = ops.shfl_updown3(b[1], s, g, wl)
+        u2, d2 = ops.shfl_updown3(b[2], s, g, wl)
+        return wp.matrix_from_rows(u0, u1, u2), wp.matrix_from_rows(d0, d1, d2)
 
     @wp.func(inline=True)
     def spd_inverse(a: mat3):
@@ -227,12 +236,23 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
         for j in range(LG):
             s = 1 << j
             Bi, okb = spd_inverse(B)
-            Au = up3(A, s, g, wl)
-            Biu = up3(Bi, s, g, wl)
-            Cu = up3(C, s, g, wl)
-            Ad = down3(A, s, g, wl)
-            Bid = down3(Bi, s, g, wl)
-            Cd = down3(C, s, g, wl)
+            Au = mat3()
+            Biu = mat3()
+            Cu = mat3()
+            Ad = mat3()
+            Bid = mat3()
+            Cd = mat3()
+            if wp.static(BLOCK):  # k warps: a barrier per exchange, so up and down from one
+                Au, Ad = updown3(A, s, g, wl)
+                Biu, Bid = updown3(Bi, s, g, wl)
+                Cu, Cd = updown3(C, s, g, wl)
+            else:
+                Au = up3(A, s, g, wl)
+                Biu = up3(Bi, s, g, wl)
+                Cu = up3(C, s, g, wl)
+                Ad = down3(A, s, g, wl)
+                Bid = down3(Bi, s, g, wl)
+                Cd = down3(C, s, g, wl)
             al = -(A @ Biu)
             ga = -(C @ Bid)
             Fm = put(Fm, B_PCR + 2 * j, al)
@@ -269,8 +289,13 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
             rho = rho - get(Fm, B_L) @ y0 - get(Fm, B_U) @ y0n
         for j in range(LG):
             s = 1 << j
-            ru = ops.shfl_up3(rho, s, g, wl)
-            rd = ops.shfl_down3(rho, s, g, wl)
+            ru = vec()
+            rd = vec()
+            if wp.static(BLOCK):
+                ru, rd = ops.shfl_updown3(rho, s, g, wl)
+            else:
+                ru = ops.shfl_up3(rho, s, g, wl)
+                rd = ops.shfl_down3(rho, s, g, wl)
             rho = rho + get(Fm, B_PCR + 2 * j) @ ru + get(Fm, B_PCR + 2 * j + 1) @ rd
         xk = get(Fm, B_BI) @ rho
         beta = Rows()
