@@ -56,7 +56,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     projection and Newton, where only a failure store would read them; ``mixed``: fp64 only, the
     factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`;
     ``block_min``: k warps per column only, the blocks the compiler must fit on one SM at once, which
-    caps its registers at 65,536 / (G block_min)). Launch
+    caps its registers at 65,536 / (G block_min), 255 at most). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     blockwide = G > WARP  # k warps per column, one block of G threads each (lane_ops.make_block_ops)
     ops = make_block_ops(real, G) if blockwide else make_lane_ops(real)
@@ -194,7 +194,10 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
 
     spill = {"enable_cuda_smem_spilling": True, "launch_bounds": smem_spill_block} if smem_spill_block else {}
     if blockwide:  # a block of G threads per column: the compiler fits their registers in one SM (G = 512: 128 each)
-        spill.setdefault("launch_bounds", (G, int(block_min)) if block_min > 1 else G)
+        # with the blocks per SM stated (1 at least): ptxas given only the block size held a block of 512
+        # threads to 64 registers, half what one block per SM allows (spilling 15 KB a thread for rigid
+        # bases in fp64; 9 KB at 128: lanes_ptxas)
+        spill.setdefault("launch_bounds", (G, max(1, int(block_min))))
 
     @wp.kernel(enable_backward=False, module="unique", cuda_max_registers=max_registers,
                module_options={"fast_math": bool(fast_math)}, **spill)
