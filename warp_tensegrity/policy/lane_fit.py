@@ -40,7 +40,8 @@ WIDE_BLOCK_LANES = 256
 """A flexible-base block that would hold the most levels per lane doubles its lanes up to this many
 (8 warps). On an H200, FB fp32, B = 4,096 (benchmarks/results/issue33_h200_third, call 3): 500
 prisms on 256 lanes of 2 levels step 8.55e6 column-steps/s, against 4.10e6 on 128 lanes of 4. At
-1,000 prisms, 512 lanes of 2 levels (128 registers a thread) lose to 256 of 4 (1.41e6 against 1.66e6)."""
+1,000 prisms, 512 lanes of 2 levels (128 registers a thread) lose to 256 of 4: 2.38e6 against 2.84e6
+(issue33_h200_sixth, call 6)."""
 MAX_COLUMN_LANES = 512
 """Most lanes (CUDA threads) of a column longer than a warp holds: one block of 32 k threads per
 column, k <= 16. 512 threads fill an SM's 65,536 registers at 128 each (the rigid-base kernel then
