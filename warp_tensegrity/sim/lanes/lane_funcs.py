@@ -83,7 +83,6 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
     vec = ops.vec
     NI = P - 1  # interior rows a lane eliminates itself
     LG = G.bit_length() - 1  # PCR levels
-    BLOCK = ops.shfl_updown3 is not None  # k warps per column (lane_ops.make_block_ops)
     # factor rows (each a vec3 over the chains): Thomas multipliers, inverse pivots, upper
     # couplings and the two spikes of the interior rows; the last row's couplings; PCR alpha,
     # gamma per level; the reduced pivot's inverse
@@ -379,17 +378,11 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         for j in range(LG):
             s = 1 << j
             rb = wp.cw_div(vec(one, one, one), b)
-            au = vec()
-            ru = vec()
-            cu = vec()
-            ad = vec()
-            rd = vec()
-            cd = vec()
-            if wp.static(BLOCK):  # k warps: a barrier per exchange, so up and down from one
+            if wp.static(G > 32):  # k warps: up and down of a value from one barrier
                 au, ad = ops.shfl_updown3(a, s, g, wl)
                 ru, rd = ops.shfl_updown3(rb, s, g, wl)
                 cu, cd = ops.shfl_updown3(c, s, g, wl)
-            else:
+            else:  # one warp: the shuffles in the order the one-warp kernel was measured with
                 au = ops.shfl_up3(a, s, g, wl)
                 ru = ops.shfl_up3(rb, s, g, wl)
                 cu = ops.shfl_up3(c, s, g, wl)
@@ -431,13 +424,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
             rho = rho - wp.cw_mul(Fm[F_LW], y[NI - 1]) - wp.cw_mul(Fm[F_EW], y0n)
         for j in range(LG):
             s = 1 << j
-            ru = vec()
-            rd = vec()
-            if wp.static(BLOCK):
-                ru, rd = ops.shfl_updown3(rho, s, g, wl)
-            else:
-                ru = ops.shfl_up3(rho, s, g, wl)
-                rd = ops.shfl_down3(rho, s, g, wl)
+            ru, rd = ops.shfl_updown3(rho, s, g, wl)
             rho = rho + wp.cw_mul(Fm[F_PCR + 2 * j], ru) + wp.cw_mul(Fm[F_PCR + 2 * j + 1], rd)
         xk = wp.cw_mul(rho, Fm[F_IB])
         x = Rows()

@@ -147,9 +147,9 @@ class LaneOps(NamedTuple):
     any: wp.Function
     """The vote over the warp (:func:`warp_any`) or the block, ``any(p, wl)``."""
     vec: type
-    shfl_updown3: wp.Function | None = None
-    """k warps per column: ``(up, down)`` of a vec3 by d lanes from one exchange (one warp: None, the
-    two shuffles are separate and cost no barrier)."""
+    shfl_updown3: wp.Function
+    """``(up, down)`` of a vec3 by d lanes: on one warp the two shuffles, on k warps one exchange (one
+    barrier, not two)."""
 
 
 @functools.cache
@@ -170,6 +170,11 @@ def make_lane_ops(real):
         """The value of lane i + d of the segment (own value where i + d >= g)."""
         ...
 
+    @wp.func
+    def shfl_updown3(v: vec, d: int, g: int, wl: int):
+        """(:func:`shfl_up3`, :func:`shfl_down3`) of v: two shuffles (k warps: one exchange)."""
+        return shfl_up3(v, d, g, wl), shfl_down3(v, d, g, wl)
+
     @wp.func_native(_segment_max_snippet(ctype))
     def segment_max(v: real, g: int, wl: int) -> real:
         """Max over the segment's g lanes (NaN wins)."""
@@ -181,7 +186,7 @@ def make_lane_ops(real):
         ...
 
     return LaneOps(shfl_up3=shfl_up3, shfl_down3=shfl_down3, segment_max=segment_max, segment_sum3=segment_sum3,
-                   any=warp_any, vec=vec)
+                   any=warp_any, vec=vec, shfl_updown3=shfl_updown3)
 
 
 # --- k warps per column (issue 33 item 3): the same primitives over a CUDA block of G = 32 k lanes ---

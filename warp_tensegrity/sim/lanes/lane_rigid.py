@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import warp as wp
 
-from ...policy.lane_fit import MAX_RIGID_LEVELS_PER_LANE
+from ...policy.lane_fit import MAX_RIGID_LEVELS_PER_LANE, WARP
 
 
 class RigidFuncs(NamedTuple):
@@ -45,7 +45,6 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
     vec = ops.vec
     mat3 = wp.types.matrix((3, 3), real)
     LG = G.bit_length() - 1
-    BLOCK = ops.shfl_updown3 is not None  # k warps per column (lane_ops.make_block_ops)
     # blocks of the factor: W (P), Kb (P), Ka (P), the first row's inverse pivot and spikes S, T
     # and the last row's couplings L, U (P = 2), PCR alpha, gamma per level, the reduced pivot's inverse
     B_W, B_KB, B_KA = 0, P, 2 * P
@@ -82,7 +81,7 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
 
     @wp.func(inline=True)
     def updown3(b: mat3, s: int, g: int, wl: int):
-        """(:func:`up3`, :func:`down3`) from three exchanges (k warps per column: one barrier each)."""
+        """(:func:`up3`, :func:`down3`) (k warps per column: three exchanges, one barrier each)."""
         u0, d0 = ops.shfl_updown3(b[0], s, g, wl)
         u1, d1 = ops.shfl_updown3(b[1], s, g, wl)
         u2, d2 = ops.shfl_updown3(b[2], s, g, wl)
@@ -236,17 +235,11 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
         for j in range(LG):
             s = 1 << j
             Bi, okb = spd_inverse(B)
-            Au = mat3()
-            Biu = mat3()
-            Cu = mat3()
-            Ad = mat3()
-            Bid = mat3()
-            Cd = mat3()
-            if wp.static(BLOCK):  # k warps: a barrier per exchange, so up and down from one
+            if wp.static(G > WARP):  # k warps: up and down of a block from one barrier
                 Au, Ad = updown3(A, s, g, wl)
                 Biu, Bid = updown3(Bi, s, g, wl)
                 Cu, Cd = updown3(C, s, g, wl)
-            else:
+            else:  # one warp: the shuffles in the order the one-warp kernel was measured with
                 Au = up3(A, s, g, wl)
                 Biu = up3(Bi, s, g, wl)
                 Cu = up3(C, s, g, wl)
@@ -289,13 +282,7 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
             rho = rho - get(Fm, B_L) @ y0 - get(Fm, B_U) @ y0n
         for j in range(LG):
             s = 1 << j
-            ru = vec()
-            rd = vec()
-            if wp.static(BLOCK):
-                ru, rd = ops.shfl_updown3(rho, s, g, wl)
-            else:
-                ru = ops.shfl_up3(rho, s, g, wl)
-                rd = ops.shfl_down3(rho, s, g, wl)
+            ru, rd = ops.shfl_updown3(rho, s, g, wl)
             rho = rho + get(Fm, B_PCR + 2 * j) @ ru + get(Fm, B_PCR + 2 * j + 1) @ rd
         xk = get(Fm, B_BI) @ rho
         beta = Rows()
