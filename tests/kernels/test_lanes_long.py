@@ -98,3 +98,18 @@ def test_lane_map_one_warp_k_warps_or_none():
             if m is not None:
                 P, G = m
                 assert P * G >= n and P * (G // 2) < n or G == 32, (n, rigid, m)  # no spare half
+
+
+def test_k_warp_kernels_state_one_block_per_sm():
+    """A k-warp kernel's launch bounds name the blocks per SM (1): given only the block size, ptxas
+    held blocks of 256 and 512 threads to 32-128 registers and spilled (FB fp64, 1,000 prisms: 32
+    registers, 30 KB of spill stores a thread; 2.5x slower on an H200: benchmarks/results/
+    issue33_h200_sixth). One warp per column states no bounds (255 registers)."""
+    import warp as wp
+
+    from warp_tensegrity.sim.lanes import lanes as L
+
+    assert L.make_lane_kernel(wp.float64, 4, 256).lane_steps.options["launch_bounds"] == (256, 1)
+    assert L.make_lane_kernel(wp.float64, 1, 512, rigid=True).lane_steps.options["launch_bounds"] == (512, 1)
+    assert L.make_lane_kernel(wp.float32, 2, 256, block_min=2).lane_steps.options["launch_bounds"] == (256, 2)
+    assert "launch_bounds" not in L.make_lane_kernel(wp.float32, 2, 32).lane_steps.options
