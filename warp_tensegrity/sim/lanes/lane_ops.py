@@ -195,7 +195,9 @@ def make_lane_ops(real):
 # block of G threads: lane = thread index in the block (``wl``, 0 .. G-1), and each primitive above
 # becomes an exchange through a shared-memory buffer and one barrier (``__syncthreads`` on CUDA,
 # ``WP_TILE_SYNC`` between the CPU block's fibers), so the lane code of :mod:`.lane_funcs` and
-# :mod:`.lane_rigid` runs unchanged over k warps. Two buffers alternate, so one barrier per exchange
+# :mod:`.lane_rigid` runs unchanged over k warps. Two exceptions spare barriers: a shift up and down of
+# one value reads both from one exchange (:func:`shfl_updown3`), and the rounds of a butterfly (segment
+# sum and max) whose partner lies in the lane's own warp are warp shuffles on CUDA (no barrier). Two buffers alternate, so one barrier per exchange
 # suffices: a lane writes buffer p only after the barrier of the next exchange, which every lane
 # reaches after its reads of buffer p. The parity p is each lane's own entry of ``wt_bpar`` (the
 # lanes agree: they make the same calls); the vote (``__syncthreads_or``, itself a barrier) resets
