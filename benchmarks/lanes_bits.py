@@ -1,6 +1,6 @@
 """The lane step's results to the bit, for comparing two versions of the code on one device: each
 case (prisms, base rigidities, precision) runs ``--steps`` RATTLE steps on the lane step from a
-perturbed state that moves every level (as tests/kernels/test_lanes_long.py does), and its strain
+perturbed state that moves every level (:func:`moving_batch`, tests/kernels/test_lanes_long.py's), and its strain
 record, final displacement and velocity are saved. ``--compare`` reads two such files and says,
 array by array, whether they are bit-identical and by how much they differ.
 
@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 
 import numpy as np
@@ -24,7 +23,10 @@ CASES = [(300, (0.0, 0.5), "fp64"), (300, (1.0, 0.5), "fp64"), (50, (1.0, 0.0), 
 4 on 256)."""
 
 
-def _batch(n, base_rigidity):
+def moving_batch(n, base_rigidity, ea_scale=1.0):
+    """Two n-prism columns (alternating hands, p = 0.002 and 0, v0 = 0.1 and 0.05 m/s, ``base_rigidity``
+    one per column) whose every node starts moving: a smooth velocity field along the column (seeded
+    by n), level 0 clamped; cable EA scaled by ``ea_scale`` (tests/kernels/test_lanes_long.py)."""
     from warp_tensegrity import ColumnConfig
     from warp_tensegrity.scene.batch import column_batch
 
@@ -35,8 +37,8 @@ def _batch(n, base_rigidity):
     k = rng.uniform(1.0, 4.0, size=(b.n_columns, 1, 3))
     phase = rng.uniform(0.0, 2 * np.pi, size=(b.n_columns, 1, 3))
     v = b.velocity + 0.05 * np.sin(2 * np.pi * k * z[None, :, None] / z.max() + phase)
-    v[:, :3] = 0.0
-    return dataclasses.replace(b, velocity=v)
+    v[:, :3] = 0.0  # the clamped level 0
+    return dataclasses.replace(b, velocity=v, cable_EA=b.cable_EA * ea_scale)
 
 
 def run(device: str, steps: int, dt: float) -> dict:
@@ -47,7 +49,7 @@ def run(device: str, steps: int, dt: float) -> dict:
     for n, br, prec in CASES:
         s = RunSettings(precision=prec, device=device, truncate=False, fused="lanes", t_end=steps * dt, dt=dt,
                         output_interval=steps * dt / 4)
-        r = run_batch(_batch(n, br), s)
+        r = run_batch(moving_batch(n, br), s)
         tag = f"{n}_{'_'.join(str(b) for b in br)}_{prec}"
         print(f"{tag}: {r.info['step_path']}", flush=True)
         for name in ("strain", "final_displacement", "final_velocity", "status"):

@@ -7,30 +7,16 @@ Every node starts moving (a smooth velocity field along the whole column, made a
 initial projection of both paths), so each warp boundary carries the solve and the forces from the
 first step: a few steps check every join. Two kernels are compiled (CI budget: issue 33)."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from warp_tensegrity import ColumnConfig, RunSettings
+from benchmarks.lanes_bits import moving_batch as _batch
+from warp_tensegrity import RunSettings
 from warp_tensegrity.engine import run_batch
 from warp_tensegrity.policy.lane_fit import MAX_COLUMN_LANES, lane_map, lane_support
-from warp_tensegrity.scene.batch import column_batch
 
 STEPS = 12
 DT = 5e-4
-
-
-def _batch(n, base_rigidity, ea_scale=1.0):
-    cfg = ColumnConfig(n_prisms=n, handedness="alternating", impact_admissibility="end_twist")
-    b = column_batch(cfg, {"prestrain": [0.002, 0.0], "v0": [0.1, 0.05], "base_rigidity": base_rigidity})
-    z = b.positions[:, 2]
-    rng = np.random.default_rng(n)
-    k = rng.uniform(1.0, 4.0, size=(b.n_columns, 1, 3))
-    phase = rng.uniform(0.0, 2 * np.pi, size=(b.n_columns, 1, 3))
-    v = b.velocity + 0.05 * np.sin(2 * np.pi * k * z[None, :, None] / z.max() + phase)
-    v[:, :3] = 0.0  # the clamped level 0
-    return dataclasses.replace(b, velocity=v, cable_EA=b.cable_EA * ea_scale)
 
 
 def _run(batch, fused, device):

@@ -456,7 +456,9 @@ LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the 
 # bases' bars reached 3.2e-7 with fast math and the plain check, over the fp32 tolerance of 3e-7
 LANE_FAST_MATH = {"fp32": True, "fp64": False}
 LANE_FAST_MATH_RIGID = {"fp32": True, "fp64": False}  # the same for batches with rigid bases
-LANE_BLOCK_MIN = {"fp32": 1, "fp64": 1}  # k warps per column: blocks per SM the registers must allow
+# k warps per column: blocks per SM the registers must allow. 2 (128 registers at 256 lanes) lost on an
+# H200: FB fp32, 500 prisms, 5.7e6 column-steps/s against 9.8e6 (benchmarks/results/issue33_h200_sixth)
+LANE_BLOCK_MIN = {"fp32": 1, "fp64": 1}
 LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared memory (CUDA 13+) instead of local
 # the accelerations kept in global memory between the forces and the next half kick (registers
 # free through the factor and Newton; a failure store leaves them as they were). Off: on an H200
