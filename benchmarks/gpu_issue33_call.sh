@@ -48,7 +48,7 @@ if has warm; then
     if [ "${WARM_LONG:-0}" = 1 ]; then
         for n in $LONG; do for c in FB:fp32 FB:fp64 RB:fp32 RB:fp64; do
             tp new "/tmp/warm_long_${n}_${c/:/_}.json" --paths lanes fused fused-serial staged --bases "${c%%:*}" \
-                --precisions "${c##*:}" --prisms "$n" --prism-batch 64 --prism-paths lanes fused fused-serial staged \
+                --precisions "${c##*:}" --batches --prisms "$n" --prism-batch 64 --prism-paths lanes fused fused-serial staged \
                 --target-s 0.01 --reps 1 | grep -iE "rror" &
         done; done
     fi
@@ -79,7 +79,7 @@ fi
 if has long 150; then
     for c in ${LONG_CASES:-FB:fp32 RB:fp32 FB:fp64 RB:fp64}; do
         tp new "$OUT/throughput_long_${c/:/_}.json" --paths lanes fused fused-serial staged --bases "${c%%:*}" \
-            --precisions "${c##*:}" --prisms $LONG --prism-batch 4096 --prism-paths lanes fused fused-serial staged \
+            --precisions "${c##*:}" --batches --prisms $LONG --prism-batch 4096 --prism-paths lanes fused fused-serial staged \
             --target-s 0.2 --reps 2 --budget-s 150
         [ $(( END - $(date +%s) )) -gt 120 ] || { echo "== long: stops after $c"; break; }
     done
