@@ -56,7 +56,8 @@ def best_point(doc: dict, base: str, prec: str, B: int):
     return max(pts, key=lambda p: p["column_steps_per_s"]) if pts else None
 
 
-def rows(throughput_dir: str, ncu_dir: str, tag: str, device_kind: str = "h200", B: int = 16384):
+def rows(throughput_dir: str, ncu_dir: str, tag: str, device_kind: str = "h200", B: int = 16384,
+         prefix: str = "throughput_lanes"):
     n_sm = DEVICES[device_kind]["sm"]
     gpu_txt = os.path.join(ncu_dir, "gpu.txt")
     out = []
@@ -64,7 +65,7 @@ def rows(throughput_dir: str, ncu_dir: str, tag: str, device_kind: str = "h200",
         for prec in ("fp32", "fp64"):
             raw_path = os.path.join(ncu_dir, f"ncu_lanes_{base}_{prec}_B{B}_raw_{tag}.csv")
             rec = {"base": base, "precision": prec, "B": B}
-            for f in glob.glob(os.path.join(throughput_dir, f"throughput_lanes_{tag}_{base}_{prec}*.json")):
+            for f in glob.glob(os.path.join(throughput_dir, f"{prefix}_{tag}_{base}_{prec}*.json")):
                 p = best_point(json.load(open(f)), base, prec, B)
                 if p is not None:
                     rec["column_steps_per_s"] = p["column_steps_per_s"]
@@ -85,13 +86,14 @@ def rows(throughput_dir: str, ncu_dir: str, tag: str, device_kind: str = "h200",
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--throughput", required=True, help="folder of throughput_lanes_<tag>_<base>_<prec>*.json")
+    ap.add_argument("--throughput", required=True, help="folder of <prefix>_<tag>_<base>_<prec>*.json")
     ap.add_argument("--ncu", required=True, help="folder of ncu_lanes_*_raw_<tag>.csv (and gpu.txt)")
     ap.add_argument("--tag", default="new")
+    ap.add_argument("--prefix", default="throughput_lanes", help="the throughput JSONs' name before _<tag>")
     ap.add_argument("--device-kind", default="h200", choices=sorted(DEVICES))
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    r = rows(a.throughput, a.ncu, a.tag, a.device_kind)
+    r = rows(a.throughput, a.ncu, a.tag, a.device_kind, prefix=a.prefix)
     print("| case | column-steps/s | warp-instr/col-step | issue bound | fraction | registers |")
     print("|---|---:|---:|---:|---:|---:|")
     for x in r:
