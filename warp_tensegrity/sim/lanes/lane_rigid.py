@@ -232,8 +232,7 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
             A = -(L1 @ S)
             B = D1 - L1 @ T - E @ Sn
             C = -(E @ Tn)
-        j = int(0)
-        while j < LG:  # a loop, not unrolled: the RB kernel waits on instruction fetch (ncu), so less code
+        for j in range(LG):
             s = 1 << j
             Bi, okb = spd_inverse(B)
             if wp.static(G > WARP):  # k warps: up and down of a block from one barrier
@@ -254,7 +253,6 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
             A = al @ Au
             C = ga @ Cd
             B = B + al @ Cu + ga @ Ad
-            j = j + 1
         Bi, okb = spd_inverse(B)
         ok = wp.min(ok, okb)
         Fm = put(Fm, B_BI, Bi)
@@ -282,12 +280,10 @@ def make_rigid_funcs(real, P: int, G: int, ops, f):  # once per cached kernel
             y0 = get(Fm, B_PI) @ rr[0]
             y0n = ops.shfl_down3(y0, 1, g, wl)
             rho = rho - get(Fm, B_L) @ y0 - get(Fm, B_U) @ y0n
-        j = int(0)
-        while j < LG:  # a loop, not unrolled: the RB kernel waits on instruction fetch (ncu), so less code
+        for j in range(LG):
             s = 1 << j
             ru, rd = ops.shfl_updown3(rho, s, g, wl)
             rho = rho + get(Fm, B_PCR + 2 * j) @ ru + get(Fm, B_PCR + 2 * j + 1) @ rd
-            j = j + 1
         xk = get(Fm, B_BI) @ rho
         beta = Rows()
         beta[P - 1] = xk
