@@ -42,9 +42,12 @@ INTERFACE_SMALL = {"scene": {"n_prisms": 12}, "sweep": {"grid": {"prestrain_at":
 
 @pytest.mark.parametrize("name, overrides", [("ci_small", None), ("paper_2017", {"run": {"t_end": 0.2}}),
                                              ("interface", INTERFACE_SMALL)])
-def test_cli_output_is_cf_clean(name, overrides, tmp_path):
-    spec = load_spec(ROOT / "sweeps" / f"{name}.toml", overrides=overrides)
-    out = sweep.run_sweep(spec, tmp_path / f"{name}.nc", device="cpu", progress=False)
+def test_cli_output_is_cf_clean(name, overrides, tmp_path, request):
+    if name == "ci_small":  # the CLI's own run of sweeps/ci_small.toml, made once a session (conftest ci_small_nc)
+        out = request.getfixturevalue("ci_small_nc")
+    else:
+        spec = load_spec(ROOT / "sweeps" / f"{name}.toml", overrides=overrides)
+        out = sweep.run_sweep(spec, tmp_path / f"{name}.nc", device="cpu", progress=False)
     r, msgs = cf_messages(out, tmp_path)
     assert msgs == [], "\n".join(f"{p}: {n}: {m}" for p, n, m in msgs)  # errors (high) and warnings (medium, low)
     assert r["scored_points"] == r["possible_points"] > 100

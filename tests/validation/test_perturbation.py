@@ -189,14 +189,26 @@ def test_an_error_in_the_scene_builder_is_not_shared_by_the_reference(monkeypatc
     assert not g.passed, report([g])
 
 
+CHEAPEST_FIRST = ("fb_modal", "bessel", "soliton", "dispersion")
+"""SCENE_GROUPS in the order of their cost on the CPU (0.5, 0.8, 1.8, 1.9 s)."""
+
+
 @pytest.mark.slow
 def test_every_constant_against_every_check():
-    """The whole table: every perturbation fails at least one check; the true engine passes them all."""
-    table = perturbation_table()
-    for k, (e, t) in table[None].items():
+    """The whole table's claim: every perturbation fails at least one check of SCENE_GROUPS; the true
+    engine passes them all. A perturbed engine's groups run cheapest first until one has a failing
+    check ("at least one" is decided there; the groups are independent runs): the same verdict as the
+    whole table, without its ~35 s of CPU. The whole table: ``python -m tests.validation.test_perturbation``."""
+    assert sorted(CHEAPEST_FIRST) == sorted(SCENE_GROUPS)
+    for k, (e, t) in run_perturbed(None, SCENE_GROUPS).items():
         assert e <= t, (k, e, t)
     for name in PERTURBATIONS:
-        assert any(not e <= t for e, t in table[name].values()), (name, table[name])
+        seen = {}
+        for group in CHEAPEST_FIRST:
+            seen.update(run_perturbed(name, [group]))
+            if any(not e <= t for e, t in seen.values()):
+                break
+        assert any(not e <= t for e, t in seen.values()), (name, seen)
 
 
 def perturbation_table() -> dict:
