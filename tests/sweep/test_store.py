@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import random
-import resource
 import shutil
 import signal
 import subprocess
@@ -478,32 +477,51 @@ def test_corrupt_truncated_chunks_and_manifest_are_detected_and_recomputed(tmp_p
 
 # ---------------------------------------------------------------------- bounded memory
 RSS_SCRIPT = textwrap.dedent("""
-    import json, resource, sys
+    import gc, json, os, sys, threading, time
     import warp as wp
     wp.config.quiet = True
     from warp_tensegrity import sweep
     from warp_tensegrity.policy.cost import host_bytes_per_column
     from warp_tensegrity.sweep import load_spec
     spec_text, out, cap = sys.argv[1], sys.argv[2], int(sys.argv[3])
-    rss = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    page = os.sysconf("SC_PAGE_SIZE")
+    now = lambda: int(open("/proc/self/statm").read().split()[1]) * page  # resident bytes now
     # warm-up: the same scene, 2 columns, through the whole path (imports, kernels, store, export)
     warm = load_spec(spec_text, overrides={"run": {"shard_size": 1}})
     warm.grid = {k: v[:1] for k, v in warm.grid.items()}
     warm.grid[next(iter(warm.grid))] = list(load_spec(spec_text).grid[next(iter(warm.grid))][:2])
     sweep.run_sweep(warm, out + ".warm.nc", progress=False)
-    base = rss()
+    gc.collect()
+    # the baseline is the resident memory after the warm-up, not the process's peak so far: a peak
+    # (ru_maxrss) includes the warm-up's kernel compilation when the kernel cache is cold (CI) and hid
+    # ~10 MB of the sweep's own use there; sampled every 2 ms during the sweep, from the same baseline
+    base, peak, stop = now(), [0], threading.Event()
+    def sample():
+        while not stop.is_set():
+            peak[0] = max(peak[0], now())
+            time.sleep(0.002)
+    t = threading.Thread(target=sample, daemon=True)
+    t.start()
     plan = sweep.plan_sweep(load_spec(spec_text), out, memory_limit=cap)
     sweep.execute(plan, progress=False)
+    stop.set()
+    t.join()
     per = host_bytes_per_column(plan.run, plan.spec.run["record_strain"], plan.spec.run["record_energy"])
-    print(json.dumps({"baseline_rss": base, "peak_rss": rss(), "shard_size": plan.shard_size,
+    print(json.dumps({"baseline_rss": base, "peak_rss": max(peak[0], now()), "shard_size": plan.shard_size,
                       "n_shards": plan.n_shards, "host_bytes_per_column": per}))
 """)
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "the limit is not kept (docs/guarantees.md, 'Not guaranteed'): measured 39-41 MB against 32 MB at 100 shards "
+    "of 31 columns on the CPU test machine; cyclic garbage of the finished shards' runs (their native arrays) "
+    "waits for a full collection, and the export's Dask graph grows with the shards"))
 def test_peak_rss_stays_under_the_memory_limit(tmp_path):
     """A sweep whose output is > 4x the memory limit: the host memory the sweep adds to the process
-    (peak RSS minus the RSS after imports, kernel loads and a 2-column warm-up run) stays under it."""
+    (the resident memory sampled during the sweep minus that after imports, kernel loads and a
+    2-column warm-up run) stays under it. Known to fail (strict xfail): an unexpected pass fails the
+    suite, so the guarantee returns to docs/guarantees.md with this test's figure."""
     cap = 32_000_000
     # 3100 columns x 101 outputs x (50 prisms + 2 energies) x 8 B = 132 MB; truncated runs (18 prisms
     # stepped, padded to 50), so the plan's and the template's estimates see 3100 full columns at once
@@ -525,10 +543,8 @@ def test_peak_rss_stays_under_the_memory_limit(tmp_path):
     print(json.dumps(m))
     assert output_bytes >= 4 * cap, m
     assert m["n_shards"] >= 8, m
-    assert m["sweep_rss"] < cap, m
-    # children's peak as the OS saw it (the whole process, baseline included)
-    assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 >= m["peak_rss"]
     np.testing.assert_array_equal(open_nc(out)["status"].values, 0)
+    assert m["sweep_rss"] < cap, m
 
 
 def test_memory_limit_sets_the_shard_size_and_refuses_nonsense(tmp_path, capsys):
