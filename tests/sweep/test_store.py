@@ -514,9 +514,10 @@ RSS_SCRIPT = textwrap.dedent("""
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "the limit is not kept (docs/guarantees.md, 'Not guaranteed'): measured 39-41 MB against 32 MB at 100 shards "
-    "of 31 columns on the CPU test machine; cyclic garbage of the finished shards' runs (their native arrays) "
-    "waits for a full collection, and the export's Dask graph grows with the shards"))
+    "the limit is not kept (docs/guarantees.md, 'Not guaranteed'): measured 39-42 MB against 32 MB at 100 shards "
+    "of 31 columns on the CPU test machine, already while the shards are written (the writer's buffers exceed "
+    "the 60 % headroom); with more, smaller shards the finished runs' cyclic garbage and the export's Dask graph "
+    "add more"))
 def test_peak_rss_stays_under_the_memory_limit(tmp_path):
     """A sweep whose output is > 4x the memory limit: the host memory the sweep adds to the process
     (the resident memory sampled during the sweep minus that after imports, kernel loads and a
