@@ -30,6 +30,8 @@ from typing import NamedTuple
 
 import warp as wp
 
+from ...policy.lane_fit import WARP
+
 
 class LaneFuncs(NamedTuple):
     """The lane pieces of one precision and lane map, by name (:func:`make_lane_funcs`)."""
@@ -378,7 +380,7 @@ def make_lane_funcs(real, P: int, G: int, ops, cable_force, bar_residual, cable_
         for j in range(LG):
             s = 1 << j
             rb = wp.cw_div(vec(one, one, one), b)
-            if wp.static(G > 32):  # k warps: up and down of a value from one barrier
+            if wp.static(G > WARP):  # k warps: up and down of a value from one barrier
                 au, ad = ops.shfl_updown3(a, s, g, wl)
                 ru, rd = ops.shfl_updown3(rb, s, g, wl)
                 cu, cd = ops.shfl_updown3(c, s, g, wl)

@@ -16,6 +16,8 @@ from typing import NamedTuple
 
 import warp as wp
 
+from ...policy.lane_fit import WARP  # lanes of a warp (the butterfly rounds inside one need no barrier)
+
 # One 32-bit shuffle as PTX. Not ``asm volatile`` (Warp's own __shfl_*_sync are): the compiler
 # may then schedule the shuffles like other arithmetic, which is safe because the step's control
 # flow is warp-uniform. ``mode``: up, down or bfly; ``c`` packs the segment width (PTX ISA, shfl.sync).
@@ -197,16 +199,15 @@ def make_lane_ops(real):
 # ``WP_TILE_SYNC`` between the CPU block's fibers), so the lane code of :mod:`.lane_funcs` and
 # :mod:`.lane_rigid` runs unchanged over k warps. Two exceptions spare barriers: a shift up and down of
 # one value reads both from one exchange (:func:`shfl_updown3`), and the rounds of a butterfly (segment
-# sum and max) whose partner lies in the lane's own warp are warp shuffles on CUDA (no barrier). Two buffers alternate, so one barrier per exchange
-# suffices: a lane writes buffer p only after the barrier of the next exchange, which every lane
-# reaches after its reads of buffer p. The parity p is each lane's own entry of ``wt_bpar`` (the
-# lanes agree: they make the same calls); the vote (``__syncthreads_or``, itself a barrier) resets
-# it, and the kernel votes before its first exchange (shared memory starts undefined). The step's control flow is block-uniform
-# (these votes), so every thread reaches every barrier.
+# sum and max) whose partner lies in the lane's own warp are warp shuffles on CUDA (no barrier). Two
+# buffers alternate, so one barrier per exchange suffices: a lane writes buffer p only after the barrier
+# of the next exchange, which every lane reaches after its reads of buffer p. The parity p is each lane's
+# own entry of ``wt_bpar`` (the lanes agree: they make the same calls); the vote (``__syncthreads_or``,
+# itself a barrier) resets it, and the kernel votes before its first exchange (shared memory starts
+# undefined). The step's control flow is block-uniform (these votes), so every thread reaches every
+# barrier.
 # Hand-written: Warp's tile primitives reduce whole tiles, not a shift by d lanes of a register value.
 
-WARP = 32
-"""Lanes of a warp (the butterfly rounds inside one need no barrier)."""
 _STORE = "#if defined(__CUDA_ARCH__)\n    __shared__\n#else\n    static\n#endif\n"
 BLOCK_LANES = 512
 """Size of the shared buffers: the most lanes of a block (policy.lane_fit.MAX_COLUMN_LANES, checked
