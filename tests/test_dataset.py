@@ -16,6 +16,7 @@ from warp_tensegrity import sweep
 from warp_tensegrity import BatchResult
 from warp_tensegrity.types import STATUS_MEANINGS
 from warp_tensegrity.sweep import parse_spec
+from warp_tensegrity.sweep import store as zstore
 
 CASES = """
 title = "dataset test"
@@ -151,7 +152,10 @@ def test_shards_tile_the_sweep(case_run):
     """Each shard's region of the store (chunk along case) is the matching slice of the export."""
     _, out = case_run
     lazy = sweep.open_sweep(out)
-    assert lazy["strain"].chunks[0] == (2, 1)
+    raw = xr.open_zarr(zstore.SweepStore(out).zarr, consolidated=False, decode_timedelta=False)
+    assert raw["strain"].chunks[0] == (2, 1)  # the store: one chunk per shard
+    c = lazy["strain"].chunks[0]  # the lazy view: blocks of whole shards (sweep/store.py, block_columns)
+    assert sum(c) == 3 and all(w % 2 == 0 for w in c[:-1]), c
     xr.testing.assert_identical(lazy.load(), D.open_sweep(out))
 
 

@@ -64,7 +64,7 @@ def _add_exec_options(p: argparse.ArgumentParser, dry_run: bool = True):
     g.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run shards on an existing Dask cluster (e.g. tcp://host:8786)")
     p.add_argument("--memory-limit", default=None, metavar="SIZE",
-                   help="host memory for the shards in flight, e.g. 512MB (lowers the shard size to fit)")
+                   help="host memory the sweep may add, e.g. 512MB (lowers the shard size to fit; refused if none fits)")
     add_estimate_options(p, "the run plan (columns, shards, dt, steps, path) and the estimated memory and time"
                          if dry_run else "")
     p.add_argument("--no-progress", action="store_true",

@@ -138,7 +138,7 @@ def decide_sweep(plan: SweepPlan) -> SweepPlan:
     plan.run = max((g.plan for g in plan.groups), key=lambda r: (r.n_steps, -r.dt))
     if plan.memory_limit is not None:
         per = host_bytes_per_column(plan.run, bool(spec.run["record_strain"]), bool(spec.run["record_energy"]))
-        n = limit_shard_size(plan.shard_size, per, plan.memory_limit)
+        n = limit_shard_size(plan.shard_size, per, plan.memory_limit, plan.n_columns)
         if n != plan.shard_size:
             plan.shard_size, plan.shards = n, spec.shards(n)
     return plan

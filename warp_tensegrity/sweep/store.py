@@ -165,7 +165,9 @@ class SweepStore:
             v = tpl[k].variable
             shape = (N,) + v.shape[1:]
             chunks = (min(plan.shard_size, N),) + v.shape[1:]  # one shard wider than the sweep: its columns
-            data[k] = xr.Variable(v.dims, da.zeros(shape, dtype=v.dtype, chunks=chunks), attrs=dict(v.attrs))
+            # one dask chunk: to_zarr(compute=False) writes only the metadata, and a chunk per shard
+            # would build a graph of a task per shard and variable, never run
+            data[k] = xr.Variable(v.dims, da.zeros(shape, dtype=v.dtype, chunks=shape), attrs=dict(v.attrs))
             enc[k] = {"chunks": chunks}
             if k in D.ENERGY_RECORDS and not plan.spec.run.get("compress_energy", True):
                 enc[k]["compressors"] = None  # round-off low bits: Zarr's codec would save ~20 % at ~0.5 s per 100 MB
@@ -335,6 +337,8 @@ def assemble(spec, ds: xr.Dataset, shard_attrs: list[dict], tpl: xr.Dataset, zar
                                                    "warp_tensegrity {package_version}")
     if spec.kind == "grid":
         out = _to_grid_lazy(layout, out, zarr_path, shard_size)
+    elif zarr_path is not None:  # cases: the same blocks, over the one case axis
+        out = _to_grid_lazy(None, out, zarr_path, shard_size)
     return out
 
 
@@ -365,6 +369,19 @@ class GridView:
         return data.reshape(tuple(len(r) for r in ranges) + data.shape[1:])
 
 
+def block_columns(ds: xr.Dataset, shard_size: int) -> dict:
+    """Columns per export block for each case variable of ``ds``: a multiple of ``shard_size`` that
+    holds at most one shard's bytes of all variables together (what a run kept in flight per shard).
+    A variable with few bytes a column is read in few, wide blocks: the export's Dask graph has a task
+    per block, and tasks for 4,000 one-shard blocks of small variables held ~20 MB (100 shards)."""
+    names = _case_vars(ds)
+    n = int(ds.sizes["case"])
+    shard = max(int(shard_size) or n, 1)
+    per = {k: max(ds[k].dtype.itemsize * int(np.prod(ds[k].shape[1:])), 1) for k in names}
+    budget = shard * sum(per.values())
+    return {k: min(n, shard * max(budget // (shard * per[k]), 1)) for k in names}
+
+
 def grid_chunks(grid_shape: tuple, shard_size: int) -> tuple:
     """Blocks of at most shard_size columns, each a contiguous run of columns (C order)."""
     chunks, left = [], max(int(shard_size), 1)
@@ -376,24 +393,32 @@ def grid_chunks(grid_shape: tuple, shard_size: int) -> tuple:
 
 
 def _to_grid_lazy(layout, ds: xr.Dataset, zarr_path=None, shard_size: int = 0) -> xr.Dataset:
-    """io.to_grid without loading: each data variable read from the store through a GridView."""
+    """io.to_grid without loading: each data variable read from the store through a GridView, in
+    blocks of :func:`block_columns`. ``layout`` None: the case axis kept (a cases spec)."""
     if zarr_path is None:
         return D.to_grid(layout, ds)
     import dask.array as da
     import zarr
 
     group = zarr.open_group(str(zarr_path), mode="r")
+    widths = block_columns(ds, shard_size)
 
     def split(name, v, shape):
         if name not in ds.data_vars:
             return v.data.reshape(shape + v.shape[1:])
         view = GridView(group[name], shape)
-        chunks = grid_chunks(shape, shard_size or v.shape[0]) + tuple(v.shape[1:])
+        chunks = grid_chunks(shape, widths[name]) + tuple(v.shape[1:])
         token = hashlib.sha256(f"{zarr_path}/{name}/{view.shape}/{chunks}".encode()).hexdigest()[:16]
         return da.from_array(view, chunks=chunks, name=f"wt-grid-{name}-{token}", lock=False, asarray=True,
                              meta=np.empty((0,) * view.ndim, dtype=view.dtype))
 
-    return D.to_grid(layout, ds, split)
+    if layout is not None:
+        return D.to_grid(layout, ds, split)
+    out = ds.copy()
+    for k in widths:
+        v = ds[k].variable
+        out[k] = xr.Variable(v.dims, split(k, v, (v.shape[0],)), attrs=v.attrs)
+    return out
 
 
 # ---------------------------------------------------------------------- export
@@ -411,12 +436,11 @@ def export_netcdf(ds: xr.Dataset, path) -> Path:
             enc[k]["chunksizes"] = tuple(max(c) for c in v.chunks)
     import netCDF4
 
-    # netCDF-C keeps up to 64 MiB of chunks per variable by default: a few chunks are enough here,
-    # since each dask chunk fills whole netCDF chunks
+    # netCDF-C keeps up to 64 MiB of chunks per variable by default, and a cache of even two chunks
+    # held a chunk per variable until the file closed (~6 MB of 100 shards): no cache. Each dask
+    # block fills whole netCDF chunks, which HDF5 then compresses and writes at once
     cache = netCDF4.get_chunk_cache()
-    biggest = max([v.dtype.itemsize * int(np.prod(enc[k]["chunksizes"])) for k, v in ds.data_vars.items()
-                   if "chunksizes" in enc.get(k, {})] or [0])
-    netCDF4.set_chunk_cache(max(2 * biggest, 2**20), cache[1], cache[2])
+    netCDF4.set_chunk_cache(0, cache[1], cache[2])
     need = netcdf_bytes(ds.nbytes, max([len(c) for v in ds.data_vars.values() for c in (v.chunks or ())] or [1]))
     try:
         with D.writing_netcdf(path, need) as tmp, dask.config.set(scheduler="synchronous"):
@@ -439,21 +463,42 @@ def export_netcdf(ds: xr.Dataset, path) -> Path:
 # ---------------------------------------------------------------------- memory
 SHARD_SHARE = 0.4
 """Share of the memory limit for the shards in flight; the rest is headroom for the writer's and the
-export's buffers (Zarr codecs, the netCDF chunk cache, allocator slack), measured at ~10-25 MB."""
+export's buffers (Zarr codecs, the export's one block, allocator slack) and for the bookkeeping below."""
+FIXED_BYTES = 6_000_000
+"""Host bytes a sweep keeps whatever its shards: the plan's column batches
+(:data:`~warp_tensegrity.policy.decide.ESTIMATE_CHUNK_BYTES`, 4 MB, freed but kept by the allocator),
+the store's layout and the export's graph (measured 5.1 MB before the first shard, 3,100 columns)."""
+RECORD_BYTES = 48_000
+"""Host bytes each shard adds until the run ends: its manifest record (a checksum per variable, kept
+in memory and rewritten with the manifest at every shard) and what the allocator keeps of those
+rewrites (measured ~30 kB a shard of 39 variables over 207 shards)."""
 
 
-def limit_shard_size(shard_size: int, per: int, memory_limit: int) -> int:
-    """The largest shard size (at most ``shard_size``) whose IN_FLIGHT shards, ``per`` host bytes a
-    column (:func:`warp_tensegrity.policy.cost.host_bytes_per_column`), fit in SHARD_SHARE of
-    ``memory_limit`` bytes of host memory beyond the process's own (libraries, compiled kernels)."""
-    n = int(SHARD_SHARE * memory_limit // (IN_FLIGHT * per))
-    if n < 1:
-        raise StoreError(
-            f"memory limit {memory_limit / 1e6:.3g} MB is below the {IN_FLIGHT * per / SHARD_SHARE / 1e6:.3g} MB "
-            f"that {IN_FLIGHT} shards of one column need with headroom; raise --memory-limit or record less "
-            f"(run.record_strain = false)"
-        )
-    return min(shard_size, n)
+def memory_need(shard_size: int, per: int, n_columns: int) -> int:
+    """Host bytes a sweep of ``n_columns`` in shards of ``shard_size`` needs under a memory limit:
+    the larger of its shards in flight over SHARD_SHARE and its fixed and per-shard bookkeeping over
+    the rest (``per``: :func:`warp_tensegrity.policy.cost.host_bytes_per_column`)."""
+    n_shards = -(-int(n_columns) // int(shard_size))
+    return int(max(IN_FLIGHT * shard_size * per / SHARD_SHARE,
+                   (FIXED_BYTES + n_shards * RECORD_BYTES) / (1.0 - SHARD_SHARE)))
+
+
+def limit_shard_size(shard_size: int, per: int, memory_limit: int, n_columns: int) -> int:
+    """The largest shard size (at most ``shard_size``) whose sweep of ``n_columns`` fits in
+    ``memory_limit`` bytes of host memory beyond the process's own (libraries, compiled kernels):
+    IN_FLIGHT shards in SHARD_SHARE of it, the fixed and per-shard bookkeeping (FIXED_BYTES,
+    RECORD_BYTES a shard) in the rest. Smaller shards mean more of them, so a limit can be too
+    small for any shard size: refused with the least limit that works."""
+    n = min(int(shard_size), int(SHARD_SHARE * memory_limit // (IN_FLIGHT * per)), int(n_columns))
+    if n >= 1 and memory_need(n, per, n_columns) <= memory_limit:
+        return n
+    least = min(memory_need(s, per, n_columns) for s in range(1, max(min(int(shard_size), int(n_columns)), 1) + 1))
+    raise StoreError(
+        f"memory limit {memory_limit / 1e6:.3g} MB is below the {least / 1e6:.3g} MB that this sweep of "
+        f"{n_columns} columns needs at its best shard size ({per / 1e3:.3g} kB a column in {IN_FLIGHT} shards "
+        f"in flight, plus {FIXED_BYTES / 1e6:.3g} MB and {RECORD_BYTES / 1e3:.3g} kB a shard of bookkeeping, "
+        f"with headroom); raise --memory-limit or record less (run.record_strain = false)"
+    )
 
 
 def parse_bytes(text) -> int:
