@@ -1,83 +1,75 @@
 """Issue 31, Must show 1: every fp32 measure is right, flagged, or covered by its error estimate.
 
-The issue's two CPU cases, 24 feasible phase_large cases (FB, 50 prisms, 10 s) whose fp32 and
-fp64 measures differed by more than the accuracy target on an H200
-(benchmarks/results/error_coverage_phase_large_h200_0f97af1_cases.npz), and 8 phase_large cases at beta
-0-1 whose measures differed before issue 31 (benchmarks/measure_stability.py), run here on the CPU
-as sweeps run them (groups, twins, error estimates) in fp32 and, for reference, in fp64: the
-flexible-base cases as one sweep, the others as another (:func:`sweeps`). For each case and each measure the
-fp32 answer must agree with fp64 to the target, or be flagged (measurement_flag, error_flag,
-feasibility_flag), or carry an estimate of at least half the difference.
+The cases (benchmarks/fp32_verified.py): the issue's two CPU cases, 24 feasible phase_large cases
+whose fp32 and fp64 measures differed by more than the accuracy target on an H200, and 8
+phase_large cases at beta 0-1 whose measures differed before issue 31, run here on the CPU in fp32
+as sweeps run them (groups, twins, error estimates). Their fp64 answers are read from
+tests/data/fp32_verified_fp64.nc (``python -m benchmarks.fp32_verified`` writes it); two of the
+cases are re-run in fp64 here, at the dt the file records, and must match it, so a reference that
+this code no longer computes fails. For each case and each measure the fp32 answer must agree with
+fp64 to the target, or be flagged (measurement_flag, error_flag, feasibility_flag), or carry an
+estimate of at least half the difference.
 """
 
-from pathlib import Path
+import contextlib
 
 import numpy as np
 import pytest
 import xarray as xr
 
+from benchmarks.fp32_verified import MEASURES, PARAMS, REFERENCE, VARIABLES, run_cases, spec
 from warp_tensegrity.measure import errors as E
 
-ROOT = Path(__file__).resolve().parents[2]
 TARGET = 1e-3
-MEASURES = ("amplitude", "speed", "width", "width_10", "arrival_time")
-ISSUE_CASES = [(0.0007, 0.04869, 0.95), (0.0013, 0.09868, 0.0)]
-"""(prestrain, v0 [m/s], base_rigidity): the issue's two cases (both leave the feasible set)."""
-FB_CASES = [(p, v) for p, vs in (
-    (0.0, (0.001, 0.00142, 0.00203, 0.00289, 0.00411, 0.00585, 0.00833, 0.01185, 0.01687, 0.02402)),
-    (0.00067, (0.00411, 0.00585, 0.00833, 0.01185, 0.01687, 0.02402)),
-    (0.00133, (0.00833, 0.01185, 0.01687, 0.02402)),
-    (0.002, (0.01185, 0.01687, 0.02402, 0.0342))) for v in vs]
-"""(prestrain, v0) at base_rigidity 0: phase_large's grid cases whose fp32 and fp64 measures differed
-by more than the target on an H200 (24 of its 39 such FB cases)."""
-
-
-def grid_cases() -> list[tuple]:
-    """The 8 phase_large cases of benchmarks/measure_stability.py not stored as its fixtures: cases
-    whose fp32 and fp64 measures differed by more than the target before issue 31, at beta 0-1."""
-    from benchmarks.measure_stability import FIXTURE_CASES, cases
-
-    return [c for i, c in enumerate(cases()) if i not in FIXTURE_CASES]
-
-
-VARIABLES = MEASURES + tuple(f"{k}_error" for k in MEASURES) + ("measurement_flag", "feasibility_flag", "error_flag")
-
-
-def spec(precision: str, rows: list[tuple]) -> str:
-    """phase_large's scene over the cases ``rows`` ((prestrain, v0, base_rigidity)) for 10 s; fp64
-    without the twins (its measures are the reference; the estimates checked are fp32's)."""
-    text = [f'{{ prestrain = {p}, v0 = {v}, base_rigidity = {b} }}' for p, v, b in rows]
-    return ((ROOT / "sweeps" / "phase_large.toml").read_text().split("[sweep]")[0]
-            + "[sweep]\ncases = [\n  " + ",\n  ".join(text) + ",\n]\n[run]\nt_end = 10.0\noutput_interval = 0.002\n"
-            + f'precision = "{precision}"\nrecord_strain = false\nshard_size = 64\n'
-            + ("error_estimate = false\n" if precision == "fp64" else ""))
-
-
-def sweeps() -> tuple[list[tuple], list[tuple]]:
-    """The cases as two sweeps: the flexible-base ones (beta = 0: phase_large's grid cases of the H200
-    study and the issue's second; omega_max 248.5-248.7 rad/s, their own dt 2.9e-4 s, 35,000 steps;
-    phase_large's group stepped them at 1.7e-4 s beside stiffer columns) and the others (the issue's
-    first, the grid cases at beta 0-1: dt 9.1e-5 s, and 5e-4 s for the rigid one). As one sweep every
-    non-rigid column stepped at 9.1e-5 s (groups of fewer than 64 columns merge into their stiffer
-    neighbour): 440 s of CI instead of about 230."""
-    flexible = [ISSUE_CASES[1]] + [(p, v, 0.0) for p, v in FB_CASES]
-    return flexible, [ISSUE_CASES[0]] + grid_cases()
+CURRENT = {"rigid base": lambda ref: int(np.flatnonzero(ref.base_rigidity.values >= 1.0)[0]),
+           "flexible base": lambda ref: int(ref.sizes["case"] - 1)}
+"""Cases re-run in fp64 to check the stored reference: its one rigid-base case (dt 5e-4 s, 20,000
+steps) and its last flexible-base one."""
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """fp32 and fp64 datasets of the variables the checks read, the cases in the order: the issue's
-    two, the 8 grid cases, the 24 flexible-base cases."""
+    """fp32 datasets of the variables the checks read (run here) and the fp64 reference (stored), the
+    cases in the order: the issue's two, the 8 grid cases, the 24 flexible-base cases."""
+    d = tmp_path_factory.mktemp("fp32v")
+    ref = xr.load_dataset(REFERENCE)
+    f32 = run_cases("fp32", d)
+    for k in PARAMS:  # the same cases, in the same order
+        np.testing.assert_array_equal(f32[k].values, ref[k].values, err_msg=k)
+    return {"fp32": f32, "fp64": ref}
+
+
+@pytest.mark.slow  # three fp64 columns of 20,000 and 35,000 steps: ~15 s
+@pytest.mark.parametrize("which,perturbed", [("rigid base", None), ("flexible base", None),
+                                             ("flexible base", "cross_EA")])
+def test_the_fp64_reference_is_what_this_code_computes(which, perturbed, tmp_path):
+    """One case of the stored fp64 reference, re-run alone in fp64 at the dt its sweep gave it: the
+    measures match the file to 1e-9 (bit-identical on the machine that wrote it; the margin is for
+    another machine's BLAS in the base-mode analysis), the flags exactly. The check can fail: an
+    engine whose cross cables' EA is 1.05x (``perturbed``) gives measures 3e-2 to 0.23 off (measured)."""
+    from tests.validation.test_perturbation import perturbed_engine
     from warp_tensegrity.sweep import run_sweep
 
-    d = tmp_path_factory.mktemp("fp32v")
-    out = {}
-    for p in ("fp32", "fp64"):
-        fb, rest = (xr.load_dataset(run_sweep(spec(p, rows), d / f"{p}_{i}.nc", device="cpu", progress=False))
-                    for i, rows in enumerate(sweeps()))
-        order = [rest.isel(case=[0]), fb.isel(case=[0]), rest.isel(case=slice(1, None)), fb.isel(case=slice(1, None))]
-        out[p] = xr.Dataset({k: xr.concat([o[k] for o in order], dim="case") for k in VARIABLES if k in fb})
-    return out
+    ref = xr.load_dataset(REFERENCE)
+    c = CURRENT[which](ref)
+    row = tuple(float(ref[k].values[c]) for k in PARAMS)
+    text = spec("fp64", [row], dt=float(ref.time_step.values[c]))
+    with perturbed_engine(perturbed) if perturbed else contextlib.nullcontext():
+        live = xr.load_dataset(run_sweep(text, tmp_path / "one.nc", device="cpu", progress=False))
+    assert float(live.time_step.values[0]) == float(ref.time_step.values[c])
+    off = {}
+    for k in [k for k in VARIABLES if k in ref]:  # fp64 has no twins: no estimates, no error_flag
+        a, b = np.asarray(live[k].values[0], float), np.asarray(ref[k].values[c], float)
+        if k.endswith("_flag"):
+            np.testing.assert_array_equal(a, b, err_msg=k)
+        else:
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=f"{k}: where it is NaN")
+            with np.errstate(invalid="ignore", divide="ignore"):
+                off[k] = float(np.nanmax(np.abs(a - b) / np.abs(b), initial=0.0))
+    if perturbed:
+        assert max(off.values()) > 1e-2, off
+    else:
+        assert max(off.values()) <= 1e-9, off
 
 
 def unaccounted(f32, f64, scale_errors=1.0) -> list[str]:
