@@ -479,7 +479,7 @@ def memory_need(shard_size: int, per: int, n_columns: int) -> int:
     the larger of its shards in flight over SHARD_SHARE and its fixed and per-shard bookkeeping over
     the rest (``per``: :func:`warp_tensegrity.policy.cost.host_bytes_per_column`)."""
     n_shards = -(-int(n_columns) // int(shard_size))
-    return int(max(IN_FLIGHT * shard_size * per / SHARD_SHARE,
+    return int(max(IN_FLIGHT * min(int(shard_size), int(n_columns)) * per / SHARD_SHARE,
                    (FIXED_BYTES + n_shards * RECORD_BYTES) / (1.0 - SHARD_SHARE)))
 
 
@@ -489,7 +489,7 @@ def limit_shard_size(shard_size: int, per: int, memory_limit: int, n_columns: in
     IN_FLIGHT shards in SHARD_SHARE of it, the fixed and per-shard bookkeeping (FIXED_BYTES,
     RECORD_BYTES a shard) in the rest. Smaller shards mean more of them, so a limit can be too
     small for any shard size: refused with the least limit that works."""
-    n = min(int(shard_size), int(SHARD_SHARE * memory_limit // (IN_FLIGHT * per)), int(n_columns))
+    n = min(int(shard_size), int(SHARD_SHARE * memory_limit // (IN_FLIGHT * per)))
     if n >= 1 and memory_need(n, per, n_columns) <= memory_limit:
         return n
     least = min(memory_need(s, per, n_columns) for s in range(1, max(min(int(shard_size), int(n_columns)), 1) + 1))
