@@ -5,7 +5,6 @@ output that is a directory or special file (6), `resume` over finished work (2),
 from __future__ import annotations
 
 import errno
-import json
 import os
 import signal
 import subprocess
@@ -74,7 +73,10 @@ def chunk_mtimes(out: Path) -> dict:
 
 
 def manifest_shards(out: Path) -> dict:
-    return json.loads(SweepStore(out).manifest_path.read_text())["shards"]
+    """The shards recorded as done: manifest.json and its journal (Manifest.read)."""
+    from warp_tensegrity.sweep.manifest import Manifest
+
+    return Manifest.read(SweepStore(out).manifest_path)[0]["shards"]
 
 
 # ---------------------------------------------------------------------- item 11: SIGTERM

@@ -341,6 +341,12 @@ def _kill_run(args, point: str, hit: int, action: str, delay: float, tmp_path: P
     return proc.returncode
 
 
+def recorded(store) -> dict:
+    """The shards a store records as done (manifest.json and its journal), {} without a manifest."""
+    content, _ = zmanifest.Manifest.read(store.manifest_path)
+    return dict(content["shards"]) if content else {}
+
+
 @pytest.mark.parametrize("seed", [int(os.environ.get("WT_KILL_SEED", 18))])
 @pytest.mark.slow  # three killed subprocess runs and resumes (~11 s)
 def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, reference, seed):
@@ -354,18 +360,18 @@ def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, referen
     log = []
     for k, cls in enumerate(("stepping", "write", "finalise")):
         point, hits = rng.choice(KILL_CLASSES[cls])
-        done = len(json.loads(store.manifest_path.read_text())["shards"]) if store.manifest_path.exists() else 0
+        done = len(recorded(store))
         left = max(n_shards - done, 1)
         hit = 1 if hits == 1 else rng.randint(1, (2 * left if hits == "many2" else left))
         action = rng.choice(["kill", "mark"])
         delay = rng.uniform(0.0, 0.25)
         args = ("run", spec, "-o", out, "--shard-size", 1) if k == 0 else ("resume", out)
-        before = dict(json.loads(store.manifest_path.read_text())["shards"]) if store.manifest_path.exists() else {}
+        before = recorded(store)
         rc = _kill_run(args, point, hit, action, delay, tmp_path)
         log.append((point, hit, action, round(delay, 3), rc))
         # after any kill: shards recorded earlier are still recorded with the same checksums,
         # an existing export is complete, and no shard is recorded whose data do not check out
-        after = json.loads(store.manifest_path.read_text())["shards"] if store.manifest_path.exists() else {}
+        after = recorded(store)
         assert all(after[i]["sha256"] == r["sha256"] for i, r in before.items()), log
         if out.exists():
             assert_bitwise(open_nc(out), reference)
@@ -374,7 +380,7 @@ def test_sigkill_at_random_points_then_resume_is_bit_identical(tmp_path, referen
         assert st["shards_done"] == len(after), (log, st)
     print("kills:", log)
     kept = {i: (store.zarr / "strain" / "c" / i).stat().st_mtime_ns
-            for i in json.loads(store.manifest_path.read_text())["shards"]}
+            for i in recorded(store)}
     assert run_cli("resume", out) == 0, log
     for i, mtime in kept.items():  # shards done before the last kill were reused, not rewritten
         assert (store.zarr / "strain" / "c" / i).stat().st_mtime_ns == mtime, (i, log)
@@ -586,3 +592,36 @@ def test_status_of_a_netcdf_that_is_not_a_sweep_is_a_clear_error(tmp_path, capsy
     assert "lens.nc is not the output of a sweep" in err and "Traceback" not in err, err
     with pytest.raises(sweep.SweepError, match="status variable"):
         sweep.sweep_status(other)
+
+
+# ---------------------------------------------------------------------- the manifest's journal
+def test_manifest_journal_appends_a_shard_and_survives_a_torn_line(tmp_path):
+    """A shard done is one line appended to manifest.journal (manifest.json is not rewritten); a line
+    torn by a crash or a full disk, or damaged, loses only its own shard (recomputed on resume); a
+    whole rewrite folds the journal in and removes it."""
+    path = tmp_path / "manifest.json"
+    m = zmanifest.Manifest(path, {"format": zmanifest.FORMAT, "shards": {}})
+    m.save()
+    written = path.read_bytes()
+    rec = {"case_start": 0, "case_stop": 2, "sha256": {"strain": "ab" * 32}, "n_failed": 0, "attrs": {}}
+    for i in range(3):
+        m.mark_done(i, dict(rec, case_start=2 * i, case_stop=2 * i + 2))
+    assert path.read_bytes() == written and m.journal.exists()
+    assert sorted(zmanifest.Manifest.read(path)[0]["shards"]) == ["0", "1", "2"]
+    # a torn append (a crash mid-write): the next append cuts it and starts a line of its own
+    with open(m.journal, "ab") as f:
+        f.write(b'{"record": {"case_start": 6, "case_st')
+    assert sorted(zmanifest.Manifest.read(path)[0]["shards"]) == ["0", "1", "2"]
+    m.mark_done(3, dict(rec, case_start=6, case_stop=8))
+    lines = m.journal.read_bytes().splitlines()
+    assert len(lines) == 4 and all(ln.startswith(b"{") and ln.endswith(b"}") for ln in lines)
+    # a damaged line: only its shard is lost
+    lines[1] = lines[1].replace(b'"n_failed": 0', b'"n_failed": 1')
+    m.journal.write_bytes(b"\n".join(lines) + b"\n")
+    got = zmanifest.Manifest.read(path)[0]["shards"]
+    assert sorted(got) == ["0", "2", "3"] and got["3"]["case_start"] == 6
+    # a whole rewrite holds every record and removes the journal
+    m.save()
+    assert not m.journal.exists()
+    assert sorted(json.loads(path.read_text())["shards"]) == ["0", "1", "2", "3"]
+    assert zmanifest.Manifest.read(path)[0]["shards"] == m.shards

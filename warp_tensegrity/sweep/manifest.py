@@ -207,9 +207,73 @@ def _content_sha(content: dict) -> str:
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
 
+def journal_path(manifest: Path) -> Path:
+    """The journal of the shards done since ``manifest`` was last rewritten whole."""
+    return Path(manifest).with_suffix(".journal")
+
+
+def _append_line(path: Path, line: bytes) -> None:
+    """Append ``line`` to ``path`` and fsync it (and the directory when the file is new). Never
+    through a link (O_NOFOLLOW). A line torn by a crash or a full disk is cut off first, so the new
+    one starts a line of its own."""
+    flags = os.O_RDWR | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC | getattr(os, "O_NOFOLLOW", 0)
+    new = not path.exists()
+    fd = os.open(path, flags, 0o644)
+    try:
+        _cut_torn_tail(fd)
+        view = memoryview(line)
+        while view:  # a short write near a full disk: the rest, or the error
+            view = view[os.write(fd, view):]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    if new:
+        _fsync_path(path.parent)
+
+
+def _cut_torn_tail(fd: int) -> None:
+    """Truncate an open file after its last newline (nothing when it ends with one)."""
+    end = os.fstat(fd).st_size
+    if not end or os.pread(fd, 1, end - 1) == b"\n":
+        return
+    while end > 0:
+        start = max(end - (1 << 16), 0)
+        cut = os.pread(fd, end - start, start).rfind(b"\n")
+        if cut >= 0:
+            os.ftruncate(fd, start + cut + 1)
+            return
+        end = start
+    os.ftruncate(fd, 0)
+
+
+def _journal_records(path: Path) -> dict:
+    """{shard: record} of the journal's lines that check out (a torn or damaged line is skipped:
+    its shard is not done, and is recomputed)."""
+    try:
+        lines = path.read_bytes().splitlines()
+    except FileNotFoundError:
+        return {}
+    except OSError:
+        return {}
+    out = {}
+    for ln in lines:
+        try:
+            entry = json.loads(ln)
+            sha = entry.pop("sha256")
+            if _content_sha(entry) == sha:
+                out[str(int(entry["shard"]))] = entry["record"]
+        except (ValueError, KeyError, TypeError, AttributeError):
+            continue
+    return out
+
+
 # ---------------------------------------------------------------------- manifest
 class Manifest:
-    """The store's header and done-shard records; rewritten atomically on every change."""
+    """The store's header and done-shard records. ``manifest.json`` holds the header and the records
+    as of its last whole rewrite (atomic, with its own sha256); each shard done since is one line of
+    ``manifest.journal`` beside it (appended and fsync'd, with the line's own sha256), so a shard costs
+    one append however many are done. A whole rewrite (:meth:`save`: the store laid out, shards
+    dropped, the run's end) folds the journal in and removes it."""
 
     def __init__(self, path: Path, content: dict, on_error=None):
         self.path = path
@@ -222,20 +286,33 @@ class Manifest:
     def shards(self) -> dict:
         return self.content["shards"]
 
+    @property
+    def journal(self) -> Path:
+        return journal_path(self.path)
+
     def save(self) -> None:
+        """Rewrite manifest.json whole, then remove the journal it now holds."""
         with self._lock:
             # compact: json's C encoder; with indent= it runs the pure-Python one, whose piece list for
-            # a manifest of 200 shards (1 MB) grew the resident memory by ~40 kB a shard (kept by the
-            # allocator), and made each save slower as the run went on
+            # a manifest of 200 shards (1 MB) grew the resident memory by ~40 kB a shard
             body = json.dumps({**self.content, "sha256": _content_sha(self.content)}, sort_keys=True)
             try:
                 _atomic_write_text(self.path, body + "\n")
+                if self.journal.exists() or self.journal.is_symlink():
+                    self.journal.unlink()  # after the rewrite: a crash between leaves records held twice
             except OSError as e:
                 raise StoreError(oserror_line(e, self.path) + self.on_error(e)) from None
 
     def mark_done(self, index: int, record: dict) -> None:
-        self.shards[str(index)] = record
-        self.save()
+        """Record shard ``index`` as done: one line appended to the journal and fsync'd."""
+        entry = {"shard": int(index), "record": record}
+        line = json.dumps({**entry, "sha256": _content_sha(entry)}, sort_keys=True) + "\n"
+        with self._lock:
+            try:
+                _append_line(self.journal, line.encode())
+            except OSError as e:
+                raise StoreError(oserror_line(e, self.journal) + self.on_error(e)) from None
+            self.shards[str(index)] = record
 
     @staticmethod
     def read(path: Path) -> tuple[dict | None, str]:
@@ -253,4 +330,5 @@ class Manifest:
             return None, "manifest checksum does not match its contents"
         if raw.get("format") != FORMAT:
             return None, f"manifest format {raw.get('format')!r}, expected {FORMAT!r}"
+        raw.setdefault("shards", {}).update(_journal_records(journal_path(path)))
         return raw, ""

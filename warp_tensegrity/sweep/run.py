@@ -151,6 +151,8 @@ def execute(
                     del ds
             finally:
                 writer.close()
+        if todo:
+            manifest.save()  # the journal folded into manifest.json: one file again
         bar.close()
         if not combine_output:
             return None
