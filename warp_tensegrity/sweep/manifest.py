@@ -251,9 +251,7 @@ def _journal_records(path: Path) -> dict:
     its shard is not done, and is recomputed)."""
     try:
         lines = path.read_bytes().splitlines()
-    except FileNotFoundError:
-        return {}
-    except OSError:
+    except OSError:  # none (no shard since the last rewrite), or unreadable: its shards recomputed
         return {}
     out = {}
     for ln in lines:
@@ -298,8 +296,9 @@ class Manifest:
             body = json.dumps({**self.content, "sha256": _content_sha(self.content)}, sort_keys=True)
             try:
                 _atomic_write_text(self.path, body + "\n")
-                if self.journal.exists() or self.journal.is_symlink():
-                    self.journal.unlink()  # after the rewrite: a crash between leaves records held twice
+                # after the rewrite: a crash between leaves the journal beside it, whose records are the
+                # same, or a shard a resume dropped, which then fails its checks again and is recomputed
+                self.journal.unlink(missing_ok=True)
             except OSError as e:
                 raise StoreError(oserror_line(e, self.path) + self.on_error(e)) from None
 
