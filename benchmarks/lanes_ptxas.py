@@ -43,10 +43,11 @@ def kernel_for(base: str, prec: str, n_prisms: int):
     fast = (L.LANE_FAST_MATH_RIGID if rigid else L.LANE_FAST_MATH)[prec]
     k = L.make_lane_kernel(real, P, G, L.LANE_MAX_REGISTERS[prec], rigid, fast,
                            block if L.LANE_SMEM_SPILL[prec] else 0, False, L.LANE_A_MEM[prec], L.LANE_MIXED[prec],
-                           L.LANE_BLOCK_MIN[prec] if G > L.WARP else 1)
+                           L.LANE_BLOCK_MIN[prec] if G > L.WARP else 1, L.LANE_RECORD_CALL[prec])
     return k.lane_steps, {"P": P, "G": G, "fast_math": bool(fast), "mixed": bool(L.LANE_MIXED[prec]),
                           "a_mem": bool(L.LANE_A_MEM[prec]), "max_registers": L.LANE_MAX_REGISTERS[prec],
-                          "block_min": L.LANE_BLOCK_MIN[prec] if G > L.WARP else 1}
+                          "block_min": L.LANE_BLOCK_MIN[prec] if G > L.WARP else 1,
+                          "record_call": bool(L.LANE_RECORD_CALL[prec])}
 
 
 def ptxas_budget(ptx: Path, arch: int, ptx_version: str | None) -> dict:

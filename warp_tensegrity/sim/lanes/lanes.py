@@ -44,7 +44,8 @@ class LaneKernels(NamedTuple):
 @functools.cache
 def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rigid: bool = False,
                      fast_math: bool = False, smem_spill_block: int = 0, loaded: bool = False,
-                     a_mem: bool = False, mixed: bool = False, block_min: int = 1):
+                     a_mem: bool = False, mixed: bool = False, block_min: int = 1,
+                     record_call: bool = False):
     """The warp-per-column RATTLE kernel for ``real``, P levels per lane, G lanes per column
     (``max_registers``: a cap per CUDA thread, None: the compiler's choice; ``rigid``: the batch
     has ring links, active in its rigid-base columns, :mod:`.lane_rigid`; ``fast_math``: CUDA's
@@ -56,7 +57,8 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
     projection and Newton, where only a failure store would read them; ``mixed``: fp64 only, the
     factor and solves in fp32 with fp64 residuals and refinement, :func:`.lane_funcs.make_mixed_funcs`;
     ``block_min``: k warps per column only, the blocks the compiler must fit on one SM at once, which
-    caps its registers at 65,536 / (G block_min), 255 at most). Launch
+    caps its registers at 65,536 / (G block_min), 255 at most; ``record_call``: the output records a
+    function the kernel calls (CUDA ``__noinline__``) instead of code inlined in the step's loop). Launch
     with ``dim`` = B G rounded up to a multiple of 32, one warp per block (or a few)."""
     blockwide = G > WARP  # k warps per column, one block of G threads each (lane_ops.make_block_ops)
     ops = make_block_ops(real, G) if blockwide else make_lane_ops(real)
@@ -118,7 +120,7 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                     A[3 * j - 3 + k] = a[3 * L + k, w]
         return A
 
-    @wp.func(inline=True)
+    @wp.func(inline=not record_call)
     def record(U: Nodes, V: Nodes, Fx: Nodes, xyl: XY, hzl: Pv, hnd: Pv, ex: Pv, cross: vec, base_ea: vec,
                rest: wp.array2d(dtype=real), wr: int, n: int, lane: int, g: int, wl: int, w: int, wM: int, slot: int,
                alive: int, h0: wp.array(dtype=real), static_dz: wp.array2d(dtype=real), level_ref: wp.array2d(dtype=vec),
@@ -465,6 +467,9 @@ LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared me
 # (B = 16,384) it cost FB fp32 45 % (1.78e8 -> 9.8e7), FB fp64 12 %, RB fp32 6 %: the loads after
 # Newton stall 8 resident warps per SM (benchmarks/results/issue33_h200/switches)
 LANE_A_MEM = {"fp32": False, "fp64": False}
+# the output records (``record``) a function call instead of inlined code: out of the hot loop's registers
+# and instruction cache; the call is made at output steps only
+LANE_RECORD_CALL = {"fp32": False, "fp64": False}
 # fp64 columns: an fp32 factor and fp32 solves with fp64 residuals and iterative refinement
 LANE_MIXED = {"fp32": False, "fp64": True}
 # what refinement reaches (:func:`.lane_funcs.make_mixed_funcs`): the velocity projection's solve
@@ -507,7 +512,7 @@ class LaneStep:
                                         self.block_dim if LANE_SMEM_SPILL[prec] and device.is_cuda else 0,
                                         batch.external_force is not None and bool(np.any(batch.external_force)),
                                         LANE_A_MEM[prec], LANE_MIXED[prec],
-                                        LANE_BLOCK_MIN[prec] if self.G > WARP else 1)
+                                        LANE_BLOCK_MIN[prec] if self.G > WARP else 1, LANE_RECORD_CALL[prec])
         X = batch.positions
         z = X[:, 2].reshape(n + 1, 3)[:, 0]
         top = batch.cables[: 3 * n : 3, 1] - 3 * np.arange(1, n + 1)
