@@ -138,7 +138,7 @@ lanemap)  # lane maps and switches against the defaults (BASE_MAPS: the code in 
     # MAP = BASE:PREC:PRISMS:B[:key=value...]; keys: ml (MAX_LEVELS_PER_LANE, the rigid one at most 2), mb
     # (MAX_BLOCK_LEVELS_PER_LANE), wide (WIDE_BLOCK_LANES), r64 (RIGID_FP64_ONE_LEVEL_LANES) of
     # policy.lane_fit; regs (the lane module's LANE_MAX_REGISTERS[PREC], 0: None), bd (LANE_BLOCK_DIM),
-    # minb (LANE_BLOCK_MIN[PREC])
+    # minb (LANE_BLOCK_MIN[PREC]), rc (LANE_RECORD_CALL[PREC], 0 or 1)
     patch='import sys
 import warp_tensegrity.policy.lane_fit as lf
 from warp_tensegrity.sim.lanes import lanes as L
@@ -153,6 +153,7 @@ def _set(prec, kv):
         elif k == "regs": L.LANE_MAX_REGISTERS[prec] = v or None
         elif k == "bd": L.LANE_BLOCK_DIM = v
         elif k == "minb": L.LANE_BLOCK_MIN[prec] = v
+        elif k == "rc": L.LANE_RECORD_CALL[prec] = bool(v)
         else: sys.exit(f"unknown key {k}")
 '
     # BASE_MAPS: the same for the code in BASE ("base"), its kernels compiled beside the others
