@@ -340,61 +340,61 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                 Fm, okl = f.factor(d, e, l, lane, g, wl)
             fok = seg_ok(okl, g, wl)
             vok = bool(True)
-            Bp = Bm  # bars (and links) at the start of the step: the factor's
-            Cp = Cm
-            # the iteration's solves at one site in code (the rigid solve is 1,500 instructions: a second
-            # copy pushed RB fp32's hot loop out of the instruction cache): pass 0 the velocity projection
-            # (i > 0), then Newton's; between them the state's checks and records, and the drift
-            proj = int(0)
             if i > 0:
-                proj = 1
-            newton = int(0)  # 1: the drift is done and Newton iterates
-            last = int(0)  # 1: the launch's last iteration, which ends at its records
-            err = zero
-            prev = zero
-            it = int(0)
-            going = int(0)
-            while True:
-                r = Rows()
-                rl = Rows()
-                if proj == 1:
-                    r = f.velocity_rows(Bp, V, ex, lane, g, wl)
+                rb = f.velocity_rows(Bm, V, ex, lane, g, wl)
+                dv = Nodes()
+                if wp.static(mixed):
+                    rm = Rows()
                     if wp.static(rigid):
-                        rl = fr.link_velocity_rows(Cp, V, ex, rig)
+                        rm = fr.link_velocity_rows(Cm, V, ex, rig)
+                    beta, mu = mx.solve(Fq, rb, rm, Bm, Cm, minv, ex, rig, most_v, pass_v, lane, g, wl)
+                    dv = f.impulse(Bm, beta, minv, lane, g, wl)
+                    if wp.static(rigid):
+                        dv = fr.link_impulse(dv, Cm, mu, minv)
+                elif wp.static(rigid):
+                    beta, mu = fr.solve(Fr, rb, fr.link_velocity_rows(Cm, V, ex, rig), lane, g, wl)
+                    dv = fr.link_impulse(f.impulse(Bm, beta, minv, lane, g, wl), Cm, mu, minv)
                 else:
-                    if newton == 0:
-                        code = int(STATUS_OK)
-                        if not fok:
-                            code = STATUS_CONSTRAINT
-                        elif not vok:
-                            code = STATUS_NONFINITE
-                        if code != STATUS_OK and alive == 1:
-                            # the column freezes here: its state is stored now, its registers run on unused
-                            store(U, V, A, u, v, a, lane, n, w)
-                            if lane == 0:
-                                set_failure(status, fail_step, w, code, s0 + wp.max(i, 1))
-                            alive = 0
-                        if i > 0:
-                            slot = output_slot(s0 + i, every, kinetic.shape[0])
-                            if slot >= 0:  # an output step: warp-uniform (one s0)
-                                record(U, V, Fx, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane,
-                                       g, wl, w, wc % m_self.shape[1], slot, alive, h0, static_dz, level_ref,
-                                       prism_hand, m_self, strain, kinetic, elastic, twist, twist_max, twist_min,
-                                       height_min, left_slot, below_node, end_node, below, end)
-                        if i == n_it:
-                            last = 1
-                            break
-                        if init != 0:
-                            break
-                        if wp.static(a_mem):
-                            A = load_a(a, lane, n, wc)
-                        V = V + A * half
-                        U = U + V * h
-                        # simplified Newton onto |b| = L along M^-1 G(P)^T
-                        going = alive
-                        newton = 1
+                    dv = f.impulse(Bm, f.solve(Fm, rb, lane, g, wl), minv, lane, g, wl)
+                if fok:
+                    V = V - dv
+                vok = seg_ok(f.finite_nodes(V), g, wl)
+            code = int(STATUS_OK)
+            if not fok:
+                code = STATUS_CONSTRAINT
+            elif not vok:
+                code = STATUS_NONFINITE
+            if code != STATUS_OK and alive == 1:
+                # the column freezes here: its state is stored now, its registers run on unused
+                store(U, V, A, u, v, a, lane, n, w)
+                if lane == 0:
+                    set_failure(status, fail_step, w, code, s0 + wp.max(i, 1))
+                alive = 0
+            if i > 0:
+                slot = output_slot(s0 + i, every, kinetic.shape[0])
+                if slot >= 0:  # an output step: warp-uniform (one s0)
+                    record(U, V, Fx, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl, w,
+                           wc % m_self.shape[1],
+                           slot, alive, h0, static_dz, level_ref, prism_hand, m_self, strain, kinetic, elastic,
+                           twist, twist_max, twist_min, height_min, left_slot, below_node, end_node, below, end)
+            if i == n_it:
+                break
+            if init == 0:
+                Bp = Bm  # bars (and links) at the start of the step: the factor's
+                Cp = Cm
+                if wp.static(a_mem):
+                    A = load_a(a, lane, n, wc)
+                V = V + A * half
+                U = U + V * h
+                # simplified Newton onto |b| = L along M^-1 G(P)^T
+                err = zero
+                prev = zero
+                it = int(0)
+                going = alive
+                while True:
                     Bm = f.bars(U, xyl, hzl, lane, g, wl)
                     r, el = f.residuals(Bm, xyl, hzl, ex, rig, zero)
+                    rl = Rows()
                     if wp.static(rigid):
                         Cm = fr.links(U, xyl, lane, g, wl)
                         rl, el = fr.link_residuals(Cm, xyl, hzl, ex, rig, el)
@@ -406,43 +406,31 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
                             going = 0  # converged, out of iterations or stalled at round-off
                     if vote(going, wl) == 0:
                         break
-                dq = Nodes()
-                if wp.static(mixed):
-                    most_x = most_n
-                    pass_x = pass_n
-                    if proj == 1:
-                        most_x = most_v
-                        pass_x = pass_v
-                    beta, mu = mx.solve(Fq, r, rl, Bp, Cp, minv, ex, rig, most_x, pass_x, lane, g, wl)
-                    dq = f.impulse(Bp, beta, minv, lane, g, wl)
-                    if wp.static(rigid):
-                        dq = fr.link_impulse(dq, Cp, mu, minv)
-                elif wp.static(rigid):
-                    beta, mu = fr.solve(Fr, r, rl, lane, g, wl)
-                    dq = fr.link_impulse(f.impulse(Bp, beta, minv, lane, g, wl), Cp, mu, minv)
-                else:
-                    dq = f.impulse(Bp, f.solve(Fm, r, lane, g, wl), minv, lane, g, wl)
-                if proj == 1:
-                    if fok:
-                        V = V - dq
-                    vok = seg_ok(f.finite_nodes(V), g, wl)
-                    proj = 0
-                elif going == 1:  # (other columns of the warp may still iterate)
-                    U = U - dq
-                    V = V - dq * (real(1.0) / h)
-                    it += 1
-            if last == 1:
-                break
-            if newton == 1 and alive == 1:
-                most = wp.max(most, it)
-                if err > worst:
-                    worst = err
-                code = projection_status(err, fail_tol)
-                if code != STATUS_OK:
-                    store(U, V, A, u, v, a, lane, n, w)
-                    if lane == 0:
-                        set_failure(status, fail_step, w, code, s0 + i + 1)
-                    alive = 0
+                    dn = Nodes()
+                    if wp.static(mixed):
+                        beta, mu = mx.solve(Fq, r, rl, Bp, Cp, minv, ex, rig, most_n, pass_n, lane, g, wl)
+                        dn = f.impulse(Bp, beta, minv, lane, g, wl)
+                        if wp.static(rigid):
+                            dn = fr.link_impulse(dn, Cp, mu, minv)
+                    elif wp.static(rigid):
+                        beta, mu = fr.solve(Fr, r, rl, lane, g, wl)
+                        dn = fr.link_impulse(f.impulse(Bp, beta, minv, lane, g, wl), Cp, mu, minv)
+                    else:
+                        dn = f.impulse(Bp, f.solve(Fm, r, lane, g, wl), minv, lane, g, wl)
+                    if going == 1:  # (other columns of the warp may still iterate)
+                        U = U - dn
+                        V = V - dn * (real(1.0) / h)
+                        it += 1
+                if alive == 1:
+                    most = wp.max(most, it)
+                    if err > worst:
+                        worst = err
+                    code = projection_status(err, fail_tol)
+                    if code != STATUS_OK:
+                        store(U, V, A, u, v, a, lane, n, w)
+                        if lane == 0:
+                            set_failure(status, fail_step, w, code, s0 + i + 1)
+                        alive = 0
             Fn = f.forces(U, xyl, hzl, hnd, ex, cross, base_ea, rest, wc % rest.shape[0], n, lane, g, wl)
             if wp.static(loaded):
                 Fn = Fn + Fx
