@@ -157,7 +157,7 @@ def execute(
         if not combine_output:
             return None
         fault("finalise")
-        export_netcdf(store.dataset(plan, tpl), plan.out)
+        export_netcdf(store.dataset(plan, tpl), plan.out, whole=plan.n_shards == 1)
         if not keep_store:
             store.remove()
     return plan.out
@@ -318,7 +318,7 @@ def combine(plan_or_out, spec=None) -> Path:
             why = "; ".join(f"shard {i}: {r}" for i, r in (st["shards_stale"] + st["shards_corrupt"])[:4])
             raise StoreError(f"{len(bad)} of {plan.n_shards} shards of {plan.out} are not done or do not check out"
                              f"{' (' + why + ')' if why else ''}; run `warp-tensegrity resume {plan.out}`")
-        return export_netcdf(store.dataset(plan, tpl), plan.out)
+        return export_netcdf(store.dataset(plan, tpl), plan.out, whole=plan.n_shards == 1)
 
 
 def sweep_status(out, spec=None) -> dict:
