@@ -11,9 +11,7 @@ process creation to the closed output file. Stages are read off the engine
 (``BatchResult.info['stages']``: build, compile, stepping, measurement, transfer) and from thin
 timing wrappers around the sweep's own functions (planning -> build, shard dataset and netCDF
 write -> write, shard checks and the combine -> finalise); imports are everything before the
-CLI is entered (interpreter start, warp_tensegrity, Warp, xarray) and Warp's start-up in the CLI
-(``init_warp``; the run's later imports go on beside it on a thread, ``runtime.import_alongside``,
-and what is left of them after it falls in the stages that wait for them). The rest of the run
+CLI is entered (interpreter start, warp_tensegrity, Warp, xarray, ``wp.init``). The rest of the run
 is timed too: the pricing of the plan (``estimate_plan``, the budget check) -> build; the store's
 layout (template dataset, store initialise) -> write; the per-case measures and error estimates
 (the base-mode flag, the twins' estimates) -> measurement; merging the groups' results ->
@@ -168,6 +166,8 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
     from warp_tensegrity.measure import device as _measure_device  # noqa: F401
     from warp_tensegrity.sweep import beside, budget, plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
 
+    wp.init()
+    wp.get_device(device)
     st = dict.fromkeys(STAGES, 0.0)
     st["import"] = time.perf_counter() - t_ref
     info = {"shards": 0}
@@ -229,8 +229,6 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
             syncs["seconds"] += time.perf_counter() - t0
 
     os.fsync = fsync
-    # Warp's start-up as the CLI does it (cli._start_warp: the run's later imports on a thread beside it)
-    timed(cli, "init_warp", "import")
     timed(sweep_plan, "plan_sweep", "build")
     timed(cli, "estimate_plan", "build")  # the run's pricing (the probe cached by the dry run)
     timed(budget, "check_run", "build")

@@ -39,7 +39,7 @@ from .plot import KINDS, PlotError
 from .policy.calibrate import estimate_plan
 from .policy.cost import DEFAULT_TIME_LIMIT
 from .provenance import version_text
-from .runtime import WarpSetupError, import_alongside, init_warp, warp_facts
+from .runtime import WarpSetupError, init_warp, warp_facts
 from .scene.network import NetworkError
 from .validation import report, run_validation
 from .validation.closed_forms import long_wave_speeds
@@ -270,14 +270,6 @@ def _main(args) -> int:
         return EXIT_ERROR
 
 
-def _start_warp(args) -> None:
-    """Warp's start-up for ``run`` and ``resume``, with the modules the run writes with imported beside
-    it (:func:`~warp_tensegrity.runtime.import_alongside`; a dry run writes nothing)."""
-    if not args.dry_run:
-        import_alongside()
-    init_warp(verbose=bool(args.verbose))
-
-
 def _dispatch(args) -> int:
     if args.command == "validate":
         return _validate(args)
@@ -293,17 +285,16 @@ def _dispatch(args) -> int:
     from .sweep.status import recorded_header  # imports xarray: not at `--help`
 
     if args.command in ("run", "resume"):
+        init_warp(verbose=bool(args.verbose))
         device = None if args.device == "auto" else args.device
         if args.command == "run":
             spec = load_spec(Path(args.spec), overrides=parse_set(args.overrides))
             out = Path(args.output)
             if not args.dry_run:  # a directory, an earlier run, an unwritable place: refused before any probe
                 sweep.check_output(out, overwrite=args.overwrite)
-            _start_warp(args)
             plan = sweep_plan.plan_sweep(spec, out, device=device, shard_size=args.shard_size,
                                          memory_limit=args.memory_limit)
         else:
-            _start_warp(args)
             if _looks_like_spec(args.target):
                 if not args.output:
                     raise SweepError("resume SPEC needs -o OUT.nc")

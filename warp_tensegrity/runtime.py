@@ -18,13 +18,11 @@ it cannot be (a read-only ``HOME``), a command that compiles kernels stops with 
 from __future__ import annotations
 
 import atexit
-import importlib
 import logging
 import os
 import shutil
 import sys
 import tempfile
-import threading
 
 from .options import SettingsError
 from .outputs import oserror_text
@@ -50,31 +48,6 @@ def process_age() -> float:
         import time
 
         return time.time() - psutil.Process().create_time()
-
-
-RUN_MODULES = ("scipy.sparse", "dask.array", "zarr", "netCDF4")
-"""Modules a run imports after Warp's start-up, in the order it needs them (the plan's sparse
-solves, the store's layout, its writes, the export), which :func:`import_alongside` imports beside it."""
-
-
-def import_alongside(names=RUN_MODULES) -> threading.Thread:
-    """Import ``names`` on a thread, started just before :func:`init_warp`: ``wp.init()``'s CUDA
-    start-up runs in native code with the GIL released, and the imports use that time (on an H200
-    host, wp.init and the imports of dask.array, zarr and netCDF4 took 1.35-1.37 s one after the
-    other and 0.98-1.09 s side by side: benchmarks/results/issue33_h200_ninth). Code that needs a module
-    before the thread has it waits on the import system's module lock; a failed import is left to
-    that code. Not a daemon: the process's exit waits for it rather than stopping it mid-import."""
-
-    def run():
-        for name in names:
-            try:
-                importlib.import_module(name)
-            except Exception:  # (ImportError and whatever a module raises): the user of the module reports it
-                log.debug("import %s beside Warp's start-up failed", name, exc_info=True)
-
-    t = threading.Thread(target=run, name="import-alongside")
-    t.start()
-    return t
 
 
 def startup_seconds() -> float:
