@@ -154,6 +154,29 @@ def test_netcdf_export_is_written_chunk_by_chunk(tmp_path, monkeypatch):
     assert run_cli("combine", out) == 0  # re-export from the store
 
 
+@pytest.mark.parametrize("spec", ["grid", "cases"])
+def test_one_shard_export_from_memory_is_the_dask_export(tmp_path, spec):
+    """A sweep of one shard is exported read whole, without dask (``export_netcdf(whole=True)``): the
+    same file as the export block by block, its values, attributes, netCDF chunks and filters."""
+    import netCDF4
+
+    from warp_tensegrity.sweep.shard import template_dataset
+
+    out = tmp_path / "one.nc"
+    assert run_cli("run", write(tmp_path, GRID_SPEC if spec == "grid" else CASES_SPEC), "-o", out,
+                   "--shard-size", 8) == 0
+    plan = sweep_run._plan_for(out)
+    assert plan.n_shards == 1
+    tpl = template_dataset(plan)
+    paths = {whole: zstore.export_netcdf(zstore.SweepStore(out).dataset(plan, tpl), tmp_path / f"{whole}.nc",
+                                         whole=whole) for whole in (True, False)}
+    with netCDF4.Dataset(paths[True]) as a, netCDF4.Dataset(paths[False]) as b:
+        assert set(a.variables) == set(b.variables)
+        for k in a.variables:
+            assert (a[k].chunking(), a[k].filters(), a[k].dtype) == (b[k].chunking(), b[k].filters(), b[k].dtype), k
+    assert open_nc(paths[True]).identical(open_nc(paths[False]))
+
+
 def _chunk_shapes(v):
     import itertools
 
