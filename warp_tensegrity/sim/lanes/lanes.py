@@ -450,7 +450,11 @@ def make_lane_kernel(real, P: int, G: int, max_registers: int | None = None, rig
 
 
 LANE_STEPS = 64  # most RATTLE steps per launch (the kernel writes the output records of the steps it spans)
-LANE_BLOCK_DIM = 64  # CUDA threads per block: 2 warps (on the CPU: one emulated warp, 32 fibers)
+# CUDA threads per block of the one-warp-per-column kernel: 4 warps (on the CPU: one emulated warp, 32
+# fibers). On an H200, B = 16,384, against 64 in the same calls: RB fp32 3.02e7 and 3.02e7 column-steps/s
+# against 2.92e7 (twice each; 32: 2.85e7), FB fp32 1.717e8 against 1.713e8, FB fp64 2.204e7 against
+# 2.187e7; the same Newton counts (benchmarks/results/issue33_h200_ninth/, calls 18 and 19)
+LANE_BLOCK_DIM = 128
 LANE_MAX_REGISTERS = {"fp32": None, "fp64": None}  # per CUDA thread (None: the compiler's choice)
 # CUDA's approximate fp32 division and square root, for the flexible-base kernel: 2.1x its rate with
 # the bars still within 2.4e-7 (H200, 16,384 columns: benchmarks/results/lanes_tuning_h200/). With it
