@@ -471,8 +471,9 @@ LANE_SMEM_SPILL = {"fp32": False, "fp64": False}  # register spills to shared me
 # (B = 16,384) it cost FB fp32 45 % (1.78e8 -> 9.8e7), FB fp64 12 %, RB fp32 6 %: the loads after
 # Newton stall 8 resident warps per SM (benchmarks/results/issue33_h200/switches)
 LANE_A_MEM = {"fp32": False, "fp64": False}
-# the output records (``record``) a function call instead of inlined code: out of the hot loop's registers
-# and instruction cache; the call is made at output steps only
+# the output records (``record``) a function call instead of inlined code, out of the hot loop (called at
+# output steps only). Off: on an H200 (B = 16,384) it moved the four 50-prism cases by -2.2 % to +1.1 %,
+# though ptxas counts fewer spill bytes (benchmarks/results/issue33_h200_ninth/, call 3)
 LANE_RECORD_CALL = {"fp32": False, "fp64": False}
 # fp64 columns: an fp32 factor and fp32 solves with fp64 residuals and iterative refinement
 LANE_MIXED = {"fp32": False, "fp64": True}
