@@ -445,9 +445,8 @@ def export_netcdf(ds: xr.Dataset, path, whole: bool = False) -> Path:
     first and written without dask, for a sweep of one shard, whose run held as much (xarray's dask
     write imports distributed to look for a client, and builds a graph: paper_2017's export took
     0.22 s against 0.33 s on our CI machine, 0.32-0.35 s against 0.39-0.45 s on an H200 host). The file
-    is the same, its netCDF chunks included. A failure is a one-line
-    StoreError with the path, the errno and, for a full disk, the space the file needs; the store is
-    kept."""
+    is the same, its netCDF chunks included. A failure is a one-line StoreError with the path, the
+    errno and, for a full disk, the space the file needs; the store is kept."""
     path = Path(path)
     enc = D._encoding(ds)
     for k, v in ds.data_vars.items():
