@@ -86,7 +86,7 @@ def _stub(orig, k: int, spent: dict):
     return run
 
 
-def _trace_runs():
+def _trace_runs(t_ref: float = 0.0):
     """Patch Integrator.advance and .initialize to bracket each call with timing events (``--trace``);
     returns a function that makes the record's ``trace`` once the run has ended."""
     import warp as wp
@@ -108,7 +108,8 @@ def _trace_runs():
             h1 = time.perf_counter()
             e1 = wp.Event(self.device, enable_timing=True)
             wp.record_event(e1)
-            calls.append((id(self), name, a[0] if a else 0, self.model.n_columns, h0 - t_host0, h1 - h0, e0, e1))
+            calls.append((id(self), name, a[0] if a else 0, self.model.n_columns, h0 - t_host0, h1 - h0, e0, e1,
+                          str(self.settings.precision.value)))
             return out
 
         setattr(integrate.Integrator, name, wrapped)
@@ -123,9 +124,9 @@ def _trace_runs():
         ref = calls[0][6]
         runs = {}
         spans = []
-        for rid, name, n, B, h0, dh, e0, e1 in calls:
+        for rid, name, n, B, h0, dh, e0, e1, prec in calls:
             a, b = wp.get_event_elapsed_time(ref, e0) / 1e3, wp.get_event_elapsed_time(ref, e1) / 1e3
-            r = runs.setdefault(rid, {"columns": B, "steps": 0, "chunks": 0, "host_s": 0.0, "first_s": a, "last_s": b,
+            r = runs.setdefault(rid, {"columns": B, "precision": prec, "steps": 0, "chunks": 0, "host_s": 0.0, "first_s": a, "last_s": b,
                                       "device_s": 0.0, "host_first_s": h0})
             r["steps"] += int(n) if name == "advance" else 0
             r["chunks"] += 1
@@ -134,6 +135,15 @@ def _trace_runs():
             r["device_s"] += b - a
             spans.append((a, b))
         spans.sort()
+        # the device's busy intervals on the process clock (the first event was recorded at its call's host start)
+        off = t_host0 - t_ref + calls[0][4]
+        merged = []
+        for a, b in spans:
+            if merged and a <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], b)
+            else:
+                merged.append([a, b])
+        busy_on_clock = [[round(a + off, 4), round(b + off, 4)] for a, b in merged]
         busy, cur = 0.0, None
         for a, b in spans:
             if cur is None or a > cur[1]:
@@ -144,6 +154,7 @@ def _trace_runs():
         busy += cur[1] - cur[0]
         span = max(b for _, b in spans) - min(a for a, _ in spans)
         return {"runs": list(runs.values()), "device_busy_s": busy, "device_span_s": span,
+                "busy_intervals_s": busy_on_clock,
                 "note": "seconds from the first traced event; a run's device_s sums its chunks' event intervals "
                         "(queued chunks overlap in it); busy: the union of all chunks' intervals"}
 
@@ -174,6 +185,11 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
     phase = {"finalise": False}
 
     depth = threading.local()  # a timed call inside another counts once, in the outer one's stage
+    timeline = []  # --trace: (what, start s since process creation, seconds, thread) of every outer timed call
+
+    def mark(what, t0, dt):
+        if trace:
+            timeline.append((what, round(t0 - t_ref, 4), round(dt, 4), threading.current_thread().name))
 
     def timed(owner, name, stage, fn=None):
         orig = getattr(owner, name)
@@ -190,6 +206,7 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
                 s = stage() if callable(stage) else stage
                 if s and outer:
                     st[s] += dt
+                    mark(f"{s}:{name}", t0, dt)
 
         setattr(owner, name, wrapper)
         return orig
@@ -202,6 +219,7 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
         results, es = orig_runs(*a, **k)
         total = time.perf_counter() - t0
         total -= stubbed["s"] - stub0
+        mark("runs", t0, time.perf_counter() - t0)
         keys = ("build", "compile", "stepping", "measurement", "transfer")
         for key in keys:
             st[key] += float(es.get(key, 0.0))
@@ -216,7 +234,18 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
         return results, es
 
     sweep_shard.run_batches = runs
-    traced = _trace_runs() if trace else None
+    traced = _trace_runs(t_ref) if trace else None
+    if trace:  # host intervals on the timeline only (their seconds are in the engine's stages)
+        for owner, name in ((integrate.Integrator, "__init__"), (integrate.Integrator, "load_kernels"),
+                            (sweep_shard, "run_groups"), (sweep_run, "compute_shard")):
+            def marked(*a, _orig=getattr(owner, name), _name=name, **k):
+                t0 = time.perf_counter()
+                try:
+                    return _orig(*a, **k)
+                finally:
+                    mark(f"host:{_name}", t0, time.perf_counter() - t0)
+
+            setattr(owner, name, marked)
     syncs = {"calls": 0, "seconds": 0.0}  # every fsync of the run (its files' durability), on any thread
     real_fsync = os.fsync
 
@@ -254,6 +283,7 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
             return orig_export(*a, **k)
         finally:
             st["finalise"] += time.perf_counter() - t0
+            mark("finalise:export_netcdf", t0, time.perf_counter() - t0)
             phase["finalise"] = False
 
     sweep_run.export_netcdf = export
@@ -284,6 +314,7 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
            "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, "fsync": syncs, **info}
     if traced is not None:
         rec["trace"] = traced()
+        rec["timeline"] = timeline
     Path(record).write_text(json.dumps(rec))
 
 
@@ -367,6 +398,7 @@ def main(argv=None) -> int:
                     "repeat": r,
                     **({"stub_outputs": a.stub_outputs} if a.stub_outputs else {}),
                     **({"trace": rec["trace"]} if rec.get("trace") else {}),
+                    **({"timeline": rec["timeline"]} if rec.get("timeline") else {}),
                     "load_avg_1min": [load0, os.getloadavg()[0]],
                     "probe_load_avg_1min": est["probe"].get("load_avg"),
                     "kernel_cache": "warm (the estimate's probe compiled what the run loads)",
