@@ -21,7 +21,7 @@ from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch,
 from .policy.paths import lane_emulation
 from .arguments import expect, expect_callable
 from .result import BatchResult
-from .runtime import drive, init_warp, resolve_device
+from .runtime import Spawn, drive, init_warp, resolve_device
 from .scene.base_modes import beta_limit_measures
 from .scene.batch import (NetworkBatch, column_batch, column_params, far_end_params, reference_elastic_energy,
                           reference_states)
@@ -261,36 +261,80 @@ class HostWork:
             yield
 
 
-def run_batches(runs: list[tuple[ColumnConfig, dict, RunPlan]], device=None,
-                progress: list | None = None, interleave: bool | None = None,
-                host: list[HostWork] = ()) -> tuple[list[BatchResult], dict]:
-    """Simulate several batches of T3 columns, each ``(config, params, plan)`` as
-    :func:`simulate_batch` takes them, all on ``device`` (default: the first plan's). On a GPU they
-    step at once, each on its own CUDA stream (:func:`~warp_tensegrity.sim.integrate.run_together`):
-    a sweep's groups and their twins are each too narrow to fill it. Each batch's numbers are those
-    it gets alone. ``progress``: one callback per run, or None; ``interleave``: as
-    :func:`~warp_tensegrity.sim.integrate.run_together` takes it; ``host``: host work resumed in
-    turn with the runs (after them, off a GPU), each its ``value`` when done. Returns the results in
-    order and the stage seconds of the whole set (build, compile, measurement and transfer as the
-    runs report them, the host work's in its stage; stepping: the rest of the set's wall time, the
-    host feeding and waiting on the device)."""
+class Runs:
+    """What a pipeline of :func:`run_pipelines` yields to step batches: each ``(config, params, plan)``
+    as :func:`simulate_batch` takes them, with its progress callback (``progress``: one per run, or
+    None). The pipeline is resumed with their BatchResults, in order."""
+
+    __slots__ = ("runs", "progress")
+
+    def __init__(self, runs: list[tuple[ColumnConfig, dict, RunPlan]], progress: list | None = None):
+        self.runs = list(runs)
+        self.progress = list(progress) if progress is not None else [None] * len(self.runs)
+
+
+def run_pipelines(pipes: list, device=None, interleave: bool | None = None,
+                  host: list[HostWork] = ()) -> tuple[list, dict]:
+    """Drive generators that yield :class:`Runs` (each resumed with its runs' results) to their ends and
+    return their values in order, with the stage seconds of the whole set. On a GPU every run of every
+    pipeline steps at once with the rest, each on its own CUDA stream
+    (:func:`~warp_tensegrity.sim.integrate.run_together`): a sweep's groups and twins are each too narrow
+    to fill it, and a group's fp64 reruns start as soon as its own fp32 runs are measured. Each
+    batch's numbers are those it gets alone. Elsewhere one pipeline after another, each run in turn.
+    ``device``: where every run steps (default: the current Warp device); ``interleave``: as
+    :func:`~warp_tensegrity.sim.integrate.run_together` takes it; ``host``: host work resumed in turn
+    with the runs (after them, off a GPU), each its ``value`` when done. Stages: build, compile,
+    measurement and transfer as the runs report them, the host work's in its stage; stepping: the
+    rest of the set's wall time, the host feeding and waiting on the device and the pipelines' own
+    work between their runs."""
     init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
     from .sim.integrate import run_together  # imports Warp: not at package import
 
-    progress = progress or [None] * len(runs)
-    device = resolve_device(device if device is not None or not runs else runs[0][2].device)
+    device = resolve_device(device)
+    done: list[BatchResult] = []
+
+    def steps(pipe):  # the pipeline with its Runs as the engine's generators
+        value = None
+        while True:
+            try:
+                got = pipe.send(value)
+            except StopIteration as stop:
+                return stop.value
+            value = None
+            if isinstance(got, Runs):
+                value = yield Spawn(simulate_batch_steps(c, p, progress=cb, plan=rp.with_device(device))
+                                    for (c, p, rp), cb in zip(got.runs, got.progress))
+                done.extend(value)
+            else:
+                value = yield got
+
     t0 = time.perf_counter()
-    results = run_together([simulate_batch_steps(c, p, progress=cb, plan=rp.with_device(device))
-                            for (c, p, rp), cb in zip(runs, progress)] + [h.steps() for h in host],
-                           device, interleave)[:len(runs)]
+    values = run_together([steps(p) for p in pipes] + [h.steps() for h in host], device, interleave)[:len(pipes)]
     wall = time.perf_counter() - t0
     stages = dict.fromkeys(("build", "compile", "stepping", "measurement", "transfer"), 0.0)
-    for r in results:
+    for r in done:
         for k in ("build", "compile", "measurement", "transfer"):
             stages[k] += float(r.info["stages"].get(k, 0.0))
     for h in host:
         stages[h.stage] = stages.get(h.stage, 0.0) + h.seconds
     stages["stepping"] = max(wall - sum(stages.values()), 0.0)
+    return values, stages
+
+
+def run_batches(runs: list[tuple[ColumnConfig, dict, RunPlan]], device=None,
+                progress: list | None = None, interleave: bool | None = None,
+                host: list[HostWork] = ()) -> tuple[list[BatchResult], dict]:
+    """Simulate several batches of T3 columns, each ``(config, params, plan)`` as
+    :func:`simulate_batch` takes them, all on ``device`` (default: the first plan's): on a GPU at once,
+    each on its own CUDA stream, as one :func:`run_pipelines` pipeline. ``progress``: one callback per
+    run, or None; ``interleave`` and ``host`` as :func:`run_pipelines` takes them. Returns the results
+    in order and the stage seconds of the whole set."""
+
+    def together():
+        return (yield Runs(runs, progress))
+
+    (results,), stages = run_pipelines([together()], device if device is not None or not runs else runs[0][2].device,
+                                       interleave, host)
     return results, stages
 
 

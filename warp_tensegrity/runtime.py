@@ -182,16 +182,32 @@ def _driver_text(drv) -> str:
     return f"{int(drv) // 1000}.{(int(drv) % 1000) // 10}"
 
 
+class Spawn:
+    """What a driven generator yields to have other generators run (:func:`drive`: one after another;
+    :func:`~warp_tensegrity.sim.integrate.run_together`: beside the rest, each on its own stream); it is
+    resumed with the list of their values, in order, once all have ended."""
+
+    __slots__ = ("gens",)
+
+    def __init__(self, gens):
+        self.gens = list(gens)
+
+
 def drive(gen):
     """Run a generator that yields while it steps (:meth:`warp_tensegrity.sim.integrate.Integrator.run_steps`,
     :func:`warp_tensegrity.engine.simulate_batch_steps`) to its end and return its value. A value it
-    yields is None (resume it at once) or a CUDA event it waits for (resumed once that is complete)."""
+    yields is None (resume it at once), a CUDA event it waits for (resumed once that is complete) or a
+    :class:`Spawn` (resumed with the values of its generators, driven one after another)."""
+    value = None
     while True:
         try:
-            got = next(gen)
+            got = gen.send(value)
         except StopIteration as stop:
             return stop.value
-        if got is not None:
+        value = None
+        if isinstance(got, Spawn):
+            value = [drive(g) for g in got.gens]
+        elif got is not None:
             import warp as wp  # only a CUDA run yields an event
 
             wp.synchronize_event(got)

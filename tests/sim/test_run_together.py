@@ -144,3 +144,51 @@ def test_drive_waits_on_the_events_a_run_yields(monkeypatch):
         return "ok"
 
     assert runtime.drive(run()) == "ok" and waited == ["end"]
+
+
+def test_a_spawning_run_is_resumed_with_its_runs_values_once_they_have_ended(monkeypatch):
+    """A sweep group's pipeline (engine.run_pipelines) spawns its run and twin, and once both have
+    ended (and not before) its fp64 rerun: the rerun queues while another group still steps, not
+    after every group has ended. The spawned runs take their first turns at once, before the host work."""
+    import warp as wp
+
+    from warp_tensegrity.runtime import Spawn
+    from warp_tensegrity.sim import integrate
+
+    monkeypatch.setattr(integrate.time, "sleep", lambda s: None)
+    monkeypatch.setattr(wp, "synchronize_event", lambda ev: setattr(ev, "waited", True))  # drive's wait
+    order = []
+
+    def run(name, polls):
+        order.append((name, "queued"))
+        ev = _Event(name, polls)
+        yield ev
+        assert ev.is_complete
+        order.append((name, "done"))
+        return name
+
+    def group(name, polls, rerun_polls=None):
+        got = yield Spawn([run(name, polls), run(name + "_twin", polls // 2)])
+        assert got == [name, name + "_twin"] and (name, "done") in order and (name + "_twin", "done") in order
+        if rerun_polls is None:
+            return got
+        got += (yield Spawn([run(name + "_fp64", rerun_polls)]))
+        return got
+
+    def host(n):
+        for k in range(n):
+            order.append(("host", k))
+            yield None
+        return "host"
+
+    out = run_together([group("a", 4, rerun_polls=3), group("b", 60), host(2)], "cpu", interleave=True)
+    assert out == [["a", "a_twin", "a_fp64"], ["b", "b_twin"], "host"]
+    # every first run queued before the host work's first turn; a's rerun queued while b still steps
+    assert order[:5] == [("a", "queued"), ("a_twin", "queued"), ("b", "queued"), ("b_twin", "queued"), ("host", 0)]
+    assert order.index(("a_fp64", "queued")) < order.index(("b", "done"))
+    assert order.index(("a_fp64", "queued")) > order.index(("a", "done"))
+    # one after another (the CPU): the same values, each spawned run driven to its end in turn
+    order.clear()
+    assert run_together([group("a", 1, rerun_polls=1), group("b", 1)], "cpu", interleave=False) == out[:2]
+    assert order == [("a", "queued"), ("a", "done"), ("a_twin", "queued"), ("a_twin", "done"), ("a_fp64", "queued"),
+                     ("a_fp64", "done"), ("b", "queued"), ("b", "done"), ("b_twin", "queued"), ("b_twin", "done")]

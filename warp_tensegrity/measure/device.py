@@ -187,7 +187,8 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
             out.update(_sensitivities(out, probed))
             if energy is not None:
                 out["pulse_energy_share_sensitivity"] = _share_sensitivity(out["pulse_energy_share"], probed)
-        wp.synchronize_device(dev)
+        # this run's stream only: runs stepping beside it on their own streams (engine.run_pipelines) go on
+        wp.synchronize_stream(wp.get_stream(dev)) if dev.is_cuda else wp.synchronize_device(dev)
         t1 = _time.perf_counter()
         del out["arrival_slope"]
         if run:

@@ -22,7 +22,7 @@ from .model import REAL, Data, Model, build_model, make_data
 from .staged.kernels import make_kernels
 from .staged.step import Launcher, StagedStep  # noqa: F401 (registers the staged Step)
 from .step import STEPS, Step
-from ..runtime import drive, resolve_device
+from ..runtime import Spawn, drive, resolve_device
 from ..options import RunSettings, SettingsError
 from ..types import Path, Precision
 
@@ -279,35 +279,67 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
     sweep's groups of like stiffness and their error-estimate twins) step at once; the columns are
     independent, so each run's numbers are those it has alone. A run that yields a CUDA event is
     resumed once that is complete; when every live run waits on one (no host work is left), the
-    driver polls them every :data:`IDLE_POLL_S`. Elsewhere one after another, as :func:`drive`
-    would. ``interleave``: resume in turn (True; on the CPU without streams, for tests: not the lane
-    step, whose CPU emulation is a process-wide setting) or one after another (False); None: on
-    CUDA only."""
+    driver polls them every :data:`IDLE_POLL_S`. A run that yields a :class:`~warp_tensegrity.runtime.Spawn`
+    is resumed with its generators' values once they have all ended; they are driven as runs beside the
+    others, each on its own stream, their first turns at once (a group's fp64 reruns start as soon as
+    its own fp32 runs are measured, whatever the other groups still step). Elsewhere one after another,
+    as :func:`drive` would. ``interleave``: resume in turn (True; on the CPU without streams, for tests:
+    not the lane step, whose CPU emulation is a process-wide setting) or one after another (False);
+    None: on CUDA only."""
     device = resolve_device(device)
     if interleave is None:
         interleave = device.is_cuda
-    if not interleave or len(gens) < 2:
+    if not interleave or not gens:
         return [drive(g) for g in gens]
-    streams = [wp.Stream(device) if device.is_cuda else None for _ in gens]
-    out: list = [None] * len(gens)
-    live = list(range(len(gens)))
+    gens = list(gens)
+    n_top = len(gens)
+
+    def stream():
+        return wp.Stream(device) if device.is_cuda else None
+
+    streams = [stream() for _ in gens]
+    out: list = [None] * n_top
+    live = list(range(n_top))
     waits: dict = {}  # run -> the event it waits for
+    send: dict = {}  # run -> the value it is resumed with (its spawned runs' values)
+    parent: dict = {}  # spawned run -> (the run that spawned it, its place in the values)
+    spawned: dict = {}  # run waiting on its spawned runs -> [their values, how many still run]
     while live:
-        ready = [i for i in live if i not in waits or waits[i].is_complete]
+        ready = deque(i for i in live if i not in spawned and (i not in waits or waits[i].is_complete))
         if not ready:  # every live run waits on the device: poll, so whichever ends first goes on first
             time.sleep(IDLE_POLL_S)
             continue
-        for i in ready:
+        while ready:
+            i = ready.popleft()
             with wp.ScopedStream(streams[i], sync_enter=False):  # None (the CPU): no stream to set
                 try:
-                    got = next(gens[i])
+                    got = gens[i].send(send.pop(i, None))
                 except StopIteration as stop:
-                    out[i] = stop.value
                     live.remove(i)
                     waits.pop(i, None)
+                    if i in parent:  # a spawned run: its value goes to the run that spawned it
+                        p, slot = parent.pop(i)
+                        spawned[p][0][slot] = stop.value
+                        spawned[p][1] -= 1
+                        if not spawned[p][1]:
+                            send[p] = spawned.pop(p)[0]
+                    else:
+                        out[i] = stop.value
                     continue
-            if got is None:
-                waits.pop(i, None)
-            else:
+            waits.pop(i, None)
+            if isinstance(got, Spawn):
+                if not got.gens:
+                    send[i] = []
+                    continue
+                spawned[i] = [[None] * len(got.gens), len(got.gens)]
+                new = []
+                for slot, g in enumerate(got.gens):
+                    parent[len(gens)] = (i, slot)
+                    new.append(len(gens))
+                    gens.append(g)
+                    streams.append(stream())
+                live.extend(new)
+                ready.extendleft(reversed(new))  # their first turns now: they queue their work
+            elif got is not None:
                 waits[i] = got
     return out
