@@ -21,7 +21,7 @@ from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch,
 from .policy.paths import lane_emulation
 from .arguments import expect, expect_callable
 from .result import BatchResult
-from .runtime import Spawn, drive, init_warp, resolve_device
+from .runtime import IDLE, Spawn, drive, init_warp, resolve_device
 from .scene.base_modes import beta_limit_measures
 from .scene.batch import (NetworkBatch, column_batch, column_params, far_end_params, reference_elastic_energy,
                           reference_states)
@@ -240,15 +240,18 @@ def simulate_batch_steps(config: ColumnConfig, params: dict, settings: RunSettin
 
 
 class HostWork:
-    """Host-side work that steps with the runs of :func:`run_batches`: a generator that yields between
+    """Host-side work that steps with the runs of :func:`run_pipelines`: a generator that yields between
     pieces (each under ``context``, e.g. :func:`~warp_tensegrity.scene.blas.one_blas_thread`) and
-    returns ``value``; its seconds count as the ``stage`` it names."""
+    returns ``value``; its seconds count as the ``stage`` it names. On a GPU each piece waits until no
+    run can go on (:data:`~warp_tensegrity.runtime.IDLE`): a run's end and the next run of its pipeline
+    come first."""
 
     def __init__(self, gen, stage: str = "measurement", context=None):
         self.gen, self.stage, self.context, self.value, self.seconds = gen, stage, context, None, 0.0
 
     def steps(self):
         while True:
+            yield IDLE
             t0 = time.perf_counter()
             try:
                 with self.context() if self.context is not None else contextlib.nullcontext():
@@ -258,7 +261,6 @@ class HostWork:
                 return
             finally:
                 self.seconds += time.perf_counter() - t0
-            yield
 
 
 class Runs:

@@ -193,11 +193,23 @@ class Spawn:
         self.gens = list(gens)
 
 
+class _Idle:
+    def __repr__(self):
+        return "IDLE"
+
+
+IDLE = _Idle()
+"""What a driven generator yields to be resumed only when no run beside it can go on (host work:
+:class:`warp_tensegrity.engine.HostWork`): in :func:`~warp_tensegrity.sim.integrate.run_together`, a
+run's end (its measures, the next run of its pipeline) comes before it; :func:`drive` resumes it at once."""
+
+
 def drive(gen):
     """Run a generator that yields while it steps (:meth:`warp_tensegrity.sim.integrate.Integrator.run_steps`,
     :func:`warp_tensegrity.engine.simulate_batch_steps`) to its end and return its value. A value it
-    yields is None (resume it at once), a CUDA event it waits for (resumed once that is complete) or a
-    :class:`Spawn` (resumed with the values of its generators, driven one after another)."""
+    yields is None or :data:`IDLE` (resume it at once), a CUDA event it waits for (resumed once that
+    is complete) or a :class:`Spawn` (resumed with the values of its generators, driven one after
+    another)."""
     value = None
     while True:
         try:
@@ -207,7 +219,7 @@ def drive(gen):
         value = None
         if isinstance(got, Spawn):
             value = [drive(g) for g in got.gens]
-        elif got is not None:
+        elif got is not None and got is not IDLE:
             import warp as wp  # only a CUDA run yields an event
 
             wp.synchronize_event(got)

@@ -192,3 +192,41 @@ def test_a_spawning_run_is_resumed_with_its_runs_values_once_they_have_ended(mon
     assert run_together([group("a", 1, rerun_polls=1), group("b", 1)], "cpu", interleave=False) == out[:2]
     assert order == [("a", "queued"), ("a", "done"), ("a_twin", "queued"), ("a_twin", "done"), ("a_fp64", "queued"),
                      ("a_fp64", "done"), ("b", "queued"), ("b", "done"), ("b_twin", "queued"), ("b_twin", "done")]
+
+
+def test_host_work_takes_its_turns_only_when_no_run_can_go_on(monkeypatch):
+    """Host work (engine.HostWork: the store's layout, the base modes) yields runtime.IDLE: a run that
+    can go on (a run's end, its measures, the next run of its pipeline) comes first, and the host work
+    fills the time every run waits on the device."""
+    from warp_tensegrity.runtime import IDLE
+    from warp_tensegrity.sim import integrate
+
+    monkeypatch.setattr(integrate.time, "sleep", lambda s: None)
+    order = []
+
+    def busy(name, n):
+        for k in range(n):
+            order.append((name, k))
+            yield None
+        return name
+
+    def waiting(name, polls):
+        order.append((name, "queued"))
+        yield _Event(name, polls)
+        order.append((name, "done"))
+        return name
+
+    def host(n):
+        for k in range(n):
+            yield IDLE
+            order.append(("host", k))
+        return "host"
+
+    assert run_together([host(2), busy("a", 3)], "cpu", interleave=True) == ["host", "a"]
+    assert order == [("a", 0), ("a", 1), ("a", 2), ("host", 0), ("host", 1)]
+    order.clear()
+    assert run_together([waiting("b", 6), host(3)], "cpu", interleave=True) == ["b", "host"]
+    assert order[:4] == [("b", "queued"), ("host", 0), ("host", 1), ("host", 2)]
+    # one after another (the CPU): IDLE is resumed at once
+    order.clear()
+    assert run_together([host(2)], "cpu", interleave=False) == ["host"] and order == [("host", 0), ("host", 1)]

@@ -22,7 +22,7 @@ from .model import REAL, Data, Model, build_model, make_data
 from .staged.kernels import make_kernels
 from .staged.step import Launcher, StagedStep  # noqa: F401 (registers the staged Step)
 from .step import STEPS, Step
-from ..runtime import Spawn, drive, resolve_device
+from ..runtime import IDLE, Spawn, drive, resolve_device
 from ..options import RunSettings, SettingsError
 from ..types import Path, Precision
 
@@ -279,9 +279,10 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
     sweep's groups of like stiffness and their error-estimate twins) step at once; the columns are
     independent, so each run's numbers are those it has alone. A run that yields a CUDA event is
     resumed once that is complete; when every live run waits on one (no host work is left), the
-    driver polls them every :data:`IDLE_POLL_S`. A run that yields a :class:`~warp_tensegrity.runtime.Spawn`
-    is resumed with its generators' values once they have all ended; they are driven as runs beside the
-    others, each on its own stream, their first turns at once (a group's fp64 reruns start as soon as
+    driver polls them every :data:`IDLE_POLL_S`. A run that yields :data:`~warp_tensegrity.runtime.IDLE`
+    (host work) is resumed, one turn at a time, only when no other run can go on. A run that yields a
+    :class:`~warp_tensegrity.runtime.Spawn` is resumed with its generators' values once they have all
+    ended; they are driven as runs beside the others, each on its own stream, their first turns at once (a group's fp64 reruns start as soon as
     its own fp32 runs are measured, whatever the other groups still step). Elsewhere one after another,
     as :func:`drive` would. ``interleave``: resume in turn (True; on the CPU without streams, for tests:
     not the lane step, whose CPU emulation is a process-wide setting) or one after another (False);
@@ -304,8 +305,11 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
     send: dict = {}  # run -> the value it is resumed with (its spawned runs' values)
     parent: dict = {}  # spawned run -> (the run that spawned it, its place in the values)
     spawned: dict = {}  # run waiting on its spawned runs -> [their values, how many still run]
+    idle: set = set()  # runs that go on only when no other can (host work: runtime.IDLE)
     while live:
-        ready = deque(i for i in live if i not in spawned and (i not in waits or waits[i].is_complete))
+        ready = deque(i for i in live if i not in spawned and i not in idle and (i not in waits or waits[i].is_complete))
+        if not ready:  # one turn of host work
+            ready = deque([i for i in live if i in idle][:1])
         if not ready:  # every live run waits on the device: poll, so whichever ends first goes on first
             time.sleep(IDLE_POLL_S)
             continue
@@ -327,7 +331,11 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
                         out[i] = stop.value
                     continue
             waits.pop(i, None)
-            if isinstance(got, Spawn):
+            idle.discard(i)
+            if got is IDLE:
+                idle.add(i)
+                ready.clear()  # the others are looked at again first
+            elif isinstance(got, Spawn):
                 if not got.gens:
                     send[i] = []
                     continue
