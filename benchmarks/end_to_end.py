@@ -191,7 +191,9 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
     from warp_tensegrity.measure import device as _measure_device  # noqa: F401
     from warp_tensegrity.sweep import beside, budget, plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
 
-    wp.init()
+    from warp_tensegrity.runtime import init_warp
+
+    init_warp()  # as the CLI starts Warp (its CUDA settings included)
     wp.get_device(device)
     st = dict.fromkeys(STAGES, 0.0)
     st["import"] = time.perf_counter() - t_ref

@@ -89,6 +89,10 @@ def init_warp(verbose: bool = False, kernels: bool = True):
         return wp
     if hasattr(wp.config, "log_level"):
         wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING
+    # CUDA's hardware work queues per context (8 unless set; 32 at most): a sweep's runs step at once,
+    # each on its own stream (sim.integrate.run_together), and streams that share a queue wait on each
+    # other's queued work. Read when a context is made: here, before Warp makes its first.
+    os.environ.setdefault("CUDA_DEVICE_MAX_CONNECTIONS", "32")
     try:
         _init_quietly(wp)
     except OSError as e:

@@ -295,10 +295,23 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
     gens = list(gens)
     n_top = len(gens)
 
-    def stream():
-        return wp.Stream(device) if device.is_cuda else None
+    # A run holds a stream from its first turn until it ends, waits on the runs it spawned or yields
+    # IDLE; the streams given back are reused. Streams beyond the device's hardware work queues
+    # (CUDA_DEVICE_MAX_CONNECTIONS, 8 unless set: runtime.init_warp sets 32) share a queue, and a
+    # kernel then waits behind another stream's queued chunks: a group's measures behind the rest.
+    pool: list = []
+    streams: dict = {}
 
-    streams = [stream() for _ in gens]
+    def stream(i):
+        if i not in streams:
+            streams[i] = (pool.pop() if pool else wp.Stream(device)) if device.is_cuda else None
+        return streams[i]
+
+    def release(i):
+        s_ = streams.pop(i, None)
+        if s_ is not None:
+            pool.append(s_)
+
     out: list = [None] * n_top
     live = list(range(n_top))
     waits: dict = {}  # run -> the event it waits for
@@ -315,12 +328,13 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
             continue
         while ready:
             i = ready.popleft()
-            with wp.ScopedStream(streams[i], sync_enter=False):  # None (the CPU): no stream to set
+            with wp.ScopedStream(stream(i), sync_enter=False):  # None (the CPU): no stream to set
                 try:
                     got = gens[i].send(send.pop(i, None))
                 except StopIteration as stop:
                     live.remove(i)
                     waits.pop(i, None)
+                    release(i)
                     if i in parent:  # a spawned run: its value goes to the run that spawned it
                         p, slot = parent.pop(i)
                         spawned[p][0][slot] = stop.value
@@ -334,18 +348,19 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
             idle.discard(i)
             if got is IDLE:
                 idle.add(i)
+                release(i)  # host work queues nothing on the device
                 ready.clear()  # the others are looked at again first
             elif isinstance(got, Spawn):
                 if not got.gens:
                     send[i] = []
                     continue
                 spawned[i] = [[None] * len(got.gens), len(got.gens)]
+                release(i)  # its work is queued on it; a stream orders only what is queued after
                 new = []
                 for slot, g in enumerate(got.gens):
                     parent[len(gens)] = (i, slot)
                     new.append(len(gens))
                     gens.append(g)
-                    streams.append(stream())
                 live.extend(new)
                 ready.extendleft(reversed(new))  # their first turns now: they queue their work
             elif got is not None:
