@@ -21,7 +21,7 @@ from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch,
 from .policy.paths import lane_emulation
 from .arguments import expect, expect_callable
 from .result import BatchResult
-from .runtime import IDLE, Spawn, drive, init_warp, resolve_device
+from .runtime import IDLE, Spawn, drive, init_warp, resolve_device, to_host
 from .scene.base_modes import beta_limit_measures
 from .scene.batch import (NetworkBatch, column_batch, column_params, far_end_params, reference_elastic_energy,
                           reference_states)
@@ -31,7 +31,7 @@ from .types import FORCE_EVALS
 
 
 def _to_host(a):
-    return None if a is None else a.numpy().astype(np.float64)
+    return None if a is None else to_host(a).astype(np.float64)
 
 
 
@@ -39,11 +39,11 @@ def _feasibility(integ, time) -> dict | None:
     """The per-case feasibility record (:mod:`warp_tensegrity.measure.feasibility`) of a run."""
     m, d = integ.model, integ.data
     if m.n_prisms > 0:
-        return prism_record(d.left_slot.numpy(), d.twist_max.numpy(), d.twist_min.numpy(), d.height_min.numpy(),
-                            d.twist.numpy(), time)
+        return prism_record(to_host(d.left_slot), to_host(d.twist_max), to_host(d.twist_min), to_host(d.height_min),
+                            to_host(d.twist), time)
     if m.n_pairs > 0:
-        return pair_record(d.pair_left_slot.numpy(), m.pair_kind.numpy(), d.pair_distance_min.numpy(),
-                           m.pair_nodes.numpy(), time)
+        return pair_record(to_host(d.pair_left_slot), to_host(m.pair_kind), to_host(d.pair_distance_min),
+                           to_host(m.pair_nodes), time)
     return None
 
 
@@ -102,8 +102,8 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
     d = integ.data
     ke = _to_host(integ.kinetic).T  # (B, n_out)
     ee = _to_host(integ.elastic).T
-    status = d.status.numpy().astype(np.int32)
-    fail_step = d.fail_step.numpy().astype(np.int64)
+    status = to_host(d.status).astype(np.int32)
+    fail_step = to_host(d.fail_step).astype(np.int64)
     striker = integ.striker.summary(dt) if integ.striker is not None else None
     E = ke + ee
     if striker is not None:  # the striker's kinetic energy belongs to the conserved total
@@ -149,7 +149,7 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
         elastic_energy=ee,
         **records,
         energy_error=energy_error,
-        bar_length_error=d.bar_err.numpy().astype(np.float64),
+        bar_length_error=to_host(d.bar_err).astype(np.float64),
         status=status,
         fail_step=fail_step,
         dt=dt,
@@ -159,8 +159,8 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
         device=str(integ.device),
         device_name=integ.device.name,
         wall_time=wall,
-        final_displacement=d.u.numpy().astype(np.float64).transpose(1, 0, 2),
-        final_velocity=d.v.numpy().astype(np.float64).transpose(1, 0, 2),
+        final_displacement=to_host(d.u).astype(np.float64).transpose(1, 0, 2),
+        final_velocity=to_host(d.v).astype(np.float64).transpose(1, 0, 2),
         feasibility=_feasibility(integ, plan.output_times),
         dt_limit=plan.dt_limit,
         info={
@@ -170,7 +170,7 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
             "column_dt": np.full(batch.n_columns, dt),
             "column_group": np.zeros(batch.n_columns, dtype=np.int32),
             "column_bits": np.full(batch.n_columns, 32 if settings.precision == "fp32" else 64, dtype=np.int8),
-            "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
+            "max_projection_iterations": int(to_host(d.iters).max()) if batch.n_columns else 0,
             "bandwidth": integ.model.bandwidth,
             "n_constraints": integ.model.n_constraints,
             "build_time": integ.build_time,

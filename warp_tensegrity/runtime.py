@@ -229,6 +229,21 @@ def drive(gen):
             wp.synchronize_event(got)
 
 
+def to_host(a):
+    """A Warp array's values as a NumPy array, copied on the current stream and waited for there.
+    ``wp.array.numpy()`` copies on the CUDA null stream, which waits for every stream of the device: a
+    run that ends would wait for the runs still stepping beside it (sim.integrate.run_together).
+    On the CPU: ``a.numpy()`` (a view)."""
+    import warp as wp
+
+    if not a.device.is_cuda:
+        return a.numpy()
+    out = wp.empty(a.shape, dtype=a.dtype, device="cpu")
+    wp.copy(out, a)
+    wp.synchronize_stream(wp.get_stream(a.device))
+    return out.numpy()
+
+
 def cuda_memory(device) -> tuple[int, int]:
     """(free, total) bytes of a Warp CUDA device. Its primary context is made first: without one the
     driver makes and destroys a temporary context for each query (0.16 s each on the H200's host,

@@ -22,7 +22,7 @@ from .model import REAL, Data, Model, build_model, make_data
 from .staged.kernels import make_kernels
 from .staged.step import Launcher, StagedStep  # noqa: F401 (registers the staged Step)
 from .step import STEPS, Step
-from ..runtime import IDLE, Spawn, drive, resolve_device
+from ..runtime import IDLE, Spawn, drive, resolve_device, to_host
 from ..options import RunSettings, SettingsError
 from ..types import Path, Precision
 
@@ -270,7 +270,7 @@ class Integrator:
 
     # ------------------------------------------------------------------ results
     def n_failed(self) -> int:
-        return int(np.count_nonzero(self.data.status.numpy()))
+        return int(np.count_nonzero(to_host(self.data.status)))
 
 
 def run_together(gens: list, device, interleave: bool | None = None) -> list:
