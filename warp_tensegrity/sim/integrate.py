@@ -50,6 +50,17 @@ def _gc_paused():
             gc.enable()
 
 
+_PINNED: dict = {}  # (shape, dtype) -> pinned host arrays free for another run
+
+
+def _pinned(shape, dtype):
+    """A pinned host array for a run's progress copies, reused from an ended run where one fits: freeing
+    pinned memory (cudaFreeHost) waits for the whole device, so a run that ends would wait for the runs
+    stepping beside it (:func:`run_together`)."""
+    free = _PINNED.setdefault((tuple(shape), dtype), [])
+    return free.pop() if free else wp.empty(shape, dtype=dtype, device="cpu", pinned=True)
+
+
 class Integrator:
     """Holds the model, data and record arrays of one batch and advances it on one Warp device with
     the Step of its launch path (:data:`warp_tensegrity.sim.step.STEPS`)."""
@@ -229,7 +240,7 @@ class Integrator:
         # progress reads the copy once the event is complete, never waiting for the work just launched
         watch = progress is not None and cuda
         queued: deque = deque()
-        status = wp.empty(self.data.status.shape, dtype=self.data.status.dtype, device="cpu", pinned=True) if watch else None
+        status = _pinned(self.data.status.shape, self.data.status.dtype) if watch else None
         while done < n_steps:
             n = min(chunk, n_steps - done)
             with wp.ScopedDevice(self.device):
@@ -257,6 +268,8 @@ class Integrator:
             yield end
         with wp.ScopedDevice(self.device):
             self.synchronize()
+            if status is not None:  # its copies are done
+                _PINNED[(tuple(status.shape), status.dtype)].append(status)
             if progress is not None and reported < n_steps:
                 progress(n_steps, n_steps, self.n_failed())
         return time.perf_counter() - t0, t_compile
