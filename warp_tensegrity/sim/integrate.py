@@ -32,6 +32,8 @@ if TYPE_CHECKING:
 IDLE_POLL_S = 1e-3
 """Seconds between polls of the runs' events when every run stepping at once waits on the device
 (the sleep leaves the GIL to the store's writer thread)."""
+CHUNKS_AHEAD = 3
+"""Chunks (about 1/20 of a run each) a CUDA run keeps queued beyond the one it waits for."""
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph when launches end on outputs
 
 
@@ -248,20 +250,29 @@ class Integrator:
                 done += n
                 if watch:
                     wp.copy(status, self.data.status)
+                if cuda:
                     queued.append((wp.record_event(), done))
-                elif progress is not None and not cuda and (time.perf_counter() - last > 0.5 or done == n_steps):
+                elif progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
                     self.synchronize()
                     progress(done, n_steps, self.n_failed())
                     reported, last = done, time.perf_counter()
             if not cuda and done < n_steps:
                 yield None
+            # at most CHUNKS_AHEAD chunks queued: a full launch queue blocks every launch of the device,
+            # the other runs' ends and measures with it
+            while cuda and len(queued) > CHUNKS_AHEAD and done < n_steps:
+                event, finished = queued.popleft()
+                yield event
+                if watch and time.perf_counter() - last > 0.5:
+                    progress(finished, n_steps, int(np.count_nonzero(status.numpy())))
+                    reported, last = finished, time.perf_counter()
         if cuda:
             with wp.ScopedDevice(self.device):
                 end = wp.record_event()
             while queued:
                 event, finished = queued.popleft()
                 yield event
-                if time.perf_counter() - last > 0.5 and queued:
+                if watch and time.perf_counter() - last > 0.5 and queued:
                     # the copy may be a later chunk's by now: a count of failures no older than this chunk's
                     progress(finished, n_steps, int(np.count_nonzero(status.numpy())))
                     reported, last = finished, time.perf_counter()
