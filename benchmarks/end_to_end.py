@@ -50,7 +50,7 @@ STAGES = ("import", "build", "compile", "stepping", "measurement", "transfer", "
 
 
 def _stub(orig, k: int, spent: dict):
-    """engine.run_pipelines stepping only ``k`` outputs of each plan, the records padded to the plan's outputs."""
+    """engine.run_batches stepping only ``k`` outputs of each plan, the records padded to the plan's outputs."""
     import dataclasses
 
     import numpy as np
@@ -73,29 +73,15 @@ def _stub(orig, k: int, spent: dict):
             r.info["output_step"] = plan.output_steps
         r.n_steps = plan.n_steps
 
-    def short(pipe):  # the pipeline with its runs stepping k outputs, their records padded
-        from warp_tensegrity.engine import Runs
-
-        value = None
-        while True:
-            try:
-                got = pipe.send(value)
-            except StopIteration as stop:
-                return stop.value
-            value = None
-            if isinstance(got, Runs):
-                plans = [plan for _, _, plan in got.runs]
-                value = yield Runs([(c, p, dataclasses.replace(plan, n_steps=min(plan.n_steps, k * plan.output_every)))
-                                    for c, p, plan in got.runs], got.progress)
-                t_pad = time.perf_counter()
-                for r, plan in zip(value, plans):
-                    pad(r, plan)
-                spent["s"] += time.perf_counter() - t_pad
-            else:
-                value = yield got
-
-    def run(pipes, *a, **kw):
-        return orig([short(p) for p in pipes], *a, **kw)
+    def run(runs, *a, **kw):
+        short = [(c, p, dataclasses.replace(plan, n_steps=min(plan.n_steps, k * plan.output_every)))
+                 for c, p, plan in runs]
+        results, stages = orig(short, *a, **kw)
+        t_pad = time.perf_counter()
+        for r, (_, _, plan) in zip(results, runs):
+            pad(r, plan)
+        spent["s"] += time.perf_counter() - t_pad
+        return results, stages
 
     return run
 
@@ -191,9 +177,7 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
     from warp_tensegrity.measure import device as _measure_device  # noqa: F401
     from warp_tensegrity.sweep import beside, budget, plan as sweep_plan, run as sweep_run, shard as sweep_shard, store as sweep_store
 
-    from warp_tensegrity.runtime import init_warp
-
-    init_warp()  # as the CLI starts Warp (its CUDA settings included)
+    wp.init()
     wp.get_device(device)
     st = dict.fromkeys(STAGES, 0.0)
     st["import"] = time.perf_counter() - t_ref
@@ -228,15 +212,13 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
         return orig
 
     stubbed = {"s": 0.0}  # the stub's synthetic padding: no stage of a real run, left out of the wall
-    orig_runs = sweep_shard.run_pipelines if not stub else _stub(sweep_shard.run_pipelines, stub, stubbed)
+    orig_runs = sweep_shard.run_batches if not stub else _stub(sweep_shard.run_batches, stub, stubbed)
 
-    def runs(*a, **k):  # a shard's runs (its groups' pipelines, at once on a GPU): the engine's stages
+    def runs(*a, **k):  # a shard's runs (its groups and twins, at once on a GPU): the engine's stages
         t0, stub0 = time.perf_counter(), stubbed["s"]
-        values, es = orig_runs(*a, **k)
+        results, es = orig_runs(*a, **k)
         total = time.perf_counter() - t0
-        padded = stubbed["s"] - stub0  # inside the engine's wall, in its stepping: no stage of a real run
-        total -= padded
-        es = dict(es, stepping=max(float(es.get("stepping", 0.0)) - padded, 0.0)) if es else es
+        total -= stubbed["s"] - stub0
         mark("runs", t0, time.perf_counter() - t0)
         keys = ("build", "compile", "stepping", "measurement", "transfer")
         for key in keys:
@@ -244,14 +226,14 @@ def _child(spec: str, device: str, out: str, record: str, stub: int = 0, trace: 
         # host-side preparation around the engine's own stages (batch assembly, padding); host work stepped
         # with the runs (the store's layout: timed in its own stage by its wrapper) is not preparation
         st["build"] += max(0.0, total - sum(float(v) for v in es.values()))
-        info["shards"] += 1
-        for r, _ in values:
+        info["shards"] += len(results)
+        for r in results:
             info["n_steps"] = max(info.get("n_steps", 0), int(r.n_steps))
             info["device"] = r.device
             info["device_name"] = r.device_name
-        return values, es
+        return results, es
 
-    sweep_shard.run_pipelines = runs
+    sweep_shard.run_batches = runs
     traced = _trace_runs(t_ref) if trace else None
     if trace:  # host intervals on the timeline only (their seconds are in the engine's stages)
         for owner, name in ((integrate.Integrator, "__init__"), (integrate.Integrator, "load_kernels"),

@@ -21,7 +21,7 @@ from .policy.decide import RunPlan, check_batch_arguments, decide, decide_batch,
 from .policy.paths import lane_emulation
 from .arguments import expect, expect_callable
 from .result import BatchResult
-from .runtime import IDLE, Spawn, drive, init_warp, resolve_device, to_host
+from .runtime import drive, init_warp, resolve_device
 from .scene.base_modes import beta_limit_measures
 from .scene.batch import (NetworkBatch, column_batch, column_params, far_end_params, reference_elastic_energy,
                           reference_states)
@@ -31,7 +31,7 @@ from .types import FORCE_EVALS
 
 
 def _to_host(a):
-    return None if a is None else to_host(a).astype(np.float64)
+    return None if a is None else a.numpy().astype(np.float64)
 
 
 
@@ -39,11 +39,11 @@ def _feasibility(integ, time) -> dict | None:
     """The per-case feasibility record (:mod:`warp_tensegrity.measure.feasibility`) of a run."""
     m, d = integ.model, integ.data
     if m.n_prisms > 0:
-        return prism_record(to_host(d.left_slot), to_host(d.twist_max), to_host(d.twist_min), to_host(d.height_min),
-                            to_host(d.twist), time)
+        return prism_record(d.left_slot.numpy(), d.twist_max.numpy(), d.twist_min.numpy(), d.height_min.numpy(),
+                            d.twist.numpy(), time)
     if m.n_pairs > 0:
-        return pair_record(to_host(d.pair_left_slot), to_host(m.pair_kind), to_host(d.pair_distance_min),
-                           to_host(m.pair_nodes), time)
+        return pair_record(d.pair_left_slot.numpy(), m.pair_kind.numpy(), d.pair_distance_min.numpy(),
+                           m.pair_nodes.numpy(), time)
     return None
 
 
@@ -102,8 +102,8 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
     d = integ.data
     ke = _to_host(integ.kinetic).T  # (B, n_out)
     ee = _to_host(integ.elastic).T
-    status = to_host(d.status).astype(np.int32)
-    fail_step = to_host(d.fail_step).astype(np.int64)
+    status = d.status.numpy().astype(np.int32)
+    fail_step = d.fail_step.numpy().astype(np.int64)
     striker = integ.striker.summary(dt) if integ.striker is not None else None
     E = ke + ee
     if striker is not None:  # the striker's kinetic energy belongs to the conserved total
@@ -149,7 +149,7 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
         elastic_energy=ee,
         **records,
         energy_error=energy_error,
-        bar_length_error=to_host(d.bar_err).astype(np.float64),
+        bar_length_error=d.bar_err.numpy().astype(np.float64),
         status=status,
         fail_step=fail_step,
         dt=dt,
@@ -159,8 +159,8 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
         device=str(integ.device),
         device_name=integ.device.name,
         wall_time=wall,
-        final_displacement=to_host(d.u).astype(np.float64).transpose(1, 0, 2),
-        final_velocity=to_host(d.v).astype(np.float64).transpose(1, 0, 2),
+        final_displacement=d.u.numpy().astype(np.float64).transpose(1, 0, 2),
+        final_velocity=d.v.numpy().astype(np.float64).transpose(1, 0, 2),
         feasibility=_feasibility(integ, plan.output_times),
         dt_limit=plan.dt_limit,
         info={
@@ -170,7 +170,7 @@ def run_batch_steps(batch: NetworkBatch, settings: RunSettings | None = None, pr
             "column_dt": np.full(batch.n_columns, dt),
             "column_group": np.zeros(batch.n_columns, dtype=np.int32),
             "column_bits": np.full(batch.n_columns, 32 if settings.precision == "fp32" else 64, dtype=np.int8),
-            "max_projection_iterations": int(to_host(d.iters).max()) if batch.n_columns else 0,
+            "max_projection_iterations": int(d.iters.numpy().max()) if batch.n_columns else 0,
             "bandwidth": integ.model.bandwidth,
             "n_constraints": integ.model.n_constraints,
             "build_time": integ.build_time,
@@ -240,18 +240,15 @@ def simulate_batch_steps(config: ColumnConfig, params: dict, settings: RunSettin
 
 
 class HostWork:
-    """Host-side work that steps with the runs of :func:`run_pipelines`: a generator that yields between
+    """Host-side work that steps with the runs of :func:`run_batches`: a generator that yields between
     pieces (each under ``context``, e.g. :func:`~warp_tensegrity.scene.blas.one_blas_thread`) and
-    returns ``value``; its seconds count as the ``stage`` it names. On a GPU each piece waits until no
-    run can go on (:data:`~warp_tensegrity.runtime.IDLE`): a run's end and the next run of its pipeline
-    come first."""
+    returns ``value``; its seconds count as the ``stage`` it names."""
 
     def __init__(self, gen, stage: str = "measurement", context=None):
         self.gen, self.stage, self.context, self.value, self.seconds = gen, stage, context, None, 0.0
 
     def steps(self):
         while True:
-            yield IDLE
             t0 = time.perf_counter()
             try:
                 with self.context() if self.context is not None else contextlib.nullcontext():
@@ -261,82 +258,39 @@ class HostWork:
                 return
             finally:
                 self.seconds += time.perf_counter() - t0
-
-
-class Runs:
-    """What a pipeline of :func:`run_pipelines` yields to step batches: each ``(config, params, plan)``
-    as :func:`simulate_batch` takes them, with its progress callback (``progress``: one per run, or
-    None). The pipeline is resumed with their BatchResults, in order."""
-
-    __slots__ = ("runs", "progress")
-
-    def __init__(self, runs: list[tuple[ColumnConfig, dict, RunPlan]], progress: list | None = None):
-        self.runs = list(runs)
-        self.progress = list(progress) if progress is not None else [None] * len(self.runs)
-
-
-def run_pipelines(pipes: list, device=None, interleave: bool | None = None,
-                  host: list[HostWork] = ()) -> tuple[list, dict]:
-    """Drive generators that yield :class:`Runs` (each resumed with its runs' results) to their ends and
-    return their values in order, with the stage seconds of the whole set. On a GPU every run of every
-    pipeline steps at once with the rest, each on its own CUDA stream
-    (:func:`~warp_tensegrity.sim.integrate.run_together`): a sweep's groups and twins are each too narrow
-    to fill it, and a group's fp64 reruns start as soon as its own fp32 runs are measured. Each
-    batch's numbers are those it gets alone. Elsewhere one pipeline after another, each run in turn.
-    ``device``: where every run steps (default: the current Warp device); ``interleave``: as
-    :func:`~warp_tensegrity.sim.integrate.run_together` takes it; ``host``: host work resumed in turn
-    with the runs (after them, off a GPU), each its ``value`` when done. Stages: build, compile,
-    measurement and transfer as the runs report them, the host work's in its stage; stepping: the
-    rest of the set's wall time, the host feeding and waiting on the device and the pipelines' own
-    work between their runs."""
-    init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
-    from .sim.integrate import run_together  # imports Warp: not at package import
-
-    device = resolve_device(device)
-    done: list[BatchResult] = []
-
-    def steps(pipe):  # the pipeline with its Runs as the engine's generators
-        value = None
-        while True:
-            try:
-                got = pipe.send(value)
-            except StopIteration as stop:
-                return stop.value
-            value = None
-            if isinstance(got, Runs):
-                value = yield Spawn(simulate_batch_steps(c, p, progress=cb, plan=rp.with_device(device))
-                                    for (c, p, rp), cb in zip(got.runs, got.progress))
-                done.extend(value)
-            else:
-                value = yield got
-
-    t0 = time.perf_counter()
-    values = run_together([steps(p) for p in pipes] + [h.steps() for h in host], device, interleave)[:len(pipes)]
-    wall = time.perf_counter() - t0
-    stages = dict.fromkeys(("build", "compile", "stepping", "measurement", "transfer"), 0.0)
-    for r in done:
-        for k in ("build", "compile", "measurement", "transfer"):
-            stages[k] += float(r.info["stages"].get(k, 0.0))
-    for h in host:
-        stages[h.stage] = stages.get(h.stage, 0.0) + h.seconds
-    stages["stepping"] = max(wall - sum(stages.values()), 0.0)
-    return values, stages
+            yield
 
 
 def run_batches(runs: list[tuple[ColumnConfig, dict, RunPlan]], device=None,
                 progress: list | None = None, interleave: bool | None = None,
                 host: list[HostWork] = ()) -> tuple[list[BatchResult], dict]:
     """Simulate several batches of T3 columns, each ``(config, params, plan)`` as
-    :func:`simulate_batch` takes them, all on ``device`` (default: the first plan's): on a GPU at once,
-    each on its own CUDA stream, as one :func:`run_pipelines` pipeline. ``progress``: one callback per
-    run, or None; ``interleave`` and ``host`` as :func:`run_pipelines` takes them. Returns the results
-    in order and the stage seconds of the whole set."""
+    :func:`simulate_batch` takes them, all on ``device`` (default: the first plan's). On a GPU they
+    step at once, each on its own CUDA stream (:func:`~warp_tensegrity.sim.integrate.run_together`):
+    a sweep's groups and their twins are each too narrow to fill it. Each batch's numbers are those
+    it gets alone. ``progress``: one callback per run, or None; ``interleave``: as
+    :func:`~warp_tensegrity.sim.integrate.run_together` takes it; ``host``: host work resumed in
+    turn with the runs (after them, off a GPU), each its ``value`` when done. Returns the results in
+    order and the stage seconds of the whole set (build, compile, measurement and transfer as the
+    runs report them, the host work's in its stage; stepping: the rest of the set's wall time, the
+    host feeding and waiting on the device)."""
+    init_warp()  # quietly: no CUDA-driver warning on a CPU-only machine
+    from .sim.integrate import run_together  # imports Warp: not at package import
 
-    def together():
-        return (yield Runs(runs, progress))
-
-    (results,), stages = run_pipelines([together()], device if device is not None or not runs else runs[0][2].device,
-                                       interleave, host)
+    progress = progress or [None] * len(runs)
+    device = resolve_device(device if device is not None or not runs else runs[0][2].device)
+    t0 = time.perf_counter()
+    results = run_together([simulate_batch_steps(c, p, progress=cb, plan=rp.with_device(device))
+                            for (c, p, rp), cb in zip(runs, progress)] + [h.steps() for h in host],
+                           device, interleave)[:len(runs)]
+    wall = time.perf_counter() - t0
+    stages = dict.fromkeys(("build", "compile", "stepping", "measurement", "transfer"), 0.0)
+    for r in results:
+        for k in ("build", "compile", "measurement", "transfer"):
+            stages[k] += float(r.info["stages"].get(k, 0.0))
+    for h in host:
+        stages[h.stage] = stages.get(h.stage, 0.0) + h.seconds
+    stages["stepping"] = max(wall - sum(stages.values()), 0.0)
     return results, stages
 
 

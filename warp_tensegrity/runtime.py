@@ -89,10 +89,6 @@ def init_warp(verbose: bool = False, kernels: bool = True):
         return wp
     if hasattr(wp.config, "log_level"):
         wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING
-    # CUDA's hardware work queues per context (8 unless set; 32 at most): a sweep's runs step at once,
-    # each on its own stream (sim.integrate.run_together), and streams that share a queue wait on each
-    # other's queued work. Read when a context is made: here, before Warp makes its first.
-    os.environ.setdefault("CUDA_DEVICE_MAX_CONNECTIONS", "32")
     try:
         _init_quietly(wp)
     except OSError as e:
@@ -186,62 +182,19 @@ def _driver_text(drv) -> str:
     return f"{int(drv) // 1000}.{(int(drv) % 1000) // 10}"
 
 
-class Spawn:
-    """What a driven generator yields to have other generators run (:func:`drive`: one after another;
-    :func:`~warp_tensegrity.sim.integrate.run_together`: beside the rest, each on its own stream); it is
-    resumed with the list of their values, in order, once all have ended."""
-
-    __slots__ = ("gens",)
-
-    def __init__(self, gens):
-        self.gens = list(gens)
-
-
-class _Idle:
-    def __repr__(self):
-        return "IDLE"
-
-
-IDLE = _Idle()
-"""What a driven generator yields to be resumed only when no run beside it can go on (host work:
-:class:`warp_tensegrity.engine.HostWork`): in :func:`~warp_tensegrity.sim.integrate.run_together`, a
-run's end (its measures, the next run of its pipeline) comes before it; :func:`drive` resumes it at once."""
-
-
 def drive(gen):
     """Run a generator that yields while it steps (:meth:`warp_tensegrity.sim.integrate.Integrator.run_steps`,
     :func:`warp_tensegrity.engine.simulate_batch_steps`) to its end and return its value. A value it
-    yields is None or :data:`IDLE` (resume it at once), a CUDA event it waits for (resumed once that
-    is complete) or a :class:`Spawn` (resumed with the values of its generators, driven one after
-    another)."""
-    value = None
+    yields is None (resume it at once) or a CUDA event it waits for (resumed once that is complete)."""
     while True:
         try:
-            got = gen.send(value)
+            got = next(gen)
         except StopIteration as stop:
             return stop.value
-        value = None
-        if isinstance(got, Spawn):
-            value = [drive(g) for g in got.gens]
-        elif got is not None and got is not IDLE:
+        if got is not None:
             import warp as wp  # only a CUDA run yields an event
 
             wp.synchronize_event(got)
-
-
-def to_host(a):
-    """A Warp array's values as a NumPy array, copied on the current stream and waited for there.
-    ``wp.array.numpy()`` copies on the CUDA null stream, which waits for every stream of the device: a
-    run that ends would wait for the runs still stepping beside it (sim.integrate.run_together).
-    On the CPU: ``a.numpy()`` (a view)."""
-    import warp as wp
-
-    if not a.device.is_cuda:
-        return a.numpy()
-    out = wp.empty(a.shape, dtype=a.dtype, device="cpu")
-    wp.copy(out, a)
-    wp.synchronize_stream(wp.get_stream(a.device))
-    return out.numpy()
 
 
 def cuda_memory(device) -> tuple[int, int]:

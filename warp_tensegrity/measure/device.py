@@ -52,7 +52,6 @@ from .device_kernels import (
     snapshots,
     track,
 )
-from ..runtime import to_host
 from .pulse_core import (
     DEFAULT_END_FRACTION,
     FALLBACK_SCALE,
@@ -174,12 +173,12 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
                                              shares["end_energy_share"]])
             wp.launch(snapshots, (T, B), [t_d, cut, strain, nv_d, whole, fit, lo_eff, hi_eff, P, sx, sy, sw])
             wp.launch(snapshot_fit, B, [h_d, sx, sy, sw, scal["speed_snapshot"]])
-            out = {k: to_host(v).copy() for k, v in {**scal, **shares}.items()}  # copies: on the CPU numpy() is a view
-            out["threshold"] = to_host(trial).copy()
-            out["arrival_time"] = to_host(arrival).T.copy()
-            out["peak_time"] = to_host(tp_time).T.copy()
-            out["peak_value"] = to_host(tp_value).T.copy()
-            out["arrival_slope"] = to_host(slope).T.copy()
+            out = {k: v.numpy().copy() for k, v in {**scal, **shares}.items()}  # copies: on the CPU numpy() is a view
+            out["threshold"] = trial.numpy().copy()
+            out["arrival_time"] = arrival.numpy().T.copy()
+            out["peak_time"] = tp_time.numpy().T.copy()
+            out["peak_value"] = tp_value.numpy().T.copy()
+            out["arrival_slope"] = slope.numpy().T.copy()
             return out
 
         out = measure(base)
@@ -188,14 +187,13 @@ def measure_record(strain: wp.array, time, prism_height, *, n_prisms: int | None
             out.update(_sensitivities(out, probed))
             if energy is not None:
                 out["pulse_energy_share_sensitivity"] = _share_sensitivity(out["pulse_energy_share"], probed)
-        # this run's stream only: runs stepping beside it on their own streams (engine.run_pipelines) go on
-        wp.synchronize_stream(wp.get_stream(dev)) if dev.is_cuda else wp.synchronize_device(dev)
+        wp.synchronize_device(dev)
         t1 = _time.perf_counter()
         del out["arrival_slope"]
         if run:
             # per-record statistics the NaN reasons need, so the record itself need not cross
-            whole_h = to_host(whole).astype(bool)
-            qmax_h = to_host(qmax).max(axis=0)
+            whole_h = whole.numpy().astype(bool)
+            qmax_h = qmax.numpy().max(axis=0)
             out["max_compression"] = np.where(whole_h, qmax_h, np.nan)
             out["max_compression_finite"] = qmax_h
             out["record_finite"] = whole_h

@@ -22,7 +22,7 @@ from .model import REAL, Data, Model, build_model, make_data
 from .staged.kernels import make_kernels
 from .staged.step import Launcher, StagedStep  # noqa: F401 (registers the staged Step)
 from .step import STEPS, Step
-from ..runtime import IDLE, Spawn, drive, resolve_device, to_host
+from ..runtime import drive, resolve_device
 from ..options import RunSettings, SettingsError
 from ..types import Path, Precision
 
@@ -32,8 +32,6 @@ if TYPE_CHECKING:
 IDLE_POLL_S = 1e-3
 """Seconds between polls of the runs' events when every run stepping at once waits on the device
 (the sleep leaves the GIL to the store's writer thread)."""
-CHUNKS_AHEAD = 3
-"""Chunks (about 1/20 of a run each) a CUDA run keeps queued beyond the one it waits for."""
 MAX_GRAPH_STEPS = 2000  # longest output interval (in steps) captured as one graph when launches end on outputs
 
 
@@ -50,17 +48,6 @@ def _gc_paused():
     finally:
         if enabled:
             gc.enable()
-
-
-_PINNED: dict = {}  # (shape, dtype) -> pinned host arrays free for another run
-
-
-def _pinned(shape, dtype):
-    """A pinned host array for a run's progress copies, reused from an ended run where one fits: freeing
-    pinned memory (cudaFreeHost) waits for the whole device, so a run that ends would wait for the runs
-    stepping beside it (:func:`run_together`)."""
-    free = _PINNED.setdefault((tuple(shape), dtype), [])
-    return free.pop() if free else wp.empty(shape, dtype=dtype, device="cpu", pinned=True)
 
 
 class Integrator:
@@ -242,7 +229,7 @@ class Integrator:
         # progress reads the copy once the event is complete, never waiting for the work just launched
         watch = progress is not None and cuda
         queued: deque = deque()
-        status = _pinned(self.data.status.shape, self.data.status.dtype) if watch else None
+        status = wp.empty(self.data.status.shape, dtype=self.data.status.dtype, device="cpu", pinned=True) if watch else None
         while done < n_steps:
             n = min(chunk, n_steps - done)
             with wp.ScopedDevice(self.device):
@@ -250,37 +237,26 @@ class Integrator:
                 done += n
                 if watch:
                     wp.copy(status, self.data.status)
-                if cuda:
                     queued.append((wp.record_event(), done))
-                elif progress is not None and (time.perf_counter() - last > 0.5 or done == n_steps):
+                elif progress is not None and not cuda and (time.perf_counter() - last > 0.5 or done == n_steps):
                     self.synchronize()
                     progress(done, n_steps, self.n_failed())
                     reported, last = done, time.perf_counter()
             if not cuda and done < n_steps:
                 yield None
-            # at most CHUNKS_AHEAD chunks queued: a full launch queue blocks every launch of the device,
-            # the other runs' ends and measures with it
-            while cuda and len(queued) > CHUNKS_AHEAD and done < n_steps:
-                event, finished = queued.popleft()
-                yield event
-                if watch and time.perf_counter() - last > 0.5:
-                    progress(finished, n_steps, int(np.count_nonzero(status.numpy())))
-                    reported, last = finished, time.perf_counter()
         if cuda:
             with wp.ScopedDevice(self.device):
                 end = wp.record_event()
             while queued:
                 event, finished = queued.popleft()
                 yield event
-                if watch and time.perf_counter() - last > 0.5 and queued:
+                if time.perf_counter() - last > 0.5 and queued:
                     # the copy may be a later chunk's by now: a count of failures no older than this chunk's
                     progress(finished, n_steps, int(np.count_nonzero(status.numpy())))
                     reported, last = finished, time.perf_counter()
             yield end
         with wp.ScopedDevice(self.device):
             self.synchronize()
-            if status is not None:  # its copies are done
-                _PINNED[(tuple(status.shape), status.dtype)].append(status)
             if progress is not None and reported < n_steps:
                 progress(n_steps, n_steps, self.n_failed())
         return time.perf_counter() - t0, t_compile
@@ -294,7 +270,7 @@ class Integrator:
 
     # ------------------------------------------------------------------ results
     def n_failed(self) -> int:
-        return int(np.count_nonzero(to_host(self.data.status)))
+        return int(np.count_nonzero(self.data.status.numpy()))
 
 
 def run_together(gens: list, device, interleave: bool | None = None) -> list:
@@ -303,90 +279,35 @@ def run_together(gens: list, device, interleave: bool | None = None) -> list:
     sweep's groups of like stiffness and their error-estimate twins) step at once; the columns are
     independent, so each run's numbers are those it has alone. A run that yields a CUDA event is
     resumed once that is complete; when every live run waits on one (no host work is left), the
-    driver polls them every :data:`IDLE_POLL_S`. A run that yields :data:`~warp_tensegrity.runtime.IDLE`
-    (host work) is resumed, one turn at a time, only when no other run can go on. A run that yields a
-    :class:`~warp_tensegrity.runtime.Spawn` is resumed with its generators' values once they have all
-    ended; they are driven as runs beside the others, each on its own stream, their first turns at once (a group's fp64 reruns start as soon as
-    its own fp32 runs are measured, whatever the other groups still step). Elsewhere one after another,
-    as :func:`drive` would. ``interleave``: resume in turn (True; on the CPU without streams, for tests:
-    not the lane step, whose CPU emulation is a process-wide setting) or one after another (False);
-    None: on CUDA only."""
+    driver polls them every :data:`IDLE_POLL_S`. Elsewhere one after another, as :func:`drive`
+    would. ``interleave``: resume in turn (True; on the CPU without streams, for tests: not the lane
+    step, whose CPU emulation is a process-wide setting) or one after another (False); None: on
+    CUDA only."""
     device = resolve_device(device)
     if interleave is None:
         interleave = device.is_cuda
-    if not interleave or not gens:
+    if not interleave or len(gens) < 2:
         return [drive(g) for g in gens]
-    gens = list(gens)
-    n_top = len(gens)
-
-    # A run holds a stream from its first turn until it ends, waits on the runs it spawned or yields
-    # IDLE; the streams given back are reused. Streams beyond the device's hardware work queues
-    # (CUDA_DEVICE_MAX_CONNECTIONS, 8 unless set: runtime.init_warp sets 32) share a queue, and a
-    # kernel then waits behind another stream's queued chunks: a group's measures behind the rest.
-    pool: list = []
-    streams: dict = {}
-
-    def stream(i):
-        if i not in streams:
-            streams[i] = (pool.pop() if pool else wp.Stream(device)) if device.is_cuda else None
-        return streams[i]
-
-    def release(i):
-        s_ = streams.pop(i, None)
-        if s_ is not None:
-            pool.append(s_)
-
-    out: list = [None] * n_top
-    live = list(range(n_top))
+    streams = [wp.Stream(device) if device.is_cuda else None for _ in gens]
+    out: list = [None] * len(gens)
+    live = list(range(len(gens)))
     waits: dict = {}  # run -> the event it waits for
-    send: dict = {}  # run -> the value it is resumed with (its spawned runs' values)
-    parent: dict = {}  # spawned run -> (the run that spawned it, its place in the values)
-    spawned: dict = {}  # run waiting on its spawned runs -> [their values, how many still run]
-    idle: set = set()  # runs that go on only when no other can (host work: runtime.IDLE)
     while live:
-        ready = deque(i for i in live if i not in spawned and i not in idle and (i not in waits or waits[i].is_complete))
-        if not ready:  # one turn of host work
-            ready = deque([i for i in live if i in idle][:1])
+        ready = [i for i in live if i not in waits or waits[i].is_complete]
         if not ready:  # every live run waits on the device: poll, so whichever ends first goes on first
             time.sleep(IDLE_POLL_S)
             continue
-        while ready:
-            i = ready.popleft()
-            with wp.ScopedStream(stream(i), sync_enter=False):  # None (the CPU): no stream to set
+        for i in ready:
+            with wp.ScopedStream(streams[i], sync_enter=False):  # None (the CPU): no stream to set
                 try:
-                    got = gens[i].send(send.pop(i, None))
+                    got = next(gens[i])
                 except StopIteration as stop:
+                    out[i] = stop.value
                     live.remove(i)
                     waits.pop(i, None)
-                    release(i)
-                    if i in parent:  # a spawned run: its value goes to the run that spawned it
-                        p, slot = parent.pop(i)
-                        spawned[p][0][slot] = stop.value
-                        spawned[p][1] -= 1
-                        if not spawned[p][1]:
-                            send[p] = spawned.pop(p)[0]
-                    else:
-                        out[i] = stop.value
                     continue
-            waits.pop(i, None)
-            idle.discard(i)
-            if got is IDLE:
-                idle.add(i)
-                release(i)  # host work queues nothing on the device
-                ready.clear()  # the others are looked at again first
-            elif isinstance(got, Spawn):
-                if not got.gens:
-                    send[i] = []
-                    continue
-                spawned[i] = [[None] * len(got.gens), len(got.gens)]
-                release(i)  # its work is queued on it; a stream orders only what is queued after
-                new = []
-                for slot, g in enumerate(got.gens):
-                    parent[len(gens)] = (i, slot)
-                    new.append(len(gens))
-                    gens.append(g)
-                live.extend(new)
-                ready.extendleft(reversed(new))  # their first turns now: they queue their work
-            elif got is not None:
+            if got is None:
+                waits.pop(i, None)
+            else:
                 waits[i] = got
     return out

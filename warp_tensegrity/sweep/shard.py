@@ -10,7 +10,7 @@ import numpy as np
 from .. import io as D
 from ..scene.base_modes import base_mode_ratios_one_thread, base_mode_ratios_steps, beta_limit_measures
 from ..scene.blas import one_blas_thread
-from ..engine import HostWork, Runs, run_pipelines
+from ..engine import HostWork, run_batches
 from ..measure.errors import FLAG as ERROR_FLAG
 from ..measure.errors import VERIFY_MARGIN, error_estimates, largest_share, with_perturbation
 from ..measure.feasibility import feasible_record
@@ -33,7 +33,7 @@ def _num(x):
 
 def compute_shard(plan: SweepPlan, index: int, device: str | None = None, progress=None, host: list[HostWork] = ()):
     """Run shard ``index`` and return its case-stacked dataset (not written). ``host``: host work
-    stepped with its runs (:func:`warp_tensegrity.engine.run_pipelines`; on a GPU, in turns between
+    stepped with its runs (:func:`warp_tensegrity.engine.run_batches`; on a GPU, in turns between
     their launches: the run's template and store layout while the first shard steps, :mod:`.run`)."""
     if plan.run is None:
         decide_sweep(plan)
@@ -110,43 +110,37 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
     fp32 (precision 'auto', :attr:`RunGroup.fallback`) reruns in fp64 the columns whose error_flag
     is over_target or twin_undefined (and that stay in the feasible set). Then returns (result, errors): every measure's error estimate
     and ``error_flag`` (:func:`warp_tensegrity.measure.errors.error_estimates`), in column order.
-    Each group is a pipeline (:func:`warp_tensegrity.engine.run_pipelines`): on a GPU every group and
-    twin steps at once, and a group's reruns start as soon as its own run and twin are measured.
     ``progress(done, total, n_failed)`` sees the shard's column-steps (twins included) as one run.
-    ``host``: host work stepped with the groups (:func:`warp_tensegrity.engine.run_pipelines`)."""
+    ``host``: host work stepped with the groups (:func:`warp_tensegrity.engine.run_batches`)."""
     group = plan.column_group[start:stop]
     n = stop - start
     jobs = [(gi, cols) for gi in range(len(plan.groups)) if (cols := np.flatnonzero(group == gi)).size]
     total = float(sum(cols.size * (plan.groups[gi].plan.n_steps + (plan.groups[gi].twin.n_steps
                                    if twins and plan.groups[gi].twin is not None else 0)) for gi, cols in jobs))
-    state = {"done": 0.0, "failed": 0}
-    now: dict = {}  # each stepping run's column-steps done and columns failed so far
+    state = {"done": 0.0, "failed": 0, "stages": {}}
 
-    def report():
-        progress(min(state["done"] + sum(d for d, _ in now.values()), total), total,
-                 state["failed"] + sum(f for _, f in now.values()))
+    def run(runs, host=()):
+        """Run each (cols, plan) (None: no run), on a GPU all at once (engine.run_batches: each group
+        and twin alone is too narrow to fill it); progress sees their column-steps summed."""
+        todo = [i for i, (_, rp) in enumerate(runs) if rp is not None]
+        now = {i: (0.0, 0) for i in todo}  # each run's column-steps done and columns failed so far
 
-    def callback(key, w):
-        def cb(steps_done, n_steps, n_failed):
-            now[key] = (w * steps_done / max(n_steps, 1), n_failed)
-            report()
-        return cb
+        def callback(i, w):
+            def cb(steps_done, n_steps, n_failed):
+                now[i] = (w * steps_done / max(n_steps, 1), n_failed)
+                progress(min(state["done"] + sum(d for d, _ in now.values()), total),
+                         total, state["failed"] + sum(f for _, f in now.values()))
+            return cb
 
-    def runs(pairs):
-        """Each (cols, plan) stepped (None: no run; its result None), as one request of the pipeline;
-        progress sees their column-steps summed with every other run's."""
-        todo = [i for i, (_, rp) in enumerate(pairs) if rp is not None]
-        keys = [object() for _ in todo]
-        cbs = ([callback(key, pairs[i][0].size * pairs[i][1].n_steps) for key, i in zip(keys, todo)]
-               if progress is not None else None)
-        results = (yield Runs([(plan.spec.scene, {k: np.ascontiguousarray(v[start:stop][pairs[i][0]])
-                                                  for k, v in plan.params.items()}, pairs[i][1]) for i in todo], cbs)
-                   ) if todo else []
-        for key, i, r in zip(keys, todo, results):
-            now.pop(key, None)
-            state["done"] += pairs[i][0].size * pairs[i][1].n_steps
-            state["failed"] += int(np.count_nonzero(r.status))
-        out = [None] * len(pairs)
+        cbs = [callback(i, runs[i][0].size * runs[i][1].n_steps) if progress is not None else None for i in todo]
+        batches = [(plan.spec.scene, {k: np.ascontiguousarray(v[start:stop][runs[i][0]]) for k, v in plan.params.items()},
+                    runs[i][1]) for i in todo]
+        results, stages = run_batches(batches, device, cbs, host=host) if todo or host else ([], {})
+        state["done"] += sum(runs[i][0].size * runs[i][1].n_steps for i in todo)
+        state["failed"] += sum(int(np.count_nonzero(r.status)) for r in results)
+        for k, v in stages.items():
+            state["stages"][k] = state["stages"].get(k, 0.0) + v
+        out = [None] * len(runs)
         for i, r in zip(todo, results):
             out[i] = r
         return out
@@ -157,46 +151,43 @@ def run_groups(plan: SweepPlan, start: int, stop: int, device: str | None = None
         return meas, error_estimates(meas, None if twin_r is None else measure_columns(twin_r, height),
                                      1.0 if twin is None else twin_ratio(rp, twin), rp.precision, rp.accuracy)
 
-    def pipeline(gi, cols):
-        """One group: its run and twin at once, then (precision 'auto') the fp64 rerun of the columns
-        fp32 does not verify. Returns (result, error estimates or None)."""
-        g = plan.groups[gi]
-        r, twin_r = yield from runs([(cols, g.plan), (cols, g.twin if twins else None)])
-        if not twins:
-            return r, None
-        meas, err = estimate(r, g.plan, twin_r, g.twin)
-        if g.fallback is None:
-            return r, err
-        bad = np.isin(err["error_flag"], VERIFY_FAILS)
-        # auto's fp32: verified with a margin (errors.VERIFY_MARGIN)
-        bad |= largest_share(meas, err) > VERIFY_MARGIN * (g.plan.accuracy or DEFAULT_ACCURACY)
-        if r.feasibility is not None:  # a case outside the model's feasible set is flagged, not rerun
-            bad &= np.asarray(r.feasibility["feasibility_flag"]) == 0
-        redo = np.flatnonzero(bad)
-        if not len(redo):
-            return r, err
-        # fp32 not verified: fp64, with its own twin and estimate
-        rb, rbt = yield from runs([(cols[redo], g.fallback), (cols[redo], g.fallback_twin)])
-        meas_b, err_b = estimate(rb, g.fallback, rbt, g.fallback_twin)
-        # fp32 and fp64 at one dt differ by round-off only: what that moves, the estimate covers
-        err_b = with_perturbation(err_b, meas_b, {key: np.asarray(v)[redo] for key, v in meas.items()},
-                                  g.fallback.accuracy or DEFAULT_ACCURACY)
-        overwrite_columns(r, redo, rb)
-        for key, v in err_b.items():
-            err[key][redo] = v
-        return r, err
-
-    if device is None and jobs:
-        device = plan.groups[jobs[0][0]].plan.device
-    done, stages = run_pipelines([pipeline(gi, cols) for gi, cols in jobs], device, host=host) \
-        if jobs or host else ([], {})
+    # every group and its twin at once (on a GPU; one after another elsewhere)
+    firsts = run([(cols, plan.groups[gi].plan) for gi, cols in jobs]
+                 + [(cols, plan.groups[gi].twin if twins else None) for gi, cols in jobs], host)
+    done_runs, twin_runs = firsts[:len(jobs)], firsts[len(jobs):]
     errors = {}
-    for (_, cols), (_, err) in zip(jobs, done):
-        if err is not None:
+    redos = []  # (job index, columns of the group to rerun, meas, err)
+    for k, (gi, cols) in enumerate(jobs):
+        g, r = plan.groups[gi], done_runs[k]
+        if twins:
+            meas, err = estimate(r, g.plan, twin_runs[k], g.twin)
+            bad = np.isin(err["error_flag"], VERIFY_FAILS)
+            if g.fallback is not None:  # auto's fp32: verified with a margin (errors.VERIFY_MARGIN)
+                bad |= largest_share(meas, err) > VERIFY_MARGIN * (g.plan.accuracy or DEFAULT_ACCURACY)
+            if r.feasibility is not None:  # a case outside the model's feasible set is flagged, not rerun
+                bad &= np.asarray(r.feasibility["feasibility_flag"]) == 0
+            redo = np.flatnonzero(bad) if g.fallback is not None else []
+            if len(redo):
+                redos.append((k, redo, meas, err))
+            else:
+                _keep_errors(errors, err, cols, n)
+    if redos:  # fp32 not verified: fp64, with its own twin and estimate, every group's at once
+        backs = run([(jobs[k][1][redo], plan.groups[jobs[k][0]].fallback) for k, redo, _, _ in redos]
+                    + [(jobs[k][1][redo], plan.groups[jobs[k][0]].fallback_twin) for k, redo, _, _ in redos])
+        for j, (k, redo, meas, err) in enumerate(redos):
+            gi, cols = jobs[k]
+            g, r, rb, rbt = plan.groups[gi], done_runs[k], backs[j], backs[len(redos) + j]
+            meas_b, err_b = estimate(rb, g.fallback, rbt, g.fallback_twin)
+            # fp32 and fp64 at one dt differ by round-off only: what that moves, the estimate covers
+            err_b = with_perturbation(err_b, meas_b, {key: np.asarray(v)[redo] for key, v in meas.items()},
+                                      g.fallback.accuracy or DEFAULT_ACCURACY)
+            overwrite_columns(r, redo, rb)
+            for key, v in err_b.items():
+                err[key][redo] = v
             _keep_errors(errors, err, cols, n)
-    merged = merge_results([(cols, r) for (_, cols), (r, _) in zip(jobs, done)], n, [gi for gi, _ in jobs])
-    merged.wall_time = stages.get("stepping", 0.0)  # every run's: the groups', twins' and fp64 reruns'
-    merged.info["stages"] = stages  # the runs' stages, stepping as the wall of runs stepped at once
+    merged = merge_results([(cols, r) for (_, cols), r in zip(jobs, done_runs)], n, [gi for gi, _ in jobs])
+    merged.wall_time = state["stages"].get("stepping", 0.0)  # every run's: the groups', twins' and fp64 reruns'
+    merged.info["stages"] = state["stages"]  # the runs' stages, stepping as the wall of runs stepped at once
     return (merged, errors) if twins else merged
 
 

@@ -42,7 +42,6 @@ import warp as wp
 from ... import types
 from ...scene.contact import contact_arrays
 from ...scene.coupling import mass_entries
-from ...runtime import to_host
 from ..common import STATUS_CONSTRAINT, STATUS_NONFINITE, STATUS_OK, array_type, bar_row, force_columns, \
     make_band_funcs, member_vec, newton_stop, node_force, projection_status, set_failure
 
@@ -738,8 +737,8 @@ class ContactStep:
         its closest points inside both bars), the impacts, the step of the first contact (-1: none),
         the in-thread RATTLE substeps taken (the contact steps' cost); and the contact distance
         2 r [m], the restitution and the contact system's half-bandwidth."""
-        return {"min_distance": to_host(self.cs.contact_min).astype(np.float64),
-                "impacts": to_host(self.cs.contact_impacts).astype(np.int64),
-                "first_step": to_host(self.cs.contact_first).astype(np.int64),
-                "substeps": to_host(self.cs.contact_substeps).astype(np.int64),
+        return {"min_distance": self.cs.contact_min.numpy().astype(np.float64),
+                "impacts": self.cs.contact_impacts.numpy().astype(np.int64),
+                "first_step": self.cs.contact_first.numpy().astype(np.int64),
+                "substeps": self.cs.contact_substeps.numpy().astype(np.int64),
                 "gap": self.gap, "restitution": self.restitution, "bandwidth": self.bandwidth}

@@ -34,7 +34,6 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from ...runtime import to_host
 from ..common import STATUS_OK, output_slot
 
 wp.set_module_options({"enable_backward": False})
@@ -270,13 +269,13 @@ class StrikerStep:
         -> (B, n_out)), its mass [kg], the time it first separated [s] (NaN: it never did), the start of
         its last free flight [s] (NaN: touching at the end), the contacts after the first separation, and
         the largest |c| [m] left by the position stage."""
-        sep = to_host(self.sep_step).astype(np.int64)
-        contacts = to_host(self.contacts).astype(np.int64)
-        last = np.where(contacts % 2 == 1, to_host(self.last_sep).astype(np.int64), -1)  # odd: apart at the end
-        return {"velocity": to_host(self.v_rec).astype(np.float64).T,
-                "force": to_host(self.f_rec).astype(np.float64).T,
+        sep = self.sep_step.numpy().astype(np.int64)
+        contacts = self.contacts.numpy().astype(np.int64)
+        last = np.where(contacts % 2 == 1, self.last_sep.numpy().astype(np.int64), -1)  # odd: apart at the end
+        return {"velocity": self.v_rec.numpy().astype(np.float64).T,
+                "force": self.f_rec.numpy().astype(np.float64).T,
                 "mass": self.mass_host.copy(),
                 "separation_time": np.where(sep >= 0, sep * float(dt), np.nan),
                 "last_separation_time": np.where(last >= 0, last * float(dt), np.nan),
                 "recontacts": contacts // 2,
-                "contact_residual": to_host(self.residual).astype(np.float64)}
+                "contact_residual": self.residual.numpy().astype(np.float64)}
