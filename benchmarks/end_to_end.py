@@ -26,7 +26,11 @@ build, measures, the store, the export -- runs at the run's real size; stepping 
 ``--trace`` (CUDA): every chunk a run launches (``Integrator.advance``) and every run's initialisation
 is bracketed by timing events on its stream, and the host's seconds around it are kept: the record
 gets ``trace``, per run its chunks' device intervals and host launch seconds, and the union of the
-device's busy intervals (how far the runs of a shard overlap, and where the device waits on the host).
+device's busy intervals (how far the runs of a shard overlap, and where the device waits on the host),
+also as intervals on the process clock (``busy_intervals_s``); and ``timeline``: every timed host call
+(the stage wrappers, each Integrator's build and kernel load, ``run_groups``, ``compute_shard``) as
+(what, start s since process creation, seconds, thread). A run's record ``runs`` are keyed by the
+Integrator's ``id``, which Python may reuse once a run has ended: two runs can merge into one entry.
 
 Writes a JSON list of records (one per run) with keys ``spec``, ``device_name``, ``git_commit``,
 ``wall_s``, ``stages_s``, ``estimate_s``, ``peak_rss_bytes`` and some context.
