@@ -29,7 +29,7 @@ gets ``trace``, per run its chunks' device intervals and host launch seconds, an
 device's busy intervals (how far the runs of a shard overlap, and where the device waits on the host),
 also as intervals on the process clock (``busy_intervals_s``); and ``timeline``: every timed host call
 (the stage wrappers, each Integrator's build and kernel load, ``run_groups``, ``compute_shard``) as
-(what, start s since process creation, seconds, thread). A run's record ``runs`` are keyed by the
+(what, start s since process creation, seconds, thread), off a GPU too. A run's record ``runs`` are keyed by the
 Integrator's ``id``, which Python may reuse once a run has ended: two runs can merge into one entry.
 
 Writes a JSON list of records (one per run) with keys ``spec``, ``device_name``, ``git_commit``,
