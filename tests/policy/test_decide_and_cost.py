@@ -39,6 +39,9 @@ def test_probe_is_cached_and_feeds_the_dry_run(cache, tmp_path, monkeypatch):
     assert len(plan.groups) == 2 and len(files) == 2  # a probe per group: ci_small's rigid bases run apart
     cal = est["probe"]
     assert cal["describe"]["device"].startswith("cpu (") and cal["step_path"] == "fused"
+    # the store's fixed costs measured, not assumed (calibrate._store_costs)
+    assert all(cal[k] > 0 for k in ("store_setup", "store_write_fixed", "export_fixed", "export_dask_fixed",
+                                    "summary_fixed", "store_first_use", "export_first_use"))
     assert cal["probe_columns"] == 4 and cal["column_step_seconds"] > 0 and cal["import"] > 0
     assert set(est["stages_s"]) == {"import", "build", "compile", "stepping", "measurement", "transfer", "write",
                                     "finalise"}
@@ -76,7 +79,9 @@ def _cal(is_cuda):
             "is_cuda": is_cuda, "probe_columns": 4 if not is_cuda else 512, "step_seconds": 1e-3,
             "column_step_seconds": 2.5e-4 if not is_cuda else 1e-3 / 512, "measure_seconds": 0.04,
             "measure_samples": 1001, "transfer_per_byte": 1e-9, "io_write_fixed": 0.05, "io_write_per_byte": 1e-9,
-            "io_read_fixed": 0.01, "io_read_per_byte": 1e-9, "device_bytes_fixed": 1000,
+            "io_read_fixed": 0.01, "io_read_per_byte": 1e-9, "store_setup": 0.3, "store_write_fixed": 0.1,
+            "export_fixed": 0.2, "export_dask_fixed": 0.25, "summary_fixed": 0.05, "store_first_use": 0.5,
+            "export_first_use": 0.01, "export_dask_first_use": 0.3, "device_bytes_fixed": 1000,
             "device_bytes_per_column": 5000, "strain_bytes_per_sample": 400, "base_rss": 3e8, "device_label": "x"}
 
 
@@ -105,6 +110,21 @@ def test_cost_model_scaling():
     with_strain = predict(_cal(True), _run(True), [1024], True)
     assert with_strain["output_bytes"] - big["output_bytes"] == 8 * 1024 * 1001 * 50
     assert with_strain["host_bytes_per_column"] > big["host_bytes_per_column"]
+    # the store's fixed costs as the probe measured them: its layout and first imports once, a write per
+    # shard; the export whole for one shard, through dask (and its first import) for more
+    one = predict(_cal(False), _run(False), [4], False)["stages_s"]
+    assert cpu["write"] - one["write"] == pytest.approx(0.1 + 3.0 * 1e-9 * (cpu_out := one_shard_bytes(4)), rel=1e-6)
+    assert one["write"] == pytest.approx(0.5 + 0.3 + 0.1 + 3.0 * 1e-9 * cpu_out, rel=1e-6)
+    assert one["finalise"] == pytest.approx(0.01 + 0.05 + 0.2 + 6.0 * 1e-9 * cpu_out, rel=1e-6)
+    resumed = predict(_cal(False), _run(False), [4], False, n_shards=2)["stages_s"]  # the last of two shards
+    assert resumed["finalise"] - one["finalise"] == pytest.approx(0.25 + 0.3 - 0.2)
+
+
+def one_shard_bytes(b):
+    """Output bytes of a shard of ``b`` columns of :func:`_run` (no strain), as the cost model counts them."""
+    from warp_tensegrity.policy.cost import output_bytes_per_column
+
+    return b * output_bytes_per_column(1001, 50, False, True, "fp64")
 
 
 TINY = """[scene]

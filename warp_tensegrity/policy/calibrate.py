@@ -26,6 +26,8 @@ import json
 import logging
 import os
 import platform
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -49,7 +51,7 @@ PROBE_WARM_STEPS = 60
 PROBE_SAMPLES = 4000
 """Outputs of the synthetic record whose measurement the probe times (at most)."""
 CPU_PROBE_COLUMNS = 4
-CACHE_VERSION = 6
+CACHE_VERSION = 7
 BUILD_PROBE_COLUMNS = 256
 """Columns of the probe's build-cost measurement (replicas of its first column): 8 measured a
 batch's fixed costs, not its per-column one (1.7 ms a column from 8, 0.05 ms from 768 on the
@@ -214,6 +216,92 @@ def _io_rates(tmp: Path, compress_energy: bool = False) -> dict:
             "read_fixed": r0, "read_per_byte": max(r1 - r0, 0.0) / (b1 - b0)}
 
 
+STORE_PROBE_VARIABLES = 48
+"""Variables of the probe's store and export datasets: a sweep's output holds 40-50 (io.shard_dataset),
+and the store's and the export's fixed costs go by variable (Zarr arrays, netCDF variables)."""
+
+
+@functools.cache
+def _store_costs() -> dict:
+    """:func:`_measure_store_costs` once a process (they are the host's, whatever the run): 2-4 s."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return _measure_store_costs(Path(tmp))
+
+
+def _measure_store_costs(tmp: Path) -> dict:
+    """Seconds a sweep's store, export and closing summary pay whatever their size, on this host, the
+    fastest of two, on a dataset of :data:`STORE_PROBE_VARIABLES` small variables: ``store_setup``, a
+    Zarr store laid out from a lazy template, as the sweep's is (``to_zarr(compute=False)``);
+    ``store_write_fixed``, a region of every variable written in two halves and its chunk files
+    fsync'd; ``export_fixed``, the store read back whole and written as netCDF (a sweep of one shard);
+    ``export_dask_fixed``, the same through dask (the block-by-block export of more shards);
+    ``summary_fixed``, the file opened again (the run's closing summary); and the imports a run pays
+    first in these stages (:func:`_first_use_seconds`). They are mostly Python work (xarray, Zarr
+    metadata), not disk: priced as small-file writes they came to a fifth of what they took on the
+    2-core host (ci_small's write 0.22 s against 1.0-1.2 s, its export 4 ms against 0.35-0.48 s)."""
+    import dask
+    import dask.array as da
+    import xarray as xr
+
+    from .. import io as D  # imports xarray: not at package import
+
+    n, T = 8, 51
+    names = [f"v{i}" for i in range(STORE_PROBE_VARIABLES)]
+    coords = {"case": np.arange(n), "time": np.linspace(0.0, 1.0, T)}
+    full = xr.Dataset({k: (("case", "time"), np.full((n, T), float(i))) for i, k in enumerate(names)}, coords=coords)
+    lazy = xr.Dataset({k: (("case", "time"), da.zeros((n, T), chunks=(n, T))) for k in names}, coords=coords)
+    enc = {k: {"chunks": (n // 2, T)} for k in names}
+    best = dict.fromkeys(("store_setup", "store_write_fixed", "export_fixed", "export_dask_fixed", "summary_fixed"),
+                         np.inf)
+    for r in range(2):
+        store = tmp / f"store{r}.zarr"
+        t0 = time.perf_counter()
+        lazy.to_zarr(store, mode="w", compute=False, encoding=enc, consolidated=False)
+        t1 = time.perf_counter()
+        for half in (slice(0, n // 2), slice(n // 2, n)):
+            body = full.isel(case=half).drop_vars(["case", "time"])
+            for part in (names[: len(names) // 2], names[len(names) // 2:]):
+                body[part].to_zarr(store, region={"case": half}, mode="r+", consolidated=False)
+        for f in store.rglob("*"):
+            if f.is_file():
+                with open(f, "rb") as fh:
+                    os.fsync(fh.fileno())
+        t2 = time.perf_counter()
+        with xr.open_zarr(store, consolidated=False, chunks={}) as ds:
+            D.write_netcdf(ds.load(), tmp / f"whole{r}.nc")
+        t3 = time.perf_counter()
+        with xr.open_zarr(store, consolidated=False, chunks={}) as ds, dask.config.set(scheduler="synchronous"):
+            D.write_netcdf(ds, tmp / f"blocks{r}.nc")
+        t4 = time.perf_counter()
+        with D.open_sweep(tmp / f"whole{r}.nc", load=False) as ds:  # the summary reads per-case flags
+            ds["v0"].values  # noqa: B018 - read
+        t5 = time.perf_counter()
+        for k, v in (("store_setup", t1 - t0), ("store_write_fixed", (t2 - t1) / 2), ("export_fixed", t3 - t2),
+                     ("export_dask_fixed", t4 - t3), ("summary_fixed", t5 - t4)):
+            best[k] = min(best[k], v)
+    return best | _first_use_seconds()
+
+
+@functools.cache
+def _first_use_seconds() -> dict:
+    """Seconds a fresh interpreter takes, after xarray, for the imports a run pays on first use:
+    ``store_first_use`` dask.array and Zarr, at its store's layout (xarray imports dask.array at its
+    first Variable; dask.array imports scipy.fftpack and cupy where they are installed);
+    ``export_first_use`` netCDF4, at its export; ``export_dask_first_use`` dask.distributed, which
+    xarray imports to look for a client when it writes dask arrays (an export of more than one shard).
+    This process may hold them already, so a child measures them; 0 where it cannot."""
+    code = ("import time, xarray; t0 = time.perf_counter(); import dask.array, zarr; t1 = time.perf_counter(); "
+            "import netCDF4; t2 = time.perf_counter()\ntry:\n import dask.distributed\nexcept ImportError:\n pass\n"
+            "print(t1 - t0, t2 - t1, time.perf_counter() - t2)")
+    keys = ("store_first_use", "export_first_use", "export_dask_first_use")
+    try:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+        vals = [max(float(x), 0.0) for x in out.stdout.split()] if out.returncode == 0 else []
+    except (OSError, ValueError, subprocess.SubprocessError):
+        vals = []
+    return dict(zip(keys, vals)) if len(vals) == 3 else dict.fromkeys(keys, 0.0)
+
+
 def probe(config, params: dict, run: RunPlan, shard_size: int, use_cache: bool = True) -> dict:
     """Run (or read from the cache) the calibration probe of ``run`` for T3 columns of ``config``
     with the per-column ``params`` (filled, shape (N,); :func:`~.decide.decide`'s), on shards of
@@ -350,6 +438,7 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
             t_copy = (time.perf_counter() - t0) / big.size / 8
     with tempfile.TemporaryDirectory() as tmp:
         io = _io_rates(Path(tmp), bool(run.settings.compress_energy))
+    store = _store_costs()
     share = others_busy(busy)
     return {
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "is_cuda": bool(device.is_cuda),
@@ -361,7 +450,7 @@ def _measure(config, params: dict, run: RunPlan, shard_size: int) -> dict:
         "measure_seconds": tm["measurement"], "measure_samples": int(T_full),
         "transfer_per_byte": t_copy, "device_bytes_per_column": per_col / B, "device_bytes_fixed": fixed,
         "strain_bytes_per_sample": (4 if s.precision == "fp32" else 8) * n_sim,
-        **{f"io_{k}": v for k, v in io.items()},
+        **{f"io_{k}": v for k, v in io.items()}, **store,
         # this process's start-up (interpreter, imports, Warp) and the probe's kernel loads: what a run pays once
         "import": startup_seconds(), "compile": WARM_LOAD_SECONDS if compiled else t_init,
         "probe_compile": t_init if compiled else 0.0, "compiled_modules": len(compiled),
@@ -396,7 +485,7 @@ def estimate_plan(plan, recalibrate: bool = False, shards: list[int] | None = No
     rec = (bool(spec.run["record_strain"]), bool(spec.run["record_energy"]))
     out = predict(cal, plan.run, [b - a for a, b in todo], *rec, shard_states=states,
                   planned=(plan.n_columns, reference_state_count(plan.params)),
-                  energy_precision=spec.run["energy_precision"])
+                  energy_precision=spec.run["energy_precision"], n_shards=plan.n_shards)
     twins = bool(spec.run.get("error_estimate"))
     if len(plan.groups) > 1 or twins:
         # each group steps its share of every shard at its own dt, priced by its own probe, and its twin
