@@ -113,9 +113,10 @@ def test_cost_model_scaling():
     # the store's fixed costs as the probe measured them: its layout and first imports once, a write per
     # shard; the export whole for one shard, through dask (and its first import) for more
     one = predict(_cal(False), _run(False), [4], False)["stages_s"]
-    assert cpu["write"] - one["write"] == pytest.approx(0.1 + 3.0 * 1e-9 * (cpu_out := one_shard_bytes(4)), rel=1e-6)
-    assert one["write"] == pytest.approx(0.5 + 0.3 + 0.1 + 3.0 * 1e-9 * cpu_out, rel=1e-6)
-    assert one["finalise"] == pytest.approx(0.01 + 0.05 + 0.2 + 6.0 * 1e-9 * cpu_out, rel=1e-6)
+    shard_bytes = one_shard_bytes(4)
+    assert cpu["write"] - one["write"] == pytest.approx(0.1 + 3.0 * 1e-9 * shard_bytes, rel=1e-6)
+    assert one["write"] == pytest.approx(0.5 + 0.3 + 0.1 + 3.0 * 1e-9 * shard_bytes, rel=1e-6)
+    assert one["finalise"] == pytest.approx(0.01 + 0.05 + 0.2 + 6.0 * 1e-9 * shard_bytes, rel=1e-6)
     resumed = predict(_cal(False), _run(False), [4], False, n_shards=2)["stages_s"]  # the last of two shards
     assert resumed["finalise"] - one["finalise"] == pytest.approx(0.25 + 0.3 - 0.2)
 

@@ -59,6 +59,9 @@ batch's fixed costs, not its per-column one (1.7 ms a column from 8, 0.05 ms fro
 IO_PROBE_CASES = 1600
 """Cases of the probe's larger netCDF file (2,500 float32 outputs each: 16 MB; a 4 MB one was within
 the noise of one fsync on a shared disk)."""
+STORE_PROBE_VARIABLES = 48
+"""Variables of the probe's store and export datasets: a sweep's output holds 40-50 (io.shard_dataset),
+and the store's and the export's fixed costs go by variable (Zarr arrays, netCDF variables)."""
 WARM_LOAD_SECONDS = 0.05
 """Kernel loads of a run whose kernels the probe compiled into the cache (measured 0.02-0.04 s on
 the 2-core CPU and the H200, benchmarks/results/end_to_end_*.json)."""
@@ -216,11 +219,6 @@ def _io_rates(tmp: Path, compress_energy: bool = False) -> dict:
             "read_fixed": r0, "read_per_byte": max(r1 - r0, 0.0) / (b1 - b0)}
 
 
-STORE_PROBE_VARIABLES = 48
-"""Variables of the probe's store and export datasets: a sweep's output holds 40-50 (io.shard_dataset),
-and the store's and the export's fixed costs go by variable (Zarr arrays, netCDF variables)."""
-
-
 @functools.cache
 def _store_costs() -> dict:
     """:func:`_measure_store_costs` once a process (they are the host's, whatever the run): 2-4 s."""
@@ -241,6 +239,7 @@ def _measure_store_costs(tmp: Path) -> dict:
     2-core host (ci_small's write 0.22 s against 1.0-1.2 s, its export 4 ms against 0.35-0.48 s)."""
     import dask
     import dask.array as da
+    import dask.local
     import xarray as xr
 
     from .. import io as D  # imports xarray: not at package import
@@ -270,7 +269,7 @@ def _measure_store_costs(tmp: Path) -> dict:
         with xr.open_zarr(store, consolidated=False, chunks={}) as ds:
             D.write_netcdf(ds.load(), tmp / f"whole{r}.nc")
         t3 = time.perf_counter()
-        with xr.open_zarr(store, consolidated=False, chunks={}) as ds, dask.config.set(scheduler="synchronous"):
+        with xr.open_zarr(store, consolidated=False, chunks={}) as ds, dask.config.set(scheduler=dask.local.get_sync):
             D.write_netcdf(ds, tmp / f"blocks{r}.nc")
         t4 = time.perf_counter()
         with D.open_sweep(tmp / f"whole{r}.nc", load=False) as ds:  # the summary reads per-case flags
@@ -290,9 +289,19 @@ def _first_use_seconds() -> dict:
     ``export_first_use`` netCDF4, at its export; ``export_dask_first_use`` dask.distributed, which
     xarray imports to look for a client when it writes dask arrays (an export of more than one shard).
     This process may hold them already, so a child measures them; 0 where it cannot."""
-    code = ("import time, xarray; t0 = time.perf_counter(); import dask.array, zarr; t1 = time.perf_counter(); "
-            "import netCDF4; t2 = time.perf_counter()\ntry:\n import dask.distributed\nexcept ImportError:\n pass\n"
-            "print(t1 - t0, t2 - t1, time.perf_counter() - t2)")
+    code = """
+import time, xarray
+t0 = time.perf_counter()
+import dask.array, zarr
+t1 = time.perf_counter()
+import netCDF4
+t2 = time.perf_counter()
+try:
+    import dask.distributed
+except ImportError:
+    pass
+print(t1 - t0, t2 - t1, time.perf_counter() - t2)
+"""
     keys = ("store_first_use", "export_first_use", "export_dask_first_use")
     try:
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
